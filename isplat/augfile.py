@@ -1,0 +1,149 @@
+"""The augmented-volume container (formats/augmented.md), version 1.
+
+Three datasets of one shape ``(n_k, n_j, n_i)``, C order, i fastest (the paper's ``ind = i + j * n_i``):
+
+* ``density``             uint8  -- the windowed density (§2.1, one byte)
+* ``gradient_magnitude``  uint8  -- |grad| quantised, ``code * gradient_magnitude_scale``
+* ``normal``              uint16 -- octahedral 16-bit code of the gradient direction (:mod:`isplat.normals`)
+
+Together they are the paper's 4-byte augmented voxel, stored as three channels so that a scene reads
+only the channels it uses (no normals when shading is off, no magnitudes when the transfer function
+ignores them).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .errors import IsplatError
+from .fileio import check_input
+
+FORMAT_NAME = "isplat-augmented"
+FORMAT_VERSION = 1
+CHANNELS = {"density": np.uint8, "gradient_magnitude": np.uint8, "normal": np.uint16}
+CHANNEL_DTYPES = {"density": "|u1", "gradient_magnitude": "|u1", "normal": "<u2"}
+
+
+def density_sha256(density: np.ndarray) -> str:
+    """Identity of a density channel: SHA-256 of its shape (3 little-endian int64) then its bytes in C order."""
+    h = hashlib.sha256(np.asarray(density.shape, dtype="<i8").tobytes())
+    d = np.ascontiguousarray(density, dtype=np.uint8)
+    # hash slab by slab so that a memory map is never copied whole
+    step = max(1, (1 << 26) // max(1, d[0].size))
+    for k0 in range(0, d.shape[0], step):
+        h.update(np.ascontiguousarray(d[k0:k0 + step]).tobytes())
+    return h.hexdigest()
+
+
+@dataclass
+class AugmentedVolume:
+    """An open augmented file: metadata read eagerly, channels read on demand (and counted)."""
+
+    path: Path
+    shape: tuple[int, int, int]                  # (n_k, n_j, n_i)
+    spacing_ijk: tuple[float, float, float]
+    density_window: tuple[float, float]
+    gradient_magnitude_scale: float
+    density_sha256: str
+    attrs: dict = field(default_factory=dict)
+    bytes_read: int = 0
+
+    @property
+    def n_voxels(self) -> int:
+        return int(np.prod(self.shape))
+
+    def read(self, channel: str, k0: int = 0, k1: int | None = None) -> np.ndarray:
+        """Read one channel (optionally the k-slab ``k0:k1``) into memory; adds to :attr:`bytes_read`."""
+        if channel not in CHANNELS:
+            raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
+        try:
+            with h5py.File(self.path, "r") as f:
+                ds = f[channel]
+                k1 = ds.shape[0] if k1 is None else k1
+                arr = ds[k0:k1]
+        except (OSError, KeyError) as exc:
+            raise IsplatError(f"{self.path}: cannot read dataset {channel!r} ({exc})") from None
+        arr = np.ascontiguousarray(arr, dtype=CHANNELS[channel])
+        self.bytes_read += arr.nbytes
+        return arr
+
+
+def open_augmented(path) -> AugmentedVolume:
+    """Open and validate an augmented file; raise :class:`IsplatError` naming any problem."""
+    p = check_input(path, "augmented volume")
+    try:
+        f = h5py.File(p, "r")
+    except OSError as exc:
+        raise IsplatError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__}: truncated or not HDF5)") from None
+    with f:
+        a = f.attrs
+        fmt = a.get("format")
+        if isinstance(fmt, bytes):
+            fmt = fmt.decode()
+        if fmt != FORMAT_NAME:
+            raise IsplatError(f"{p}: attribute 'format' is {fmt!r}, expected {FORMAT_NAME!r}")
+        ver = a.get("format_version")
+        if ver is None or int(ver) != FORMAT_VERSION:
+            raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}, this isplat reads version {FORMAT_VERSION}")
+        try:
+            shape = tuple(int(x) for x in a["shape"])
+            spacing = tuple(float(x) for x in a["spacing_ijk"])
+            window = tuple(float(x) for x in a["density_window"])
+            gscale = float(a["gradient_magnitude_scale"])
+            sha = a["density_sha256"]
+        except KeyError as exc:
+            raise IsplatError(f"{p}: missing attribute {exc.args[0]!r}") from None
+        if isinstance(sha, bytes):
+            sha = sha.decode()
+        if len(shape) != 3 or min(shape) < 1:
+            raise IsplatError(f"{p}: attribute 'shape' is {shape}, expected three positive sizes")
+        if len(spacing) != 3 or not all(np.isfinite(spacing)) or min(spacing) <= 0:
+            raise IsplatError(f"{p}: attribute 'spacing_ijk' is {spacing}, expected three positive numbers")
+        if not np.isfinite(gscale) or gscale < 0:
+            raise IsplatError(f"{p}: attribute 'gradient_magnitude_scale' is {gscale}, expected a finite number >= 0")
+        for name, dt in CHANNEL_DTYPES.items():
+            if name not in f:
+                raise IsplatError(f"{p}: dataset {name!r} is missing")
+            ds = f[name]
+            if tuple(ds.shape) != shape:
+                raise IsplatError(f"{p}: dataset {name!r} has shape {ds.shape}, attribute 'shape' says {shape}")
+            if ds.dtype != np.dtype(dt):
+                raise IsplatError(f"{p}: dataset {name!r} has dtype {ds.dtype}, expected {np.dtype(dt)}")
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in a.items()}
+    return AugmentedVolume(p, shape, spacing, window, gscale, str(sha), attrs)
+
+
+def write_augmented(path, density, gradient_magnitude, normal, spacing_ijk, density_window,
+                    gradient_magnitude_scale, extra_attrs: dict | None = None) -> None:
+    """Write a complete augmented file at ``path`` (the caller makes it atomic)."""
+    shape = tuple(int(x) for x in density.shape)
+    with h5py.File(path, "w") as f:
+        create_augmented(f, shape, spacing_ijk, density_window, gradient_magnitude_scale,
+                         density_sha256(density), extra_attrs)
+        f["density"][...] = density
+        f["gradient_magnitude"][...] = gradient_magnitude
+        f["normal"][...] = normal
+
+
+def create_augmented(f: h5py.File, shape, spacing_ijk, density_window, gradient_magnitude_scale,
+                     sha: str, extra_attrs: dict | None = None) -> None:
+    """Create the attributes and empty channel datasets of an augmented file in open file ``f``."""
+    from . import __version__
+
+    f.attrs["format"] = FORMAT_NAME
+    f.attrs["format_version"] = np.int64(FORMAT_VERSION)
+    f.attrs["shape"] = np.asarray(shape, dtype="<i8")
+    f.attrs["spacing_ijk"] = np.asarray(spacing_ijk, dtype="<f8")
+    f.attrs["density_window"] = np.asarray(density_window, dtype="<f8")
+    f.attrs["gradient_magnitude_scale"] = np.float64(gradient_magnitude_scale)
+    f.attrs["density_sha256"] = sha
+    f.attrs["created_by"] = f"isplat {__version__}"
+    for k, v in (extra_attrs or {}).items():
+        f.attrs[k] = v
+    for name, dt in CHANNEL_DTYPES.items():
+        f.create_dataset(name, shape=shape, dtype=dt)

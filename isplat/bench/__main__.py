@@ -1,0 +1,36 @@
+"""python -m isplat.bench NAME|all [--out docs] [--quick]"""
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from pathlib import Path
+
+import isplat.bench as pkg
+
+
+def names():
+    return sorted(m.name for m in pkgutil.iter_modules(pkg.__path__) if not m.name.startswith("_"))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m isplat.bench", description=__doc__)
+    ap.add_argument("name", help="benchmark name or 'all': " + ", ".join(names()))
+    ap.add_argument("--out", default="docs", type=Path, help="folder for the Markdown results")
+    ap.add_argument("--quick", action="store_true", help="smaller sizes, fewer repeats (for a smoke test)")
+    a = ap.parse_args(argv)
+    todo = names() if a.name == "all" else [a.name]
+    for n in todo:
+        if n not in names():
+            print(f"isplat.bench: error: unknown benchmark {n!r}; expected one of {names()}", file=sys.stderr)
+            return 2
+    a.out.mkdir(parents=True, exist_ok=True)
+    for n in todo:
+        print(f"[bench] {n}", file=sys.stderr)
+        path = importlib.import_module(f"isplat.bench.{n}").run(a.out, a.quick)
+        print(f"[bench] wrote {path}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

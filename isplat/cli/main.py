@@ -1,0 +1,86 @@
+"""The ``isplat`` click group. Subcommands live one per module and are imported lazily,
+so ``isplat --help`` and a render start without importing every stage."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from .. import __version__
+from ..errors import IsplatError
+
+# name -> (module, attribute, one-line help)
+SUBCOMMANDS = {
+    "sample": ("isplat.cli.sample", "sample", "Write a deterministic synthetic volume (head, engine, ...)."),
+    "augment": ("isplat.cli.augment", "augment", "Turn a scan into 4-byte augmented voxels (HDF5)."),
+    "index": ("isplat.cli.index", "index", "Build the three-axis density index (HDF5)."),
+    "render": ("isplat.cli.render", "render", "Render images from a TOML scene."),
+    "stats": ("isplat.cli.stats", "stats", "Report spatial ratio, memory and bytes a scene loads."),
+}
+
+
+class LazyGroup(click.Group):
+    def list_commands(self, ctx):
+        return [n for n in SUBCOMMANDS if _available(n)]
+
+    def get_command(self, ctx, name):
+        if name not in SUBCOMMANDS or not _available(name):
+            return None
+        mod, attr, _ = SUBCOMMANDS[name]
+        return getattr(importlib.import_module(mod), attr)
+
+    def format_commands(self, ctx, formatter):
+        rows = [(n, SUBCOMMANDS[n][2]) for n in self.list_commands(ctx)]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+def _available(name: str) -> bool:
+    return importlib.util.find_spec(SUBCOMMANDS[name][0]) is not None
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="isplat")
+def cli():
+    """Fast, exact direct volume rendering by indexed splatting.
+
+    Preprocess once, render many times:
+
+    \b
+      isplat sample head -o head.npy
+      isplat augment head.npy -o head.aug.h5
+      isplat index head.aug.h5 -o head.idx.h5
+      isplat render scene.toml -o head.png
+      isplat stats head.aug.h5 head.idx.h5 --scene scene.toml --json
+    """
+
+
+def main(argv=None):
+    """Entry point: IsplatError becomes one line on stderr and exit status 2, never a traceback."""
+    try:
+        cli.main(args=argv, prog_name="isplat", standalone_mode=False)
+    except IsplatError as exc:
+        click.echo(f"isplat: error: {exc}", err=True)
+        sys.exit(exc.exit_code)
+    except click.exceptions.Abort:
+        click.echo("isplat: aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except BrokenPipeError:
+        sys.exit(1)
+    except KeyboardInterrupt:
+        click.echo("isplat: interrupted", err=True)
+        sys.exit(130)
+    except MemoryError:
+        click.echo("isplat: error: out of memory", err=True)
+        sys.exit(1)
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    main()

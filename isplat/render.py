@@ -1,0 +1,256 @@
+"""Render a scene: load only what it needs, then splat each view (paper §2.2, §3).
+
+>>> r = Renderer(load_scene("head.toml"))          # doctest: +SKIP
+>>> rgba = r.render_view(r.scene.views[0])           # float (H, W, 4), straight alpha over the background
+
+What a scene needs, and nothing more, is read: the index axes its views use, only the blocks in the transfer
+function's non-zero-opacity intervals, the ``normal`` channel only when shading is on, the
+``gradient_magnitude`` channel only when the transfer function modulates opacity by it, and the ``density``
+channel only for the ``full`` method (the index already carries densities).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import camera as cam_mod
+from .augfile import open_augmented
+from .errors import IsplatError
+from .splat.footprint import make_footprint
+from .transfer import alpha_table, build_luts
+
+_EMPTY_U8 = np.zeros(1, dtype=np.uint8)
+_EMPTY_U16 = np.zeros(1, dtype=np.uint16)
+
+
+@dataclass
+class FrameStats:
+    axis: str
+    sign: int
+    voxels_examined: int
+    voxels_splatted: int
+    slices: int
+    seconds: float
+
+
+@dataclass
+class LoadReport:
+    augmented_bytes: int = 0
+    index_bytes: int = 0
+    channels: list = field(default_factory=list)
+    axes: list = field(default_factory=list)
+    intervals: list = field(default_factory=list)
+
+
+def shade_table(shading, frame, geom, dtype=np.float32) -> np.ndarray:
+    """Per normal code: (diffuse r, g, b, specular r, g, b) for this view's lights (Phong, infinite viewer).
+
+    Lights are given in camera space; normals are in the volume's i, j, k axes, so the lights are turned
+    into volume axes once per frame and the 65,536 codes are shaded in one vectorised pass.
+    """
+    from .normals import decode_lut
+
+    n = decode_lut().astype(np.float64)
+    R = np.stack([frame.u, frame.v, frame.w])          # camera -> world: x*u + y*v + z*w
+    view = geom.unit_axes @ frame.w                    # towards the viewer, volume axes
+    diff = np.full((n.shape[0], 3), shading.ambient, dtype=np.float64)
+    spec = np.zeros((n.shape[0], 3), dtype=np.float64)
+    for light in shading.lights:
+        lw = np.asarray(light.direction, float) @ R
+        lv = geom.unit_axes @ (lw / np.linalg.norm(lw))
+        h = lv + view
+        h /= max(np.linalg.norm(h), 1e-12)
+        ndl = n @ lv
+        ndh = n @ h
+        if shading.two_sided:
+            ndl, ndh = np.abs(ndl), np.abs(ndh)
+        else:
+            ndh = np.where(ndl > 0, ndh, 0.0)
+            ndl = np.maximum(ndl, 0.0)
+            ndh = np.maximum(ndh, 0.0)
+        lc = light.intensity * np.asarray(light.color, float)
+        diff += shading.diffuse * ndl[:, None] * lc
+        spec += shading.specular * (ndh ** shading.shininess)[:, None] * lc
+    return np.concatenate([diff, spec], axis=1).astype(dtype)
+
+
+def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:
+    """Cutting planes as rows (g0, ga, gb, gc) in slice coordinates: keep ``g0 + a ga + b gb + c gc >= 0``."""
+    ia, ib, ic = cam_mod.SLICE_AXES[axis]
+    S = geom.steps
+    rows = []
+    for cut in cuts:
+        n = np.asarray(cut.normal, float)
+        rows.append([(geom.q - np.asarray(cut.point, float)) @ n, S[ia] @ n, S[ib] @ n, S[ic] @ n])
+    return np.asarray(rows, dtype=dtype).reshape(-1, 4)
+
+
+class Renderer:
+    """Holds what a scene needs in memory and renders its views."""
+
+    def __init__(self, scene, views=None, method: str | None = None):
+        self.scene = scene
+        self.views = tuple(scene.views if views is None else views)
+        self.method = method or scene.render.method
+        self.threads = scene.render.threads or default_threads()
+        self.report = LoadReport()
+        self.aug = open_augmented(scene.data.augmented)
+        ro = scene.render
+        self.dtype = np.float64 if ro.precision == "float64" else np.float32
+        sp = scene.volume.spacing or self.aug.spacing_ijk
+        self.geom = cam_mod.volume_geometry(self.aug.shape, sp, scene.volume.origin, scene.volume.axes)
+        self.luts = build_luts(scene.transfer, self.aug.gradient_magnitude_scale)
+        self.unit = scene.transfer.unit_distance or float(self.geom.spacing.min())
+        self.report.intervals = self.luts.intervals.tolist()
+        W, H = scene.image.width, scene.image.height
+        self.frames = [cam_mod.view_frame(c, self.geom, W, H) for c in self.views]
+        self.axes_needed = sorted({cam_mod.principal_axis(f, self.geom)[0] for f in self.frames})
+        self.report.axes = list(self.axes_needed)
+        self._load()
+
+    # ---- loading: only what the scene uses -------------------------------------------------------------
+    def _load(self):
+        scene, aug = self.scene, self.aug
+        empty = len(self.luts.intervals) == 0
+        self.use_shade = bool(scene.shading.enabled) and not empty
+        self.use_gm = self.luts.gradient is not None and not empty
+        self.nrm = aug.read("normal").ravel() if self.use_shade else _EMPTY_U16
+        self.gm = aug.read("gradient_magnitude").ravel() if self.use_gm else _EMPTY_U8
+        if self.use_shade:
+            self.report.channels.append("normal")
+        if self.use_gm:
+            self.report.channels.append("gradient_magnitude")
+        self.loaded = {}
+        if self.method == "full":
+            self.dens = aug.read("density").ravel() if not empty else _EMPTY_U8
+            if not empty:
+                self.report.channels.append("density")
+        elif self.method == "indexed":
+            self.dens = _EMPTY_U8
+            if scene.data.index is None:
+                raise IsplatError("scene: data.index is required for render.method = 'indexed'")
+            from .index import open_index
+
+            idx = open_index(scene.data.index)
+            if tuple(idx.shape) != tuple(aug.shape) or idx.density_sha256 != aug.density_sha256:
+                raise IsplatError(f"{scene.data.index}: index was built from another volume "
+                                  f"(density_sha256 {idx.density_sha256[:12]}..., {aug.path.name} has "
+                                  f"{aug.density_sha256[:12]}...); rebuild it with isplat index")
+            if not empty:
+                for ax in self.axes_needed:
+                    self.loaded[ax] = idx.load_axis(ax, [tuple(map(int, iv)) for iv in self.luts.intervals])
+            self.report.index_bytes = int(idx.bytes_read)
+        else:
+            raise IsplatError(f"render.method = {self.method!r}: expected 'indexed' or 'full'")
+        self.report.augmented_bytes = int(aug.bytes_read)
+
+    # ---- one view ---------------------------------------------------------------------------------------
+    def render_view(self, view_index: int = 0, et: float | None = None):
+        """Render view ``view_index``; returns (rgba float array (H, W, 4), FrameStats)."""
+        from .splat.kernels import TILE, render_axis
+
+        t0 = time.perf_counter()
+        scene, geom, ro = self.scene, self.geom, self.scene.render
+        frame = self.frames[view_index]
+        axis, sign = cam_mod.principal_axis(frame, geom)
+        H, W = frame.height, frame.width
+        img = np.zeros((H, W, 4), dtype=self.dtype)
+        stats = np.zeros(3, dtype=np.int64)
+        if len(self.luts.intervals):
+            ia, ib, ic = cam_mod.SLICE_AXES[axis]
+            n_kji = geom.shape
+            n_ijk = (n_kji[2], n_kji[1], n_kji[0])
+            flat_stride = (1, n_ijk[0], n_ijk[0] * n_ijk[1])        # strides of i, j, k in [k, j, i]
+            strides = np.array([flat_stride[ia], flat_stride[ib], flat_stride[ic]], dtype=np.int64)
+            n_a, n_b = n_ijk[ia], n_ijk[ib]
+            order = cam_mod.slice_order(frame, geom, axis, sign)
+            proj = cam_mod.projection(frame, geom, axis)
+            fp = make_footprint(proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, self.dtype)
+            persp = frame.projection == "perspective"
+            if persp:
+                atab = alpha_table(self.luts, None)
+                unit_c = geom.unit_axes[ic]
+                normal_off = float((geom.q - frame.e) @ unit_c)
+                slice_step = float(geom.spacing[ic])
+                inv_unit = slice_step / self.unit
+                qe = geom.q - frame.e
+            else:
+                atab = alpha_table(self.luts, proj.ds / self.unit)
+                normal_off, slice_step, inv_unit, qe = 0.0, 1.0, 1.0, np.zeros(3)
+            shade = shade_table(scene.shading, frame, geom) if self.use_shade else np.zeros((1, 6), np.float32)
+            cuts = cut_coefficients(scene.cuts, geom, axis)
+            ntx, nty = -(-W // TILE), -(-H // TILE)
+            tile_npix = np.empty((nty, ntx), dtype=np.int32)
+            for ty in range(nty):
+                for tx in range(ntx):
+                    tile_npix[ty, tx] = (min(H, ty * TILE + TILE) - ty * TILE) * (min(W, tx * TILE + TILE) - tx * TILE)
+            sheet = np.zeros((H, W, 4), dtype=self.dtype)
+            et_val = ro.early_termination if et is None else et
+            if self.method == "indexed":
+                la = self.loaded[axis]
+                args = (la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions)
+            else:
+                args = (np.zeros(1, np.int64), _EMPTY_U8, np.zeros(1, np.int64), np.zeros(1, np.int32))
+            common = (order, self.method == "full", *args, self.luts.intervals.astype(np.int64),
+                      self.dens, self.gm, self.use_gm, self.nrm, self.use_shade, strides, n_a, n_b,
+                      atab, self.luts.color, shade, persp, inv_unit, normal_off, slice_step,
+                      proj.coef, proj.steps, qe, cuts, fp.table, fp.params,
+                      img, sheet, np.zeros((nty, ntx), np.int32), tile_npix, np.zeros((nty, ntx), np.uint8))
+            bands = _bands(nty, self.threads)
+            per_band = [np.zeros(3, dtype=np.int64) for _ in bands]
+
+            def run(bi):
+                y0, y1 = bands[bi]
+                render_axis(*common, np.zeros(nty * ntx, np.int64), self.dtype(et_val), per_band[bi],
+                            y0 * TILE, min(H, y1 * TILE))
+
+            if len(bands) == 1:
+                run(0)
+            else:
+                list(_pool(self.threads).map(run, range(len(bands))))
+            # voxels are examined once per band; report them once
+            stats[0] = per_band[0][0]
+            stats[1] = sum(int(b[1]) for b in per_band)
+            stats[2] = max(int(b[2]) for b in per_band)
+        out = composite_background(img, scene.image.background)
+        return out, FrameStats(axis, sign, int(stats[0]), int(stats[1]), int(stats[2]), time.perf_counter() - t0)
+
+
+def composite_background(img: np.ndarray, background) -> np.ndarray:
+    """Premultiplied RGBA over the background colour -> straight RGBA (float)."""
+    bg = np.asarray(background, dtype=np.float64)
+    a = img[..., 3:4].astype(np.float64)
+    rgb = img[..., :3] + (1.0 - a) * bg[:3] * bg[3]
+    alpha = a + (1.0 - a) * bg[3]
+    straight = np.where(alpha > 0, rgb / np.maximum(alpha, 1e-30), 0.0)
+    out = np.concatenate([straight, alpha], axis=-1)
+    if not np.all(np.isfinite(out)):          # never let NaN/Inf reach an image
+        raise IsplatError("render produced non-finite pixels; please report this scene")
+    return np.clip(out, 0.0, 1.0)
+
+
+def default_threads() -> int:
+    """Cores this process may use."""
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+_POOLS: dict = {}
+
+
+def _pool(n: int):
+    from concurrent.futures import ThreadPoolExecutor
+
+    if n not in _POOLS:
+        _POOLS[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="isplat")
+    return _POOLS[n]
+
+
+def _bands(n_tile_rows: int, threads: int):
+    """Split the tile rows into bands, two per thread so that uneven content still balances."""
+    nb = 1 if threads <= 1 else min(n_tile_rows, 2 * threads)
+    edges = np.linspace(0, n_tile_rows, nb + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]

@@ -1,0 +1,1 @@
+"""Splatting: footprint tables (footprint.py) and the compiled kernels (kernels.py)."""

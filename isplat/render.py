@@ -199,7 +199,7 @@ class Renderer:
                       self.dens, self.gm, self.use_gm, self.nrm, self.use_shade, strides, n_a, n_b,
                       atab, self.luts.color, shade, persp, inv_unit, normal_off, slice_step,
                       proj.coef, proj.steps, qe, cuts, fp.table, fp.params,
-                      img, sheet, np.zeros((nty, ntx), np.int32), tile_npix, np.zeros((nty, ntx), np.uint8))
+                      img, sheet, np.zeros((H, W), np.uint8), np.zeros((nty, ntx), np.int32), tile_npix, np.zeros((nty, ntx), np.uint8))
             bands = _bands(nty, self.threads)
             per_band = [np.zeros(3, dtype=np.int64) for _ in bands]
 
@@ -250,7 +250,8 @@ def _pool(n: int):
 
 
 def _bands(n_tile_rows: int, threads: int):
-    """Split the tile rows into bands, two per thread so that uneven content still balances."""
-    nb = 1 if threads <= 1 else min(n_tile_rows, 2 * threads)
+    """Split the tile rows into one band per thread (each band traverses every slice, so more bands
+    would repeat the traversal; the splatting is what the bands share out)."""
+    nb = 1 if threads <= 1 else min(n_tile_rows, threads)
     edges = np.linspace(0, n_tile_rows, nb + 1).round().astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]

@@ -1,0 +1,88 @@
+"""Writing rendered images: PNG (8/16-bit), float TIFF, PNG on stdout, numbered batches, GIF/MP4."""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .errors import IsplatError
+from .fileio import atomic_output, check_output
+
+STILL = {".png", ".tif", ".tiff"}
+MOVIE = {".gif", ".mp4"}
+
+
+def to_pixels(rgba: np.ndarray, fmt: str, bit_depth: int = 8) -> np.ndarray:
+    """Straight RGBA float in [0,1] -> the array written for ``fmt`` (alpha dropped when opaque)."""
+    arr = rgba if np.any(rgba[..., 3] < 1.0) else rgba[..., :3]
+    if fmt in (".tif", ".tiff"):
+        return np.ascontiguousarray(arr, dtype=np.float32)
+    if fmt == ".png" and bit_depth == 16:
+        return np.round(np.clip(arr, 0, 1) * 65535.0).astype(np.uint16)
+    return np.round(np.clip(arr, 0, 1) * 255.0).astype(np.uint8)
+
+
+def frame_paths(out: str, n: int) -> list[Path]:
+    """Names for ``n`` frames: ``{n}``/``%03d`` patterns are filled in, else ``name_000.ext``."""
+    if n == 1:
+        return [Path(out)]
+    if "{n" in out:
+        return [Path(out.format(n=i)) for i in range(n)]
+    if re.search(r"%0?\d*d", out):
+        return [Path(out % i) for i in range(n)]
+    p = Path(out)
+    width = max(3, len(str(n - 1)))
+    return [p.with_name(f"{p.stem}_{i:0{width}d}{p.suffix}") for i in range(n)]
+
+
+def check_format(out: str, batch: bool) -> str:
+    """Validate the output name up front; returns its extension."""
+    if out == "-":
+        if batch:
+            raise IsplatError("-o -: standard output takes one image; pick a view with --view N or name a file")
+        return ".png"
+    ext = Path(out).suffix.lower()
+    if ext not in STILL | MOVIE:
+        raise IsplatError(f"{out}: unknown image type {ext or '(none)'!r}; expected .png, .tif, .tiff, .gif or .mp4")
+    if ext == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError:
+            raise IsplatError(f"{out}: writing .mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg); "
+                              "or write .gif or numbered .png frames") from None
+    return ext
+
+
+def write_still(out: str, rgba: np.ndarray, bit_depth: int, force: bool) -> None:
+    """Write one image atomically, or PNG bytes to stdout for ``-o -``."""
+    import imageio.v3 as iio
+
+    if out == "-":
+        data = iio.imwrite("<bytes>", to_pixels(rgba, ".png", bit_depth), extension=".png")
+        sys.stdout.buffer.write(data)
+        sys.stdout.buffer.flush()
+        return
+    ext = Path(out).suffix.lower()
+    with atomic_output(out, force) as tmp:
+        iio.imwrite(tmp, to_pixels(rgba, ext, bit_depth), extension=ext)
+
+
+def write_movie(out: str, frames: list[np.ndarray], force: bool, fps: float = 12.0) -> None:
+    """Write an animated GIF (or MP4) of straight-RGBA frames atomically."""
+    import imageio.v3 as iio
+
+    ext = Path(out).suffix.lower()
+    px = [to_pixels(f, ".png", 8)[..., :3] for f in frames]
+    with atomic_output(out, force) as tmp:
+        if ext == ".gif":
+            iio.imwrite(tmp, np.stack(px), extension=".gif", duration=1000.0 / fps, loop=0)
+        else:
+            iio.imwrite(tmp, np.stack(px), extension=".mp4", fps=fps)
+
+
+def check_outputs(paths, force: bool) -> None:
+    for p in paths:
+        check_output(p, force)

@@ -1,0 +1,93 @@
+"""Write the example files of formats/augmented.md into formats/examples/augmented/.
+
+    .venv/bin/python formats/examples/make_augmented_examples.py [OUT_DIR]
+
+valid.aug.h5 is a 4 x 3 x 2 (n_i x n_j x n_k) ramp augmented by isplat; valid.expected.json lists every
+value a reader must decode from it. The invalid files MUST be refused by readers.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from isplat import normals
+from isplat.augfile import write_augmented
+from isplat.augment import augment_array
+
+HERE = Path(__file__).resolve().parent / "augmented"
+SHAPE_IJK = (4, 3, 2)
+SPACING_IJK = (1.0, 2.0, 0.5)
+WINDOW = (0.0, 100.0)
+
+
+def example_volume() -> np.ndarray:
+    """x[k, j, i] = 30 i j + 40 k [j == 2], float32: varied gradients, and a flat corner (NO_NORMAL at i=j=0)."""
+    ni, nj, nk = SHAPE_IJK
+    k, j, i = np.meshgrid(np.arange(nk), np.arange(nj), np.arange(ni), indexing="ij")
+    return (30.0 * i * j + 40.0 * k * (j == 2)).astype(np.float32)
+
+
+def build(out_dir: Path) -> list[Path]:
+    """Write the valid and invalid examples and the expected values into ``out_dir``; return the paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    aug = augment_array(example_volume(), SPACING_IJK, WINDOW)
+    extra = {"source": "formats/examples/make_augmented_examples.py", "source_format": "npy",
+             "source_dtype": "float32", "density_window_method": "given"}
+    args = (aug["density"], aug["gradient_magnitude"], aug["normal"], aug["spacing_ijk"],
+            aug["density_window"], aug["gradient_magnitude_scale"])
+    valid = out_dir / "valid.aug.h5"
+    write_augmented(valid, *args, extra_attrs=extra)
+    # the tool version would make the file change with every release; pin it for the committed example
+    with h5py.File(valid, "a") as f:
+        f.attrs["created_by"] = "isplat 0.1.0"
+
+    wrong_version = out_dir / "invalid-wrong-version.aug.h5"
+    write_augmented(wrong_version, *args, extra_attrs=extra)
+    with h5py.File(wrong_version, "a") as f:
+        f.attrs["format_version"] = np.int64(2)
+        f.attrs["created_by"] = "isplat 0.1.0"
+
+    wrong_name = out_dir / "invalid-wrong-format.aug.h5"
+    write_augmented(wrong_name, *args, extra_attrs=extra)
+    with h5py.File(wrong_name, "a") as f:
+        f.attrs["format"] = "isplat-index"
+        f.attrs["created_by"] = "isplat 0.1.0"
+
+    missing = out_dir / "invalid-missing-normal.aug.h5"
+    write_augmented(missing, *args, extra_attrs=extra)
+    with h5py.File(missing, "a") as f:
+        del f["normal"]
+        f.attrs["created_by"] = "isplat 0.1.0"
+
+    nrm = aug["normal"]
+    expected = {
+        "file": "valid.aug.h5",
+        "shape": [int(x) for x in aug["density"].shape],
+        "spacing_ijk": list(aug["spacing_ijk"]),
+        "density_window": list(aug["density_window"]),
+        "gradient_magnitude_scale": aug["gradient_magnitude_scale"],
+        "density_sha256": aug["density_sha256"],
+        "density": aug["density"].tolist(),
+        "gradient_magnitude": aug["gradient_magnitude"].tolist(),
+        "normal": nrm.tolist(),
+        "normal_decoded": np.round(normals.decode(nrm).astype(np.float64), 6).tolist(),
+        "refused": {
+            "invalid-wrong-version.aug.h5": "format_version",
+            "invalid-wrong-format.aug.h5": "format",
+            "invalid-missing-normal.aug.h5": "normal",
+        },
+    }
+    exp = out_dir / "valid.expected.json"
+    exp.write_text(json.dumps(expected, indent=1) + "\n")
+    return [valid, wrong_version, wrong_name, missing, exp]
+
+
+if __name__ == "__main__":
+    for p in build(Path(sys.argv[1]) if len(sys.argv) > 1 else HERE):
+        print(p)

@@ -1,0 +1,311 @@
+"""Augment a scalar volume into the paper's 4-byte voxels (§2.1, §4): density, gradient magnitude, normal.
+
+* density ``d = clip(rint((x - LO) * (255 / (HI - LO))), 0, 255)`` (float64 arithmetic, ties to even), with the
+  window ``LO, HI`` given or robust (0.1 and 99.9 percentiles of a strided subsample, see :func:`robust_window`).
+* gradient: central differences in physical units (one-sided at the borders, ``numpy.gradient`` with
+  ``edge_order=1``) of the *windowed* density before rounding, ``t = clip((x - LO) * 255 / (HI - LO), 0, 255)`` in
+  float32. Classification and shading live in density space, and out-of-window values (metal, air outside a
+  CT's field of view) would otherwise dominate the magnitude scale and leave 8 bits for nothing else.
+* gradient magnitude code ``rint(min(|g| / gmax, 1) * 255)``, ``gmax`` the largest ``|g|`` in the volume (first
+  pass), attribute ``gradient_magnitude_scale = gmax / 255`` (0 for a flat volume).
+* normal: the gradient direction (towards increasing density) as an oct16 code (:mod:`isplat.normals`);
+  a zero gradient gives ``NO_NORMAL``.
+
+The volume is processed in slabs of k-slices with a one-slice halo, so memory stays bounded whatever its size.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+
+import h5py
+import numba
+import numpy as np
+
+from . import progress
+from .augfile import create_augmented
+from .errors import IsplatError
+from .fileio import atomic_output, check_output
+from .normals import NO_NORMAL, _encode_one
+from .volume_io import Volume, read_volume
+
+SLAB_VOXELS = 1 << 22      # voxels per slab (about 4 M: ~100 MB of temporaries)
+SUBSAMPLE_PER_AXIS = 64    # robust window: at most 64 samples per axis
+WINDOW_PERCENTILES = (0.1, 99.9)
+
+
+# --- kernels ---------------------------------------------------------------------------------------------------
+
+@numba.njit(cache=True, parallel=True)
+def _window_kernel(x, lo, scale, t_out, d_out):
+    """Windowed density of a float64 slab: ``t_out`` float32 clipped to 0..255, ``d_out`` its rint as uint8.
+
+    Returns the flat index of the first non-finite value, or -1.
+    """
+    nk, nj, ni = x.shape
+    bad = np.full(nk, -1, dtype=np.int64)
+    for k in numba.prange(nk):
+        for j in range(nj):
+            for i in range(ni):
+                v = x[k, j, i]
+                if not np.isfinite(v):
+                    if bad[k] < 0:
+                        bad[k] = (k * nj + j) * ni + i
+                    v = lo
+                t = (v - lo) * scale
+                t = min(max(t, 0.0), 255.0)
+                t_out[k, j, i] = np.float32(t)
+                d_out[k, j, i] = np.uint8(np.rint(t))
+    for k in range(nk):
+        if bad[k] >= 0:
+            return bad[k]
+    return -1
+
+
+@numba.njit(cache=True, parallel=True)
+def _gradient_kernel(f, r0, nrows, kg0, nk, si, sj, sk, g):
+    """Gradient of rows ``r0 : r0 + nrows`` of slab ``f`` (float32, with halo rows) into ``g[3, nrows, nj, ni]``.
+
+    ``kg0`` is the global k of row ``r0``; ``numpy.gradient`` semantics, edge_order=1 (one-sided at the
+    volume's borders, zero along an axis of length 1). Components in i, j, k order, per physical unit.
+    """
+    _, nj, ni = f.shape
+    ci, cj, ck = np.float32(2.0 * si), np.float32(2.0 * sj), np.float32(2.0 * sk)
+    oi, oj, ok = np.float32(si), np.float32(sj), np.float32(sk)
+    for rr in numba.prange(nrows):
+        r = r0 + rr
+        kg = kg0 + rr
+        for j in range(nj):
+            for i in range(ni):
+                if ni == 1:
+                    gi = np.float32(0.0)
+                elif i == 0:
+                    gi = (f[r, j, 1] - f[r, j, 0]) / oi
+                elif i == ni - 1:
+                    gi = (f[r, j, i] - f[r, j, i - 1]) / oi
+                else:
+                    gi = (f[r, j, i + 1] - f[r, j, i - 1]) / ci
+                if nj == 1:
+                    gj = np.float32(0.0)
+                elif j == 0:
+                    gj = (f[r, 1, i] - f[r, 0, i]) / oj
+                elif j == nj - 1:
+                    gj = (f[r, j, i] - f[r, j - 1, i]) / oj
+                else:
+                    gj = (f[r, j + 1, i] - f[r, j - 1, i]) / cj
+                if nk == 1:
+                    gk = np.float32(0.0)
+                elif kg == 0:
+                    gk = (f[r + 1, j, i] - f[r, j, i]) / ok
+                elif kg == nk - 1:
+                    gk = (f[r, j, i] - f[r - 1, j, i]) / ok
+                else:
+                    gk = (f[r + 1, j, i] - f[r - 1, j, i]) / ck
+                g[0, rr, j, i] = gi
+                g[1, rr, j, i] = gj
+                g[2, rr, j, i] = gk
+
+
+@numba.njit(cache=True, parallel=True)
+def _magnitude_max(g):
+    n = g.shape[1]
+    m = np.zeros(n, dtype=np.float64)
+    for r in numba.prange(n):
+        best = 0.0
+        for j in range(g.shape[2]):
+            for i in range(g.shape[3]):
+                a = np.float64(g[0, r, j, i])
+                b = np.float64(g[1, r, j, i])
+                c = np.float64(g[2, r, j, i])
+                s = math.sqrt(a * a + b * b + c * c)
+                if s > best:
+                    best = s
+        m[r] = best
+    return m.max() if n else 0.0
+
+
+@numba.njit(cache=True, parallel=True)
+def _encode_kernel(g, gmax, mag_out, nrm_out):
+    """Magnitude codes ``rint(min(|g|/gmax, 1) * 255)`` and oct16 normal codes of gradients ``g[3, ...]``."""
+    n = g.shape[1]
+    for r in numba.prange(n):
+        for j in range(g.shape[2]):
+            for i in range(g.shape[3]):
+                a = np.float64(g[0, r, j, i])
+                b = np.float64(g[1, r, j, i])
+                c = np.float64(g[2, r, j, i])
+                s = math.sqrt(a * a + b * b + c * c)
+                if gmax > 0.0 and s > 0.0:
+                    mag_out[r, j, i] = np.uint8(np.rint(min(s / gmax, 1.0) * 255.0))
+                    nrm_out[r, j, i] = _encode_one(a, b, c)
+                else:
+                    mag_out[r, j, i] = 0
+                    nrm_out[r, j, i] = NO_NORMAL
+
+
+# --- window ----------------------------------------------------------------------------------------------------
+
+def _slab_float64(arr, k0, k1):
+    """Slab ``arr[k0:k1]`` as a native float64 array (copies one slab only)."""
+    return np.asarray(arr[k0:k1], dtype=np.float64)
+
+
+def _slab_step(arr) -> int:
+    return max(1, SLAB_VOXELS // max(1, arr.shape[1] * arr.shape[2]))
+
+
+def _raise_nonfinite(name, arr, k0, flat):
+    """Raise the error for the non-finite value at flat index ``flat`` of the slab starting at ``k0``."""
+    nj, ni = arr.shape[1], arr.shape[2]
+    kk, rem = divmod(int(flat), nj * ni)
+    j, i = divmod(rem, ni)
+    v = arr[k0 + kk, j, i]
+    raise IsplatError(f"{name}: value {v} at voxel (i={i}, j={j}, k={k0 + kk}); expected finite numbers "
+                      "(no NaN or Inf)")
+
+
+def robust_window(arr, name="input") -> tuple[float, float]:
+    """Default window: the 0.1 and 99.9 percentiles (numpy 'linear') of ``arr[::sk, ::sj, ::si]``.
+
+    ``s = ceil(n / 64)`` per axis (at most 64^3 samples, deterministic). If they are equal, the subsample's
+    min and max; if still equal, the whole volume's min and max; a constant volume has no window.
+    """
+    steps = [max(1, -(-n // SUBSAMPLE_PER_AXIS)) for n in arr.shape]
+    sub = np.asarray(arr[::steps[0], ::steps[1], ::steps[2]], dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(sub))
+    if bad.size:
+        kk, jj, ii = np.unravel_index(bad[0], sub.shape)
+        raise IsplatError(f"{name}: value {sub[kk, jj, ii]} at voxel (i={ii * steps[2]}, j={jj * steps[1]}, "
+                          f"k={kk * steps[0]}); expected finite numbers (no NaN or Inf)")
+    lo, hi = (float(x) for x in np.percentile(sub, WINDOW_PERCENTILES))
+    if lo == hi:
+        lo, hi = float(sub.min()), float(sub.max())
+    if lo == hi:
+        lo, hi = math.inf, -math.inf
+        step = _slab_step(arr)
+        for k0 in range(0, arr.shape[0], step):
+            s = _slab_float64(arr, k0, k0 + step)
+            if not np.all(np.isfinite(s)):
+                _raise_nonfinite(name, arr, k0, np.flatnonzero(~np.isfinite(s))[0])
+            lo, hi = min(lo, float(s.min())), max(hi, float(s.max()))
+    if lo == hi:
+        raise IsplatError(f"{name}: constant volume (every voxel is {lo:g}); no density window can be derived; "
+                          "give one with --window LO,HI")
+    return lo, hi
+
+
+def check_window(window, name="input") -> tuple[float, float]:
+    try:
+        lo, hi = (float(x) for x in window)
+    except (TypeError, ValueError):
+        raise IsplatError(f"{name}: --window {window!r} invalid; expected LO,HI") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+        raise IsplatError(f"{name}: --window {lo:g},{hi:g} invalid; expected finite LO < HI")
+    return lo, hi
+
+
+# --- the two passes --------------------------------------------------------------------------------------------
+
+class _Slabber:
+    """Window and gradient of k-slabs of ``arr`` with a one-slice halo."""
+
+    def __init__(self, arr, spacing_ijk, window, name):
+        self.arr, self.name = arr, name
+        self.nk, self.nj, self.ni = arr.shape
+        self.si, self.sj, self.sk = (float(s) for s in spacing_ijk)
+        self.lo, self.hi = window
+        self.scale = 255.0 / (self.hi - self.lo)
+        self.step = _slab_step(arr)
+        self.ranges = [(k0, min(self.nk, k0 + self.step)) for k0 in range(0, self.nk, self.step)]
+
+    def slab(self, k0, k1):
+        """Return ``(density[k0:k1] uint8, gradient float32[3, k1-k0, nj, ni])``."""
+        e0, e1 = max(0, k0 - 1), min(self.nk, k1 + 1)
+        x = _slab_float64(self.arr, e0, e1)
+        t = np.empty(x.shape, dtype=np.float32)
+        d = np.empty(x.shape, dtype=np.uint8)
+        bad = _window_kernel(x, self.lo, self.scale, t, d)
+        if bad >= 0:
+            _raise_nonfinite(self.name, self.arr, e0, bad)
+        g = np.empty((3, k1 - k0, self.nj, self.ni), dtype=np.float32)
+        _gradient_kernel(t, k0 - e0, k1 - k0, k0, self.nk, self.si, self.sj, self.sk, g)
+        return d[k0 - e0:k1 - e0], g
+
+
+def _first_pass(sl: _Slabber, bar):
+    """Max gradient magnitude and the density hash (augfile.density_sha256 semantics, slab by slab)."""
+    h = hashlib.sha256(np.asarray(sl.arr.shape, dtype="<i8").tobytes())
+    gmax = 0.0
+    for k0, k1 in sl.ranges:
+        d, g = sl.slab(k0, k1)
+        h.update(np.ascontiguousarray(d).tobytes())
+        gmax = max(gmax, float(_magnitude_max(g)))
+        bar.update(1)
+    return gmax, h.hexdigest()
+
+
+def _second_pass(sl: _Slabber, gmax, bar):
+    """Yield ``(k0, k1, density, magnitude_code, normal_code)`` per slab."""
+    for k0, k1 in sl.ranges:
+        d, g = sl.slab(k0, k1)
+        mag = np.empty(g.shape[1:], dtype=np.uint8)
+        nrm = np.empty(g.shape[1:], dtype=np.uint16)
+        _encode_kernel(g, gmax, mag, nrm)
+        bar.update(1)
+        yield k0, k1, d, mag, nrm
+
+
+def _prepare(vol: Volume, window, name):
+    arr = vol.array
+    if arr.ndim != 3:
+        raise IsplatError(f"{name}: data has shape {arr.shape}; expected a 3-D volume [k, j, i]")
+    if arr.dtype.kind not in "uif":
+        raise IsplatError(f"{name}: data type {arr.dtype} is not supported; expected integers or floats")
+    win = check_window(window, name) if window is not None else robust_window(arr, name)
+    return _Slabber(arr, vol.spacing_ijk, win, name)
+
+
+def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None) -> dict:
+    """Augment an in-memory volume ``[k, j, i]``; return the three channels and the attributes as a dict."""
+    arr = np.asarray(array)
+    sl = _prepare(Volume(arr, tuple(float(s) for s in spacing_ijk), {}), window, "array")
+    with progress.bar(total=2 * len(sl.ranges), desc="augment", unit="slab") as bar:
+        gmax, sha = _first_pass(sl, bar)
+        out = {"density": np.empty(arr.shape, np.uint8), "gradient_magnitude": np.empty(arr.shape, np.uint8),
+               "normal": np.empty(arr.shape, np.uint16)}
+        for k0, k1, d, mag, nrm in _second_pass(sl, gmax, bar):
+            out["density"][k0:k1] = d
+            out["gradient_magnitude"][k0:k1] = mag
+            out["normal"][k0:k1] = nrm
+    out.update(spacing_ijk=(sl.si, sl.sj, sl.sk), density_window=(sl.lo, sl.hi),
+               gradient_magnitude_scale=gmax / 255.0, density_sha256=sha)
+    return out
+
+
+def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, dtype=None,
+                 byte_order="little", header_bytes=0) -> dict:
+    """Augment the volume at ``inp`` (see :func:`isplat.volume_io.read_volume`) into ``out`` atomically.
+
+    Returns a summary dict (shape, window, gradient scale, sha256).
+    """
+    check_output(out, force)  # fail before any work
+    vol = read_volume(inp, shape=shape, dtype=dtype, byte_order=byte_order, header_bytes=header_bytes,
+                      spacing=spacing)
+    name = str(inp)
+    sl = _prepare(vol, window, name)
+    extra = {"source": name, "source_format": vol.meta.get("format", "unknown"),
+             "source_dtype": str(vol.meta.get("source_dtype", vol.array.dtype.name)),
+             "density_window_method": "given" if window is not None else "robust 0.1/99.9 percentiles"}
+    with progress.bar(total=2 * len(sl.ranges), desc="augment", unit="slab") as bar:
+        gmax, sha = _first_pass(sl, bar)
+        with atomic_output(out, force) as tmp:
+            with h5py.File(tmp, "w") as f:
+                create_augmented(f, vol.array.shape, (sl.si, sl.sj, sl.sk), (sl.lo, sl.hi), gmax / 255.0,
+                                 sha, extra)
+                for k0, k1, d, mag, nrm in _second_pass(sl, gmax, bar):
+                    f["density"][k0:k1] = d
+                    f["gradient_magnitude"][k0:k1] = mag
+                    f["normal"][k0:k1] = nrm
+    return {"shape_ijk": tuple(reversed(vol.array.shape)), "spacing_ijk": (sl.si, sl.sj, sl.sk),
+            "density_window": (sl.lo, sl.hi), "gradient_magnitude_scale": gmax / 255.0, "density_sha256": sha}

@@ -1,0 +1,349 @@
+"""Read a scalar volume from .npy, raw binary (file or stdin), NRRD, NIfTI, TIFF or a DICOM series.
+
+Every reader returns ``Volume(array[k, j, i], spacing_ijk, meta)``. Memory-mappable inputs (.npy, raw
+files) are mapped, never copied, so a volume larger than memory can be augmented slab by slab.
+The format libraries are optional extras; a missing one gives one error line naming the extra.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import IsplatError
+
+RAW_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
+BYTE_ORDERS = {"little": "<", "big": ">"}
+# numeric dtypes accepted from self-describing formats (bool and complex are not densities)
+_ACCEPTED_KINDS = "uif"
+
+
+@dataclass
+class Volume:
+    """A scalar volume indexed ``[k, j, i]`` (i fastest) with its voxel spacing in i, j, k order."""
+
+    array: np.ndarray
+    spacing_ijk: tuple[float, float, float]
+    meta: dict = field(default_factory=dict)
+
+
+def _need(module: str, package: str, extra: str, what: str, path):
+    try:
+        return __import__(module)
+    except ImportError:
+        raise IsplatError(f"{path}: reading {what} needs {package}: pip install 'isplat[{extra}]'") from None
+
+
+def _check_spacing(path, spacing, source):
+    try:
+        s = tuple(float(x) for x in spacing)
+    except (TypeError, ValueError):
+        raise IsplatError(f"{path}: spacing {spacing!r} from {source} is not numeric") from None
+    if len(s) != 3 or not all(np.isfinite(s)) or min(s) <= 0:
+        raise IsplatError(f"{path}: spacing {s} from {source} invalid; expected three positive numbers"
+                          " (override with --spacing SX,SY,SZ)")
+    return s
+
+
+def _check_array(path, arr, source):
+    if arr.ndim != 3:
+        raise IsplatError(f"{path}: {source} data has {arr.ndim} dimension(s) {arr.shape}; expected a 3-D volume")
+    if arr.dtype.kind not in _ACCEPTED_KINDS:
+        raise IsplatError(f"{path}: {source} data type {arr.dtype} is not supported; "
+                          f"expected one of {', '.join(RAW_DTYPES)}")
+    if min(arr.shape) < 1:
+        raise IsplatError(f"{path}: {source} data has an empty axis {arr.shape}")
+    return arr
+
+
+def parse_triple(text: str, what: str, cast=float):
+    """Parse ``'A,B,C'`` into a 3-tuple, or raise a one-line error naming ``what``."""
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        vals = tuple(cast(p) for p in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 3:
+        raise IsplatError(f"{what} {text!r} invalid; expected three comma-separated numbers")
+    return vals
+
+
+def read_volume(path, shape=None, dtype=None, byte_order="little", header_bytes=0, spacing=None) -> Volume:
+    """Read the volume at ``path`` (``'-'`` = raw data on stdin).
+
+    Raw input needs ``shape=(n_i, n_j, n_k)`` and ``dtype``; a ``.raw``/``.bin`` file or ``-`` is raw, and
+    so is any file when ``shape`` is given. ``spacing`` (i, j, k) overrides the file's spacing.
+    """
+    raw = shape is not None or dtype is not None or header_bytes
+    name = str(path)
+    p = Path(name)
+    if name == "-":
+        vol = _read_raw_stdin(shape, dtype, byte_order, header_bytes)
+    else:
+        if not p.exists():
+            raise IsplatError(f"{p}: input does not exist")
+        if not os.access(p, os.R_OK):
+            raise IsplatError(f"{p}: input is not readable")
+        low = p.name.lower()
+        if p.is_dir():
+            if raw:
+                raise IsplatError(f"{p}: raw options (--shape/--dtype/--header-bytes) need a file, got a folder")
+            vol = _read_folder(p)
+        elif raw or low.endswith((".raw", ".bin", ".dat")):
+            vol = _read_raw_file(p, shape, dtype, byte_order, header_bytes)
+        elif low.endswith(".npy"):
+            vol = _read_npy(p)
+        elif low.endswith((".nrrd", ".nhdr")):
+            vol = _read_nrrd(p)
+        elif low.endswith((".nii", ".nii.gz")):
+            vol = _read_nifti(p)
+        elif low.endswith((".tif", ".tiff")):
+            vol = _read_tiff(p)
+        elif low.endswith(".dcm"):
+            vol = _read_dicom([p], p)
+        else:
+            raise IsplatError(f"{p}: unknown input format; expected .npy, .nrrd, .nhdr, .nii, .nii.gz, .tif, "
+                              ".tiff, a TIFF or DICOM folder, or raw data with --shape and --dtype")
+    _check_array(name, vol.array, vol.meta.get("format", "input"))
+    if spacing is not None:
+        vol.spacing_ijk = _check_spacing(name, spacing, "--spacing")
+        vol.meta["spacing_source"] = "--spacing"
+    else:
+        vol.spacing_ijk = _check_spacing(name, vol.spacing_ijk, vol.meta.get("spacing_source", "the file"))
+    return vol
+
+
+# --- raw -------------------------------------------------------------------------------------------------------
+
+def _raw_dtype(path, shape, dtype, byte_order, header_bytes):
+    if shape is None or dtype is None:
+        raise IsplatError(f"{path}: raw input needs --shape NI,NJ,NK and --dtype")
+    if dtype not in RAW_DTYPES:
+        raise IsplatError(f"{path}: dtype {dtype!r} unknown; expected one of {', '.join(RAW_DTYPES)}")
+    if byte_order not in BYTE_ORDERS:
+        raise IsplatError(f"{path}: byte order {byte_order!r} unknown; expected little or big")
+    shape = tuple(int(x) for x in shape)
+    if len(shape) != 3 or min(shape) < 1:
+        raise IsplatError(f"{path}: --shape {shape} invalid; expected three positive sizes NI,NJ,NK")
+    if int(header_bytes) < 0:
+        raise IsplatError(f"{path}: --header-bytes {header_bytes} invalid; expected >= 0")
+    dt = np.dtype(dtype).newbyteorder(BYTE_ORDERS[byte_order])
+    ni, nj, nk = shape
+    return dt, (nk, nj, ni), ni * nj * nk * dt.itemsize
+
+
+def _raw_meta(dt, shape, header_bytes, byte_order):
+    return {"format": "raw", "source_dtype": dt.name, "byte_order": byte_order, "header_bytes": int(header_bytes),
+            "spacing_source": "default 1,1,1"}
+
+
+def _read_raw_file(p, shape, dtype, byte_order, header_bytes):
+    dt, kji, nbytes = _raw_dtype(p, shape, dtype, byte_order, header_bytes)
+    size = p.stat().st_size
+    if size != header_bytes + nbytes:
+        raise IsplatError(f"{p}: file has {size} bytes; --shape {','.join(map(str, shape))} --dtype {dtype} "
+                          f"with --header-bytes {header_bytes} needs {header_bytes + nbytes} bytes")
+    arr = np.memmap(p, dtype=dt, mode="r", offset=int(header_bytes), shape=kji)
+    return Volume(arr, (1.0, 1.0, 1.0), _raw_meta(dt, shape, header_bytes, byte_order))
+
+
+def _read_raw_stdin(shape, dtype, byte_order, header_bytes):
+    dt, kji, nbytes = _raw_dtype("-", shape, dtype, byte_order, header_bytes)
+    stream = getattr(sys.stdin, "buffer", sys.stdin)
+    data = stream.read()
+    if isinstance(data, str):
+        data = data.encode("latin-1")
+    if len(data) != header_bytes + nbytes:
+        raise IsplatError(f"-: stdin had {len(data)} bytes; --shape {','.join(map(str, shape))} --dtype {dtype} "
+                          f"with --header-bytes {header_bytes} needs {header_bytes + nbytes} bytes")
+    arr = np.frombuffer(data, dtype=dt, offset=int(header_bytes)).reshape(kji)
+    meta = _raw_meta(dt, shape, header_bytes, byte_order)
+    meta["format"] = "raw (stdin)"
+    return Volume(arr, (1.0, 1.0, 1.0), meta)
+
+
+# --- npy -------------------------------------------------------------------------------------------------------
+
+def _read_npy(p):
+    try:
+        arr = np.load(p, mmap_mode="r", allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise IsplatError(f"{p}: not a readable .npy file ({_short(exc)}; truncated?)") from None
+    if not isinstance(arr, np.ndarray):
+        raise IsplatError(f"{p}: .npy holds no array")
+    return Volume(arr, (1.0, 1.0, 1.0), {"format": "npy", "source_dtype": arr.dtype.name,
+                                         "spacing_source": "default 1,1,1 (.npy has no spacing)"})
+
+
+def _short(exc):
+    msg = str(exc).strip().splitlines()
+    return f"{exc.__class__.__name__}: {msg[0] if msg else ''}".rstrip(": ")
+
+
+# --- NRRD ------------------------------------------------------------------------------------------------------
+
+def _read_nrrd(p):
+    nrrd = _need("nrrd", "pynrrd", "nrrd", ".nrrd", p)
+    try:
+        data, header = nrrd.read(str(p), index_order="C")
+    except Exception as exc:  # pynrrd raises several types for malformed or truncated files
+        raise IsplatError(f"{p}: not a readable NRRD file ({_short(exc)})") from None
+    spacing, source = (1.0, 1.0, 1.0), "default 1,1,1 (no spacing in the NRRD header)"
+    dirs = header.get("space directions")
+    if dirs is not None:
+        rows = [np.asarray(r, dtype=np.float64) for r in dirs
+                if r is not None and np.all(np.isfinite(np.asarray(r, dtype=np.float64)))]
+        if len(rows) == 3:
+            spacing, source = tuple(float(np.linalg.norm(r)) for r in rows), "NRRD 'space directions'"
+    elif header.get("spacings") is not None:
+        sp = [float(x) for x in header["spacings"]]
+        if len(sp) == 3 and all(np.isfinite(sp)):
+            spacing, source = tuple(sp), "NRRD 'spacings'"
+    return Volume(data, spacing, {"format": "nrrd", "source_dtype": data.dtype.name, "spacing_source": source})
+
+
+# --- NIfTI -----------------------------------------------------------------------------------------------------
+
+def _read_nifti(p):
+    nib = _need("nibabel", "nibabel", "nifti", ".nii/.nii.gz", p)
+    try:
+        img = nib.load(str(p))
+        data = np.asanyarray(img.dataobj)
+        zooms = img.header.get_zooms()
+    except Exception as exc:
+        raise IsplatError(f"{p}: not a readable NIfTI file ({_short(exc)})") from None
+    if data.ndim == 4 and data.shape[3] == 1:
+        data = data[..., 0]
+    if data.ndim != 3:
+        raise IsplatError(f"{p}: NIfTI data has shape {data.shape}; expected a 3-D volume")
+    # NIfTI stores [x, y, z] with x fastest on disk; isplat indexes [k, j, i] = [z, y, x]
+    arr = data.transpose(2, 1, 0)
+    return Volume(arr, tuple(float(z) for z in zooms[:3]),
+                  {"format": "nifti", "source_dtype": arr.dtype.name, "spacing_source": "NIfTI pixdim (zooms)"})
+
+
+# --- TIFF ------------------------------------------------------------------------------------------------------
+
+def _natural_key(path: Path):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
+
+
+def _read_tiff(p, files=None):
+    tifffile = _need("tifffile", "tifffile", "tiff", "TIFF", p)
+    try:
+        if files is None:
+            data = tifffile.imread(str(p))
+        else:
+            pages = []
+            for f in files:
+                img = tifffile.imread(str(f))
+                if pages and img.shape != pages[0].shape:
+                    raise IsplatError(f"{f}: image shape {img.shape} differs from {files[0].name} {pages[0].shape}")
+                if img.ndim != 2:
+                    raise IsplatError(f"{f}: TIFF image has shape {img.shape}; expected one 2-D slice per file")
+                pages.append(img)
+            data = np.stack(pages)
+    except IsplatError:
+        raise
+    except Exception as exc:
+        raise IsplatError(f"{p}: not a readable TIFF ({_short(exc)})") from None
+    # pages are k slices, each page [row = j, column = i]; TIFF carries no reliable slice spacing
+    return Volume(np.asarray(data), (1.0, 1.0, 1.0),
+                  {"format": "tiff", "source_dtype": data.dtype.name, "spacing_source": "default 1,1,1 (TIFF)"})
+
+
+# --- folders and DICOM ------------------------------------------------------------------------------------------
+
+def _is_dicom(f: Path) -> bool:
+    try:
+        with open(f, "rb") as fh:
+            fh.seek(128)
+            return fh.read(4) == b"DICM"
+    except OSError:
+        return False
+
+
+def _read_folder(p):
+    files = sorted((f for f in p.iterdir() if f.is_file() and not f.name.startswith(".")), key=_natural_key)
+    tifs = [f for f in files if f.suffix.lower() in (".tif", ".tiff")]
+    if tifs:
+        return _read_tiff(p, tifs)
+    dcm = [f for f in files if _is_dicom(f)]
+    if dcm:
+        return _read_dicom(dcm, p)
+    raise IsplatError(f"{p}: folder holds no .tif/.tiff files and no DICOM files (checked {len(files)} files)")
+
+
+def _read_dicom(files, p):
+    pydicom = _need("pydicom", "pydicom", "dicom", "DICOM", p)
+    slices = []
+    for f in files:
+        try:
+            ds = pydicom.dcmread(str(f))
+            ds.PixelData  # noqa: B018 - fail early on a header-only file
+        except Exception as exc:
+            raise IsplatError(f"{f}: not a readable DICOM image ({_short(exc)})") from None
+        slices.append((f, ds))
+    f0, d0 = slices[0]
+    for tag in ("Rows", "Columns", "PixelSpacing"):
+        if tag not in d0:
+            raise IsplatError(f"{f0}: DICOM tag {tag} is missing")
+    iop = np.asarray(d0.get("ImageOrientationPatient", [1, 0, 0, 0, 1, 0]), dtype=np.float64)
+    if iop.shape != (6,):
+        raise IsplatError(f"{f0}: ImageOrientationPatient has {iop.size} values, expected 6")
+    # slice normal = row direction x column direction; slices are ordered by their position along it
+    normal = np.cross(iop[:3], iop[3:])
+    pos = []
+    for f, ds in slices:
+        if (ds.Rows, ds.Columns) != (d0.Rows, d0.Columns):
+            raise IsplatError(f"{f}: DICOM image is {ds.Rows}x{ds.Columns}, {f0.name} is {d0.Rows}x{d0.Columns}")
+        if "ImagePositionPatient" not in ds:
+            if len(slices) > 1:
+                raise IsplatError(f"{f}: DICOM tag ImagePositionPatient is missing; cannot order the slices")
+            pos.append(0.0)
+            continue
+        io = np.asarray(ds.get("ImageOrientationPatient", iop), dtype=np.float64)
+        if not np.allclose(io, iop, atol=1e-4):
+            raise IsplatError(f"{f}: ImageOrientationPatient {list(io)} differs from {f0.name} {list(iop)}")
+        pos.append(float(np.dot(np.asarray(ds.ImagePositionPatient, dtype=np.float64), normal)))
+    order = np.argsort(pos, kind="stable")
+    pos = np.asarray(pos)[order]
+    if len(pos) > 1:
+        steps = np.diff(pos)
+        step = float(np.median(steps))
+        if step <= 0 or np.any(steps <= 1e-6):
+            raise IsplatError(f"{p}: two DICOM slices share a position; expected one series")
+        if np.max(np.abs(steps - step)) > 0.01 * step + 1e-4:
+            raise IsplatError(f"{p}: DICOM slice positions are not evenly spaced (steps {steps.min():g} "
+                              f"to {steps.max():g}); expected one uniform series")
+    else:
+        step = float(d0.get("SliceThickness", 1.0) or 1.0)
+    slopes = [float(ds.get("RescaleSlope", 1) or 1) for _, ds in slices]
+    inters = [float(ds.get("RescaleIntercept", 0) or 0) for _, ds in slices]
+    rescale = any(s != 1 for s in slopes) or any(i != 0 for i in inters)
+    try:
+        first = slices[order[0]][1].pixel_array
+    except Exception as exc:
+        raise IsplatError(f"{slices[order[0]][0]}: cannot decode DICOM pixels ({_short(exc)})") from None
+    out_dtype = np.float32 if rescale else first.dtype
+    arr = np.empty((len(slices), int(d0.Rows), int(d0.Columns)), dtype=out_dtype)
+    for k, idx in enumerate(order):
+        f, ds = slices[idx]
+        try:
+            px = ds.pixel_array
+        except Exception as exc:
+            raise IsplatError(f"{f}: cannot decode DICOM pixels ({_short(exc)})") from None
+        if px.shape != arr.shape[1:]:
+            raise IsplatError(f"{f}: pixel array shape {px.shape}, expected {arr.shape[1:]}")
+        arr[k] = px * np.float32(slopes[idx]) + np.float32(inters[idx]) if rescale else px
+    # PixelSpacing = [spacing between rows (j), spacing between columns (i)]
+    ps = [float(x) for x in d0.PixelSpacing]
+    if len(ps) != 2:
+        raise IsplatError(f"{f0}: PixelSpacing has {len(ps)} values, expected 2")
+    return Volume(arr, (ps[1], ps[0], step), {"format": "dicom", "source_dtype": str(first.dtype),
+                                               "spacing_source": "DICOM PixelSpacing and slice positions"})

@@ -1,0 +1,247 @@
+"""Density mapping, gradients against analytic fields, flat regions, slab independence, the examples."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from isplat import augment as A
+from isplat import normals as N
+from isplat.augfile import density_sha256, open_augmented
+from isplat.errors import IsplatError
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "formats" / "examples" / "augmented"
+
+
+def _angle_deg(a, b):
+    c = (a * b).sum(-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.degrees(np.arccos(np.clip(c, -1, 1)))
+
+
+def test_density_window_given():
+    x = np.linspace(-1000, 3000, 2 * 3 * 50, dtype=np.float32).reshape(2, 3, 50)
+    out = A.augment_array(x, window=(-1000, 1000))
+    want = np.clip(np.rint((x.astype(np.float64) + 1000) * (255 / 2000)), 0, 255).astype(np.uint8)
+    assert np.array_equal(out["density"], want)
+    assert out["density_window"] == (-1000.0, 1000.0)
+    # back to input units within half a step
+    back = -1000 + out["density"].astype(np.float64) * 2000 / 255
+    inside = x <= 1000
+    assert np.all(np.abs(back[inside] - x[inside]) <= 2000 / 255 / 2 + 1e-3)
+
+
+def test_robust_window_is_percentiles_of_the_strided_subsample():
+    rng = np.random.default_rng(0)
+    x = rng.normal(100, 10, (70, 65, 130)).astype(np.float32)
+    x[0, 0, 0] = 1e6  # an outlier outside the subsample does not move the window
+    lo, hi = A.robust_window(x)
+    sub = x[::2, ::2, ::3].astype(np.float64)
+    assert (lo, hi) == tuple(np.percentile(sub, [0.1, 99.9]))
+    assert A.augment_array(x)["density_window"] == (lo, hi)
+
+
+def test_robust_window_falls_back_to_min_max():
+    x = np.zeros((20, 20, 20), np.uint8)
+    x[3, 3, 3] = 9  # both percentiles are 0: the subsample's (here every voxel's) min and max
+    assert A.robust_window(x) == (0.0, 9.0)
+    y = np.zeros((130, 130, 130), np.uint8)
+    y[1, 1, 1] = 7  # outside the ::3 subsample: whole-volume min/max
+    assert A.robust_window(y) == (0.0, 7.0)
+
+
+def test_constant_volume_refused_unless_window_given():
+    x = np.full((4, 5, 6), 42, np.int16)
+    with pytest.raises(IsplatError, match="constant volume.*--window"):
+        A.augment_array(x)
+    out = A.augment_array(x, window=(0, 84))
+    assert np.all(out["density"] == 128)
+    assert np.all(out["normal"] == N.NO_NORMAL) and np.all(out["gradient_magnitude"] == 0)
+    assert out["gradient_magnitude_scale"] == 0.0
+
+
+def test_linear_ramp_anisotropic_spacing_exact_gradient():
+    nk, nj, ni = 6, 7, 8
+    s = (0.5, 2.0, 1.25)
+    k, j, i = np.meshgrid(np.arange(nk), np.arange(nj), np.arange(ni), indexing="ij")
+    x = (3.0 * i + 5.0 * j + 7.0 * k).astype(np.float32)
+    lo, hi = 0.0, float(3 * 7 + 5 * 6 + 7 * 5)
+    out = A.augment_array(x, s, window=(lo, hi))
+    c = 255 / (hi - lo)
+    g = np.array([3.0 * c / s[0], 5.0 * c / s[1], 7.0 * c / s[2]])  # exact, borders included (one-sided)
+    assert out["gradient_magnitude_scale"] == pytest.approx(np.linalg.norm(g) / 255, rel=1e-5)
+    assert np.all(out["gradient_magnitude"] >= 254)
+    err = _angle_deg(N.decode(out["normal"]).astype(np.float64), g)
+    assert err.max() < 0.65
+
+
+def test_radial_field_normals_point_outwards():
+    n = 24
+    s = np.array([1.0, 0.8, 1.5])  # i, j, k
+    k, j, i = np.meshgrid(np.arange(n), np.arange(n), np.arange(n), indexing="ij")
+    pos = np.stack([(i - 11.3) * s[0], (j - 12.1) * s[1], (k - 11.7) * s[2]], -1)
+    # |r|^2: central differences are exact for a quadratic, so only the encoding error remains
+    x = (pos ** 2).sum(-1)
+    out = A.augment_array(x, tuple(s), window=(0, float(x.max())))
+    r = np.linalg.norm(pos, axis=-1)
+    interior = (r > 2) & (i > 0) & (j > 0) & (k > 0) & (i < n - 1) & (j < n - 1) & (k < n - 1)
+    err = _angle_deg(N.decode(out["normal"][interior]).astype(np.float64), pos[interior])
+    assert err.max() < 0.7
+
+
+def test_sphere_normals_point_outwards():
+    from isplat.samples import make_sample
+
+    x, s = make_sample("sphere", (32, 32, 32))
+    out = A.augment_array(x, s, window=(0, 1))
+    k, j, i = np.indices(x.shape)
+    pos = np.stack([i - 15.5, j - 15.5, k - 15.5], -1)
+    shell = out["gradient_magnitude"] > 128
+    # the gradient points inwards (towards increasing density) and is within a few degrees of radial
+    err = _angle_deg(N.decode(out["normal"][shell]).astype(np.float64), -pos[shell])
+    # (the sample's one-voxel anti-aliased edge is only approximately radial)
+    assert shell.sum() > 500 and err.mean() < 4 and err.max() < 20
+
+
+def test_flat_regions_no_normal_no_nan():
+    x = np.zeros((8, 9, 10), np.float32)
+    x[4:, :, :] = 1.0
+    out = A.augment_array(x, window=(0, 1))
+    nrm = out["normal"]
+    assert np.all(nrm[:2] == N.NO_NORMAL) and np.all(nrm[6:] == N.NO_NORMAL)
+    assert np.all(nrm[3:5] != N.NO_NORMAL)
+    assert np.all(out["gradient_magnitude"][:2] == 0)
+    assert not np.isnan(N.decode(nrm)).any()
+    assert np.allclose(N.decode(nrm[3:5]), [0, 0, 1])
+
+
+def test_gradient_kernel_matches_numpy_gradient():
+    rng = np.random.default_rng(5)
+    t = rng.uniform(0, 255, (9, 6, 7)).astype(np.float32)
+    s = (0.7, 1.3, 2.1)
+    want = np.gradient(t, s[2], s[1], s[0], edge_order=1)  # [d/dk, d/dj, d/di]
+    for k0, k1 in [(0, 9), (0, 4), (4, 9), (3, 5), (8, 9)]:
+        e0, e1 = max(0, k0 - 1), min(9, k1 + 1)
+        g = np.empty((3, k1 - k0, 6, 7), np.float32)
+        A._gradient_kernel(np.ascontiguousarray(t[e0:e1]), k0 - e0, k1 - k0, k0, 9, *s, g)
+        for c, w in zip(range(3), [want[2], want[1], want[0]]):
+            assert np.allclose(g[c], w[k0:k1], rtol=1e-6, atol=1e-5)
+
+
+def test_window_and_encode_kernels_match_reference():
+    from test_normals import ref_encode  # tests/ is on sys.path (rootdir-relative imports)
+
+    rng = np.random.default_rng(6)
+    x = rng.uniform(-50, 300, (3, 4, 5))
+    t = np.empty(x.shape, np.float32)
+    d = np.empty(x.shape, np.uint8)
+    assert A._window_kernel(x, -10.0, 255 / 250, t, d) == -1
+    ref = np.clip((x + 10) * (255 / 250), 0, 255)
+    assert np.array_equal(d, np.rint(ref).astype(np.uint8)) and np.allclose(t, ref.astype(np.float32))
+    g = rng.normal(0, 1, (3, 3, 4, 5)).astype(np.float32)
+    g[:, 0, 0, 0] = 0
+    gmax = float(np.sqrt((g.astype(np.float64) ** 2).sum(0)).max())
+    assert A._magnitude_max(g) == gmax
+    mag = np.empty(g.shape[1:], np.uint8)
+    nrm = np.empty(g.shape[1:], np.uint16)
+    A._encode_kernel(g, gmax, mag, nrm)
+    for idx in np.ndindex(*g.shape[1:]):
+        v = g[(slice(None),) + idx].astype(np.float64)
+        assert nrm[idx] == ref_encode(v)
+        assert mag[idx] == int(np.rint(min(np.linalg.norm(v) / gmax, 1) * 255))
+
+
+def test_nonfinite_refused_with_position():
+    x = np.ones((5, 6, 7), np.float32)
+    x[3, 2, 1] = np.nan
+    with pytest.raises(IsplatError, match=r"value nan at voxel \(i=1, j=2, k=3\)"):
+        A.augment_array(x, window=(0, 2))
+    x[3, 2, 1] = np.inf
+    with pytest.raises(IsplatError, match="value inf"):
+        A.augment_array(x, window=(0, 2))
+
+
+def test_slab_size_does_not_change_the_result(monkeypatch, tmp_path):
+    from isplat.samples import make_sample
+
+    x, s = make_sample("head", (40, 36, 30))
+    whole = A.augment_array(x, s)
+    monkeypatch.setattr(A, "SLAB_VOXELS", 40 * 36 * 4)  # 4-slice slabs
+    np.save(tmp_path / "h.npy", x)
+    A.augment_file(tmp_path / "h.npy", tmp_path / "h.aug.h5", spacing=s)
+    aug = open_augmented(tmp_path / "h.aug.h5")
+    for ch in ("density", "gradient_magnitude", "normal"):
+        assert np.array_equal(aug.read(ch), whole[ch]), ch
+    assert aug.density_sha256 == density_sha256(whole["density"]) == whole["density_sha256"]
+    assert aug.density_window == whole["density_window"]
+    assert aug.gradient_magnitude_scale == pytest.approx(whole["gradient_magnitude_scale"], rel=1e-12)
+    assert aug.attrs["source_format"] == "npy"
+
+
+def test_head_sample_density_index_estimate():
+    """The head's density index (paper §2.3) stays near 1 byte per voxel along k (see docs/augment.md)."""
+    from isplat.samples import make_sample
+
+    x, s = make_sample("head", (128, 128, 113))
+    d = A.augment_array(x, s)["density"]
+    assert d[0, 0, 0] == 0  # air maps to density 0
+    assert index_bytes_per_voxel(d) <= 1.3
+
+
+def index_bytes_per_voxel(d):
+    """1 byte per voxel plus 2 per gap > 255 between same-density voxels of a k-slice (from position -1)."""
+    flat = d.reshape(d.shape[0], -1)
+    big = 0
+    for row in flat:
+        order = np.argsort(row, kind="stable")
+        dens = row[order]
+        prev = np.r_[-1, order[:-1]]
+        prev[np.r_[True, dens[1:] != dens[:-1]]] = -1
+        big += int(((order - prev) > 255).sum())
+    return (d.size + 2 * big) / d.size
+
+
+# --- the format examples ---------------------------------------------------------------------------------------
+
+def test_valid_example_decodes_to_expected_values():
+    exp = json.loads((EXAMPLES / "valid.expected.json").read_text())
+    aug = open_augmented(EXAMPLES / exp["file"])
+    assert list(aug.shape) == exp["shape"]
+    assert list(aug.spacing_ijk) == exp["spacing_ijk"]
+    assert list(aug.density_window) == exp["density_window"]
+    assert aug.gradient_magnitude_scale == exp["gradient_magnitude_scale"]
+    assert aug.density_sha256 == exp["density_sha256"]
+    for ch in ("density", "gradient_magnitude", "normal"):
+        assert aug.read(ch).tolist() == exp[ch]
+    assert np.allclose(N.decode(aug.read("normal")), exp["normal_decoded"], atol=1e-6)
+    assert density_sha256(aug.read("density")) == exp["density_sha256"]
+    assert exp["normal"][0][0][0] == N.NO_NORMAL
+
+
+@pytest.mark.parametrize("name,what", [("invalid-wrong-version.aug.h5", "format_version"),
+                                       ("invalid-wrong-format.aug.h5", "'format'"),
+                                       ("invalid-missing-normal.aug.h5", "'normal' is missing")])
+def test_invalid_examples_refused(name, what):
+    with pytest.raises(IsplatError, match=what):
+        open_augmented(EXAMPLES / name)
+
+
+def test_example_script_output_equals_committed_files(tmp_path):
+    sys.path.insert(0, str(ROOT / "formats" / "examples"))
+    try:
+        import make_augmented_examples as mk
+    finally:
+        sys.path.pop(0)
+    mk.build(tmp_path)
+    assert json.loads((tmp_path / "valid.expected.json").read_text()) == \
+        json.loads((EXAMPLES / "valid.expected.json").read_text())
+    import h5py
+
+    for f in EXAMPLES.glob("*.h5"):
+        with h5py.File(f) as a, h5py.File(tmp_path / f.name) as b:
+            assert sorted(a) == sorted(b)
+            assert {k: str(v) for k, v in a.attrs.items()} == {k: str(v) for k, v in b.attrs.items()}
+            for ds in a:
+                assert np.array_equal(a[ds][()], b[ds][()])

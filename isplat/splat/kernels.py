@@ -25,7 +25,7 @@ QA, QB, QC, EX, EY, R2, TSCALE = range(7)
 
 
 @nb.njit(cache=True, nogil=True)
-def _composite(img, sheet, tile_sat, tile_npix, tile_dirty, dirty, nd, et):
+def _composite(img, sheet, sat, tile_sat, tile_npix, tile_dirty, dirty, nd, et):
     """Composite the slice's sheet over the image front to back (premultiplied 'over'), clear it,
     and count pixels that crossed the early-termination threshold. Returns tiles still open."""
     h = img.shape[0]
@@ -54,6 +54,7 @@ def _composite(img, sheet, tile_sat, tile_npix, tile_dirty, dirty, nd, et):
                     img[y, x, 3] = an
                     if ai < et and an >= et:
                         tile_sat[ty, tx] += 1
+                        sat[y, x] = 1
                 sheet[y, x, 0] = 0.0
                 sheet[y, x, 1] = 0.0
                 sheet[y, x, 2] = 0.0
@@ -65,7 +66,7 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                 dens, gm, use_gm, nrm, use_shade, strides, n_a, n_b,
                 alpha_tab, color_lut, shade_lut, persp, inv_unit, slice_normal_offset, slice_step,
                 coef, steps, qe, cuts, fp_table, fp,
-                img, sheet, tile_sat, tile_npix, tile_dirty, dirty, et, stats, band_y0, band_y1):
+                img, sheet, sat, tile_sat, tile_npix, tile_dirty, dirty, et, stats, band_y0, band_y1):
     """Render the slices ``order`` (front to back) of one axis into ``img`` (H, W, 4 premultiplied RGBA).
 
     ``full``: visit every voxel of each slice (density from ``dens``); otherwise visit only the blocks of
@@ -84,8 +85,8 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
     sa_ = strides[0]
     sb_ = strides[1]
     sc_ = strides[2]
-    cand_a = np.empty(n_a * n_b, dtype=np.int64)
-    cand_b = np.empty(n_a * n_b, dtype=np.int64)
+    cand_a = np.empty(n_a * n_b, dtype=np.int32)
+    cand_b = np.empty(n_a * n_b, dtype=np.int32)
     cand_d = np.empty(n_a * n_b, dtype=np.uint8)
     img_h = img.shape[0]
     img_w = img.shape[1]
@@ -145,10 +146,17 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                 r = L
                 while r < r1 and block_density[r] <= hi:
                     d = block_density[r]
-                    for vi in range(block_voxel_ptr[r], block_voxel_ptr[r + 1]):
+                    v0 = block_voxel_ptr[r]
+                    v1 = block_voxel_ptr[r + 1]
+                    # positions increase within a block: follow the row instead of dividing per voxel
+                    b = positions[v0] // n_a if v1 > v0 else 0
+                    row0 = b * n_a
+                    for vi in range(v0, v1):
                         ind = positions[vi]
-                        b = ind // n_a
-                        a = ind - b * n_a
+                        while ind >= row0 + n_a:
+                            row0 += n_a
+                            b += 1
+                        a = ind - row0
                         if use_gm:
                             if alpha_tab[d, gm[cbase + a * sa_ + b * sb_]] == 0.0:
                                 continue
@@ -156,7 +164,7 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                         cand_b[ncand] = b
                         cand_d[ncand] = d
                         ncand += 1
-                    stats[0] += block_voxel_ptr[r + 1] - block_voxel_ptr[r]
+                    stats[0] += v1 - v0
                     r += 1
         # 2. the shared per-voxel pipeline: classify, shade, project (§3), splat into the sheet
         nd = 0
@@ -209,8 +217,9 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
             ty0 = y0 // TILE
             ty1 = y1 // TILE
             if et_on:
-                # skip the voxel when every pixel under its footprint is saturated: cheaper than
-                # shading and splatting it, and exact (such pixels take no more contribution)
+                # skip the voxel when every pixel under its footprint is saturated: exact (such pixels
+                # take no more contribution) and much cheaper than shading and splatting it. Whole
+                # saturated tiles answer at once; otherwise a byte mask (small, stays in cache) is read.
                 open_px = False
                 for ty in range(ty0, ty1 + 1):
                     for tx in range(tx0, tx1 + 1):
@@ -223,7 +232,7 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                     open_px = False
                     for y in range(y0, y1 + 1):
                         for x in range(x0, x1 + 1):
-                            if img[y, x, 3] < et:
+                            if sat[y, x] == 0:
                                 open_px = True
                                 break
                         if open_px:
@@ -277,7 +286,7 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                         dirty[nd] = ty * tile_dirty.shape[1] + tx
                         nd += 1
             stats[1] += 1
-        _composite(img, sheet, tile_sat, tile_npix, tile_dirty, dirty, nd, et)
+        _composite(img, sheet, sat, tile_sat, tile_npix, tile_dirty, dirty, nd, et)
         stats[2] += 1
         if et_on:
             done = 0

@@ -51,6 +51,10 @@ def atomic_output(path: str | os.PathLike, force: bool = False):
     parent = p.parent if str(p.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=parent)
     os.close(fd)
+    # mkstemp makes the file owner-only; give it the mode an ordinary new file would get
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         yield Path(tmp)
         os.replace(tmp, p)

@@ -16,6 +16,11 @@ def set_quiet(quiet: bool) -> None:
     _QUIET = bool(quiet)
 
 
+def quiet() -> bool:
+    """True when --quiet was given."""
+    return _QUIET
+
+
 def enabled() -> bool:
     """True when bars should be shown: not quiet, stderr is a terminal, ISPLAT_PROGRESS not 0."""
     if _QUIET or os.environ.get("ISPLAT_PROGRESS", "") == "0":

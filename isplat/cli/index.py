@@ -1,0 +1,35 @@
+"""``isplat index``: build the three-axis density index of an augmented volume (paper §2.1, §2.3)."""
+
+from __future__ import annotations
+
+import click
+
+from .options import force_option, quiet_option
+
+
+@click.command("index")
+@click.argument("augmented", metavar="AUG.h5")
+@click.option("-o", "--output", required=True, metavar="OUT.idx.h5", help="Index file to write (HDF5).")
+@click.option("--densities", default=None, metavar="LO:HI[,LO:HI...]",
+              help="Index only these inclusive density ranges (default 0:255, all).")
+@click.option("--axes", default="ijk", show_default=True, help="Slice axes to index: a subset of 'ijk'.")
+@force_option
+@quiet_option
+def index(augmented, output, densities, axes, force):
+    """Index AUG.h5 by density, slice by slice, along each axis; write OUT.idx.h5 atomically."""
+    from .. import progress
+    from ..fileio import check_output
+    from ..index import build_index_file, open_index, parse_axes, parse_ranges
+
+    axes = parse_axes(axes)
+    ranges = parse_ranges(densities) if densities is not None else None
+    check_output(output, force)
+    path = build_index_file(augmented, output, axes=axes, ranges=ranges, force=force)
+    if not progress.quiet():
+        idx = open_index(path)
+        counts = {a: int(idx.voxel_counts(a).sum()) for a in idx.axes}
+        size = path.stat().st_size
+        n = next(iter(counts.values()))
+        per = size / max(1, n * len(counts))
+        progress.log(f"isplat index: wrote {path} (axes {idx.axes}, {n} voxels indexed per axis, "
+                     f"{size} bytes, {per:.3f} bytes per indexed voxel per axis)")

@@ -1,0 +1,203 @@
+"""Compiled kernels of the density index: measure, encode and decode blocks (paper §2.1, §2.3).
+
+A block holds the in-slice positions ``ind = a + b * n_a`` of the voxels of one density in one slice, in
+increasing (scan-line) order. Each position is stored as its offset from the previous one (the first from a
+virtual predecessor at -1): one byte ``off`` when ``1 <= off <= 255``, else the escape ``0x00`` followed by
+``a`` then ``b``, each ``escape_width`` bytes little-endian (§2.3; width 2 is isplat's wider escape).
+
+The volume kernels walk the array in memory order ``[k, j, i]``; for every slice axis this visits the
+positions of each slice in increasing order, so one pass keeps a ``prev`` per (slice, density).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+AXIS_CODE = {"i": 0, "j": 1, "k": 2}
+
+# decoder status codes
+OK = 0
+ERR_TOO_MANY = 1       # bytes remain after `count` voxels
+ERR_TOO_FEW = 2        # the byte range ends before `count` voxels
+ERR_TRUNCATED = 3      # an escape runs past the block's byte range
+ERR_COORD = 4          # an escape coordinate a >= n_a or b >= n_b
+ERR_ORDER = 5          # a position not above its predecessor
+ERR_RANGE = 6          # a position >= n_a * n_b
+
+ERROR_TEXT = {
+    ERR_TOO_MANY: "decodes to more voxels than its count",
+    ERR_TOO_FEW: "decodes to fewer voxels than its count",
+    ERR_TRUNCATED: "an escape runs past the end of the block",
+    ERR_COORD: "an escape coordinate is outside the slice",
+    ERR_ORDER: "positions are not increasing",
+    ERR_RANGE: "a position is outside the slice",
+}
+
+
+def escape_cost(escape_width: int) -> int:
+    """Bytes of one escaped position: the 0x00 marker and two coordinates (§2.3)."""
+    return 1 + 2 * escape_width
+
+
+@njit(cache=True, nogil=True)
+def _slice_pos(axis_code, k, j, i, n_j, n_i):
+    # design.md in-slice table: k -> i + j*n_i, j -> i + k*n_i, i -> j + k*n_j
+    if axis_code == 2:
+        return k, i + j * n_i
+    elif axis_code == 1:
+        return j, i + k * n_i
+    return i, j + k * n_j
+
+
+@njit(cache=True, nogil=True)
+def measure_slab(density, k0, k1, axis_code, indexed, esc, prev, counts, lengths):
+    """Add the voxel counts and encoded byte lengths of slab ``k0:k1`` to ``counts``/``lengths[d, s]``.
+
+    ``prev[s, d]`` (start at -1) carries the last position across slabs; ``esc`` is the escape's byte cost.
+    """
+    n_j = density.shape[1]
+    n_i = density.shape[2]
+    for k in range(k0, k1):
+        for j in range(n_j):
+            for i in range(n_i):
+                d = density[k, j, i]
+                if not indexed[d]:
+                    continue
+                s, p = _slice_pos(axis_code, k, j, i, n_j, n_i)
+                off = p - prev[s, d]
+                if off <= 255:
+                    lengths[d, s] += 1
+                else:
+                    lengths[d, s] += esc
+                prev[s, d] = p
+                counts[d, s] += 1
+
+
+@njit(cache=True, nogil=True)
+def encode_slab(density, k0, k1, axis_code, indexed, n_a, escape_width, prev, cursor, out):
+    """Encode slab ``k0:k1`` into ``out``: the next byte of block (d, s) goes to ``out[cursor[d, s]]`` (§2.3)."""
+    n_j = density.shape[1]
+    n_i = density.shape[2]
+    for k in range(k0, k1):
+        for j in range(n_j):
+            for i in range(n_i):
+                d = density[k, j, i]
+                if not indexed[d]:
+                    continue
+                s, p = _slice_pos(axis_code, k, j, i, n_j, n_i)
+                off = p - prev[s, d]
+                c = cursor[d, s]
+                if off <= 255:
+                    out[c] = off
+                    c += 1
+                else:
+                    # §2.3: a zero byte, then the explicit in-slice coordinates
+                    a = p % n_a
+                    b = p // n_a
+                    out[c] = 0
+                    if escape_width == 1:
+                        out[c + 1] = a
+                        out[c + 2] = b
+                        c += 3
+                    else:
+                        out[c + 1] = a & 0xFF
+                        out[c + 2] = a >> 8
+                        out[c + 3] = b & 0xFF
+                        out[c + 4] = b >> 8
+                        c += 5
+                cursor[d, s] = c
+                prev[s, d] = p
+
+
+@njit(cache=True, nogil=True)
+def decode_blocks(buf, starts, ends, counts, dest, n_a, n_b, escape_width, out):
+    """Decode block e = ``buf[starts[e]:ends[e]]`` into ``out[dest[e] : dest[e] + counts[e]]``.
+
+    Return ``(status, e)``: ``(OK, -1)`` or the first error code and the failing block. Never writes
+    outside a block's ``counts[e]`` slots, never reads outside its byte range.
+    """
+    n_pos = np.int64(n_a) * np.int64(n_b)
+    for e in range(starts.shape[0]):
+        c = np.int64(starts[e])
+        end = np.int64(ends[e])
+        cnt = np.int64(counts[e])
+        w = np.int64(dest[e])
+        prev = np.int64(-1)
+        n = np.int64(0)
+        while c < end:
+            if n >= cnt:
+                return ERR_TOO_MANY, e
+            v = np.int64(buf[c])
+            if v != 0:
+                p = prev + v
+                c += 1
+            else:
+                if c + 1 + 2 * escape_width > end:
+                    return ERR_TRUNCATED, e
+                if escape_width == 1:
+                    a = np.int64(buf[c + 1])
+                    b = np.int64(buf[c + 2])
+                else:
+                    a = np.int64(buf[c + 1]) | (np.int64(buf[c + 2]) << 8)
+                    b = np.int64(buf[c + 3]) | (np.int64(buf[c + 4]) << 8)
+                c += 1 + 2 * escape_width
+                if a >= n_a or b >= n_b:
+                    return ERR_COORD, e
+                p = a + b * n_a
+            if p <= prev:
+                return ERR_ORDER, e
+            if p >= n_pos:
+                return ERR_RANGE, e
+            out[w + n] = p
+            n += 1
+            prev = p
+        if n != cnt:
+            return ERR_TOO_FEW, e
+    return OK, -1
+
+
+@njit(cache=True, nogil=True)
+def decode_stream(buf, counts, dest, n_a, n_b, escape_width, out):
+    """Decode consecutive blocks from ``buf``: block e is the next ``counts[e]`` positions, into ``out[dest[e]:]``.
+
+    The blocks of a density interval are contiguous (formats/index.md), so their boundaries follow from the
+    counts and only the interval's two end offsets are needed. Return ``(status, e)`` like
+    :func:`decode_blocks`; bytes left after the last block are ``ERR_TOO_MANY`` of the last block.
+    """
+    n_pos = np.int64(n_a) * np.int64(n_b)
+    end = np.int64(buf.shape[0])
+    c = np.int64(0)
+    for e in range(counts.shape[0]):
+        cnt = np.int64(counts[e])
+        w = np.int64(dest[e])
+        prev = np.int64(-1)
+        for n in range(cnt):
+            if c >= end:
+                return ERR_TOO_FEW, e
+            v = np.int64(buf[c])
+            if v != 0:
+                p = prev + v
+                c += 1
+            else:
+                if c + 1 + 2 * escape_width > end:
+                    return ERR_TRUNCATED, e
+                if escape_width == 1:
+                    a = np.int64(buf[c + 1])
+                    b = np.int64(buf[c + 2])
+                else:
+                    a = np.int64(buf[c + 1]) | (np.int64(buf[c + 2]) << 8)
+                    b = np.int64(buf[c + 3]) | (np.int64(buf[c + 4]) << 8)
+                c += 1 + 2 * escape_width
+                if a >= n_a or b >= n_b:
+                    return ERR_COORD, e
+                p = a + b * n_a
+            if p <= prev:
+                return ERR_ORDER, e
+            if p >= n_pos:
+                return ERR_RANGE, e
+            out[w + n] = p
+            prev = p
+    if c != end:
+        return ERR_TOO_MANY, counts.shape[0] - 1
+    return OK, -1

@@ -1,0 +1,450 @@
+"""The index container on disk (formats/index.md): write it atomically, open and validate it, load axes.
+
+Files are inputs from strangers and the decoder is compiled without bounds checks, so every table a load
+uses is checked here before :func:`isplat.index.codec.decode_blocks` sees it, and the decoder itself stops
+at the first block that does not match its count or range.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..errors import IsplatError
+from ..fileio import atomic_output, check_input
+from . import codec
+from .build import (AXES, IN_SLICE_AXES, AxisIndex, axis_geometry, build_axis, escape_width,
+                    normalize_ranges, parse_axes)
+
+FORMAT_NAME = "isplat-index"
+FORMAT_VERSION = 1
+DATASET_DTYPES = {
+    "density_entry_ptr": "<i8",
+    "entry_slice": "<u4",
+    "entry_voxel_count": "<u4",
+    "entry_byte_offset": "<i8",
+    "bytes": "|u1",
+}
+
+
+# ----------------------------------------------------------------------------------------------- write
+
+def _write_root(f: h5py.File, shape, sha: str, ranges) -> None:
+    from .. import __version__
+
+    f.attrs["format"] = FORMAT_NAME
+    f.attrs["format_version"] = np.int64(FORMAT_VERSION)
+    f.attrs["shape"] = np.asarray(shape, dtype="<i8")
+    f.attrs["density_sha256"] = str(sha)
+    f.attrs["density_ranges"] = np.asarray(normalize_ranges(ranges), dtype="<i8").reshape(-1, 2)
+    f.attrs["created_by"] = f"isplat {__version__}"
+    f.create_group("axes")
+
+
+def _write_axis(f: h5py.File, ax: AxisIndex) -> None:
+    g = f["axes"].create_group(ax.axis)
+    g.attrs["axis"] = ax.axis
+    g.attrs["n_slices"] = np.int64(ax.n_slices)
+    g.attrs["in_slice_axes"] = ax.in_slice_axes
+    g.attrs["n_a"] = np.int64(ax.n_a)
+    g.attrs["n_b"] = np.int64(ax.n_b)
+    g.attrs["escape_width"] = np.int64(ax.escape_width)
+    for name, dt in DATASET_DTYPES.items():
+        # contiguous (no chunks, no filters), little-endian
+        g.create_dataset(name, data=np.ascontiguousarray(getattr(ax, name), dtype=dt), track_times=False)
+
+
+def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, ranges=None,
+                force: bool = False) -> Path:
+    """Write the axes of ``index`` (from :func:`build_index`) to ``path`` atomically."""
+    with atomic_output(path, force) as tmp:
+        with h5py.File(tmp, "w") as f:
+            _write_root(f, shape, density_sha256, ranges)
+            for a in AXES:
+                if a in index:
+                    _write_axis(f, index[a])
+    return Path(path)
+
+
+def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False) -> Path:
+    """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), one axis at a time."""
+    from ..augfile import open_augmented
+
+    axes = parse_axes(axes)
+    ranges = normalize_ranges(ranges)
+    aug = open_augmented(aug_path)
+    for a in axes:
+        escape_width(*axis_geometry(aug.shape, a)[1:])     # refuse impossible sizes before any work
+    with atomic_output(out_path, force) as tmp:
+        density = aug.read("density")
+        with h5py.File(tmp, "w") as f:
+            _write_root(f, aug.shape, aug.density_sha256, ranges)
+            for a in axes:
+                ax = build_axis(density, a, ranges)
+                _write_axis(f, ax)
+                del ax
+    return Path(out_path)
+
+
+# ------------------------------------------------------------------------------------------------ read
+
+@dataclass
+class LoadedAxis:
+    """Decoded blocks of one axis for some density intervals (contract: docs/design.md)."""
+
+    axis: str
+    n_slices: int
+    n_a: int
+    n_b: int
+    slice_block_ptr: np.ndarray    # int64[n_slices + 1]
+    block_density: np.ndarray      # uint8[n_blocks], increasing within a slice
+    block_voxel_ptr: np.ndarray    # int64[n_blocks + 1]
+    positions: np.ndarray          # int32[n_voxels], ind = a + b * n_a, increasing within a block
+    bytes_read: int = 0
+    intervals: list = field(default_factory=list)
+
+    @property
+    def n_blocks(self) -> int:
+        return int(self.block_density.shape[0])
+
+    @property
+    def n_voxels(self) -> int:
+        return int(self.positions.shape[0])
+
+    def slice_positions(self, s: int, density: int | None = None) -> np.ndarray:
+        """Positions of slice ``s`` (of one density, or of all loaded densities in block order)."""
+        r0, r1 = self.slice_block_ptr[s], self.slice_block_ptr[s + 1]
+        if density is None:
+            return self.positions[self.block_voxel_ptr[r0]:self.block_voxel_ptr[r1]]
+        r = r0 + np.searchsorted(self.block_density[r0:r1], density)
+        if r < r1 and self.block_density[r] == density:
+            return self.positions[self.block_voxel_ptr[r]:self.block_voxel_ptr[r + 1]]
+        return self.positions[:0]
+
+
+@dataclass
+class _AxisMeta:
+    axis: str
+    n_slices: int
+    n_a: int
+    n_b: int
+    escape_width: int
+    n_entries: int
+    n_bytes: int
+
+
+def _attr_str(v):
+    return v.decode() if isinstance(v, bytes) else v
+
+
+class IndexFile:
+    """An open, validated index file. Arrays are read on demand; :attr:`bytes_read` counts every request."""
+
+    def __init__(self, path: Path, shape, density_sha256: str, ranges, axes_meta: dict[str, _AxisMeta],
+                 attrs: dict):
+        self.path = path
+        self.shape = shape
+        self.density_sha256 = density_sha256
+        self.density_ranges = ranges
+        self._meta = axes_meta
+        self.attrs = attrs
+        self.bytes_read = 0
+        self._indexed = np.zeros(256, dtype=np.bool_)
+        for lo, hi in ranges:
+            self._indexed[lo:hi + 1] = True
+
+    def __repr__(self):
+        return f"IndexFile({str(self.path)!r}, shape={self.shape}, axes={self.axes!r})"
+
+    @property
+    def axes(self) -> str:
+        """The indexed axes, in i, j, k order."""
+        return "".join(a for a in AXES if a in self._meta)
+
+    def _axis(self, axis: str) -> _AxisMeta:
+        if axis not in self._meta:
+            raise IsplatError(f"{self.path}: axis {axis!r} is not in this index (it has {self.axes!r})")
+        return self._meta[axis]
+
+    def n_slices(self, axis: str) -> int:
+        return self._axis(axis).n_slices
+
+    def axis_info(self, axis: str) -> dict:
+        """``n_slices``, ``n_a``, ``n_b``, ``escape_width``, ``n_entries``, ``n_bytes`` of ``axis``."""
+        m = self._axis(axis)
+        return {k: getattr(m, k) for k in ("n_slices", "n_a", "n_b", "escape_width", "n_entries", "n_bytes")}
+
+    # -- reading helpers
+    def _fail(self, axis, msg, density=None, slice_=None):
+        where = f"axis {axis}"
+        if density is not None:
+            where += f", density {int(density)}"
+        if slice_ is not None:
+            where += f", slice {int(slice_)}"
+        raise IsplatError(f"{self.path}: {where}: {msg}")
+
+    def _open(self):
+        try:
+            return h5py.File(self.path, "r")
+        except OSError as exc:
+            raise IsplatError(f"{self.path}: not a readable HDF5 file ({exc.__class__.__name__})") from None
+
+    def _read(self, g, name, lo, hi):
+        try:
+            arr = g[name][lo:hi]
+        except (OSError, KeyError, ValueError) as exc:
+            raise IsplatError(f"{self.path}: cannot read /axes/{g.name.rsplit('/', 1)[-1]}/{name} "
+                              f"[{lo}:{hi}] ({exc.__class__.__name__}: truncated or corrupt file)") from None
+        arr = np.ascontiguousarray(arr, dtype=np.dtype(DATASET_DTYPES[name]).newbyteorder("="))
+        self.bytes_read += int(arr.nbytes)
+        return arr
+
+    def _read_ptr(self, g, axis) -> np.ndarray:
+        m = self._meta[axis]
+        ptr = self._read(g, "density_entry_ptr", 0, 257)
+        if ptr[0] != 0 or np.any(np.diff(ptr) < 0) or ptr[256] != m.n_entries:
+            self._fail(axis, f"density_entry_ptr is not non-decreasing from 0 to {m.n_entries} entries")
+        stray = np.flatnonzero((np.diff(ptr) > 0) & ~self._indexed)
+        if stray.size:
+            self._fail(axis, "has entries for a density outside density_ranges", density=stray[0])
+        return ptr
+
+    def _intervals(self, intervals) -> list[tuple[int, int]]:
+        ivs = normalize_ranges(list(intervals))
+        for lo, hi in ivs:
+            if not self._indexed[lo:hi + 1].all():
+                missing = lo + int(np.argmin(self._indexed[lo:hi + 1]))
+                raise IsplatError(f"{self.path}: density {missing} (in {lo}:{hi}) was not indexed; this index "
+                                  f"holds densities {_fmt_ranges(self.density_ranges)}; rebuild it with "
+                                  f"isplat index --densities covering the transfer function")
+        return ivs
+
+    # -- public queries
+    def voxel_counts(self, axis: str) -> np.ndarray:
+        """int64[256]: indexed voxels per density along ``axis`` (0 for densities not indexed)."""
+        m = self._axis(axis)
+        with self._open() as f:
+            g = f["axes"][axis]
+            ptr = self._read_ptr(g, axis)
+            cnt = self._read(g, "entry_voxel_count", 0, m.n_entries).astype(np.int64)
+        cs = np.zeros(cnt.size + 1, dtype=np.int64)
+        np.cumsum(cnt, out=cs[1:])
+        return cs[ptr[1:]] - cs[ptr[:-1]]
+
+    def nbytes(self, axis: str, intervals=None, verify_offsets: bool = False) -> int:
+        """Bytes of blocks and tables: the whole axis, or exactly what ``load_axis(axis, intervals)`` reads."""
+        m = self._axis(axis)
+        if intervals is None:
+            return 257 * 8 + m.n_entries * (4 + 4 + 8) + 8 + m.n_bytes
+        ivs = self._intervals(intervals)
+        total = 257 * 8
+        with self._open() as f:
+            g = f["axes"][axis]
+            ptr = self._read_ptr(g, axis)
+            for lo, hi in ivs:
+                r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
+                if r1 > r0:
+                    o0 = self._read(g, "entry_byte_offset", r0, r0 + 1)[0]
+                    o1 = self._read(g, "entry_byte_offset", r1, r1 + 1)[0]
+                    rows = (r1 - r0) * (4 + 4 + (8 if verify_offsets else 0))
+                    total += rows + (8 if verify_offsets else 16) + max(0, int(o1) - int(o0))
+        return total
+
+    def load_axis(self, axis: str, intervals, verify_offsets: bool = False) -> LoadedAxis:
+        """Read and decode the blocks of ``axis`` whose densities fall in inclusive ``intervals``.
+
+        Per interval (§2.2: the densities of interest are contiguous, so are their entries and blocks): one
+        read of the rows of ``entry_slice`` and ``entry_voxel_count``, the two end rows of
+        ``entry_byte_offset``, and one read of the byte range. Block boundaries inside the range follow from
+        the counts; ``verify_offsets=True`` also reads every row of ``entry_byte_offset`` and checks each
+        block against it.
+        """
+        m = self._axis(axis)
+        ivs = self._intervals(intervals)
+        before = self.bytes_read
+        dens_l, sl_l, cnt_l, st_l, en_l, buf_l = [], [], [], [], [], []
+        base = 0
+        with self._open() as f:
+            g = f["axes"][axis]
+            ptr = self._read_ptr(g, axis)
+            for lo, hi in ivs:
+                r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
+                if r1 == r0:
+                    continue
+                dens = np.repeat(np.arange(lo, hi + 1, dtype=np.int64), np.diff(ptr[lo:hi + 2]))
+                sl = self._read(g, "entry_slice", r0, r1).astype(np.int64)
+                cnt = self._read(g, "entry_voxel_count", r0, r1).astype(np.int64)
+                if verify_offsets:
+                    off = self._read(g, "entry_byte_offset", r0, r1 + 1)
+                else:
+                    off = np.array([self._read(g, "entry_byte_offset", r0, r0 + 1)[0],
+                                    self._read(g, "entry_byte_offset", r1, r1 + 1)[0]], dtype=np.int64)
+                self._check_entries(axis, m, dens, sl, cnt, off)
+                buf = self._read(g, "bytes", int(off[0]), int(off[-1]))
+                if buf.size != off[-1] - off[0]:
+                    self._fail(axis, "bytes dataset is shorter than entry_byte_offset says", dens[-1], sl[-1])
+                if verify_offsets:
+                    st_l.append(off[:-1] - off[0] + base)
+                    en_l.append(off[1:] - off[0] + base)
+                    base += buf.size
+                dens_l.append(dens)
+                sl_l.append(sl)
+                cnt_l.append(cnt)
+                buf_l.append(buf)
+
+        def cat(parts, dt):
+            return np.concatenate(parts).astype(dt, copy=False) if parts else np.zeros(0, dtype=dt)
+
+        dens, sl, cnt = cat(dens_l, np.int64), cat(sl_l, np.int64), cat(cnt_l, np.int64)
+        # density-major entries -> slice-major blocks; the stable sort keeps densities increasing per slice (Fig. 1)
+        order = np.argsort(sl, kind="stable")
+        slice_block_ptr = np.zeros(m.n_slices + 1, dtype=np.int64)
+        np.cumsum(np.bincount(sl, minlength=m.n_slices), out=slice_block_ptr[1:])
+        block_voxel_ptr = np.zeros(sl.size + 1, dtype=np.int64)
+        np.cumsum(cnt[order], out=block_voxel_ptr[1:])
+        dest = np.empty(sl.size, dtype=np.int64)
+        dest[order] = block_voxel_ptr[:-1]
+        positions = np.empty(int(block_voxel_ptr[-1]), dtype=np.int32)
+        if verify_offsets:
+            starts, ends, buf = cat(st_l, np.int64), cat(en_l, np.int64), cat(buf_l, np.uint8)
+            status, e = codec.decode_blocks(buf, starts, ends, cnt, dest, m.n_a, m.n_b, m.escape_width, positions)
+            if status != codec.OK:
+                self._fail(axis, f"corrupt block: {codec.ERROR_TEXT[int(status)]}", dens[e], sl[e])
+        else:
+            first = 0
+            for buf, c in zip(buf_l, cnt_l):   # one interval = one contiguous run of blocks
+                n = c.size
+                status, e = codec.decode_stream(buf, c, dest[first:first + n], m.n_a, m.n_b, m.escape_width,
+                                                positions)
+                if status != codec.OK:
+                    self._fail(axis, f"corrupt block: {codec.ERROR_TEXT[int(status)]}", dens[first + e],
+                               sl[first + e])
+                first += n
+        return LoadedAxis(axis, m.n_slices, m.n_a, m.n_b, slice_block_ptr, dens[order].astype(np.uint8),
+                          block_voxel_ptr, positions, self.bytes_read - before, ivs)
+
+    def _check_entries(self, axis, m: _AxisMeta, dens, sl, cnt, off):
+        """Check one interval's entry rows before compiled code uses them (formats/index.md, Reading)."""
+        def first(bad, msg):
+            idx = np.flatnonzero(bad)
+            if idx.size:
+                e = idx[0]
+                self._fail(axis, msg, dens[e], sl[e])
+
+        first(sl >= m.n_slices, f"entry_slice is not below n_slices = {m.n_slices}")
+        same = dens[1:] == dens[:-1]
+        first(np.r_[False, same & (sl[1:] <= sl[:-1])], "entry_slice is not increasing within the density")
+        first((cnt < 1) | (cnt > m.n_a * m.n_b), f"entry_voxel_count is not in 1..{m.n_a * m.n_b}")
+        first((off[:-1] < 0) | (off[1:] < off[:-1]) | (off[1:] > m.n_bytes),
+              f"entry_byte_offset is decreasing or outside 0..{m.n_bytes}")
+        if off.size == cnt.size + 1:
+            length = off[1:] - off[:-1]
+            first((length < cnt) | (length > cnt * codec.escape_cost(m.escape_width)),
+                  "block byte length does not fit its voxel count")
+        else:   # only the interval's two end offsets
+            length = int(off[-1] - off[0])
+            if length < cnt.sum() or length > cnt.sum() * codec.escape_cost(m.escape_width):
+                self._fail(axis, f"byte range {int(off[0])}:{int(off[-1])} does not fit the voxel counts "
+                           f"of densities {int(dens[0])}..{int(dens[-1])}", dens[0], sl[0])
+        # a load allocates sum(counts): bounded per density by n_slices * n_a * n_b
+        per_density = np.bincount(dens - dens.min(), weights=cnt) if dens.size else np.zeros(0)
+        if per_density.size and per_density.max() > m.n_slices * m.n_a * m.n_b:
+            self._fail(axis, "voxel counts exceed the slices' size", dens.min() + int(np.argmax(per_density)))
+
+
+def _fmt_ranges(ranges) -> str:
+    return ",".join(f"{lo}:{hi}" for lo, hi in ranges)
+
+
+def open_index(path) -> IndexFile:
+    """Open and validate an index file's attributes and dataset shapes; raise :class:`IsplatError` on any problem."""
+    p = check_input(path, "index")
+    try:
+        f = h5py.File(p, "r")
+    except OSError as exc:
+        raise IsplatError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__}: truncated or not HDF5)") from None
+    with f:
+        a = f.attrs
+        fmt = _attr_str(a.get("format"))
+        if fmt != FORMAT_NAME:
+            raise IsplatError(f"{p}: attribute 'format' is {fmt!r}, expected {FORMAT_NAME!r}")
+        ver = a.get("format_version")
+        try:
+            ver_ok = ver is not None and np.ndim(ver) == 0 and int(ver) == FORMAT_VERSION
+        except (TypeError, ValueError):
+            ver_ok = False
+        if not ver_ok:
+            raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}, this isplat reads version {FORMAT_VERSION}")
+        try:
+            shape = tuple(int(x) for x in np.asarray(a["shape"]).reshape(-1))
+            sha = _attr_str(a["density_sha256"])
+            raw_ranges = np.asarray(a["density_ranges"])
+        except KeyError as exc:
+            raise IsplatError(f"{p}: missing attribute {exc.args[0]!r}") from None
+        except (TypeError, ValueError):
+            raise IsplatError(f"{p}: attribute 'shape' is not three integers") from None
+        if len(shape) != 3 or min(shape) < 1:
+            raise IsplatError(f"{p}: attribute 'shape' is {shape}, expected three positive sizes")
+        if not isinstance(sha, str) or len(sha) != 64:
+            raise IsplatError(f"{p}: attribute 'density_sha256' is not a SHA-256 hex digest")
+        if raw_ranges.ndim != 2 or raw_ranges.shape[1:] != (2,) or raw_ranges.shape[0] < 1 \
+                or raw_ranges.dtype.kind not in "iu":
+            raise IsplatError(f"{p}: attribute 'density_ranges' must be integer pairs, shape (R, 2)")
+        try:
+            ranges = normalize_ranges([(int(lo), int(hi)) for lo, hi in raw_ranges])
+        except IsplatError as exc:
+            raise IsplatError(f"{p}: attribute 'density_ranges': {exc}") from None
+        if "axes" not in f or not isinstance(f["axes"], h5py.Group):
+            raise IsplatError(f"{p}: group '/axes' is missing")
+        names = list(f["axes"].keys())
+        if not names:
+            raise IsplatError(f"{p}: group '/axes' holds no axis")
+        meta = {}
+        for name in names:
+            if name not in AXES:
+                raise IsplatError(f"{p}: unknown axis group '/axes/{name}'; expected i, j or k")
+            meta[name] = _check_axis_group(p, f["axes"][name], name, shape)
+        attrs = {k: _attr_str(v) for k, v in a.items()}
+    return IndexFile(p, shape, sha, ranges, meta, attrs)
+
+
+def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
+    where = f"{p}: /axes/{axis}"
+    if not isinstance(g, h5py.Group):
+        raise IsplatError(f"{where} is not a group")
+    n_slices, n_a, n_b = axis_geometry(shape, axis)
+    try:
+        ew_expected = escape_width(n_a, n_b)
+    except IsplatError as exc:
+        raise IsplatError(f"{where}: {exc}") from None
+    expect = {"axis": axis, "n_slices": n_slices, "in_slice_axes": IN_SLICE_AXES[axis], "n_a": n_a, "n_b": n_b,
+              "escape_width": ew_expected}
+    for key, want in expect.items():
+        if key not in g.attrs:
+            raise IsplatError(f"{where}: missing attribute {key!r}")
+        got = _attr_str(g.attrs[key])
+        try:
+            ok = (got == want) if isinstance(want, str) else (np.ndim(got) == 0 and int(got) == want)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise IsplatError(f"{where}: attribute {key!r} is {got!r}, expected {want!r} for shape {shape}")
+    for name, dt in DATASET_DTYPES.items():
+        if name not in g or not isinstance(g[name], h5py.Dataset):
+            raise IsplatError(f"{where}: dataset {name!r} is missing")
+        ds = g[name]
+        if ds.ndim != 1:
+            raise IsplatError(f"{where}/{name}: expected 1-D, has shape {ds.shape}")
+        if ds.dtype != np.dtype(dt):
+            raise IsplatError(f"{where}/{name}: dtype {ds.dtype}, expected {np.dtype(dt)} ({dt})")
+    n_e = g["entry_slice"].shape[0]
+    if g["density_entry_ptr"].shape[0] != 257:
+        raise IsplatError(f"{where}/density_entry_ptr: length {g['density_entry_ptr'].shape[0]}, expected 257")
+    if g["entry_voxel_count"].shape[0] != n_e:
+        raise IsplatError(f"{where}/entry_voxel_count: length {g['entry_voxel_count'].shape[0]}, expected {n_e}")
+    if g["entry_byte_offset"].shape[0] != n_e + 1:
+        raise IsplatError(f"{where}/entry_byte_offset: length {g['entry_byte_offset'].shape[0]}, expected {n_e + 1}")
+    return _AxisMeta(axis, n_slices, n_a, n_b, ew_expected, int(n_e), int(g["bytes"].shape[0]))

@@ -285,7 +285,9 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                         tile_dirty[ty, tx] = 1
                         dirty[nd] = ty * tile_dirty.shape[1] + tx
                         nd += 1
-            stats[1] += 1
+            # a voxel spanning two bands is counted by the band holding its first image row
+            if max(int(fy0), 0) >= band_y0:
+                stats[1] += 1
         _composite(img, sheet, sat, tile_sat, tile_npix, tile_dirty, dirty, nd, et)
         stats[2] += 1
         if et_on:

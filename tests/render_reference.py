@@ -1,0 +1,141 @@
+"""A slow, obvious reference splatter for the tests: every voxel, every pixel, float64, no tables.
+
+It follows the same model as the compiled kernel (Gaussian footprint of the grid-space kernel, sheet per
+slice, premultiplied front-to-back 'over', opacity corrected for the path through a slice) but computes
+everything directly: positions through the 4x4 matrix of camera.project_points, the footprint from the
+Gaussian formula, shading from decoded normals and the Phong formula, the order of slices by sorting.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from isplat import camera as C
+from isplat.augfile import open_augmented
+from isplat.normals import decode
+from isplat.splat.footprint import MIN_SIGMA_PIXELS
+from isplat.transfer import piecewise_linear
+
+
+def reference_render(scene, view=0, et=1.0):
+    aug = open_augmented(scene.data.augmented)
+    dens = aug.read("density").astype(np.int64)
+    gm = aug.read("gradient_magnitude").astype(np.int64)
+    nrm = aug.read("normal")
+    sp = scene.volume.spacing or aug.spacing_ijk
+    geom = C.volume_geometry(aug.shape, sp, scene.volume.origin, scene.volume.axes)
+    W, H = scene.image.width, scene.image.height
+    frame = C.view_frame(scene.views[view], geom, W, H)
+    axis, sign = C.principal_axis(frame, geom)
+    ia, ib, ic = C.SLICE_AXES[axis]
+    steps = geom.steps
+    tr, ro, sh = scene.transfer, scene.render, scene.shading
+    unit = tr.unit_distance or float(geom.spacing.min())
+    n_ijk = aug.shape[::-1]
+    persp = frame.projection == "perspective"
+
+    def world(i, j, k):
+        return geom.q + i * steps[0] + j * steps[1] + k * steps[2]
+
+    # footprint covariance: derivative of the direct projection, by finite differences at the view
+    # reference point p (on the image plane, where t0 = 1)
+    h = 1e-6
+    p0 = C.project_points(frame, [frame.p])[0]
+    J = np.stack([(C.project_points(frame, [frame.p + h * steps[ax]])[0] - p0) / h for ax in (ia, ib, ic)], axis=1)
+    if persp:
+        d_img = float((frame.e - frame.p) @ frame.w)
+    Sigma = ro.footprint_sigma ** 2 * (J @ J.T)
+    lam, V = np.linalg.eigh(Sigma)
+    Sigma = (V * np.maximum(lam, MIN_SIGMA_PIXELS ** 2)) @ V.T
+    Qi = np.linalg.inv(Sigma)
+    a_cell = abs(np.linalg.det(J[:, :2]))
+    R2 = ro.footprint_radius ** 2
+    norm = a_cell / (2 * math.pi * math.sqrt(np.linalg.det(Sigma))) / (1 - math.exp(-R2 / 2))
+
+    d = np.arange(256.0)
+    opac = np.clip(piecewise_linear(tr.opacity, d, True)[:, 0], 0, 1)
+    col = np.clip(piecewise_linear(tr.color, d, False), 0, 1)
+    gfac = None
+    if len(tr.gradient_opacity):
+        gfac = np.clip(piecewise_linear(tr.gradient_opacity, d * aug.gradient_magnitude_scale, False)[:, 0], 0, 1)
+
+    Rcam = np.stack([frame.u, frame.v, frame.w])
+    lights = []
+    for L in sh.lights:
+        lw = np.asarray(L.direction) @ Rcam
+        lw = lw / np.linalg.norm(lw)
+        h = lw + frame.w
+        lights.append((lw, h / np.linalg.norm(h), L.intensity * np.asarray(L.color)))
+
+    n_c = n_ijk[ic]
+    if persp:
+        ce = geom.to_grid(frame.e)[ic]
+        order = sorted(range(n_c), key=lambda c: (abs(c - ce), c))
+    else:
+        order = list(range(n_c)) if sign > 0 else list(range(n_c - 1, -1, -1))
+
+    img = np.zeros((H, W, 4))
+    ys, xs = np.mgrid[0:H, 0:W].astype(float)
+    for c in order:
+        sheet = np.zeros((H, W, 4))
+        for b in range(n_ijk[ib]):
+            for a in range(n_ijk[ia]):
+                ijk = [0, 0, 0]
+                ijk[ia], ijk[ib], ijk[ic] = a, b, c
+                i, j, k = ijk
+                dv = dens[k, j, i]
+                alpha = opac[dv] * (gfac[gm[k, j, i]] if gfac is not None else 1.0)
+                if alpha <= 0:
+                    continue
+                X = world(i, j, k)
+                if any((X - np.asarray(cut.point)) @ np.asarray(cut.normal) < 0 for cut in scene.cuts):
+                    continue
+                s = 1.0
+                if persp:
+                    depth = float((frame.e - X) @ frame.w)
+                    if depth < frame.near:
+                        continue
+                    s = d_img / depth
+                    ray = X - frame.e
+                    cosang = max(abs(ray @ geom.unit_axes[ic]) / np.linalg.norm(ray), 0.25)
+                    ds = geom.spacing[ic] / cosang
+                else:
+                    ds = geom.spacing[ic] / abs(frame.w @ geom.unit_axes[ic])
+                alpha = 1 - (1 - min(alpha, 1 - 2.0 ** -40)) ** (ds / unit)
+                rgb = col[dv].copy()
+                if sh.enabled:
+                    n = decode(np.array([nrm[k, j, i]]))[0].astype(float)
+                    nw = n @ geom.unit_axes
+                    diff = np.full(3, sh.ambient)
+                    spec = np.zeros(3)
+                    for lw, hv, lc in lights:
+                        ndl, ndh = nw @ lw, nw @ hv
+                        if sh.two_sided:
+                            ndl, ndh = abs(ndl), abs(ndh)
+                        else:
+                            ndh = max(ndh, 0.0) if ndl > 0 else 0.0
+                            ndl = max(ndl, 0.0)
+                        diff += sh.diffuse * ndl * lc
+                        spec += sh.specular * ndh ** sh.shininess * lc
+                    rgb = rgb * diff + spec
+                px, py = C.project_points(frame, [X])[0]
+                dx, dy = xs - px, ys - py
+                q = (Qi[0, 0] * dx * dx + 2 * Qi[0, 1] * dx * dy + Qi[1, 1] * dy * dy) / (s * s)
+                wgt = np.where(q < R2, norm * np.exp(-0.5 * q), 0.0)
+                sheet[..., :3] += wgt[..., None] * rgb * alpha
+                sheet[..., 3] += wgt * alpha
+        sa = sheet[..., 3]
+        scale = np.where(sa > 1, 1 / np.maximum(sa, 1e-300), 1.0)
+        sheet[..., :3] *= scale[..., None]
+        sa = np.minimum(sa, 1.0)
+        open_ = img[..., 3] < et
+        t1 = (1 - img[..., 3]) * open_
+        img[..., :3] += t1[..., None] * sheet[..., :3]
+        img[..., 3] += t1 * sa
+    bg = np.asarray(scene.image.background)
+    A = img[..., 3:4]
+    rgb = img[..., :3] + (1 - A) * bg[:3] * bg[3]
+    alpha = A + (1 - A) * bg[3]
+    return np.clip(np.concatenate([np.where(alpha > 0, rgb / np.maximum(alpha, 1e-30), 0), alpha], -1), 0, 1)

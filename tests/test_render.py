@@ -1,0 +1,300 @@
+"""Renderer: the compiled indexed and full methods against each other and against the reference."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from conftest import write_volume
+from isplat import camera as C
+from isplat.render import Renderer
+from render_reference import reference_render
+
+BIG_TABLE = "footprint_table = 1048576\n"
+
+
+def rng_volume(seed, shape, levels=(0, 60, 120, 200)):
+    r = np.random.default_rng(seed)
+    return r.choice(np.array(levels, np.uint8), size=shape, p=[0.55, 0.15, 0.15, 0.15])
+
+
+def random_normals(seed, shape):
+    from isplat.normals import encode
+    v = np.random.default_rng(seed + 1).normal(size=shape + (3,))
+    return encode(v)
+
+
+def render(scene, method=None, et=None):
+    r = Renderer(scene, method=method)
+    return r.render_view(0, et=et)
+
+
+CAMERAS = [
+    "azimuth = 0\nelevation = 0", "azimuth = 90\nelevation = 0", "azimuth = 180\nelevation = 0",
+    "azimuth = 270\nelevation = 0", "azimuth = 0\nelevation = 90", "azimuth = 0\nelevation = -90",
+    "azimuth = 33\nelevation = 21", "azimuth = 150\nelevation = -40",
+]
+
+
+@pytest.mark.parametrize("cam", CAMERAS)
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_reference_agrees_with_both_methods(tmp_path, make_scene, cam, proj):
+    shape = (5, 6, 7)
+    dens = rng_volume(1, shape)
+    aug, idx = write_volume(tmp_path, dens, spacing=(1.0, 1.2, 0.8), normal=random_normals(1, shape))
+    sc = make_scene(aug, idx, image="width = 24\nheight = 20",
+                    camera=f'projection = "{proj}"\n{cam}',
+                    transfer="opacity = [[50, 0.0], [60, 0.3], [130, 0.1], [200, 0.9]]\n"
+                             "color = [[0, 1, 0, 0], [255, 0, 0.5, 1]]",
+                    shading="enabled = true",
+                    render=BIG_TABLE + "early_termination = 1.0")
+    ref = reference_render(sc)
+    ind, _ = render(sc, "indexed")
+    full, _ = render(sc, "full")
+    assert np.abs(ind - full).max() <= 1e-5
+    assert np.abs(ind - ref).max() <= 2e-4
+    assert ref[..., 3].max() > 0.2          # something was rendered
+
+
+def test_reference_with_cut_gradient_and_early_termination(tmp_path, make_scene):
+    shape = (6, 5, 6)
+    dens = rng_volume(2, shape)
+    gm = np.random.default_rng(3).integers(0, 256, shape).astype(np.uint8)
+    aug, idx = write_volume(tmp_path, dens, gm=gm, gscale=0.5, normal=random_normals(2, shape))
+    sc = make_scene(aug, idx, image="width = 20\nheight = 20",
+                    camera="azimuth = 20\nelevation = 30",
+                    transfer="opacity = [[55, 0.0], [60, 0.95], [255, 0.95]]\n"
+                             "gradient_opacity = [[0, 0.2], [100, 1.0]]",
+                    cut="point = [0.3, 0.0, 0.0]\nnormal = [1.0, 0.2, 0.0]",
+                    render=BIG_TABLE + "early_termination = 0.9")
+    ref = reference_render(sc, et=0.9)
+    ind, st_i = render(sc, "indexed")
+    full, st_f = render(sc, "full")
+    # early termination decides per pixel between slices: both methods decide identically
+    assert np.abs(ind - full).max() <= 1e-5
+    assert np.abs(ind - ref).max() <= 2e-4
+    assert st_i.voxels_splatted == st_f.voxels_splatted
+
+
+@pytest.mark.parametrize("cam", CAMERAS)
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_single_voxel_is_the_footprint_at_its_projection(tmp_path, make_scene, cam, proj):
+    shape = (9, 9, 9)
+    dens = np.zeros(shape, np.uint8)
+    pos = (3, 5, 4)                            # (k, j, i)
+    dens[pos] = 200
+    aug, idx = write_volume(tmp_path, dens)
+    sc = make_scene(aug, idx, image="width = 96\nheight = 96\nbackground = [0, 0, 0, 0]",
+                    camera=f'projection = "{proj}"\n{cam}\nzoom = 0.6',
+                    transfer="opacity = [[199, 0], [200, 0.5], [201, 0]]", shading="enabled = false",
+                    render=BIG_TABLE + "footprint_radius = 4.0")
+    img, stats = render(sc)
+    assert stats.voxels_splatted == 1
+    r = Renderer(sc)
+    frame, geom = r.frames[0], r.geom
+    X = geom.q + np.array(pos[::-1]) @ geom.steps
+    px, py = C.project_points(frame, [X])[0]
+    a = img[..., 3]
+    ys, xs = np.mgrid[0:96, 0:96]
+    cx, cy = (a * xs).sum() / a.sum(), (a * ys).sum() / a.sum()
+    assert a[0].max() == a[-1].max() == a[:, 0].max() == a[:, -1].max() == 0    # not clipped
+    assert abs(cx - px) < 0.01 and abs(cy - py) < 0.01
+    # the footprint keeps the voxel's opacity: its weights integrate to the projected cell area
+    assert a.max() <= 0.5
+
+
+@pytest.mark.parametrize("spacing", [(1.0, 1.0, 1.0), (0.7, 1.0, 2.5), (2.0, 0.5, 1.0)])
+@pytest.mark.parametrize("cam", ["azimuth = 0\nelevation = 0", "azimuth = 90\nelevation = 0",
+                                 "azimuth = 0\nelevation = 90", "azimuth = 40\nelevation = 25"])
+def test_sphere_is_round_with_anisotropic_spacing(tmp_path, make_scene, spacing, cam):
+    """A smooth ball sampled on an anisotropic grid, faint emission-absorption: the image is the ball's
+    projected chord length, radially symmetric, with second moment R^2/5 (plus the footprint's blur)."""
+    radius = 9.0
+    n = [int(2 * radius / s) + 7 for s in spacing]          # i, j, k counts
+    i, j, k = np.meshgrid(*[(np.arange(m) - (m - 1) / 2) * s for m, s in zip(n, spacing)], indexing="ij")
+    r = np.sqrt(i * i + j * j + k * k)
+    dens = np.round(200 * np.clip(radius - r + 0.5, 0, 1)).astype(np.uint8)
+    aug, idx = write_volume(tmp_path, dens.transpose(2, 1, 0), spacing=spacing)
+    sc = make_scene(aug, idx, image="width = 64\nheight = 64\nbackground = [0, 0, 0, 0]", camera=cam,
+                    transfer="opacity = [[0, 0], [200, 0.002]]\nunit_distance = 1.0",
+                    shading="enabled = false", render="early_termination = 1.0")
+    img, _ = render(sc)
+    a = img[..., 3]
+    ys, xs = np.mgrid[0:64, 0:64]
+    m = a.sum()
+    cx, cy = (a * xs).sum() / m, (a * ys).sum() / m
+    cov = np.array([[(a * (xs - cx) ** 2).sum(), (a * (xs - cx) * (ys - cy)).sum()],
+                    [(a * (xs - cx) * (ys - cy)).sum(), (a * (ys - cy) ** 2).sum()]]) / m
+    # the image is the ball's projection convolved with the footprint (isotropic in grid space, so
+    # stretched along a thick axis in the world): take the footprint's covariance out, the ball remains
+    from isplat.splat.footprint import make_footprint
+    rr = Renderer(sc)
+    frame, geom = rr.frames[0], rr.geom
+    axis, _ = C.principal_axis(frame, geom)
+    fp = make_footprint(C.projection(frame, geom, axis).jac, 0.7, 2.0, 1024)
+    Qa, Qb, Qc = fp.params[:3]
+    # variance of a 2-D Gaussian cut off at R sigmas: sigma^2 (1 - (R^2/2) e^(-R^2/2) / (1 - e^(-R^2/2)))
+    R2 = 4.0
+    cut = 1 - (R2 / 2) * math.exp(-R2 / 2) / (1 - math.exp(-R2 / 2))
+    sigma_fp = cut * np.linalg.inv(np.array([[Qa, Qb], [Qb, Qc]]))
+    ev = np.linalg.eigvalsh(cov - sigma_fp)
+    # round, not an ellipse (the sampled ball itself is isotropic to about 3% on these grids)
+    assert ev[0] / ev[1] > 0.96, ev
+    assert abs(math.sqrt(5 * ev.mean()) * frame.pixel_size / radius - 1) < 0.05
+
+
+@settings(max_examples=60, deadline=None)
+@given(az=st.floats(-180, 180), el=st.floats(-89, 89), dist=st.floats(10, 200), fov=st.floats(5, 120),
+       axis=st.sampled_from("ijk"), zoom=st.floats(0.3, 3), pts=st.lists(
+           st.tuples(st.floats(-5, 12), st.floats(-5, 12), st.floats(-5, 12)), min_size=1, max_size=5))
+def test_perspective_formulas_match_a_4x4_projection(az, el, dist, fov, axis, zoom, pts):
+    """§3.2's per-slice incremental formulas give the same pixel as a direct 4x4 matrix projection."""
+    from types import SimpleNamespace as NS
+    geom = C.volume_geometry((8, 9, 10), (1.0, 0.8, 1.5))
+    cam = NS(projection="perspective", mode="orbit", azimuth=az, elevation=el, distance=dist, roll=0.0,
+             target=None, up=(0, 0, 1), zoom=zoom, fov=fov, near=0.0)
+    frame = C.view_frame(cam, geom, 50, 40)
+    proj = C.projection(frame, geom, axis)
+    ia, ib, ic = C.SLICE_AXES[axis]
+    c = proj.coef
+    for g in pts:
+        a, b, s_ = g[ia], g[ib], g[ic]
+        X = geom.q + np.asarray(g) @ geom.steps
+        if (frame.e - X) @ frame.w < 1e-3:
+            continue
+        D = (c[8] + s_ * c[11]) + a * c[9] + b * c[10]
+        t0 = c[14] / D
+        x = c[12] + t0 * ((c[0] + s_ * c[3]) + a * c[1] + b * c[2])
+        y = c[13] + t0 * ((c[4] + s_ * c[7]) + a * c[5] + b * c[6])
+        ref = C.project_points(frame, [X])[0]
+        assert np.allclose([x, y], ref, rtol=1e-9, atol=1e-6 * max(1.0, abs(ref).max()))
+
+
+@settings(max_examples=60, deadline=None)
+@given(az=st.floats(-180, 180), el=st.floats(-90, 90), roll=st.floats(-180, 180), axis=st.sampled_from("ijk"),
+       pts=st.lists(st.tuples(st.floats(-5, 12), st.floats(-5, 12), st.floats(-5, 12)), min_size=1, max_size=5))
+def test_orthographic_formulas_match_a_4x4_projection(az, el, roll, axis, pts):
+    from types import SimpleNamespace as NS
+    geom = C.volume_geometry((8, 9, 10), (1.3, 0.8, 1.0), axes=[[0, 1, 0], [-1, 0, 0], [0, 0, 1]])
+    cam = NS(projection="orthographic", mode="orbit", azimuth=az, elevation=el, distance=None, roll=roll,
+             target=None, up=(0, 0, 1), zoom=1.0, fov=30.0, near=0.0)
+    frame = C.view_frame(cam, geom, 30, 40)
+    c = C.projection(frame, geom, axis).coef
+    ia, ib, ic = C.SLICE_AXES[axis]
+    for g in pts:
+        a, b, s_ = g[ia], g[ib], g[ic]
+        x = (c[0] + s_ * c[3]) + a * c[1] + b * c[2]
+        y = (c[4] + s_ * c[7]) + a * c[5] + b * c[6]
+        ref = C.project_points(frame, [geom.q + np.asarray(g) @ geom.steps])[0]
+        assert np.allclose([x, y], ref, atol=1e-9)
+    # the frame is orthonormal and right-handed
+    R = np.stack([frame.u, frame.v, frame.w])
+    assert np.allclose(R @ R.T, np.eye(3), atol=1e-12) and np.isclose(np.linalg.det(R), 1.0)
+
+
+@pytest.mark.parametrize("d", [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)])
+def test_principal_axis_and_front_to_back_order(d):
+    from types import SimpleNamespace as NS
+    geom = C.volume_geometry((4, 5, 6), (1, 1, 1))
+    cam = NS(projection="orthographic", mode="look_at", position=tuple(-10 * np.array(d, float)),
+             look_at=(0, 0, 0), up=(0, 1, 0) if d[1] == 0 else (0, 0, 1), roll=0.0, zoom=1.0, fov=30, near=0)
+    frame = C.view_frame(cam, geom, 8, 8)
+    axis, sign = C.principal_axis(frame, geom)
+    c = int(np.flatnonzero(d)[0])
+    assert axis == "ijk"[c] and sign == d[c]
+    order = C.slice_order(frame, geom, axis, sign)
+    # the first slice is the one nearest the camera
+    assert (order[0] == 0) == (d[c] > 0)
+
+
+def test_principal_axis_accounts_for_spacing():
+    """A view 40 degrees off k but with thick k slices crosses i planes faster: axis i."""
+    from types import SimpleNamespace as NS
+    geom = C.volume_geometry((10, 10, 10), (1.0, 1.0, 3.0))
+    t = math.radians(40)
+    cam = NS(projection="orthographic", mode="look_at", position=(-10 * math.sin(t), 0, -10 * math.cos(t)),
+             look_at=(0, 0, 0), up=(0, 1, 0), roll=0.0, zoom=1.0, fov=30, near=0)
+    frame = C.view_frame(cam, geom, 8, 8)
+    assert C.principal_axis(frame, geom)[0] == "i"
+
+
+def test_uniform_slab_gives_the_corrected_opacity(tmp_path, make_scene):
+    """n slices of opacity alpha per unit distance: 1 - (1 - alpha)^n in the middle of the image."""
+    shape = (12, 16, 16)
+    dens = np.full(shape, 200, np.uint8)
+    aug, idx = write_volume(tmp_path, dens, spacing=(1.0, 1.0, 0.5))
+    alpha = 0.05
+    sc = make_scene(aug, idx, image="width = 32\nheight = 32\nbackground = [0, 0, 0, 0]",
+                    camera="azimuth = 0\nelevation = 90\nzoom = 1.5",
+                    transfer=f"opacity = [[199, 0], [200, {alpha}], [201, 0]]\nunit_distance = 1.0",
+                    shading="enabled = false", render=BIG_TABLE + "footprint_radius = 3.0")
+    img, _ = render(sc)
+    expect = 1 - (1 - alpha) ** (12 * 0.5)          # 12 slices of 0.5 units: 6 unit distances
+    assert abs(img[16, 16, 3] - expect) < 2e-3
+
+
+def test_eye_inside_the_volume_renders_finite(tmp_path, make_scene):
+    shape = (10, 10, 10)
+    dens = rng_volume(5, shape)
+    aug, idx = write_volume(tmp_path, dens)
+    for pos in ["[0.2, 0.3, 0.1]", "[0.0, 0.0, 4.6]", "[4.6, 0.0, 0.0]"]:
+        sc = make_scene(aug, idx, image="width = 24\nheight = 24",
+                        camera=f'projection = "perspective"\nposition = {pos}\nlook_at = [3, 2, 1]\nfov = 90',
+                        transfer="opacity = [[50, 0], [60, 0.4], [255, 0.4]]", shading="enabled = false",
+                        render=BIG_TABLE + "early_termination = 1.0")
+        ind, _ = render(sc, "indexed")
+        full, _ = render(sc, "full")
+        ref = reference_render(sc)
+        assert np.all(np.isfinite(ind))
+        assert np.abs(ind - full).max() <= 1e-5
+        assert np.abs(ind - ref).max() <= 2e-4
+
+
+def test_empty_transfer_function_renders_background_and_reads_nothing(tmp_path, make_scene):
+    aug, idx = write_volume(tmp_path, rng_volume(6, (4, 4, 4)))
+    sc = make_scene(aug, idx, image="width = 8\nheight = 8\nbackground = [0.25, 0.5, 0.75]",
+                    transfer="opacity = [[250, 0], [255, 0]]")
+    r = Renderer(sc)
+    img, st_ = r.render_view(0)
+    assert np.allclose(img[..., :3], [0.25, 0.5, 0.75]) and st_.voxels_examined == 0
+    assert r.report.index_bytes == 0 and r.report.augmented_bytes == 0
+
+
+def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
+    shape = (6, 7, 8)
+    aug, idx = write_volume(tmp_path, rng_volume(7, shape))
+    base = dict(image="width = 8\nheight = 8", transfer="opacity = [[190, 0], [200, 1]]")
+    r = Renderer(make_scene(aug, idx, shading="enabled = false", **base))
+    assert r.report.channels == [] and r.report.axes == ["j"]
+    assert r.report.augmented_bytes == 0 and r.report.index_bytes > 0
+    r = Renderer(make_scene(aug, idx, shading="enabled = true", **base))
+    assert r.report.channels == ["normal"] and r.report.augmented_bytes == 2 * np.prod(shape)
+    r = Renderer(make_scene(aug, idx, overrides=["render.method=full", "shading.enabled=false"], **base))
+    assert r.report.channels == ["density"] and r.report.index_bytes == 0
+    r = Renderer(make_scene(aug, idx, views="list = [{azimuth = 0}, {azimuth = 90}]", **base))
+    assert r.report.axes == ["i", "j"]
+
+
+def test_index_of_another_volume_is_refused(tmp_path, make_scene):
+    from isplat.errors import IsplatError
+    aug, idx = write_volume(tmp_path, rng_volume(8, (4, 4, 4)), name="a")
+    aug2, idx2 = write_volume(tmp_path, rng_volume(9, (4, 4, 4)), name="b")
+    with pytest.raises(IsplatError, match="another volume"):
+        Renderer(make_scene(aug, idx2, transfer="opacity = [[0, 1], [255, 1]]"))
+
+
+@pytest.mark.parametrize("alpha", [1e-7, 1e-3, 0.5, 1.0])
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_extreme_opacities_stay_finite_and_agree(tmp_path, make_scene, alpha, precision):
+    shape = (16, 16, 16)
+    aug, idx = write_volume(tmp_path, np.full(shape, 200, np.uint8))
+    sc = make_scene(aug, idx, image="width = 16\nheight = 16\nbackground = [0, 0, 0, 0]",
+                    camera="azimuth = 10\nelevation = 5\nzoom = 2",
+                    transfer=f"opacity = [[0, {alpha}], [255, {alpha}]]\nunit_distance = 0.01",
+                    shading="enabled = false", render=f'precision = "{precision}"\nearly_termination = 1.0')
+    img, _ = render(sc)
+    assert np.all(np.isfinite(img))
+    # tiny alphas over a long path: 1 - (1 - a)^(16/0.01 / cos) must not be lost to rounding
+    expect = -math.expm1(16 / 0.01 / math.cos(math.radians(10)) / math.cos(math.radians(5)) * math.log1p(-min(alpha, 1 - 2 ** -40)))
+    assert abs(img[8, 8, 3] - expect) < 5e-3 * max(expect, 1e-6) + 1e-6

@@ -56,18 +56,34 @@ def check_format(out: str, batch: bool) -> str:
     return ext
 
 
+def png_bytes(pixels: np.ndarray) -> bytes:
+    """Encode 8- or 16-bit grey/RGB/RGBA pixels as PNG (pypng: Pillow cannot write 16-bit colour)."""
+    import io
+
+    import png
+
+    h, w = pixels.shape[:2]
+    planes = 1 if pixels.ndim == 2 else pixels.shape[2]
+    buf = io.BytesIO()
+    png.Writer(w, h, greyscale=planes < 3, alpha=planes in (2, 4),
+               bitdepth=16 if pixels.dtype == np.uint16 else 8).write(buf, pixels.reshape(h, w * planes))
+    return buf.getvalue()
+
+
 def write_still(out: str, rgba: np.ndarray, bit_depth: int, force: bool) -> None:
     """Write one image atomically, or PNG bytes to stdout for ``-o -``."""
     import imageio.v3 as iio
 
     if out == "-":
-        data = iio.imwrite("<bytes>", to_pixels(rgba, ".png", bit_depth), extension=".png")
-        sys.stdout.buffer.write(data)
+        sys.stdout.buffer.write(png_bytes(to_pixels(rgba, ".png", bit_depth)))
         sys.stdout.buffer.flush()
         return
     ext = Path(out).suffix.lower()
     with atomic_output(out, force) as tmp:
-        iio.imwrite(tmp, to_pixels(rgba, ext, bit_depth), extension=ext)
+        if ext == ".png":
+            Path(tmp).write_bytes(png_bytes(to_pixels(rgba, ext, bit_depth)))
+        else:
+            iio.imwrite(tmp, to_pixels(rgba, ext, bit_depth), extension=ext)
 
 
 def write_movie(out: str, frames: list[np.ndarray], force: bool, fps: float = 12.0) -> None:

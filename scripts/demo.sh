@@ -3,4 +3,30 @@
 set -euo pipefail
 : "${OUT:=out}"; : "${ISPLAT:=isplat}"
 mkdir -p "$OUT"
-echo "demo: pipeline steps are filled in as the stages land" >&2
+run() { echo "+ $*" >&2; "$@"; }
+
+for s in head engine; do
+  run "$ISPLAT" sample "$s" -o "$OUT/$s.npy" --force >/dev/null
+  run "$ISPLAT" augment "$OUT/$s.npy" -o "$OUT/$s.aug.h5" --force
+  run "$ISPLAT" index "$OUT/$s.aug.h5" -o "$OUT/$s.idx.h5" --force
+done
+
+data() { echo --set "data.augmented=$OUT/$1.aug.h5" --set "data.index=$OUT/$1.idx.h5"; }
+# shaded bone (the paper's H1)
+run "$ISPLAT" render examples/head.toml $(data head) -o "$OUT/head-bone.png" --force -v
+# a perspective view of the same scene (the paper's Figure 7a)
+run "$ISPLAT" render examples/head.toml $(data head) --set camera.projection=perspective \
+    --set camera.azimuth=60 --set camera.fov=40 -o "$OUT/head-perspective.png" --force -v
+# a cutting plane through faint skin and bone (the paper's H2)
+run "$ISPLAT" render examples/head-cut.toml $(data head) -o "$OUT/head-cut.png" --force -v
+# the semi-transparent engine (the paper's E1), perspective
+run "$ISPLAT" render examples/engine.toml $(data engine) -o "$OUT/engine.png" --force -v
+# a 12-view orbit as an animated GIF
+run "$ISPLAT" render examples/head.toml $(data head) --set views.orbit_steps=12 --set image.width=256 \
+    --set image.height=256 -o "$OUT/head-orbit.gif" --force
+if "$ISPLAT" stats --help >/dev/null 2>&1; then
+  run "$ISPLAT" stats "$OUT/head.aug.h5" "$OUT/head.idx.h5" --scene examples/head.toml $(data head) \
+      | tee "$OUT/head-stats.txt"
+fi
+echo "demo: images in $OUT/" >&2
+ls -1 "$OUT"/*.png "$OUT"/*.gif >&2

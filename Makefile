@@ -27,3 +27,14 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info
+
+data: $(STAMP)
+	$(BIN)/python scripts/fetch_data.py --out data --keep-going
+
+paper-table: $(STAMP)
+	$(BIN)/python -m isplat.bench paper --out docs
+
+# Optional, not in CI: isplat against VTK's CPU ray caster (installs vtk; needs Mesa EGL or OSMesa).
+bench-peers: $(STAMP)
+	$(BIN)/pip install --quiet vtk
+	$(BIN)/python -m isplat.bench.peers --out docs

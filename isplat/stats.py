@@ -1,0 +1,350 @@
+"""Figures about a volume, its index and a scene: the quantities of the paper's Figure 5 (docs/stats.md).
+
+>>> s = collect("head.aug.h5", "head.idx.h5", scene="head.toml")     # doctest: +SKIP
+>>> s["scene"]["spatial_ratio"], s["index"]["bytes"]                  # doctest: +SKIP
+
+``collect`` returns one plain dict (the JSON of ``isplat stats --json``, keys documented in docs/stats.md);
+``format_table`` renders it as readable text. Everything is counted, nothing estimated: voxel counts come from
+the index's per-density tables or the density channel, byte counts from the files' tables and from what the
+renderer actually read (:class:`isplat.render.LoadReport`).
+
+The paper's *spatial ratio* is the number of voxels whose density lies in the transfer function's non-zero
+opacity intervals over all voxels (§4, "the spatial ratios of the number of voxels that were actually visited to
+the whole number of voxels"). It is a property of the volume and the transfer function; how many of those
+voxels a view really splats (after cutting planes, gradient modulation and early termination) is measured by
+rendering the view.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from .augfile import CHANNELS, open_augmented
+from .errors import IsplatError
+
+STATS_VERSION = 1
+AXES = ("i", "j", "k")
+
+
+def density_histogram(aug) -> np.ndarray:
+    """int64[256]: voxels per density code, counted from the density channel slab by slab."""
+    nk = aug.shape[0]
+    step = max(1, (1 << 24) // max(1, aug.shape[1] * aug.shape[2]))
+    h = np.zeros(256, dtype=np.int64)
+    for k0 in range(0, nk, step):
+        h += np.bincount(aug.read("density", k0, min(nk, k0 + step)).ravel(), minlength=256)
+    return h
+
+
+def decoded_axis_bytes(n_slices: int, n_blocks: int, n_voxels: int) -> int:
+    """Size of a :class:`isplat.index.LoadedAxis` holding ``n_blocks`` blocks and ``n_voxels`` voxels:
+    slice_block_ptr int64, block_density uint8, block_voxel_ptr int64, positions int32."""
+    return 8 * (n_slices + 1) + n_blocks + 8 * (n_blocks + 1) + 4 * n_voxels
+
+
+def loaded_axis_bytes(la) -> int:
+    """Bytes of the decoded arrays of a loaded axis (what the renderer holds for it)."""
+    return int(la.slice_block_ptr.nbytes + la.block_density.nbytes + la.block_voxel_ptr.nbytes
+               + la.positions.nbytes)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return Path(os.path.abspath(a)) == Path(os.path.abspath(b))
+
+
+def _ratio(a, b) -> float:
+    return float(a) / float(b) if b else 0.0
+
+
+# ------------------------------------------------------------------------------------------------ sections
+
+def augmented_section(aug) -> dict:
+    n = aug.n_voxels
+    nk, nj, ni = aug.shape
+    channel_bytes = {c: n * np.dtype(t).itemsize for c, t in CHANNELS.items()}
+    lo, hi = aug.density_window
+    return {
+        "path": str(aug.path),
+        "file_bytes": int(Path(aug.path).stat().st_size),
+        "shape_ijk": [ni, nj, nk],
+        "voxels": n,
+        "spacing_ijk": list(aug.spacing_ijk),
+        "density_window": [lo, hi],
+        "density_step": (hi - lo) / 255.0,
+        "gradient_magnitude_scale": aug.gradient_magnitude_scale,
+        "density_sha256": aug.density_sha256,
+        "source": aug.attrs.get("source"),
+        "source_format": aug.attrs.get("source_format"),
+        "channel_bytes": channel_bytes,
+        "bytes": int(sum(channel_bytes.values())),
+        "bytes_per_voxel": int(sum(np.dtype(t).itemsize for t in CHANNELS.values())),
+    }
+
+
+def index_section(idx, aug) -> dict:
+    per_axis, counts = {}, {}
+    for a in idx.axes:
+        info = idx.axis_info(a)
+        c = idx.voxel_counts(a)
+        counts[a] = c
+        nbytes = idx.nbytes(a)
+        vox = int(c.sum())
+        per_axis[a] = {
+            "bytes": int(nbytes),
+            "block_bytes": int(info["n_bytes"]),
+            "entries": int(info["n_entries"]),
+            "voxels": vox,
+            "escape_width": int(info["escape_width"]),
+            "bytes_per_voxel": _ratio(nbytes, vox),
+            "block_bytes_per_voxel": _ratio(info["n_bytes"], vox),
+            "decoded_bytes": decoded_axis_bytes(info["n_slices"], info["n_entries"], vox),
+        }
+    ranges = []
+    for lo, hi in idx.density_ranges:
+        ranges.append(_range_entry(idx, counts, lo, hi, aug.n_voxels))
+    total = sum(v["bytes"] for v in per_axis.values())
+    vox = sum(v["voxels"] for v in per_axis.values())
+    first = next(iter(counts.values()))
+    return {
+        "path": str(idx.path),
+        "file_bytes": int(Path(idx.path).stat().st_size),
+        "axes": idx.axes,
+        "density_ranges": [[int(lo), int(hi)] for lo, hi in idx.density_ranges],
+        "voxels_indexed": int(first.sum()),
+        "bytes": int(total),
+        "bytes_per_voxel": _ratio(total, vox),
+        "bytes_per_volume_voxel": _ratio(total, aug.n_voxels),
+        "decoded_bytes": int(sum(v["decoded_bytes"] for v in per_axis.values())),
+        "per_axis": per_axis,
+        "per_density_range": ranges,
+    }
+
+
+def _range_entry(idx, counts, lo, hi, n_voxels) -> dict:
+    per_axis = {a: int(idx.nbytes(a, [(int(lo), int(hi))])) for a in idx.axes}
+    vox = int(next(iter(counts.values()))[lo:hi + 1].sum())
+    return {"densities": [int(lo), int(hi)], "voxels": vox, "fraction": _ratio(vox, n_voxels),
+            "bytes": int(sum(per_axis.values())), "bytes_per_axis": per_axis}
+
+
+def _covered(idx, intervals) -> bool:
+    ok = np.zeros(256, dtype=bool)
+    for lo, hi in idx.density_ranges:
+        ok[lo:hi + 1] = True
+    return all(ok[lo:hi + 1].all() for lo, hi in intervals)
+
+
+# -------------------------------------------------------------------------------------------------- scene
+
+def _reconcile(scene_path, overrides, aug_path: Path, idx_path: Path | None) -> list[str]:
+    """Overrides that give the scene the command line's index when the scene names none."""
+    extra = []
+    if idx_path is not None:
+        try:
+            tree = tomllib.loads(Path(scene_path).read_text(encoding="utf-8-sig"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            tree = {}                                  # load_scene reports the problem with its line
+        data = tree.get("data") if isinstance(tree, dict) else None
+        if not (isinstance(data, dict) and "index" in data):
+            extra.append(f"data.index={os.path.abspath(idx_path)!r}".replace("'", '"'))
+    return extra + list(overrides)
+
+
+def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | None, idx, hist_from_index,
+                  view: int) -> tuple[dict, object]:
+    from .render import Renderer
+    from .scene import load_scene
+    from .transfer import build_luts
+
+    scene = load_scene(scene_file, _reconcile(scene_file, overrides, aug_path, idx_path))
+    if not _same_file(scene.data.augmented, aug_path):
+        raise IsplatError(f"{scene_file}: data.augmented is {scene.data.augmented}, not {aug_path}; stats describe "
+                          f"one volume: give the scene's files, or add --set data.augmented={aug_path}")
+    if idx_path is not None and scene.data.index is not None and not _same_file(scene.data.index, idx_path):
+        raise IsplatError(f"{scene_file}: data.index is {scene.data.index}, not {idx_path}; give the scene's index, "
+                          f"or add --set data.index={idx_path}")
+    if not 0 <= view < len(scene.views):
+        raise IsplatError(f"--view {view}: the scene has {len(scene.views)} view(s) (0..{len(scene.views) - 1})")
+    luts = build_luts(scene.transfer, aug.gradient_magnitude_scale)
+    intervals = [[int(lo), int(hi)] for lo, hi in luts.intervals]
+    if idx is not None and hist_from_index is not None and _covered(idx, intervals):
+        hist, source = hist_from_index, "index"
+    else:
+        hist, source = density_histogram(open_augmented(aug_path)), "augmented density"
+    voi = int(sum(int(hist[lo:hi + 1].sum()) for lo, hi in intervals))
+    n = aug.n_voxels
+    lo_w, hi_w = aug.density_window
+    step = (hi_w - lo_w) / 255.0
+
+    r = Renderer(scene, (scene.views[view],))
+    _, st = r.render_view(0)
+    rep = r.report
+    decoded = int(sum(loaded_axis_bytes(la) for la in r.loaded.values()))
+    held = rep.augmented_bytes + decoded
+    return {
+        "path": str(scene_file),
+        "view": view,
+        "method": r.method,
+        "projection": scene.views[view].projection,
+        "image": [scene.image.width, scene.image.height],
+        "intervals": intervals,
+        "intervals_input_units": [[lo_w + lo * step, lo_w + hi * step] for lo, hi in intervals],
+        "ratio_source": source,
+        "voxels_of_interest": voi,
+        "spatial_ratio": _ratio(voi, n),
+        "axis": ("+" if st.sign > 0 else "-") + st.axis,
+        "slices": st.slices,
+        "voxels_examined": st.voxels_examined,
+        "voxels_splatted": st.voxels_splatted,
+        "splatted_ratio": _ratio(st.voxels_splatted, n),
+        "render_seconds": st.seconds,
+        "loaded": {
+            "channels": list(rep.channels),
+            "axes": list(rep.axes),
+            "augmented_bytes": int(rep.augmented_bytes),
+            "index_bytes": int(rep.index_bytes),
+            "bytes": int(rep.augmented_bytes + rep.index_bytes),
+            "index_decoded_bytes": decoded,
+            "held_bytes": int(held),
+        },
+    }, scene
+
+
+def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> dict:
+    """All figures for ``augmented`` (and ``index``, and ``scene`` rendered at view ``view``) as one dict."""
+    aug_path = Path(augmented)
+    aug = open_augmented(aug_path)
+    idx_path = Path(index) if index is not None else None
+    if idx_path is None and scene is not None:
+        idx_path = _scene_index(scene, overrides)
+    idx = None
+    out = {"stats_version": STATS_VERSION, "augmented": augmented_section(aug), "index": None, "scene": None}
+    hist_from_index = None
+    if idx_path is not None:
+        from .index import open_index
+
+        idx = open_index(idx_path)
+        if tuple(idx.shape) != tuple(aug.shape) or idx.density_sha256 != aug.density_sha256:
+            raise IsplatError(f"{idx_path}: index was built from another volume (density_sha256 "
+                              f"{idx.density_sha256[:12]}..., {aug_path.name} has {aug.density_sha256[:12]}...); "
+                              f"rebuild it with isplat index {aug_path}")
+        out["index"] = index_section(idx, aug)
+        hist_from_index = idx.voxel_counts(idx.axes[0])
+    if scene is not None:
+        out["scene"], _ = scene_section(scene, overrides, aug, aug_path, idx_path if index is not None else None,
+                                        idx, hist_from_index, view)
+        # against the whole: channels and index tables as counted above, and the files on disk
+        s, a, ix = out["scene"]["loaded"], out["augmented"], out["index"]
+        s["augmented_fraction"] = _ratio(s["augmented_bytes"], a["bytes"])
+        s["index_fraction"] = _ratio(s["index_bytes"], ix["bytes"]) if ix else 0.0
+        whole = a["file_bytes"] + (ix["file_bytes"] if ix else 0)
+        s["files_bytes"] = int(whole)
+        s["files_fraction"] = _ratio(s["bytes"], whole)
+    return out
+
+
+def _scene_index(scene_file, overrides) -> Path | None:
+    """The index a scene names (to report on it when no IDX is given), or None."""
+    from .scene import load_scene
+
+    try:
+        return load_scene(scene_file, list(overrides)).data.index
+    except IsplatError:
+        return None                                    # reported when the scene is loaded for real
+
+
+# -------------------------------------------------------------------------------------------------- table
+
+def _b(n) -> str:
+    """Bytes, human-readable, with the exact count."""
+    n = int(n)
+    for unit, f in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= f:
+            return f"{n / f:.2f} {unit} ({n:,} B)"
+    return f"{n:,} B"
+
+
+def _pct(x) -> str:
+    return f"{100 * x:.2f}%"
+
+
+def format_table(s: dict) -> str:
+    """The figures of :func:`collect` as aligned text, one section per input."""
+    rows: list[tuple[str, str]] = []
+
+    def head(t):
+        rows.append((t, None))
+
+    def row(k, v):
+        rows.append((k, v))
+
+    a = s["augmented"]
+    head(f"augmented volume  {a['path']}")
+    ni, nj, nk = a["shape_ijk"]
+    row("dimensions (i x j x k)", f"{ni} x {nj} x {nk}")
+    row("voxels", f"{a['voxels']:,}")
+    row("spacing (i, j, k)", ", ".join(f"{x:g}" for x in a["spacing_ijk"]))
+    lo, hi = a["density_window"]
+    row("density window", f"{lo:g} .. {hi:g} -> 0 .. 255 ({a['density_step']:g} input units per density code)")
+    if a.get("source"):
+        row("source", f"{a['source']} ({a.get('source_format') or '?'})")
+    for c, nb in a["channel_bytes"].items():
+        row(f"channel {c}", _b(nb))
+    row("channels total", f"{_b(a['bytes'])}, {a['bytes_per_voxel']} B/voxel")
+    row("file size", _b(a["file_bytes"]))
+    ix = s.get("index")
+    if ix:
+        head(f"index  {ix['path']}")
+        row("axes", ix["axes"])
+        row("density ranges indexed", ", ".join(f"{lo}..{hi}" for lo, hi in ix["density_ranges"]))
+        row("voxels indexed (per axis)", f"{ix['voxels_indexed']:,} ({_pct(ix['voxels_indexed'] / a['voxels'])})")
+        row("index total", f"{_b(ix['bytes'])}, {ix['bytes_per_voxel']:.3f} B per indexed voxel per axis, "
+                           f"{ix['bytes_per_volume_voxel']:.3f} B per volume voxel")
+        for ax, v in ix["per_axis"].items():
+            row(f"axis {ax}", f"{_b(v['bytes'])}: {v['entries']:,} blocks, {v['block_bytes_per_voxel']:.3f} B/voxel "
+                              f"in blocks, {v['bytes_per_voxel']:.3f} B/voxel with tables, decoded "
+                              f"{_b(v['decoded_bytes'])}")
+        for rg in ix["per_density_range"]:
+            lo, hi = rg["densities"]
+            row(f"densities {lo}..{hi}", f"{rg['voxels']:,} voxels ({_pct(rg['fraction'])}), "
+                                        f"{_b(rg['bytes'])} over all axes")
+        row("decoded, all axes", _b(ix["decoded_bytes"]))
+        row("file size", _b(ix["file_bytes"]))
+    sc = s.get("scene")
+    if sc:
+        head(f"scene  {sc['path']}  (view {sc['view']}, method {sc['method']}, {sc['projection']}, "
+             f"{sc['image'][0]}x{sc['image'][1]})")
+        ivs = ", ".join(f"{lo}..{hi}" for lo, hi in sc["intervals"]) or "none (the transfer function selects nothing)"
+        row("opacity > 0 at densities", ivs)
+        if sc["intervals"]:
+            row("  in input units", ", ".join(f"{lo:g}..{hi:g}" for lo, hi in sc["intervals_input_units"]))
+        row("voxels of interest", f"{sc['voxels_of_interest']:,} (counted from the {sc['ratio_source']})")
+        row("spatial ratio", f"{sc['spatial_ratio']:.4f}")
+        row("view axis", f"{sc['axis']} ({sc['slices']} slices composited)")
+        row("voxels examined", f"{sc['voxels_examined']:,}")
+        row("voxels splatted", f"{sc['voxels_splatted']:,} ({_pct(sc['splatted_ratio'])} of all voxels)")
+        ld = sc["loaded"]
+        row("loaded: channels", ", ".join(ld["channels"]) or "none")
+        row("loaded: augmented", f"{_b(ld['augmented_bytes'])} = {_pct(ld['augmented_fraction'])} of the channels")
+        if ld["axes"] and sc["method"] == "indexed":
+            row("loaded: index", f"{_b(ld['index_bytes'])} = {_pct(ld['index_fraction'])} of the index, axes "
+                                 f"{''.join(ld['axes'])}, decoded {_b(ld['index_decoded_bytes'])}")
+        row("loaded: total", f"{_b(ld['bytes'])} = {_pct(ld['files_fraction'])} of {_b(ld['files_bytes'])} on disk")
+        row("held for rendering", f"{_b(ld['held_bytes'])} (channels read + decoded index)")
+    width = max(len(k) for k, v in rows if v is not None) + 2
+    lines = []
+    for k, v in rows:
+        if v is None:
+            if lines:
+                lines.append("")
+            lines.append(k)
+        else:
+            lines.append(f"  {k.ljust(width)}{v}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,236 @@
+"""`isplat stats`: figures equal direct numpy counts; --json keys; empty transfer function; one-line errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from isplat.augfile import write_augmented
+from isplat.bench.paper import decimate
+from isplat.cli.main import main
+from isplat.index import build_index_file, open_index
+from isplat.stats import collect, format_table
+
+SHAPE = (6, 7, 9)          # (n_k, n_j, n_i)
+
+
+def make_volume(folder, name="v", seed=0, shape=SHAPE):
+    rng = np.random.default_rng(seed)
+    d = rng.integers(0, 256, shape).astype(np.uint8)
+    d[:, :, :2] = 0                                             # some air
+    gm = rng.integers(0, 256, shape).astype(np.uint8)
+    nrm = rng.integers(0, 65536, shape).astype(np.uint16)
+    aug = folder / f"{name}.aug.h5"
+    idx = folder / f"{name}.idx.h5"
+    write_augmented(aug, d, gm, nrm, (1.0, 2.0, 0.5), (-100.0, 155.0), 0.25)
+    build_index_file(aug, idx)
+    return d, aug, idx
+
+
+def write_scene(folder, opacity="[[100, 0.0], [120, 1.0], [160, 1.0], [170, 0.0]]", extra="", name="s.toml",
+                aug="v.aug.h5", idx="v.idx.h5", method="indexed"):
+    p = folder / name
+    p.write_text(f"""version = 1
+[data]
+augmented = "{aug}"
+index = "{idx}"
+[image]
+width = 32
+height = 24
+[transfer]
+opacity = {opacity}
+[render]
+method = "{method}"
+threads = 1
+{extra}""")
+    return p
+
+
+def run(capsys, *args):
+    with pytest.raises(SystemExit) as exc:
+        main(["stats", *map(str, args)])
+    cap = capsys.readouterr()
+    return exc.value.code, cap.out, cap.err
+
+
+@pytest.fixture
+def vol(tmp_path):
+    d, aug, idx = make_volume(tmp_path)
+    return tmp_path, d, aug, idx
+
+
+def test_volume_and_index_figures_equal_direct_counts(vol):
+    folder, d, aug, idx = vol
+    s = collect(aug, idx)
+    n = d.size
+    a = s["augmented"]
+    assert a["shape_ijk"] == [9, 7, 6] and a["voxels"] == n
+    assert a["spacing_ijk"] == [1.0, 2.0, 0.5] and a["density_window"] == [-100.0, 155.0]
+    assert a["channel_bytes"] == {"density": n, "gradient_magnitude": n, "normal": 2 * n}
+    assert a["bytes"] == 4 * n and a["file_bytes"] == aug.stat().st_size
+    ix = s["index"]
+    assert ix["axes"] == "ijk" and ix["voxels_indexed"] == n
+    f = open_index(idx)
+    # the index's bytes: tables (257 pointers, 16 B per entry, E + 1 offsets) plus blocks, per axis
+    for ax in "ijk":
+        info = f.axis_info(ax)
+        want = 257 * 8 + info["n_entries"] * 16 + 8 + info["n_bytes"]
+        pa = ix["per_axis"][ax]
+        assert pa["bytes"] == want and pa["voxels"] == n
+        assert pa["entries"] == sum(np.unique(sl).size for sl in _slices(d, ax))   # one block per (slice, density)
+        assert pa["bytes_per_voxel"] == pytest.approx(want / n)
+    assert ix["bytes"] == sum(ix["per_axis"][a]["bytes"] for a in "ijk")
+    assert ix["bytes_per_voxel"] == pytest.approx(ix["bytes"] / (3 * n))
+    assert ix["per_density_range"][0]["densities"] == [0, 255] and ix["per_density_range"][0]["voxels"] == n
+
+
+def _slices(d, ax):
+    n = {"k": d.shape[0], "j": d.shape[1], "i": d.shape[2]}[ax]
+    take = {"k": lambda s: d[s], "j": lambda s: d[:, s], "i": lambda s: d[:, :, s]}[ax]
+    return [take(s) for s in range(n)]
+
+
+@pytest.mark.parametrize("with_index", [True, False])
+def test_spatial_ratio_equals_numpy(vol, with_index):
+    folder, d, aug, idx = vol
+    scene = write_scene(folder, method="indexed" if with_index else "full")
+    s = collect(aug, idx if with_index else None, scene=scene)
+    if not with_index:                         # the scene names the index: it is still reported
+        assert s["index"] is not None
+    sc = s["scene"]
+    want = int(((d >= 101) & (d <= 169)).sum())       # opacity > 0 strictly between 100 and 170
+    assert sc["intervals"] == [[101, 169]]
+    assert sc["voxels_of_interest"] == want and sc["spatial_ratio"] == pytest.approx(want / d.size)
+    assert sc["ratio_source"] == "index"
+    lo, hi = sc["intervals_input_units"][0]
+    assert lo == pytest.approx(-100 + 101) and hi == pytest.approx(-100 + 169)
+    ld = sc["loaded"]
+    if with_index:
+        assert sc["voxels_examined"] == want           # the indexed method visits exactly those voxels
+        assert ld["channels"] == ["normal"] and ld["augmented_bytes"] == 2 * d.size
+        assert ld["index_bytes"] > 0 and ld["index_decoded_bytes"] > 4 * want
+    else:
+        assert sc["voxels_examined"] == d.size         # the full method visits every voxel
+        assert ld["augmented_bytes"] == 3 * d.size and ld["index_bytes"] == 0
+    assert 0 < sc["voxels_splatted"] <= want
+    assert ld["bytes"] == ld["augmented_bytes"] + ld["index_bytes"]
+    assert ld["augmented_fraction"] == pytest.approx(ld["augmented_bytes"] / (4 * d.size))
+
+
+def test_ratio_counts_density_without_index(tmp_path):
+    d, aug, idx = make_volume(tmp_path)
+    idx.unlink()
+    scene = write_scene(tmp_path, method="full", extra="", idx="v.idx.h5")
+    text = scene.read_text().replace('index = "v.idx.h5"\n', "")
+    scene.write_text(text)
+    s = collect(aug, scene=scene)
+    assert s["index"] is None and s["scene"]["ratio_source"] == "augmented density"
+    assert s["scene"]["voxels_of_interest"] == int(((d >= 101) & (d <= 169)).sum())
+
+
+def test_partial_index_falls_back_to_density_counts(tmp_path):
+    d, aug, idx = make_volume(tmp_path)
+    build_index_file(aug, idx, ranges=[(150, 255)], force=True)
+    scene = write_scene(tmp_path, method="full")
+    s = collect(aug, idx, scene=scene)
+    assert s["scene"]["ratio_source"] == "augmented density"
+    assert s["scene"]["voxels_of_interest"] == int(((d >= 101) & (d <= 169)).sum())
+    assert s["index"]["per_density_range"][0]["voxels"] == int((d >= 150).sum())
+
+
+def test_json_keys(vol, capsys):
+    folder, d, aug, idx = vol
+    scene = write_scene(folder)
+    code, out, err = run(capsys, aug, idx, "--scene", scene, "--json", "-q")
+    assert code == 0 and err == ""
+    s = json.loads(out)
+    assert out.count("\n") == 1
+    assert set(s) == {"stats_version", "augmented", "index", "scene"}
+    assert {"path", "file_bytes", "shape_ijk", "voxels", "spacing_ijk", "density_window", "density_step",
+            "gradient_magnitude_scale", "density_sha256", "source", "source_format", "channel_bytes", "bytes",
+            "bytes_per_voxel"} == set(s["augmented"])
+    assert {"path", "file_bytes", "axes", "density_ranges", "voxels_indexed", "bytes", "bytes_per_voxel",
+            "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range"} == set(s["index"])
+    assert {"bytes", "block_bytes", "entries", "voxels", "escape_width", "bytes_per_voxel",
+            "block_bytes_per_voxel", "decoded_bytes"} == set(s["index"]["per_axis"]["k"])
+    assert {"path", "view", "method", "projection", "image", "intervals", "intervals_input_units", "ratio_source",
+            "voxels_of_interest", "spatial_ratio", "axis", "slices", "voxels_examined", "voxels_splatted",
+            "splatted_ratio", "render_seconds", "loaded"} == set(s["scene"])
+    assert {"channels", "axes", "augmented_bytes", "index_bytes", "bytes", "index_decoded_bytes", "held_bytes",
+            "augmented_fraction", "index_fraction", "files_bytes", "files_fraction"} == set(s["scene"]["loaded"])
+    # the table carries the same figures
+    code, table, _ = run(capsys, aug, idx, "--scene", scene, "-q")
+    assert code == 0 and f"{s['scene']['voxels_of_interest']:,}" in table and "spatial ratio" in table
+    assert format_table(s) == table
+
+
+def test_set_override_and_no_scene_json(vol, capsys):
+    folder, d, aug, idx = vol
+    scene = write_scene(folder)
+    code, out, _ = run(capsys, aug, idx, "--scene", scene, "--set", "transfer.opacity=[[200,0],[210,1],[255,1]]",
+                       "--json", "-q")
+    assert code == 0 and json.loads(out)["scene"]["voxels_of_interest"] == int((d >= 201).sum())
+    code, out, _ = run(capsys, aug, "--json")
+    s = json.loads(out)
+    assert code == 0 and s["index"] is None and s["scene"] is None
+
+
+def test_transfer_function_selecting_nothing(vol, capsys):
+    folder, d, aug, idx = vol
+    scene = write_scene(folder, opacity="[[120, 0.0]]")
+    code, out, err = run(capsys, aug, idx, "--scene", scene, "--json", "-q")
+    assert code == 0, err
+    sc = json.loads(out)["scene"]
+    assert sc["intervals"] == [] and sc["voxels_of_interest"] == 0 and sc["spatial_ratio"] == 0
+    assert sc["voxels_examined"] == 0 and sc["voxels_splatted"] == 0 and sc["loaded"]["index_bytes"] >= 0
+    assert sc["loaded"]["augmented_bytes"] == 0
+    code, out, _ = run(capsys, aug, idx, "--scene", scene, "-q")
+    assert code == 0 and "selects nothing" in out
+
+
+def test_index_from_command_line_fills_scene_without_one(vol, capsys):
+    folder, d, aug, idx = vol
+    scene = write_scene(folder, method="indexed")
+    scene.write_text(scene.read_text().replace('index = "v.idx.h5"\n', ""))
+    # without IDX, an indexed scene without an index is refused by the scene reader, one line
+    code, _, err = run(capsys, aug, "--scene", scene, "-q")
+    assert code == 2 and err.count("\n") == 1 and "data.index" in err
+    code, out, err = run(capsys, aug, idx, "--scene", scene, "--json", "-q")
+    assert code == 0, err and json.loads(out)["scene"]["method"] == "indexed"
+
+
+def one_error(code, out, err, *words):
+    assert code != 0 and out == ""
+    assert err.startswith("isplat: error: ") and err.count("\n") == 1, err
+    for w in words:
+        assert w in err, err
+
+
+def test_bad_input(vol, capsys):
+    folder, d, aug, idx = vol
+    one_error(*run(capsys, folder / "missing.aug.h5"), "missing.aug.h5")
+    one_error(*run(capsys, aug, folder / "missing.idx.h5"), "missing.idx.h5")
+    other = folder / "other"
+    other.mkdir()
+    _, oaug, oidx = make_volume(other, seed=1)
+    one_error(*run(capsys, aug, oidx), "another volume")
+    one_error(*run(capsys, idx), "format")                       # an index given as the augmented file
+    one_error(*run(capsys, aug, idx, "--scene", folder / "nope.toml"), "nope.toml")
+    # a scene describing another volume: the files named on the command line must be the scene's
+    scene = write_scene(folder, name="o.toml", aug="other/v.aug.h5", idx="other/v.idx.h5")
+    one_error(*run(capsys, aug, idx, "--scene", scene, "-q"), "data.augmented")
+    scene = write_scene(folder, name="oi.toml", idx="other/v.idx.h5")
+    one_error(*run(capsys, aug, idx, "--scene", scene, "-q"), "data.index")
+    one_error(*run(capsys, aug, idx, "--set", "camera.azimuth=3"), "--scene")
+    one_error(*run(capsys, aug, idx, "--scene", write_scene(folder), "--view", "3", "-q"), "--view")
+    bad = write_scene(folder, name="bad.toml", opacity="[[100, 2.0]]")
+    one_error(*run(capsys, aug, idx, "--scene", bad, "-q"), "bad.toml", "opacity")
+
+
+def test_decimate_block_means():
+    a = np.arange(5 * 4 * 3, dtype=np.float32).reshape(5, 4, 3)
+    d = decimate(a)
+    assert d.shape == (3, 2, 2)
+    p = np.pad(a, [(0, 1), (0, 0), (0, 1)], mode="edge")
+    assert d[1, 1, 0] == pytest.approx(p[2:4, 2:4, 0:2].mean())
+    assert d[2, 0, 1] == pytest.approx(p[4:6, 0:2, 2:4].mean())

@@ -50,32 +50,66 @@ def shade_table(shading, frame, geom, dtype=np.float32) -> np.ndarray:
     """Per normal code: (diffuse r, g, b, specular r, g, b) for this view's lights (Phong, infinite viewer).
 
     Lights are given in camera space; normals are in the volume's i, j, k axes, so the lights are turned
-    into volume axes once per frame and the 65,536 codes are shaded in one vectorised pass.
+    into volume axes once per frame and the 65,536 codes are shaded in one compiled pass.
     """
     from .normals import decode_lut
+    from .splat.kernels import shade_codes
 
-    n = decode_lut().astype(np.float64)
     R = np.stack([frame.u, frame.v, frame.w])          # camera -> world: x*u + y*v + z*w
     view = geom.unit_axes @ frame.w                    # towards the viewer, volume axes
-    diff = np.full((n.shape[0], 3), shading.ambient, dtype=np.float64)
-    spec = np.zeros((n.shape[0], 3), dtype=np.float64)
+    rows = []
     for light in shading.lights:
         lw = np.asarray(light.direction, float) @ R
         lv = geom.unit_axes @ (lw / np.linalg.norm(lw))
         h = lv + view
         h /= max(np.linalg.norm(h), 1e-12)
-        ndl = n @ lv
-        ndh = n @ h
-        if shading.two_sided:
-            ndl, ndh = np.abs(ndl), np.abs(ndh)
-        else:
-            ndh = np.where(ndl > 0, ndh, 0.0)
-            ndl = np.maximum(ndl, 0.0)
-            ndh = np.maximum(ndh, 0.0)
-        lc = light.intensity * np.asarray(light.color, float)
-        diff += shading.diffuse * ndl[:, None] * lc
-        spec += shading.specular * (ndh ** shading.shininess)[:, None] * lc
-    return np.concatenate([diff, spec], axis=1).astype(dtype)
+        rows.append([*lv, *h, *(light.intensity * np.asarray(light.color, float))])
+    lights = np.asarray(rows, dtype=np.float64).reshape(-1, 9)
+    out = np.empty((65536, 6), dtype=dtype)
+    shade_codes(decode_lut(), lights, float(shading.ambient), float(shading.diffuse), float(shading.specular),
+                float(shading.shininess), bool(shading.two_sided), out)
+    return out
+
+
+GATHER_SLAB = 8      # k-slices read at a time when gathering channel values
+
+
+def gather_channels(aug, loaded: dict, channels, geom) -> dict:
+    """Read, for every loaded index axis, the channel values of just its voxels.
+
+    Channels are read in slabs of k-slices and only the slabs that hold a voxel of interest are read, so a
+    scene that sees a small part of the volume reads a small part of the file; the values come out in the
+    order of each axis's ``positions``, so the renderer reads them sequentially.
+    """
+    from .splat.kernels import flat_indices
+
+    n_k, n_j, n_i = geom.shape
+    plane = n_i * n_j
+    flat_stride = (1, n_i, plane)
+    fis = {}
+    for ax, la in loaded.items():
+        ia, ib, ic = cam_mod.SLICE_AXES[ax]
+        strides = np.array([flat_stride[ia], flat_stride[ib], flat_stride[ic]], dtype=np.int64)
+        fis[ax] = flat_indices(la.slice_block_ptr, la.block_voxel_ptr, la.positions, la.n_a, strides)
+    out = {ax: {} for ax in loaded}
+    if not channels or not fis:
+        return out
+    all_fi = np.concatenate(list(fis.values()))
+    order = np.argsort(all_fi, kind="stable")
+    sorted_fi = all_fi[order]
+    bounds = np.searchsorted(sorted_fi, np.arange(0, n_k + GATHER_SLAB, GATHER_SLAB) * plane)
+    for ch in channels:
+        vals = np.empty(all_fi.shape[0], dtype=np.uint16 if ch == "normal" else np.uint8)
+        for s_i, k0 in enumerate(range(0, n_k, GATHER_SLAB)):
+            lo, hi = bounds[s_i], bounds[s_i + 1]
+            if hi > lo:
+                slab = aug.read(ch, k0, min(n_k, k0 + GATHER_SLAB)).ravel()
+                vals[order[lo:hi]] = slab[sorted_fi[lo:hi] - k0 * plane]
+        start = 0
+        for ax, fi in fis.items():
+            out[ax][ch] = vals[start:start + fi.shape[0]]
+            start += fi.shape[0]
+    return out
 
 
 def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:
@@ -118,17 +152,17 @@ class Renderer:
         empty = len(self.luts.intervals) == 0
         self.use_shade = bool(scene.shading.enabled) and not empty
         self.use_gm = self.luts.gradient is not None and not empty
-        self.nrm = aug.read("normal").ravel() if self.use_shade else _EMPTY_U16
-        self.gm = aug.read("gradient_magnitude").ravel() if self.use_gm else _EMPTY_U8
-        if self.use_shade:
-            self.report.channels.append("normal")
-        if self.use_gm:
-            self.report.channels.append("gradient_magnitude")
-        self.loaded = {}
+        channels = (["normal"] if self.use_shade else []) + (["gradient_magnitude"] if self.use_gm else [])
+        self.report.channels = list(channels)
+        self.loaded, self.attrs = {}, {}
         if self.method == "full":
+            # every voxel is visited: whole channels, indexed by flat position
             self.dens = aug.read("density").ravel() if not empty else _EMPTY_U8
             if not empty:
-                self.report.channels.append("density")
+                self.report.channels.insert(0, "density")
+            whole = {ch: aug.read(ch).ravel() for ch in channels}
+            for ax in self.axes_needed:
+                self.attrs[ax] = (whole.get("gradient_magnitude", _EMPTY_U8), whole.get("normal", _EMPTY_U16))
         elif self.method == "indexed":
             self.dens = _EMPTY_U8
             if scene.data.index is None:
@@ -143,6 +177,10 @@ class Renderer:
             if not empty:
                 for ax in self.axes_needed:
                     self.loaded[ax] = idx.load_axis(ax, [tuple(map(int, iv)) for iv in self.luts.intervals])
+                gathered = gather_channels(aug, self.loaded, channels, self.geom)
+                for ax in self.axes_needed:
+                    g = gathered[ax]
+                    self.attrs[ax] = (g.get("gradient_magnitude", _EMPTY_U8), g.get("normal", _EMPTY_U16))
             self.report.index_bytes = int(idx.bytes_read)
         else:
             raise IsplatError(f"render.method = {self.method!r}: expected 'indexed' or 'full'")
@@ -190,22 +228,24 @@ class Renderer:
                     tile_npix[ty, tx] = (min(H, ty * TILE + TILE) - ty * TILE) * (min(W, tx * TILE + TILE) - tx * TILE)
             sheet = np.zeros((H, W, 4), dtype=self.dtype)
             et_val = ro.early_termination if et is None else et
+            gm, nrm = self.attrs[axis]
             if self.method == "indexed":
                 la = self.loaded[axis]
                 args = (la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions)
             else:
                 args = (np.zeros(1, np.int64), _EMPTY_U8, np.zeros(1, np.int64), np.zeros(1, np.int32))
             common = (order, self.method == "full", *args, self.luts.intervals.astype(np.int64),
-                      self.dens, self.gm, self.use_gm, self.nrm, self.use_shade, strides, n_a, n_b,
+                      self.dens, gm, self.use_gm, nrm, self.use_shade, strides, n_a, n_b,
                       atab, self.luts.color, shade, persp, inv_unit, normal_off, slice_step,
                       proj.coef, proj.steps, qe, cuts, fp.table, fp.params,
-                      img, sheet, np.zeros((H, W), np.uint8), np.zeros((nty, ntx), np.int32), tile_npix, np.zeros((nty, ntx), np.uint8))
+                      img, sheet, np.zeros((H, W), np.uint8), np.zeros((nty, ntx), np.int32), tile_npix,
+                      np.zeros((H, W), np.uint8))
             bands = _bands(nty, self.threads)
             per_band = [np.zeros(3, dtype=np.int64) for _ in bands]
 
             def run(bi):
                 y0, y1 = bands[bi]
-                render_axis(*common, np.zeros(nty * ntx, np.int64), self.dtype(et_val), per_band[bi],
+                render_axis(*common, np.empty(H * W, np.int64), self.dtype(et_val), per_band[bi],
                             y0 * TILE, min(H, y1 * TILE))
 
             if len(bands) == 1:
@@ -222,15 +262,12 @@ class Renderer:
 
 def composite_background(img: np.ndarray, background) -> np.ndarray:
     """Premultiplied RGBA over the background colour -> straight RGBA (float)."""
-    bg = np.asarray(background, dtype=np.float64)
-    a = img[..., 3:4].astype(np.float64)
-    rgb = img[..., :3] + (1.0 - a) * bg[:3] * bg[3]
-    alpha = a + (1.0 - a) * bg[3]
-    straight = np.where(alpha > 0, rgb / np.maximum(alpha, 1e-30), 0.0)
-    out = np.concatenate([straight, alpha], axis=-1)
-    if not np.all(np.isfinite(out)):          # never let NaN/Inf reach an image
+    from .splat.kernels import finish
+
+    out = np.empty(img.shape, dtype=img.dtype)
+    if not finish(img, np.asarray(background, dtype=np.float64), out):
         raise IsplatError("render produced non-finite pixels; please report this scene")
-    return np.clip(out, 0.0, 1.0)
+    return out
 
 
 def default_threads() -> int:

@@ -5,8 +5,9 @@ the full traversal differ only in which voxels reach the shared per-voxel routin
 contributions are summed into a sheet buffer (order-independent), so both give the same image up to float
 rounding, and the speed-up measures indexing alone.
 
-Early termination works on 8x8 pixel tiles: a tile whose pixels all reached the threshold opacity is
-saturated, and a voxel whose footprint touches only saturated tiles is skipped before shading.
+Early termination: a voxel whose footprint covers only saturated pixels (opacity at the threshold) is
+skipped before shading; 8x8 tiles whose pixels are all saturated answer that test at once. Each slice
+composites exactly the pixels its splats touched (a per-pixel dirty list).
 """
 
 from __future__ import annotations
@@ -25,40 +26,104 @@ QA, QB, QC, EX, EY, R2, TSCALE = range(7)
 
 
 @nb.njit(cache=True, nogil=True)
-def _composite(img, sheet, sat, tile_sat, tile_npix, tile_dirty, dirty, nd, et):
-    """Composite the slice's sheet over the image front to back (premultiplied 'over'), clear it,
-    and count pixels that crossed the early-termination threshold. Returns tiles still open."""
-    h = img.shape[0]
+def _composite(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et):
+    """Composite the slice's sheet over the image front to back (premultiplied 'over') at the pixels the
+    slice touched, clear them, and count pixels that crossed the early-termination threshold."""
     w = img.shape[1]
-    ntx = tile_dirty.shape[1]
     for t in range(nd):
-        tid = dirty[t]
-        ty = tid // ntx
-        tx = tid - ty * ntx
-        tile_dirty[ty, tx] = 0
-        for y in range(ty * TILE, min(h, ty * TILE + TILE)):
-            for x in range(tx * TILE, min(w, tx * TILE + TILE)):
-                sa = sheet[y, x, 3]
-                if sa > 0.0:
-                    scale = 1.0
-                    if sa > 1.0:
-                        # overlapping footprints can sum past 1: keep the colour/opacity ratio
-                        scale = 1.0 / sa
-                        sa = 1.0
-                    ai = img[y, x, 3]
-                    t1 = 1.0 - ai
-                    img[y, x, 0] += t1 * sheet[y, x, 0] * scale
-                    img[y, x, 1] += t1 * sheet[y, x, 1] * scale
-                    img[y, x, 2] += t1 * sheet[y, x, 2] * scale
-                    an = ai + t1 * sa
-                    img[y, x, 3] = an
-                    if ai < et and an >= et:
-                        tile_sat[ty, tx] += 1
-                        sat[y, x] = 1
-                sheet[y, x, 0] = 0.0
-                sheet[y, x, 1] = 0.0
-                sheet[y, x, 2] = 0.0
-                sheet[y, x, 3] = 0.0
+        p = dirty[t]
+        y = p // w
+        x = p - y * w
+        dirty_px[y, x] = 0
+        sa = sheet[y, x, 3]
+        if sa > 0.0:
+            scale = 1.0
+            if sa > 1.0:
+                # overlapping footprints can sum past 1: keep the colour/opacity ratio
+                scale = 1.0 / sa
+                sa = 1.0
+            ai = img[y, x, 3]
+            t1 = 1.0 - ai
+            img[y, x, 0] += t1 * sheet[y, x, 0] * scale
+            img[y, x, 1] += t1 * sheet[y, x, 1] * scale
+            img[y, x, 2] += t1 * sheet[y, x, 2] * scale
+            an = ai + t1 * sa
+            img[y, x, 3] = an
+            if ai < et and an >= et:
+                tile_sat[y // TILE, x // TILE] += 1
+                sat[y, x] = 1
+        sheet[y, x, 0] = 0.0
+        sheet[y, x, 1] = 0.0
+        sheet[y, x, 2] = 0.0
+        sheet[y, x, 3] = 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def shade_codes(normals, lights, ambient, diffuse, specular, shininess, two_sided, out):
+    """Phong terms per normal code: ``out[c] = (diffuse r, g, b, specular r, g, b)``.
+
+    ``lights`` rows: (L_i, L_j, L_k, H_i, H_j, H_k, r, g, b) in volume axes, L towards the light, H the
+    half vector with the viewer, rgb the light's colour times intensity.
+    """
+    for c in range(normals.shape[0]):
+        nx = normals[c, 0]
+        ny = normals[c, 1]
+        nz = normals[c, 2]
+        dr = ambient
+        dg = ambient
+        db = ambient
+        sr = 0.0
+        sg = 0.0
+        sb = 0.0
+        for li in range(lights.shape[0]):
+            ndl = nx * lights[li, 0] + ny * lights[li, 1] + nz * lights[li, 2]
+            ndh = nx * lights[li, 3] + ny * lights[li, 4] + nz * lights[li, 5]
+            if two_sided:
+                ndl = abs(ndl)
+                ndh = abs(ndh)
+            else:
+                if ndl <= 0.0:
+                    ndl = 0.0
+                    ndh = 0.0
+                ndh = max(ndh, 0.0)
+            sp = specular * ndh ** shininess if ndh > 0.0 else 0.0
+            dr += diffuse * ndl * lights[li, 6]
+            dg += diffuse * ndl * lights[li, 7]
+            db += diffuse * ndl * lights[li, 8]
+            sr += sp * lights[li, 6]
+            sg += sp * lights[li, 7]
+            sb += sp * lights[li, 8]
+        out[c, 0] = dr
+        out[c, 1] = dg
+        out[c, 2] = db
+        out[c, 3] = sr
+        out[c, 4] = sg
+        out[c, 5] = sb
+
+
+@nb.njit(cache=True, nogil=True)
+def finish(img, bg, out):
+    """Premultiplied RGBA over the background -> straight RGBA in [0, 1]; returns False on a non-finite
+    pixel (which must never reach an image)."""
+    ok = True
+    for y in range(img.shape[0]):
+        for x in range(img.shape[1]):
+            a = np.float64(img[y, x, 3])
+            t = (1.0 - a) * bg[3]
+            alpha = a + t
+            for ch in range(3):
+                v = img[y, x, ch] + t * bg[ch]
+                if alpha > 0.0:
+                    v = v / alpha
+                else:
+                    v = 0.0
+                if not np.isfinite(v):
+                    ok = False
+                out[y, x, ch] = min(max(v, 0.0), 1.0)
+            if not np.isfinite(alpha):
+                ok = False
+            out[y, x, 3] = min(max(alpha, 0.0), 1.0)
+    return ok
 
 
 @nb.njit(cache=True, nogil=True)
@@ -66,11 +131,13 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                 dens, gm, use_gm, nrm, use_shade, strides, n_a, n_b,
                 alpha_tab, color_lut, shade_lut, persp, inv_unit, slice_normal_offset, slice_step,
                 coef, steps, qe, cuts, fp_table, fp,
-                img, sheet, sat, tile_sat, tile_npix, tile_dirty, dirty, et, stats, band_y0, band_y1):
+                img, sheet, sat, tile_sat, tile_npix, dirty_px, dirty, et, stats, band_y0, band_y1):
     """Render the slices ``order`` (front to back) of one axis into ``img`` (H, W, 4 premultiplied RGBA).
 
-    ``full``: visit every voxel of each slice (density from ``dens``); otherwise visit only the blocks of
-    the loaded index whose density lies in ``intervals``, found per slice by binary search (§2.2).
+    ``full``: visit every voxel of each slice (density from ``dens``; ``gm`` and ``nrm`` are whole channels
+    indexed by flat position); otherwise visit only the blocks of the loaded index whose density lies in
+    ``intervals``, found per slice by binary search (§2.2), with ``gm`` and ``nrm`` gathered per loaded voxel
+    (indexed like ``positions``, so the pipeline reads them in order).
     ``strides``: flat-index strides of a, b, c in the [k, j, i] channels; ``cuts`` rows: (g0, ga, gb, gc)
     with a voxel kept where ``g0 + a*ga + b*gb + c*gc >= 0``.
     Counters in ``stats``: [voxels examined, voxels splatted, slices done].
@@ -85,6 +152,7 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
     sa_ = strides[0]
     sb_ = strides[1]
     sc_ = strides[2]
+    cand_ai = np.empty(n_a * n_b, dtype=np.int64)
     cand_a = np.empty(n_a * n_b, dtype=np.int32)
     cand_b = np.empty(n_a * n_b, dtype=np.int32)
     cand_d = np.empty(n_a * n_b, dtype=np.uint8)
@@ -123,6 +191,7 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                     fi = cbase + a * sa_ + b * sb_
                     d = dens[fi]
                     if alpha_tab[d, gm[fi] if use_gm else 0] != 0.0:
+                        cand_ai[ncand] = fi
                         cand_a[ncand] = a
                         cand_b[ncand] = b
                         cand_d[ncand] = d
@@ -158,8 +227,9 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                             b += 1
                         a = ind - row0
                         if use_gm:
-                            if alpha_tab[d, gm[cbase + a * sa_ + b * sb_]] == 0.0:
+                            if alpha_tab[d, gm[vi]] == 0.0:
                                 continue
+                        cand_ai[ncand] = vi
                         cand_a[ncand] = a
                         cand_b[ncand] = b
                         cand_d[ncand] = d
@@ -172,7 +242,7 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
             a = cand_a[n]
             b = cand_b[n]
             d = cand_d[n]
-            fi = cbase + a * sa_ + b * sb_
+            fi = cand_ai[n]
             g = 0
             if use_gm:
                 g = gm[fi]
@@ -275,20 +345,18 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                         if ti >= ntab:
                             ti = ntab - 1
                         wgt = fp_table[ti]
+                        if dirty_px[y, x] == 0:
+                            dirty_px[y, x] = 1
+                            dirty[nd] = y * img_w + x
+                            nd += 1
                         sheet[y, x, 0] += wgt * cr
                         sheet[y, x, 1] += wgt * cg
                         sheet[y, x, 2] += wgt * cb
                         sheet[y, x, 3] += wgt * alpha
-            for ty in range(ty0, ty1 + 1):
-                for tx in range(tx0, tx1 + 1):
-                    if tile_dirty[ty, tx] == 0:
-                        tile_dirty[ty, tx] = 1
-                        dirty[nd] = ty * tile_dirty.shape[1] + tx
-                        nd += 1
             # a voxel spanning two bands is counted by the band holding its first image row
             if max(int(fy0), 0) >= band_y0:
                 stats[1] += 1
-        _composite(img, sheet, sat, tile_sat, tile_npix, tile_dirty, dirty, nd, et)
+        _composite(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et)
         stats[2] += 1
         if et_on:
             done = 0
@@ -298,3 +366,17 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                         done += 1
             if done == total_tiles:
                 break
+
+
+@nb.njit(cache=True, nogil=True)
+def flat_indices(slice_block_ptr, block_voxel_ptr, positions, n_a, strides):
+    """Flat [k, j, i] index of every voxel of a loaded axis (in the order of ``positions``)."""
+    out = np.empty(positions.shape[0], dtype=np.int64)
+    for c in range(slice_block_ptr.shape[0] - 1):
+        base = c * strides[2]
+        for r in range(slice_block_ptr[c], slice_block_ptr[c + 1]):
+            for vi in range(block_voxel_ptr[r], block_voxel_ptr[r + 1]):
+                ind = positions[vi]
+                b = ind // n_a
+                out[vi] = base + (ind - b * n_a) * strides[0] + b * strides[1]
+    return out

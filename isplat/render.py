@@ -47,7 +47,8 @@ class LoadReport:
 
 
 def shade_table(shading, frame, geom, dtype=np.float32) -> np.ndarray:
-    """Per normal code: (diffuse r, g, b, specular r, g, b) for this view's lights (Phong, infinite viewer).
+    """Per normal code: (diffuse r, g, b, specular r, g, b) for this view's lights (Phong, infinite viewer),
+    or just (diffuse, specular) when every light is white.
 
     Lights are given in camera space; normals are in the volume's i, j, k axes, so the lights are turned
     into volume axes once per frame and the 65,536 codes are shaded in one compiled pass.
@@ -68,6 +69,9 @@ def shade_table(shading, frame, geom, dtype=np.float32) -> np.ndarray:
     out = np.empty((65536, 6), dtype=dtype)
     shade_codes(decode_lut(), lights, float(shading.ambient), float(shading.diffuse), float(shading.specular),
                 float(shading.shininess), bool(shading.two_sided), out)
+    if np.all(lights[:, 6:9] == lights[:1, 6:7]):
+        # white lights: r, g and b factors are equal; keep one of each (diffuse, specular)
+        return np.ascontiguousarray(out[:, [0, 3]])
     return out
 
 
@@ -154,7 +158,7 @@ class Renderer:
         self.use_gm = self.luts.gradient is not None and not empty
         channels = (["normal"] if self.use_shade else []) + (["gradient_magnitude"] if self.use_gm else [])
         self.report.channels = list(channels)
-        self.loaded, self.attrs = {}, {}
+        self.loaded, self.attrs, self.selected = {}, {}, {}
         if self.method == "full":
             # every voxel is visited: whole channels, indexed by flat position
             self.dens = aug.read("density").ravel() if not empty else _EMPTY_U8
@@ -175,12 +179,24 @@ class Renderer:
                                   f"(density_sha256 {idx.density_sha256[:12]}..., {aug.path.name} has "
                                   f"{aug.density_sha256[:12]}...); rebuild it with isplat index")
             if not empty:
+                from .splat.kernels import select_voxels
+
+                ivs = self.luts.intervals.astype(np.int64)
                 for ax in self.axes_needed:
-                    self.loaded[ax] = idx.load_axis(ax, [tuple(map(int, iv)) for iv in self.luts.intervals])
+                    la = idx.load_axis(ax, [tuple(map(int, iv)) for iv in ivs])
+                    if max(la.n_a, la.n_b) > 65535:
+                        raise IsplatError(f"{scene.data.index}: axis {ax} slices are {la.n_a}x{la.n_b}; "
+                                          "the renderer takes at most 65535 voxels per in-slice axis")
+                    self.selected[ax] = select_voxels(la.slice_block_ptr, la.block_density,
+                                                      la.block_voxel_ptr, la.positions, ivs, la.n_a)
+                    self.loaded[ax] = la
                 gathered = gather_channels(aug, self.loaded, channels, self.geom)
                 for ax in self.axes_needed:
-                    g = gathered[ax]
-                    self.attrs[ax] = (g.get("gradient_magnitude", _EMPTY_U8), g.get("normal", _EMPTY_U16))
+                    g, src = gathered[ax], self.selected[ax][4]
+                    identity = src.shape[0] == self.loaded[ax].positions.shape[0]
+                    pick = (lambda v: v) if identity else (lambda v: v[src])
+                    self.attrs[ax] = (pick(g["gradient_magnitude"]) if "gradient_magnitude" in g else _EMPTY_U8,
+                                      pick(g["normal"]) if "normal" in g else _EMPTY_U16)
             self.report.index_bytes = int(idx.bytes_read)
         else:
             raise IsplatError(f"render.method = {self.method!r}: expected 'indexed' or 'full'")
@@ -230,11 +246,10 @@ class Renderer:
             et_val = ro.early_termination if et is None else et
             gm, nrm = self.attrs[axis]
             if self.method == "indexed":
-                la = self.loaded[axis]
-                args = (la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions)
+                args = self.selected[axis][:4]
             else:
-                args = (np.zeros(1, np.int64), _EMPTY_U8, np.zeros(1, np.int64), np.zeros(1, np.int32))
-            common = (order, self.method == "full", *args, self.luts.intervals.astype(np.int64),
+                args = (np.zeros(1, np.int64), np.zeros(1, np.uint16), np.zeros(1, np.uint16), _EMPTY_U8)
+            common = (order, self.method == "full", *args,
                       self.dens, gm, self.use_gm, nrm, self.use_shade, strides, n_a, n_b,
                       atab, self.luts.color, shade, persp, inv_unit, normal_off, slice_step,
                       proj.coef, proj.steps, qe, cuts, fp.table, fp.params,
@@ -245,7 +260,7 @@ class Renderer:
 
             def run(bi):
                 y0, y1 = bands[bi]
-                render_axis(*common, np.empty(H * W, np.int64), self.dtype(et_val), per_band[bi],
+                render_axis(*common, np.empty(H * W + 1, np.int64), self.dtype(et_val), per_band[bi],
                             y0 * TILE, min(H, y1 * TILE))
 
             if len(bands) == 1:

@@ -61,12 +61,16 @@ def test_reference_with_cut_gradient_and_early_termination(tmp_path, make_scene)
     shape = (6, 5, 6)
     dens = rng_volume(2, shape)
     gm = np.random.default_rng(3).integers(0, 256, shape).astype(np.uint8)
+    # coloured lights (the full r, g, b shading table), one-sided Phong, gradient-modulated opacity
     aug, idx = write_volume(tmp_path, dens, gm=gm, gscale=0.5, normal=random_normals(2, shape))
     sc = make_scene(aug, idx, image="width = 20\nheight = 20",
                     camera="azimuth = 20\nelevation = 30",
                     transfer="opacity = [[55, 0.0], [60, 0.95], [255, 0.95]]\n"
                              "gradient_opacity = [[0, 0.2], [100, 1.0]]",
                     cut="point = [0.3, 0.0, 0.0]\nnormal = [1.0, 0.2, 0.0]",
+                    shading="enabled = true\ntwo_sided = false\nspecular = 0.5",
+                    shading__light="direction = [0.3, 0.5, 1.0]\ncolor = [1.0, 0.6, 0.2]\n"
+                                   "[[shading.light]]\ndirection = [-1.0, 0.2, 0.4]\nintensity = 0.5",
                     render=BIG_TABLE + "early_termination = 0.9")
     ref = reference_render(sc, et=0.9)
     ind, st_i = render(sc, "indexed")

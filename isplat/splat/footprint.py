@@ -26,7 +26,7 @@ MIN_SIGMA_PIXELS = 0.5
 
 @dataclass(frozen=True)
 class Footprint:
-    table: np.ndarray      # float32[T]: weight at q in [t/tscale, (t+1)/tscale)
+    table: np.ndarray      # float32[T + 1]: weight at q in [t/tscale, (t+1)/tscale); table[T] = 0
     params: np.ndarray     # float64[7]: Qa, Qb, Qc, ex, ey, R2, tscale
 
 
@@ -46,7 +46,8 @@ def make_footprint(jac: np.ndarray, sigma: float, radius: float, table_size: int
     norm = a_cell / (2.0 * math.pi * math.sqrt(det)) / kept
     tscale = table_size / R2
     t = (np.arange(table_size) + 0.5) / tscale
-    table = (norm * np.exp(-0.5 * t)).astype(dtype)
+    # one trailing zero: the kernel clamps q to radius^2 and reads 0 there, without a branch
+    table = np.append(norm * np.exp(-0.5 * t), 0.0).astype(dtype)
     ex = radius * math.sqrt(Sigma[0, 0])
     ey = radius * math.sqrt(Sigma[1, 1])
     params = np.array([Q[0, 0], Q[0, 1], Q[1, 1], ex, ey, R2, tscale], dtype=np.float64)
@@ -57,5 +58,5 @@ def footprint_weight(fp: Footprint, dx, dy, s=1.0):
     """Weight of the footprint at pixel offset (dx, dy) for scale ``s`` (numpy; for tests)."""
     Qa, Qb, Qc, _, _, R2, tscale = fp.params
     q = (Qa * dx * dx + 2 * Qb * dx * dy + Qc * dy * dy) / (s * s)
-    idx = np.minimum((q * tscale).astype(np.int64), len(fp.table) - 1)
+    idx = np.minimum((q * tscale).astype(np.int64), len(fp.table) - 2)
     return np.where(q < R2, fp.table[idx], 0.0)

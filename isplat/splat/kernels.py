@@ -127,7 +127,7 @@ def finish(img, bg, out):
 
 
 @nb.njit(cache=True, nogil=True)
-def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, positions, intervals,
+def render_axis(order, full, sel_ptr, sel_a, sel_b, sel_d,
                 dens, gm, use_gm, nrm, use_shade, strides, n_a, n_b,
                 alpha_tab, color_lut, shade_lut, persp, inv_unit, slice_normal_offset, slice_step,
                 coef, steps, qe, cuts, fp_table, fp,
@@ -135,9 +135,9 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
     """Render the slices ``order`` (front to back) of one axis into ``img`` (H, W, 4 premultiplied RGBA).
 
     ``full``: visit every voxel of each slice (density from ``dens``; ``gm`` and ``nrm`` are whole channels
-    indexed by flat position); otherwise visit only the blocks of the loaded index whose density lies in
-    ``intervals``, found per slice by binary search (§2.2), with ``gm`` and ``nrm`` gathered per loaded voxel
-    (indexed like ``positions``, so the pipeline reads them in order).
+    indexed by flat position). Otherwise visit only the voxels the index selected (:func:`select_voxels`):
+    slice ``c`` holds ``sel_*[sel_ptr[c]:sel_ptr[c+1]]``, with ``gm`` and ``nrm`` gathered per selected voxel
+    in the same order, so the pipeline reads them sequentially.
     ``strides``: flat-index strides of a, b, c in the [k, j, i] channels; ``cuts`` rows: (g0, ga, gb, gc)
     with a voxel kept where ``g0 + a*ga + b*gb + c*gc >= 0``.
     Counters in ``stats``: [voxels examined, voxels splatted, slices done].
@@ -148,14 +148,16 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
     """
     et_on = et < 1.0
     ncut = cuts.shape[0]
+    mono = shade_lut.shape[1] == 2
     cs = np.empty(max(ncut, 1), dtype=np.float64)
     sa_ = strides[0]
     sb_ = strides[1]
     sc_ = strides[2]
-    cand_ai = np.empty(n_a * n_b, dtype=np.int64)
-    cand_a = np.empty(n_a * n_b, dtype=np.int32)
-    cand_b = np.empty(n_a * n_b, dtype=np.int32)
-    cand_d = np.empty(n_a * n_b, dtype=np.uint8)
+    m = n_a * n_b if full else 1
+    cand_ai = np.empty(m, dtype=np.int64)
+    cand_a = np.empty(m, dtype=np.uint16)
+    cand_b = np.empty(m, dtype=np.uint16)
+    cand_d = np.empty(m, dtype=np.uint8)
     img_h = img.shape[0]
     img_w = img.shape[1]
     Qa = fp[QA]
@@ -163,7 +165,6 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
     Qc = fp[QC]
     R2v = fp[R2]
     tscale = fp[TSCALE]
-    ntab = fp_table.shape[0]
     ex = fp[EX]
     ey = fp[EY]
     bty0 = band_y0 // TILE
@@ -197,56 +198,34 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                         cand_d[ncand] = d
                         ncand += 1
             stats[0] += n_a * n_b
+            n0 = 0
+            n1 = ncand
+            src_a = cand_a
+            src_b = cand_b
+            src_d = cand_d
         else:
-            r0 = slice_block_ptr[c]
-            r1 = slice_block_ptr[c + 1]
-            for iv in range(intervals.shape[0]):
-                lo = intervals[iv, 0]
-                hi = intervals[iv, 1]
-                # §2.2: binary search for the first block with density >= lo
-                L = r0
-                R = r1
-                while L < R:
-                    m = (L + R) >> 1
-                    if block_density[m] < lo:
-                        L = m + 1
-                    else:
-                        R = m
-                r = L
-                while r < r1 and block_density[r] <= hi:
-                    d = block_density[r]
-                    v0 = block_voxel_ptr[r]
-                    v1 = block_voxel_ptr[r + 1]
-                    # positions increase within a block: follow the row instead of dividing per voxel
-                    b = positions[v0] // n_a if v1 > v0 else 0
-                    row0 = b * n_a
-                    for vi in range(v0, v1):
-                        ind = positions[vi]
-                        while ind >= row0 + n_a:
-                            row0 += n_a
-                            b += 1
-                        a = ind - row0
-                        if use_gm:
-                            if alpha_tab[d, gm[vi]] == 0.0:
-                                continue
-                        cand_ai[ncand] = vi
-                        cand_a[ncand] = a
-                        cand_b[ncand] = b
-                        cand_d[ncand] = d
-                        ncand += 1
-                    stats[0] += v1 - v0
-                    r += 1
+            # the voxels the index selected for this slice, in the order of its blocks (see select_voxels)
+            n0 = sel_ptr[c]
+            n1 = sel_ptr[c + 1]
+            stats[0] += n1 - n0
+            src_a = sel_a
+            src_b = sel_b
+            src_d = sel_d
         # 2. the shared per-voxel pipeline: classify, shade, project (§3), splat into the sheet
         nd = 0
-        for n in range(ncand):
-            a = cand_a[n]
-            b = cand_b[n]
-            d = cand_d[n]
-            fi = cand_ai[n]
+        for n in range(n0, n1):
+            a = np.int64(src_a[n])
+            b = np.int64(src_b[n])
+            d = src_d[n]
+            # where this voxel's gradient magnitude and normal are: flat position in whole channels
+            # (full), or its place in the per-voxel values gathered for the index (indexed)
+            fi = cand_ai[n] if full else n
             g = 0
             if use_gm:
                 g = gm[fi]
             L = alpha_tab[d, g]
+            if L == 0.0:
+                continue
             kept = True
             for ci in range(ncut):
                 if cs[ci] + a * cuts[ci, 1] + b * cuts[ci, 2] < 0.0:
@@ -326,9 +305,18 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
             cb = color_lut[d, 2]
             if use_shade:
                 code = nrm[fi]
-                cr = cr * shade_lut[code, 0] + shade_lut[code, 3]
-                cg = cg * shade_lut[code, 1] + shade_lut[code, 4]
-                cb = cb * shade_lut[code, 2] + shade_lut[code, 5]
+                if mono:
+                    # white lights: one diffuse and one specular factor per code (a smaller table,
+                    # which matters: it is read at random codes)
+                    dif = shade_lut[code, 0]
+                    spe = shade_lut[code, 1]
+                    cr = cr * dif + spe
+                    cg = cg * dif + spe
+                    cb = cb * dif + spe
+                else:
+                    cr = cr * shade_lut[code, 0] + shade_lut[code, 3]
+                    cg = cg * shade_lut[code, 1] + shade_lut[code, 4]
+                    cb = cb * shade_lut[code, 2] + shade_lut[code, 5]
             cr *= alpha
             cg *= alpha
             cb *= alpha
@@ -340,19 +328,18 @@ def render_axis(order, full, slice_block_ptr, block_density, block_voxel_ptr, po
                 for x in range(x0, x1 + 1):
                     dx = x - px
                     q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
-                    if q < R2v:
-                        ti = int(q * tscale)
-                        if ti >= ntab:
-                            ti = ntab - 1
-                        wgt = fp_table[ti]
-                        if dirty_px[y, x] == 0:
-                            dirty_px[y, x] = 1
-                            dirty[nd] = y * img_w + x
-                            nd += 1
-                        sheet[y, x, 0] += wgt * cr
-                        sheet[y, x, 1] += wgt * cg
-                        sheet[y, x, 2] += wgt * cb
-                        sheet[y, x, 3] += wgt * alpha
+                    # Branch-free on purpose: the indexed traversal feeds voxels density by density, in
+                    # no spatial order, and a per-pixel branch here mispredicts (it cost 25% on the
+                    # semi-transparent engine). q at or past the cut-off reads the table's trailing zero;
+                    # the dirty list always stores the pixel and advances only on its first touch.
+                    wgt = fp_table[int(min(q, R2v) * tscale)]
+                    dirty[nd] = y * img_w + x
+                    nd += 1 - dirty_px[y, x]
+                    dirty_px[y, x] = 1
+                    sheet[y, x, 0] += wgt * cr
+                    sheet[y, x, 1] += wgt * cg
+                    sheet[y, x, 2] += wgt * cb
+                    sheet[y, x, 3] += wgt * alpha
             # a voxel spanning two bands is counted by the band holding its first image row
             if max(int(fy0), 0) >= band_y0:
                 stats[1] += 1
@@ -380,3 +367,65 @@ def flat_indices(slice_block_ptr, block_voxel_ptr, positions, n_a, strides):
                 b = ind // n_a
                 out[vi] = base + (ind - b * n_a) * strides[0] + b * strides[1]
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, intervals, n_a):
+    """The voxels of each slice whose density lies in ``intervals`` (§2.2), as in-slice coordinates.
+
+    Per slice, the densities present are sorted (Figure 1), so a binary search finds the first block of each
+    interval and the blocks up to its upper bound are decoded into (a, b). This runs once per load (the
+    selection depends on the transfer function, not on the view); every frame then streams the result.
+    Returns ``(sel_ptr int64[S+1], a uint16[N], b uint16[N], density uint8[N], source int64[N])`` where
+    ``source`` is each voxel's index in ``positions``.
+    """
+    n_slices = slice_block_ptr.shape[0] - 1
+    total = 0
+    for c in range(n_slices):
+        for iv in range(intervals.shape[0]):
+            r = _first_block(block_density, slice_block_ptr[c], slice_block_ptr[c + 1], intervals[iv, 0])
+            while r < slice_block_ptr[c + 1] and block_density[r] <= intervals[iv, 1]:
+                total += block_voxel_ptr[r + 1] - block_voxel_ptr[r]
+                r += 1
+    sel_ptr = np.zeros(n_slices + 1, dtype=np.int64)
+    sa = np.empty(total, dtype=np.uint16)
+    sb = np.empty(total, dtype=np.uint16)
+    sd = np.empty(total, dtype=np.uint8)
+    src = np.empty(total, dtype=np.int64)
+    n = 0
+    for c in range(n_slices):
+        r1 = slice_block_ptr[c + 1]
+        for iv in range(intervals.shape[0]):
+            r = _first_block(block_density, slice_block_ptr[c], r1, intervals[iv, 0])
+            while r < r1 and block_density[r] <= intervals[iv, 1]:
+                d = block_density[r]
+                v0 = block_voxel_ptr[r]
+                v1 = block_voxel_ptr[r + 1]
+                # positions increase within a block: follow the row instead of dividing per voxel
+                b = positions[v0] // n_a if v1 > v0 else 0
+                row0 = b * n_a
+                for vi in range(v0, v1):
+                    ind = positions[vi]
+                    while ind >= row0 + n_a:
+                        row0 += n_a
+                        b += 1
+                    sa[n] = ind - row0
+                    sb[n] = b
+                    sd[n] = d
+                    src[n] = vi
+                    n += 1
+                r += 1
+        sel_ptr[c + 1] = n
+    return sel_ptr, sa, sb, sd, src
+
+
+@nb.njit(cache=True, nogil=True)
+def _first_block(block_density, r0, r1, lo):
+    """§2.2: binary search for the first block in rows r0:r1 with density >= lo."""
+    while r0 < r1:
+        m = (r0 + r1) >> 1
+        if block_density[m] < lo:
+            r0 = m + 1
+        else:
+            r1 = m
+    return r0

@@ -233,8 +233,8 @@ def render_axis(order, full, sel_ptr, sel_a, sel_b, sel_d,
                     break
             if not kept:
                 continue
-            # §3: projection with per-slice bases, two multiply-adds per coordinate
-            X = xs + a * coef[XA] + b * coef[XB]
+            # §3: projection with per-slice bases, two multiply-adds per coordinate; y first, so a voxel
+            # outside this thread's band of rows costs no more
             Y = ys + a * coef[YA] + b * coef[YB]
             s = 1.0
             if persp:
@@ -242,13 +242,15 @@ def render_axis(order, full, sel_ptr, sel_a, sel_b, sel_d,
                 if -D < coef[NEAR]:
                     continue                       # at or behind the near plane: culled
                 s = coef[WPE] / D                   # t0 of §3.2
-                px = coef[CX] + s * X
                 py = coef[CY] + s * Y
             else:
-                px = X
                 py = Y
-            rx = ex * s
             ry = ey * s
+            if py + ry < band_y0 or py - ry > band_y1 - 1:
+                continue
+            X = xs + a * coef[XA] + b * coef[XB]
+            px = coef[CX] + s * X if persp else X
+            rx = ex * s
             fx0 = math.ceil(px - rx)
             fx1 = math.floor(px + rx)
             fy0 = math.ceil(py - ry)

@@ -6,7 +6,7 @@ ISPLAT := $(BIN)/isplat
 OUT    ?= out
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench data paper-table bench-peers clean venv
+.PHONY: demo test bench data paper-table bench-peers clean venv readme-images
 
 venv: $(STAMP)
 
@@ -38,3 +38,7 @@ paper-table: $(STAMP)
 bench-peers: $(STAMP)
 	$(BIN)/pip install --quiet vtk
 	$(BIN)/python -m isplat.bench.peers --out docs
+
+# The README's pictures: make demo, then 256-pixel copies of its images into docs/img/.
+readme-images: demo
+	$(BIN)/python scripts/readme_images.py $(OUT) docs/img

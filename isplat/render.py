@@ -39,8 +39,9 @@ class FrameStats:
 
 @dataclass
 class LoadReport:
-    augmented_bytes: int = 0
-    index_bytes: int = 0
+    augmented_bytes: int = 0          # bytes read from the augmented file's channels
+    index_bytes: int = 0              # bytes read from the index file
+    index_decoded_bytes: int = 0      # the decoded blocks (LoadedAxis arrays), before selection
     channels: list = field(default_factory=list)
     axes: list = field(default_factory=list)
     intervals: list = field(default_factory=list)
@@ -197,10 +198,27 @@ class Renderer:
                     pick = (lambda v: v) if identity else (lambda v: v[src])
                     self.attrs[ax] = (pick(g["gradient_magnitude"]) if "gradient_magnitude" in g else _EMPTY_U8,
                                       pick(g["normal"]) if "normal" in g else _EMPTY_U16)
+                    self.selected[ax] = self.selected[ax][:4]
+                # the decoded blocks have served: frames need only the selection and the gathered values
+                self.report.index_decoded_bytes = int(sum(
+                    la.slice_block_ptr.nbytes + la.block_density.nbytes + la.block_voxel_ptr.nbytes
+                    + la.positions.nbytes for la in self.loaded.values()))
+                self.loaded = {}
             self.report.index_bytes = int(idx.bytes_read)
         else:
             raise IsplatError(f"render.method = {self.method!r}: expected 'indexed' or 'full'")
         self.report.augmented_bytes = int(aug.bytes_read)
+
+    def held_bytes(self) -> int:
+        """Bytes of volume data this renderer keeps for its frames (selection, gathered values, channels)."""
+        arrays = [self.dens] + [a for pair in self.attrs.values() for a in pair]
+        arrays += [a for sel in self.selected.values() for a in sel]
+        seen, total = set(), 0
+        for a in arrays:
+            if a.size > 1 and id(a) not in seen:        # the full method shares channels between axes
+                seen.add(id(a))
+                total += a.nbytes
+        return total
 
     # ---- one view ---------------------------------------------------------------------------------------
     def render_view(self, view_index: int = 0, et: float | None = None):

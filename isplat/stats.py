@@ -186,8 +186,8 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | N
     r = Renderer(scene, (scene.views[view],))
     _, st = r.render_view(0)
     rep = r.report
-    decoded = int(sum(loaded_axis_bytes(la) for la in r.loaded.values()))
-    held = rep.augmented_bytes + decoded
+    decoded = int(rep.index_decoded_bytes)
+    held = r.held_bytes()
     return {
         "path": str(scene_file),
         "view": view,
@@ -337,7 +337,8 @@ def format_table(s: dict) -> str:
             row("loaded: index", f"{_b(ld['index_bytes'])} = {_pct(ld['index_fraction'])} of the index, axes "
                                  f"{''.join(ld['axes'])}, decoded {_b(ld['index_decoded_bytes'])}")
         row("loaded: total", f"{_b(ld['bytes'])} = {_pct(ld['files_fraction'])} of {_b(ld['files_bytes'])} on disk")
-        row("held for rendering", f"{_b(ld['held_bytes'])} (channels read + decoded index)")
+        row("held for rendering", f"{_b(ld['held_bytes'])} (selected voxels and their channel values, or "
+                                  "whole channels for the full method)")
     width = max(len(k) for k, v in rows if v is not None) + 2
     lines = []
     for k, v in rows:

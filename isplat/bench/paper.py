@@ -227,7 +227,7 @@ def write_scene(work: Path, case: Case, vol: dict, size: int, projection: str = 
 def measure(case: Case, vol: dict, work: Path, frames: int, size: int) -> dict:
     from ..render import Renderer
     from ..scene import load_scene
-    from ..stats import collect, loaded_axis_bytes
+    from ..stats import collect
 
     scene_path = write_scene(work, case, vol, size)
     persp_path = write_scene(work, case, vol, size, "perspective")
@@ -246,7 +246,7 @@ def measure(case: Case, vol: dict, work: Path, frames: int, size: int) -> dict:
             times[k].append(fs.seconds)
     rf, ri = renderers["full"], renderers["indexed"]
     n_vox = st["augmented"]["voxels"]
-    decoded = sum(loaded_axis_bytes(la) for la in ri.loaded.values())
+    decoded = ri.report.index_decoded_bytes
     t_full, t_idx, t_persp = (statistics.median(times[k]) for k in ("full", "indexed", "persp"))
     return {
         "name": case.name, "what": case.what, "source": vol["source"], "real": vol.get("real"),
@@ -259,7 +259,7 @@ def measure(case: Case, vol: dict, work: Path, frames: int, size: int) -> dict:
         "mem_full": rf.report.augmented_bytes, "channels_full": list(rf.report.channels),
         "mem_4b": 4 * n_vox,
         "mem_idx_channels": ri.report.augmented_bytes, "channels_idx": list(ri.report.channels),
-        "mem_idx_read": ri.report.index_bytes, "mem_idx_decoded": decoded,
+        "mem_idx_read": ri.report.index_bytes, "mem_idx_decoded": decoded, "mem_idx_held": ri.held_bytes(),
         "index_whole": st["index"]["bytes"], "axes": list(ri.report.axes),
     }
 
@@ -311,19 +311,20 @@ def render_doc(rows, quick: bool, seconds: float) -> str:
         "Mbyte: *full* = augmented channels the full method reads (density and normal: 3 B/voxel; no gradient "
         "magnitude, the transfer functions do not use it), with the paper's 4 B/voxel beside it; *indexed* = "
         "channels read (the normal only: the index carries the densities) + index bytes read, and what the "
-        "renderer holds after decoding those blocks (positions as int32). Speed-up = 1 - t_indexed / t_full "
+        "renderer holds for its frames (the selected voxels, 5 B each, and their normals, 2 B each: the blocks "
+        "are decoded, the transfer function's voxels selected, their normals gathered, the rest dropped). Speed-up = 1 - t_indexed / t_full "
         "(the factor t_full / t_indexed in brackets). Persp./ortho. = indexed time of the same view in "
         "perspective over orthographic.",
         "",
         "### isplat",
         "",
         "| Data | Resolution | Ratio | Full: time (ms) | Full: mem read (MB) | 4 B/voxel (MB) | Indexed: time (ms) "
-        "| Indexed: mem read, channels + index (MB) | Indexed: held, decoded (MB) | Speed-up | Persp./ortho. |",
+        "| Indexed: mem read, channels + index (MB) | Indexed: held (MB) | Speed-up | Persp./ortho. |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         sp = 1 - r["t_indexed"] / r["t_full"]
-        held = r["mem_idx_channels"] + r["mem_idx_decoded"]
+        held = r["mem_idx_held"]
         L.append(f"| {r['name']} | {_res(r['shape_ijk'])} | {r['ratio']:.3f} | {1000 * r['t_full']:.1f} "
                  f"| {_mb(r['mem_full'])} | {_mb(r['mem_4b'])} | {1000 * r['t_indexed']:.1f} "
                  f"| {_mb(r['mem_idx_channels'])} + {_mb(r['mem_idx_read'])} = "
@@ -432,7 +433,7 @@ def discussion(rows) -> str:
   without indexing {_mb(h1['mem_full'])} MB for H1 (density and normal; no gradient magnitude), with indexing only
   the normals ({_mb(h1['mem_idx_channels'])} MB; the index replaces the density channel) plus
   {_mb(h1['mem_idx_read'])} MB of index read, decoded into {_mb(h1['mem_idx_decoded'])} MB of int32 positions and
-  block tables. With the paper's 4 B/voxel the indexed H1 would be {_mb(h1['mem_4b'] + h1['mem_idx_read'])} MB
+  block tables, of which the renderer keeps {_mb(h1['mem_idx_held'])} MB (the selected voxels and their normals). With the paper's 4 B/voxel the indexed H1 would be {_mb(h1['mem_4b'] + h1['mem_idx_read'])} MB
   (the paper: 62.7). Only the index axis the view uses is loaded, for the transfer function's densities only.
 - **Ratio.** The heads and the engine are synthetic stand-ins (B1/BD: {'the real mean T1 head of `make data`'
   if mri_real else 'a SYNTHETIC MRI-like head, because `make data` was not run'}), so the ratios

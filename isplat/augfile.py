@@ -21,7 +21,7 @@ import h5py
 import numpy as np
 
 from .errors import IsplatError
-from .fileio import check_input
+from .fileio import open_hdf5
 
 FORMAT_NAME = "isplat-augmented"
 FORMAT_VERSION = 1
@@ -75,21 +75,9 @@ class AugmentedVolume:
 
 def open_augmented(path) -> AugmentedVolume:
     """Open and validate an augmented file; raise :class:`IsplatError` naming any problem."""
-    p = check_input(path, "augmented volume")
-    try:
-        f = h5py.File(p, "r")
-    except OSError as exc:
-        raise IsplatError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__}: truncated or not HDF5)") from None
+    p, f = open_hdf5(path, "augmented volume", FORMAT_NAME, FORMAT_VERSION)
     with f:
         a = f.attrs
-        fmt = a.get("format")
-        if isinstance(fmt, bytes):
-            fmt = fmt.decode()
-        if fmt != FORMAT_NAME:
-            raise IsplatError(f"{p}: attribute 'format' is {fmt!r}, expected {FORMAT_NAME!r}")
-        ver = a.get("format_version")
-        if ver is None or int(ver) != FORMAT_VERSION:
-            raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}, this isplat reads version {FORMAT_VERSION}")
         try:
             shape = tuple(int(x) for x in a["shape"])
             spacing = tuple(float(x) for x in a["spacing_ijk"])

@@ -107,6 +107,15 @@ def _gradient_kernel(f, r0, nrows, kg0, nk, si, sj, sk, g):
                 g[2, rr, j, i] = gk
 
 
+@numba.njit(cache=True)
+def _magnitude(g, r, j, i):
+    """|g| at (r, j, i) of a gradient slab ``g[3, ...]``, in float64."""
+    a = np.float64(g[0, r, j, i])
+    b = np.float64(g[1, r, j, i])
+    c = np.float64(g[2, r, j, i])
+    return math.sqrt(a * a + b * b + c * c)
+
+
 @numba.njit(cache=True, parallel=True)
 def _magnitude_max(g):
     n = g.shape[1]
@@ -115,10 +124,7 @@ def _magnitude_max(g):
         best = 0.0
         for j in range(g.shape[2]):
             for i in range(g.shape[3]):
-                a = np.float64(g[0, r, j, i])
-                b = np.float64(g[1, r, j, i])
-                c = np.float64(g[2, r, j, i])
-                s = math.sqrt(a * a + b * b + c * c)
+                s = _magnitude(g, r, j, i)
                 if s > best:
                     best = s
         m[r] = best
@@ -135,7 +141,7 @@ def _encode_kernel(g, gmax, mag_out, nrm_out):
                 a = np.float64(g[0, r, j, i])
                 b = np.float64(g[1, r, j, i])
                 c = np.float64(g[2, r, j, i])
-                s = math.sqrt(a * a + b * b + c * c)
+                s = _magnitude(g, r, j, i)
                 if gmax > 0.0 and s > 0.0:
                     mag_out[r, j, i] = np.uint8(np.rint(min(s / gmax, 1.0) * 255.0))
                     nrm_out[r, j, i] = _encode_one(a, b, c)

@@ -62,3 +62,31 @@ def atomic_output(path: str | os.PathLike, force: bool = False):
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def open_hdf5(path, what: str, format_name: str, version: int):
+    """Open an isplat HDF5 container read-only after checking its ``format`` and ``format_version``
+    attributes; return ``(path, h5py.File)``. Every problem is one :class:`IsplatError` line."""
+    import h5py
+    import numpy as np
+
+    p = check_input(path, what)
+    try:
+        f = h5py.File(p, "r")
+    except OSError as exc:
+        raise IsplatError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__}: truncated or not HDF5)") from None
+    fmt = f.attrs.get("format")
+    if isinstance(fmt, bytes):
+        fmt = fmt.decode(errors="replace")
+    ver = f.attrs.get("format_version")
+    try:
+        ver_ok = ver is not None and np.ndim(ver) == 0 and int(ver) == version
+    except (TypeError, ValueError):
+        ver_ok = False
+    if fmt != format_name:
+        f.close()
+        raise IsplatError(f"{p}: attribute 'format' is {fmt!r}, expected {format_name!r}")
+    if not ver_ok:
+        f.close()
+        raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}, this isplat reads version {version}")
+    return p, f

@@ -61,16 +61,22 @@ def _check_array(path, arr, source):
     return arr
 
 
-def parse_triple(text: str, what: str, cast=float):
-    """Parse ``'A,B,C'`` into a 3-tuple, or raise a one-line error naming ``what``."""
+def parse_numbers(text: str, what: str, n: int = 3, cast=float):
+    """Parse ``'A,B,...'`` into an ``n``-tuple, or raise a one-line error naming ``what``."""
     parts = [p.strip() for p in str(text).split(",")]
     try:
         vals = tuple(cast(p) for p in parts)
     except ValueError:
         vals = ()
-    if len(vals) != 3:
-        raise IsplatError(f"{what} {text!r} invalid; expected three comma-separated numbers")
+    if len(vals) != n:
+        names = {2: "two", 3: "three"}.get(n, str(n))
+        raise IsplatError(f"{what} {text!r} invalid; expected {names} comma-separated numbers")
     return vals
+
+
+def parse_triple(text: str, what: str, cast=float):
+    """Parse ``'A,B,C'`` into a 3-tuple, or raise a one-line error naming ``what``."""
+    return parse_numbers(text, what, 3, cast)
 
 
 def read_volume(path, shape=None, dtype=None, byte_order="little", header_bytes=0, spacing=None) -> Volume:

@@ -51,13 +51,6 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
 
 
 def _pair(text):
-    from ..errors import IsplatError
+    from ..volume_io import parse_numbers
 
-    parts = str(text).split(",")
-    try:
-        vals = tuple(float(p) for p in parts)
-    except ValueError:
-        vals = ()
-    if len(vals) != 2:
-        raise IsplatError(f"--window {text!r} invalid; expected LO,HI")
-    return vals
+    return parse_numbers(text, "--window", 2)

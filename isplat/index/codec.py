@@ -111,6 +111,15 @@ def encode_slab(density, k0, k1, axis_code, indexed, n_a, escape_width, prev, cu
 
 
 @njit(cache=True, nogil=True)
+def _escape_coords(buf, c, escape_width):
+    """The explicit in-slice coordinates (a, b) after the escape byte at ``buf[c]``, little-endian."""
+    if escape_width == 1:
+        return np.int64(buf[c + 1]), np.int64(buf[c + 2])
+    return (np.int64(buf[c + 1]) | (np.int64(buf[c + 2]) << 8),
+            np.int64(buf[c + 3]) | (np.int64(buf[c + 4]) << 8))
+
+
+@njit(cache=True, nogil=True)
 def decode_blocks(buf, starts, ends, counts, dest, n_a, n_b, escape_width, out):
     """Decode block e = ``buf[starts[e]:ends[e]]`` into ``out[dest[e] : dest[e] + counts[e]]``.
 
@@ -135,12 +144,7 @@ def decode_blocks(buf, starts, ends, counts, dest, n_a, n_b, escape_width, out):
             else:
                 if c + 1 + 2 * escape_width > end:
                     return ERR_TRUNCATED, e
-                if escape_width == 1:
-                    a = np.int64(buf[c + 1])
-                    b = np.int64(buf[c + 2])
-                else:
-                    a = np.int64(buf[c + 1]) | (np.int64(buf[c + 2]) << 8)
-                    b = np.int64(buf[c + 3]) | (np.int64(buf[c + 4]) << 8)
+                a, b = _escape_coords(buf, c, escape_width)
                 c += 1 + 2 * escape_width
                 if a >= n_a or b >= n_b:
                     return ERR_COORD, e
@@ -182,12 +186,7 @@ def decode_stream(buf, counts, dest, n_a, n_b, escape_width, out):
             else:
                 if c + 1 + 2 * escape_width > end:
                     return ERR_TRUNCATED, e
-                if escape_width == 1:
-                    a = np.int64(buf[c + 1])
-                    b = np.int64(buf[c + 2])
-                else:
-                    a = np.int64(buf[c + 1]) | (np.int64(buf[c + 2]) << 8)
-                    b = np.int64(buf[c + 3]) | (np.int64(buf[c + 4]) << 8)
+                a, b = _escape_coords(buf, c, escape_width)
                 c += 1 + 2 * escape_width
                 if a >= n_a or b >= n_b:
                     return ERR_COORD, e

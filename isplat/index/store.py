@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 
 from ..errors import IsplatError
-from ..fileio import atomic_output, check_input
+from ..fileio import atomic_output, open_hdf5
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, axis_geometry, build_axis, escape_width,
                     normalize_ranges, parse_axes)
@@ -361,23 +361,9 @@ def _fmt_ranges(ranges) -> str:
 
 def open_index(path) -> IndexFile:
     """Open and validate an index file's attributes and dataset shapes; raise :class:`IsplatError` on any problem."""
-    p = check_input(path, "index")
-    try:
-        f = h5py.File(p, "r")
-    except OSError as exc:
-        raise IsplatError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__}: truncated or not HDF5)") from None
+    p, f = open_hdf5(path, "index", FORMAT_NAME, FORMAT_VERSION)
     with f:
         a = f.attrs
-        fmt = _attr_str(a.get("format"))
-        if fmt != FORMAT_NAME:
-            raise IsplatError(f"{p}: attribute 'format' is {fmt!r}, expected {FORMAT_NAME!r}")
-        ver = a.get("format_version")
-        try:
-            ver_ok = ver is not None and np.ndim(ver) == 0 and int(ver) == FORMAT_VERSION
-        except (TypeError, ValueError):
-            ver_ok = False
-        if not ver_ok:
-            raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}, this isplat reads version {FORMAT_VERSION}")
         try:
             shape = tuple(int(x) for x in np.asarray(a["shape"]).reshape(-1))
             sha = _attr_str(a["density_sha256"])

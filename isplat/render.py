@@ -189,16 +189,15 @@ class Renderer:
                         raise IsplatError(f"{scene.data.index}: axis {ax} slices are {la.n_a}x{la.n_b}; "
                                           "the renderer takes at most 65535 voxels per in-slice axis")
                     self.selected[ax] = select_voxels(la.slice_block_ptr, la.block_density,
-                                                      la.block_voxel_ptr, la.positions, ivs, la.n_a)
+                                                      la.block_voxel_ptr, la.positions, ivs, la.n_a, la.n_b)
                     self.loaded[ax] = la
                 gathered = gather_channels(aug, self.loaded, channels, self.geom)
                 for ax in self.axes_needed:
-                    g, src = gathered[ax], self.selected[ax][4]
-                    identity = src.shape[0] == self.loaded[ax].positions.shape[0]
-                    pick = (lambda v: v) if identity else (lambda v: v[src])
-                    self.attrs[ax] = (pick(g["gradient_magnitude"]) if "gradient_magnitude" in g else _EMPTY_U8,
-                                      pick(g["normal"]) if "normal" in g else _EMPTY_U16)
-                    self.selected[ax] = self.selected[ax][:4]
+                    # values in the selection's order (grouped by cell)
+                    g, src = gathered[ax], self.selected[ax][6]
+                    self.attrs[ax] = (g["gradient_magnitude"][src] if "gradient_magnitude" in g else _EMPTY_U8,
+                                      g["normal"][src] if "normal" in g else _EMPTY_U16)
+                    self.selected[ax] = self.selected[ax][:6]
                 # the decoded blocks have served: frames need only the selection and the gathered values
                 self.report.index_decoded_bytes = int(sum(
                     la.slice_block_ptr.nbytes + la.block_density.nbytes + la.block_voxel_ptr.nbytes
@@ -264,9 +263,10 @@ class Renderer:
             et_val = ro.early_termination if et is None else et
             gm, nrm = self.attrs[axis]
             if self.method == "indexed":
-                args = self.selected[axis][:4]
+                args = self.selected[axis]
             else:
-                args = (np.zeros(1, np.int64), np.zeros(1, np.uint16), np.zeros(1, np.uint16), _EMPTY_U8)
+                args = (np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int32),
+                        np.zeros(1, np.uint16), np.zeros(1, np.uint16), _EMPTY_U8)
             common = (order, self.method == "full", *args,
                       self.dens, gm, self.use_gm, nrm, self.use_shade, strides, n_a, n_b,
                       atab, self.luts.color, shade, persp, inv_unit, normal_off, slice_step,

@@ -18,6 +18,7 @@ import numba as nb
 import numpy as np
 
 TILE = 8
+CELL = 8         # voxels per side of the cells a slice's voxels are grouped in for early termination
 
 # coef layout (camera.Projection.coef)
 X0, XA, XB, XC, Y0, YA, YB, YC, W0, WA, WB, WC, CX, CY, WPE, NEAR = range(16)
@@ -127,7 +128,7 @@ def finish(img, bg, out):
 
 
 @nb.njit(cache=True, nogil=True)
-def render_axis(order, full, sel_ptr, sel_a, sel_b, sel_d,
+def render_axis(order, full, sel_cell_ptr, sel_cell_start, sel_cell_id, sel_a, sel_b, sel_d,
                 dens, gm, use_gm, nrm, use_shade, strides, n_a, n_b,
                 alpha_tab, color_lut, shade_lut, persp, inv_unit, slice_normal_offset, slice_step,
                 coef, steps, qe, cuts, fp_table, fp,
@@ -135,9 +136,12 @@ def render_axis(order, full, sel_ptr, sel_a, sel_b, sel_d,
     """Render the slices ``order`` (front to back) of one axis into ``img`` (H, W, 4 premultiplied RGBA).
 
     ``full``: visit every voxel of each slice (density from ``dens``; ``gm`` and ``nrm`` are whole channels
-    indexed by flat position). Otherwise visit only the voxels the index selected (:func:`select_voxels`):
-    slice ``c`` holds ``sel_*[sel_ptr[c]:sel_ptr[c+1]]``, with ``gm`` and ``nrm`` gathered per selected voxel
-    in the same order, so the pipeline reads them sequentially.
+    indexed by flat position). Otherwise visit only the voxels the index selected (:func:`select_voxels`),
+    grouped in cells of CELL x CELL voxels of the slice: slice ``c`` holds the cells
+    ``sel_cell_ptr[c]:sel_cell_ptr[c+1]``, cell ``q`` the voxels ``sel_*[sel_cell_start[q]:sel_cell_start[q+1]]``,
+    with ``gm`` and ``nrm`` gathered per selected voxel in the same order.
+    A cell whose voxels' footprints can only touch saturated pixels (or none of this band's) is skipped whole,
+    before its voxels are projected: early termination at the cost of one test per cell.
     ``strides``: flat-index strides of a, b, c in the [k, j, i] channels; ``cuts`` rows: (g0, ga, gb, gc)
     with a voxel kept where ``g0 + a*ga + b*gb + c*gc >= 0``.
     Counters in ``stats``: [voxels examined, voxels splatted, slices done].
@@ -154,6 +158,10 @@ def render_axis(order, full, sel_ptr, sel_a, sel_b, sel_d,
     sb_ = strides[1]
     sc_ = strides[2]
     m = n_a * n_b if full else 1
+    nca = (n_a + CELL - 1) // CELL
+    ncb = (n_b + CELL - 1) // CELL
+    fcell_start = np.empty(nca * ncb + 1 if full else 1, dtype=np.int64)
+    fcell_id = np.empty(nca * ncb if full else 1, dtype=np.int32)
     cand_ai = np.empty(m, dtype=np.int64)
     cand_a = np.empty(m, dtype=np.uint16)
     cand_b = np.empty(m, dtype=np.uint16)
@@ -187,164 +195,238 @@ def render_axis(order, full, sel_ptr, sel_a, sel_b, sel_d,
         #    between the full and the indexed method); transparent ones are dropped by one look-up
         ncand = 0
         if full:
-            for b in range(n_b):
-                for a in range(n_a):
-                    fi = cbase + a * sa_ + b * sb_
-                    d = dens[fi]
-                    if alpha_tab[d, gm[fi] if use_gm else 0] != 0.0:
-                        cand_ai[ncand] = fi
-                        cand_a[ncand] = a
-                        cand_b[ncand] = b
-                        cand_d[ncand] = d
-                        ncand += 1
+            # every voxel, cell by cell (the same grouping the index's selection has)
+            nq = 0
+            for qb in range(ncb):
+                for qa in range(nca):
+                    first = ncand
+                    for b in range(qb * CELL, min(n_b, qb * CELL + CELL)):
+                        for a in range(qa * CELL, min(n_a, qa * CELL + CELL)):
+                            fi = cbase + a * sa_ + b * sb_
+                            d = dens[fi]
+                            if alpha_tab[d, gm[fi] if use_gm else 0] != 0.0:
+                                cand_ai[ncand] = fi
+                                cand_a[ncand] = a
+                                cand_b[ncand] = b
+                                cand_d[ncand] = d
+                                ncand += 1
+                    if ncand > first:
+                        fcell_start[nq] = first
+                        fcell_id[nq] = qb * nca + qa
+                        nq += 1
+            fcell_start[nq] = ncand
             stats[0] += n_a * n_b
-            n0 = 0
-            n1 = ncand
+            q0 = 0
+            q1 = nq
+            cstart = fcell_start
+            cid = fcell_id
             src_a = cand_a
             src_b = cand_b
             src_d = cand_d
         else:
-            # the voxels the index selected for this slice, in the order of its blocks (see select_voxels)
-            n0 = sel_ptr[c]
-            n1 = sel_ptr[c + 1]
-            stats[0] += n1 - n0
+            # the voxels the index selected for this slice (select_voxels), cell by cell
+            q0 = sel_cell_ptr[c]
+            q1 = sel_cell_ptr[c + 1]
+            stats[0] += sel_cell_start[q1] - sel_cell_start[q0]
+            cstart = sel_cell_start
+            cid = sel_cell_id
             src_a = sel_a
             src_b = sel_b
             src_d = sel_d
         # 2. the shared per-voxel pipeline: classify, shade, project (§3), splat into the sheet
         nd = 0
-        for n in range(n0, n1):
-            a = np.int64(src_a[n])
-            b = np.int64(src_b[n])
-            d = src_d[n]
-            # where this voxel's gradient magnitude and normal are: flat position in whole channels
-            # (full), or its place in the per-voxel values gathered for the index (indexed)
-            fi = cand_ai[n] if full else n
-            g = 0
-            if use_gm:
-                g = gm[fi]
-            L = alpha_tab[d, g]
-            if L == 0.0:
-                continue
-            kept = True
-            for ci in range(ncut):
-                if cs[ci] + a * cuts[ci, 1] + b * cuts[ci, 2] < 0.0:
-                    kept = False
-                    break
-            if not kept:
-                continue
-            # §3: projection with per-slice bases, two multiply-adds per coordinate; y first, so a voxel
-            # outside this thread's band of rows costs no more
-            Y = ys + a * coef[YA] + b * coef[YB]
-            s = 1.0
-            if persp:
-                D = ws + a * coef[WA] + b * coef[WB]
-                if -D < coef[NEAR]:
-                    continue                       # at or behind the near plane: culled
-                s = coef[WPE] / D                   # t0 of §3.2
-                py = coef[CY] + s * Y
-            else:
-                py = Y
-            ry = ey * s
-            if py + ry < band_y0 or py - ry > band_y1 - 1:
-                continue
-            X = xs + a * coef[XA] + b * coef[XB]
-            px = coef[CX] + s * X if persp else X
-            rx = ex * s
-            fx0 = math.ceil(px - rx)
-            fx1 = math.floor(px + rx)
-            fy0 = math.ceil(py - ry)
-            fy1 = math.floor(py + ry)
-            if fx1 < 0 or fy1 < band_y0 or fx0 > img_w - 1 or fy0 > band_y1 - 1:
-                continue
-            x0 = max(int(fx0), 0)
-            x1 = min(int(fx1), img_w - 1)
-            y0 = max(int(fy0), band_y0)
-            y1 = min(int(fy1), band_y1 - 1)
-            if y0 > y1:
-                continue
-            tx0 = x0 // TILE
-            tx1 = x1 // TILE
-            ty0 = y0 // TILE
-            ty1 = y1 // TILE
-            if et_on:
-                # skip the voxel when every pixel under its footprint is saturated: exact (such pixels
-                # take no more contribution) and much cheaper than shading and splatting it. Whole
-                # saturated tiles answer at once; otherwise a byte mask (small, stays in cache) is read.
-                open_px = False
-                for ty in range(ty0, ty1 + 1):
-                    for tx in range(tx0, tx1 + 1):
-                        if tile_sat[ty, tx] < tile_npix[ty, tx]:
-                            open_px = True
+        for q in range(q0, q1):
+            if et_on or band_y0 > 0 or band_y1 < img_h:
+                # the cell's footprint box: from its corners (the projection of a planar rectangle
+                # is the hull of its corners' projections), grown by the footprint's radius
+                qa0 = (cid[q] % nca) * CELL
+                qb0 = (cid[q] // nca) * CELL
+                qa1 = min(qa0 + CELL - 1, n_a - 1)
+                qb1 = min(qb0 + CELL - 1, n_b - 1)
+                cx0 = 1e300
+                cx1 = -1e300
+                cy0 = 1e300
+                cy1 = -1e300
+                smax = 1.0
+                behind = False
+                for corner in range(4):
+                    ka = qa0 if corner & 1 == 0 else qa1
+                    kb = qb0 if corner & 2 == 0 else qb1
+                    kx = xs + ka * coef[XA] + kb * coef[XB]
+                    ky = ys + ka * coef[YA] + kb * coef[YB]
+                    if persp:
+                        kd = ws + ka * coef[WA] + kb * coef[WB]
+                        if -kd < coef[NEAR]:
+                            behind = True
                             break
-                    if open_px:
+                        ks = coef[WPE] / kd
+                        smax = max(smax, ks) if corner > 0 else ks
+                        kx = coef[CX] + ks * kx
+                        ky = coef[CY] + ks * ky
+                    cx0 = min(cx0, kx)
+                    cx1 = max(cx1, kx)
+                    cy0 = min(cy0, ky)
+                    cy1 = max(cy1, ky)
+                if not behind:
+                    gy0 = max(int(math.ceil(cy0 - ey * smax)), band_y0)
+                    gy1 = min(int(math.floor(cy1 + ey * smax)), band_y1 - 1)
+                    gx0 = max(int(math.ceil(cx0 - ex * smax)), 0)
+                    gx1 = min(int(math.floor(cx1 + ex * smax)), img_w - 1)
+                    if gy0 > gy1 or gx0 > gx1:
+                        continue                    # no footprint of this cell reaches this band
+                    if et_on:
+                        open_tile = False
+                        for ty in range(gy0 // TILE, gy1 // TILE + 1):
+                            for tx in range(gx0 // TILE, gx1 // TILE + 1):
+                                if tile_sat[ty, tx] < tile_npix[ty, tx]:
+                                    open_tile = True
+                                    break
+                            if open_tile:
+                                break
+                        if open_tile:
+                            # not all whole tiles: the byte mask over the cell's box decides
+                            open_tile = False
+                            for yy in range(gy0, gy1 + 1):
+                                for xx in range(gx0, gx1 + 1):
+                                    if sat[yy, xx] == 0:
+                                        open_tile = True
+                                        break
+                                if open_tile:
+                                    break
+                        if not open_tile:
+                            continue                # every pixel it could touch is saturated
+            for n in range(cstart[q], cstart[q + 1]):
+                a = np.int64(src_a[n])
+                b = np.int64(src_b[n])
+                d = src_d[n]
+                # where this voxel's gradient magnitude and normal are: flat position in whole channels
+                # (full), or its place in the per-voxel values gathered for the index (indexed)
+                fi = cand_ai[n] if full else n
+                g = 0
+                if use_gm:
+                    g = gm[fi]
+                L = alpha_tab[d, g]
+                if L == 0.0:
+                    continue
+                kept = True
+                for ci in range(ncut):
+                    if cs[ci] + a * cuts[ci, 1] + b * cuts[ci, 2] < 0.0:
+                        kept = False
                         break
-                if open_px:
+                if not kept:
+                    continue
+                # §3: projection with per-slice bases, two multiply-adds per coordinate; y first, so a voxel
+                # outside this thread's band of rows costs no more
+                Y = ys + a * coef[YA] + b * coef[YB]
+                s = 1.0
+                if persp:
+                    D = ws + a * coef[WA] + b * coef[WB]
+                    if -D < coef[NEAR]:
+                        continue                       # at or behind the near plane: culled
+                    s = coef[WPE] / D                   # t0 of §3.2
+                    py = coef[CY] + s * Y
+                else:
+                    py = Y
+                ry = ey * s
+                if py + ry < band_y0 or py - ry > band_y1 - 1:
+                    continue
+                X = xs + a * coef[XA] + b * coef[XB]
+                px = coef[CX] + s * X if persp else X
+                rx = ex * s
+                fx0 = math.ceil(px - rx)
+                fx1 = math.floor(px + rx)
+                fy0 = math.ceil(py - ry)
+                fy1 = math.floor(py + ry)
+                if fx1 < 0 or fy1 < band_y0 or fx0 > img_w - 1 or fy0 > band_y1 - 1:
+                    continue
+                x0 = max(int(fx0), 0)
+                x1 = min(int(fx1), img_w - 1)
+                y0 = max(int(fy0), band_y0)
+                y1 = min(int(fy1), band_y1 - 1)
+                if y0 > y1:
+                    continue
+                tx0 = x0 // TILE
+                tx1 = x1 // TILE
+                ty0 = y0 // TILE
+                ty1 = y1 // TILE
+                if et_on:
+                    # skip the voxel when every pixel under its footprint is saturated: exact (such pixels
+                    # take no more contribution) and much cheaper than shading and splatting it. Whole
+                    # saturated tiles answer at once; otherwise a byte mask (small, stays in cache) is read.
                     open_px = False
-                    for y in range(y0, y1 + 1):
-                        for x in range(x0, x1 + 1):
-                            if sat[y, x] == 0:
+                    for ty in range(ty0, ty1 + 1):
+                        for tx in range(tx0, tx1 + 1):
+                            if tile_sat[ty, tx] < tile_npix[ty, tx]:
                                 open_px = True
                                 break
                         if open_px:
                             break
-                if not open_px:
-                    continue
-            if persp:
-                # path length through the slab along this voxel's ray, in unit distances
-                vx = pb0 + a * steps[0, 0] + b * steps[1, 0]
-                vy = pb1 + a * steps[0, 1] + b * steps[1, 1]
-                vz = pb2 + a * steps[0, 2] + b * steps[1, 2]
-                dist = math.sqrt(vx * vx + vy * vy + vz * vz)
-                # cosine between the ray and the slice normal, bounded (a ray ~75 degrees off the normal, which
-                # only happens next to an eye inside the volume) so the path length stays finite
-                cosang = max(hc / max(dist, 1e-300), 0.25)
-                alpha = -math.expm1(inv_unit / cosang * L)   # inv_unit = slice spacing / unit distance
-            else:
-                alpha = L
-            cr = color_lut[d, 0]
-            cg = color_lut[d, 1]
-            cb = color_lut[d, 2]
-            if use_shade:
-                code = nrm[fi]
-                if mono:
-                    # white lights: one diffuse and one specular factor per code (a smaller table,
-                    # which matters: it is read at random codes)
-                    dif = shade_lut[code, 0]
-                    spe = shade_lut[code, 1]
-                    cr = cr * dif + spe
-                    cg = cg * dif + spe
-                    cb = cb * dif + spe
+                    if open_px:
+                        open_px = False
+                        for y in range(y0, y1 + 1):
+                            for x in range(x0, x1 + 1):
+                                if sat[y, x] == 0:
+                                    open_px = True
+                                    break
+                            if open_px:
+                                break
+                    if not open_px:
+                        continue
+                if persp:
+                    # path length through the slab along this voxel's ray, in unit distances
+                    vx = pb0 + a * steps[0, 0] + b * steps[1, 0]
+                    vy = pb1 + a * steps[0, 1] + b * steps[1, 1]
+                    vz = pb2 + a * steps[0, 2] + b * steps[1, 2]
+                    dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+                    # cosine between the ray and the slice normal, bounded (a ray ~75 degrees off the normal, which
+                    # only happens next to an eye inside the volume) so the path length stays finite
+                    cosang = max(hc / max(dist, 1e-300), 0.25)
+                    alpha = -math.expm1(inv_unit / cosang * L)   # inv_unit = slice spacing / unit distance
                 else:
-                    cr = cr * shade_lut[code, 0] + shade_lut[code, 3]
-                    cg = cg * shade_lut[code, 1] + shade_lut[code, 4]
-                    cb = cb * shade_lut[code, 2] + shade_lut[code, 5]
-            cr *= alpha
-            cg *= alpha
-            cb *= alpha
-            inv_s2 = 1.0 / (s * s)
-            for y in range(y0, y1 + 1):
-                dy = y - py
-                qy = Qc * dy * dy
-                qxy = Qb2 * dy
-                for x in range(x0, x1 + 1):
-                    dx = x - px
-                    q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
-                    # Branch-free on purpose: the indexed traversal feeds voxels density by density, in
-                    # no spatial order, and a per-pixel branch here mispredicts (it cost 25% on the
-                    # semi-transparent engine). q at or past the cut-off reads the table's trailing zero;
-                    # the dirty list always stores the pixel and advances only on its first touch.
-                    wgt = fp_table[int(min(q, R2v) * tscale)]
-                    dirty[nd] = y * img_w + x
-                    nd += 1 - dirty_px[y, x]
-                    dirty_px[y, x] = 1
-                    sheet[y, x, 0] += wgt * cr
-                    sheet[y, x, 1] += wgt * cg
-                    sheet[y, x, 2] += wgt * cb
-                    sheet[y, x, 3] += wgt * alpha
-            # a voxel spanning two bands is counted by the band holding its first image row
-            if max(int(fy0), 0) >= band_y0:
-                stats[1] += 1
+                    alpha = L
+                cr = color_lut[d, 0]
+                cg = color_lut[d, 1]
+                cb = color_lut[d, 2]
+                if use_shade:
+                    code = nrm[fi]
+                    if mono:
+                        # white lights: one diffuse and one specular factor per code (a smaller table,
+                        # which matters: it is read at random codes)
+                        dif = shade_lut[code, 0]
+                        spe = shade_lut[code, 1]
+                        cr = cr * dif + spe
+                        cg = cg * dif + spe
+                        cb = cb * dif + spe
+                    else:
+                        cr = cr * shade_lut[code, 0] + shade_lut[code, 3]
+                        cg = cg * shade_lut[code, 1] + shade_lut[code, 4]
+                        cb = cb * shade_lut[code, 2] + shade_lut[code, 5]
+                cr *= alpha
+                cg *= alpha
+                cb *= alpha
+                inv_s2 = 1.0 / (s * s)
+                for y in range(y0, y1 + 1):
+                    dy = y - py
+                    qy = Qc * dy * dy
+                    qxy = Qb2 * dy
+                    for x in range(x0, x1 + 1):
+                        dx = x - px
+                        q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
+                        # Branch-free on purpose: the indexed traversal feeds voxels density by density, in
+                        # no spatial order, and a per-pixel branch here mispredicts (it cost 25% on the
+                        # semi-transparent engine). q at or past the cut-off reads the table's trailing zero;
+                        # the dirty list always stores the pixel and advances only on its first touch.
+                        wgt = fp_table[int(min(q, R2v) * tscale)]
+                        dirty[nd] = y * img_w + x
+                        nd += 1 - dirty_px[y, x]
+                        dirty_px[y, x] = 1
+                        sheet[y, x, 0] += wgt * cr
+                        sheet[y, x, 1] += wgt * cg
+                        sheet[y, x, 2] += wgt * cb
+                        sheet[y, x, 3] += wgt * alpha
+                # a voxel spanning two bands is counted by the band holding its first image row
+                if max(int(fy0), 0) >= band_y0:
+                    stats[1] += 1
         _composite(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et)
         stats[2] += 1
         if et_on:
@@ -372,16 +454,22 @@ def flat_indices(slice_block_ptr, block_voxel_ptr, positions, n_a, strides):
 
 
 @nb.njit(cache=True, nogil=True)
-def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, intervals, n_a):
-    """The voxels of each slice whose density lies in ``intervals`` (§2.2), as in-slice coordinates.
+def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, intervals, n_a, n_b):
+    """The voxels of each slice whose density lies in ``intervals`` (§2.2), as in-slice coordinates,
+    grouped in cells of CELL x CELL voxels of the slice.
 
     Per slice, the densities present are sorted (Figure 1), so a binary search finds the first block of each
     interval and the blocks up to its upper bound are decoded into (a, b). This runs once per load (the
-    selection depends on the transfer function, not on the view); every frame then streams the result.
-    Returns ``(sel_ptr int64[S+1], a uint16[N], b uint16[N], density uint8[N], source int64[N])`` where
+    selection depends on the transfer function, not on the view); every frame then streams the result, and
+    the cells let early termination skip a hidden cell with one test.
+    Returns ``(cell_ptr int64[S+1], cell_start int64[Q+1], cell_id int32[Q], a uint16[N], b uint16[N],
+    density uint8[N], source int64[N])``: slice ``c`` holds cells ``cell_ptr[c]:cell_ptr[c+1]``, cell ``q``
+    (``cell_id = (b // CELL) * ceil(n_a / CELL) + a // CELL``) the voxels ``cell_start[q]:cell_start[q+1]``;
     ``source`` is each voxel's index in ``positions``.
     """
     n_slices = slice_block_ptr.shape[0] - 1
+    nca = (n_a + CELL - 1) // CELL
+    ncells = nca * ((n_b + CELL - 1) // CELL)
     total = 0
     for c in range(n_slices):
         for iv in range(intervals.shape[0]):
@@ -389,14 +477,24 @@ def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, in
             while r < slice_block_ptr[c + 1] and block_density[r] <= intervals[iv, 1]:
                 total += block_voxel_ptr[r + 1] - block_voxel_ptr[r]
                 r += 1
-    sel_ptr = np.zeros(n_slices + 1, dtype=np.int64)
     sa = np.empty(total, dtype=np.uint16)
     sb = np.empty(total, dtype=np.uint16)
     sd = np.empty(total, dtype=np.uint8)
     src = np.empty(total, dtype=np.int64)
+    # one slice's voxels before they are grouped by cell
+    ta = np.empty(n_a * n_b, dtype=np.uint16)
+    tb = np.empty(n_a * n_b, dtype=np.uint16)
+    td = np.empty(n_a * n_b, dtype=np.uint8)
+    tsrc = np.empty(n_a * n_b, dtype=np.int64)
+    count = np.zeros(ncells + 1, dtype=np.int64)
+    cell_ptr = np.zeros(n_slices + 1, dtype=np.int64)
+    cell_start_l = np.empty(min(total, n_slices * ncells) + 1, dtype=np.int64)
+    cell_id_l = np.empty(min(total, n_slices * ncells), dtype=np.int32)
     n = 0
+    nq = 0
     for c in range(n_slices):
         r1 = slice_block_ptr[c + 1]
+        m = 0
         for iv in range(intervals.shape[0]):
             r = _first_block(block_density, slice_block_ptr[c], r1, intervals[iv, 0])
             while r < r1 and block_density[r] <= intervals[iv, 1]:
@@ -411,14 +509,35 @@ def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, in
                     while ind >= row0 + n_a:
                         row0 += n_a
                         b += 1
-                    sa[n] = ind - row0
-                    sb[n] = b
-                    sd[n] = d
-                    src[n] = vi
-                    n += 1
+                    ta[m] = ind - row0
+                    tb[m] = b
+                    td[m] = d
+                    tsrc[m] = vi
+                    m += 1
                 r += 1
-        sel_ptr[c + 1] = n
-    return sel_ptr, sa, sb, sd, src
+        # group by cell: a counting sort, stable, so each cell keeps the blocks' density order
+        for q in range(ncells + 1):
+            count[q] = 0
+        for t in range(m):
+            count[(tb[t] // CELL) * nca + ta[t] // CELL + 1] += 1
+        for q in range(ncells):
+            if count[q + 1] > 0:
+                cell_start_l[nq] = n + count[q]
+                cell_id_l[nq] = q
+                nq += 1
+            count[q + 1] += count[q]
+        for t in range(m):
+            q = (tb[t] // CELL) * nca + ta[t] // CELL
+            k = n + count[q]
+            count[q] += 1
+            sa[k] = ta[t]
+            sb[k] = tb[t]
+            sd[k] = td[t]
+            src[k] = tsrc[t]
+        n += m
+        cell_ptr[c + 1] = nq
+    cell_start_l[nq] = n
+    return cell_ptr, cell_start_l[:nq + 1].copy(), cell_id_l[:nq].copy(), sa, sb, sd, src
 
 
 @nb.njit(cache=True, nogil=True)

@@ -188,8 +188,11 @@ class Renderer:
                     if max(la.n_a, la.n_b) > 65535:
                         raise IsplatError(f"{scene.data.index}: axis {ax} slices are {la.n_a}x{la.n_b}; "
                                           "the renderer takes at most 65535 voxels per in-slice axis")
-                    self.selected[ax] = select_voxels(la.slice_block_ptr, la.block_density,
-                                                      la.block_voxel_ptr, la.positions, ivs, la.n_a, la.n_b)
+                    try:
+                        self.selected[ax] = select_voxels(la.slice_block_ptr, la.block_density,
+                                                          la.block_voxel_ptr, la.positions, ivs, la.n_a, la.n_b)
+                    except ValueError as exc:
+                        raise IsplatError(f"{scene.data.index}: axis {ax}: {exc}") from None
                     self.loaded[ax] = la
                 gathered = gather_channels(aug, self.loaded, channels, self.geom)
                 for ax in self.axes_needed:

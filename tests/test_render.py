@@ -1,6 +1,8 @@
 """Renderer: the compiled indexed and full methods against each other and against the reference."""
 
 import math
+import pathlib
+import tempfile
 
 import numpy as np
 import pytest
@@ -302,3 +304,38 @@ def test_extreme_opacities_stay_finite_and_agree(tmp_path, make_scene, alpha, pr
     # tiny alphas over a long path: 1 - (1 - a)^(16/0.01 / cos) must not be lost to rounding
     expect = -math.expm1(16 / 0.01 / math.cos(math.radians(10)) / math.cos(math.radians(5)) * math.log1p(-min(alpha, 1 - 2 ** -40)))
     assert abs(img[8, 8, 3] - expect) < 5e-3 * max(expect, 1e-6) + 1e-6
+
+
+def test_select_voxels_refuses_a_slice_with_more_voxels_than_positions():
+    """A crafted index listing the same positions under two densities of one 2x2 slice must not overrun."""
+    from isplat.splat.kernels import select_voxels
+    with pytest.raises(ValueError, match="more voxels than it has positions"):
+        select_voxels(np.array([0, 2]), np.array([1, 2], np.uint8), np.array([0, 4, 8]),
+                      np.array([0, 1, 2, 3, 0, 1, 2, 3], np.int32), np.array([[0, 255]]), 2, 2)
+
+
+@pytest.mark.parametrize("shape", [(3, 5, 17), (2, 19, 9), (20, 3, 3)])
+def test_select_voxels_groups_by_cell_and_keeps_every_voxel(shape):
+    """Every selected voxel appears once, in its slice, in the cell its coordinates give."""
+    from isplat.augfile import write_augmented
+    from isplat.index import build_index_file, open_index
+    from isplat.splat.kernels import CELL, select_voxels
+    dens = rng_volume(11, shape)
+    n_k, n_j, n_i = shape
+    with tempfile.TemporaryDirectory() as t:
+        t = pathlib.Path(t)
+        write_augmented(t / "a.h5", dens, np.zeros_like(dens), np.zeros(shape, np.uint16), (1, 1, 1), (0, 255), 1.0)
+        build_index_file(t / "a.h5", t / "i.h5", axes="k")
+        la = open_index(t / "i.h5").load_axis("k", [(50, 255)])
+    sel = select_voxels(la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions,
+                        np.array([[50, 255]]), la.n_a, la.n_b)
+    cell_ptr, cell_start, cell_id, a, b, d, src = sel
+    nca = -(-n_i // CELL)
+    for c in range(n_k):
+        got = []
+        for q in range(cell_ptr[c], cell_ptr[c + 1]):
+            for v in range(cell_start[q], cell_start[q + 1]):
+                assert (b[v] // CELL) * nca + a[v] // CELL == cell_id[q]
+                assert dens[c, b[v], a[v]] == d[v]
+                got.append(int(b[v]) * n_i + int(a[v]))
+        assert sorted(got) == np.flatnonzero(dens[c].ravel() >= 50).tolist()

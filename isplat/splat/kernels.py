@@ -472,11 +472,17 @@ def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, in
     ncells = nca * ((n_b + CELL - 1) // CELL)
     total = 0
     for c in range(n_slices):
+        in_slice = 0
         for iv in range(intervals.shape[0]):
             r = _first_block(block_density, slice_block_ptr[c], slice_block_ptr[c + 1], intervals[iv, 0])
             while r < slice_block_ptr[c + 1] and block_density[r] <= intervals[iv, 1]:
-                total += block_voxel_ptr[r + 1] - block_voxel_ptr[r]
+                in_slice += block_voxel_ptr[r + 1] - block_voxel_ptr[r]
                 r += 1
+        # each position holds one density: more voxels than positions means a corrupt index (and would
+        # overrun the per-slice buffers below)
+        if in_slice > n_a * n_b:
+            raise ValueError("a slice of the index lists more voxels than it has positions")
+        total += in_slice
     sa = np.empty(total, dtype=np.uint16)
     sb = np.empty(total, dtype=np.uint16)
     sd = np.empty(total, dtype=np.uint8)

@@ -32,7 +32,8 @@ def bar(iterable=None, **kwargs):
     """A tqdm bar on stderr that is disabled when :func:`enabled` is false."""
     kwargs.setdefault("leave", False)
     kwargs.setdefault("dynamic_ncols", True)
-    return tqdm(iterable, file=sys.stderr, disable=not enabled(), **kwargs)
+    kwargs["disable"] = kwargs.get("disable", False) or not enabled()
+    return tqdm(iterable, file=sys.stderr, **kwargs)
 
 
 def log(message: str) -> None:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import camera as cam_mod
+from . import progress
 from .augfile import open_augmented
 from .errors import IsplatError
 from .splat.footprint import make_footprint
@@ -270,7 +271,7 @@ class Renderer:
             else:
                 args = (np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int32),
                         np.zeros(1, np.uint16), np.zeros(1, np.uint16), _EMPTY_U8)
-            common = (order, self.method == "full", *args,
+            common = (self.method == "full", *args,
                       self.dens, gm, self.use_gm, nrm, self.use_shade, strides, n_a, n_b,
                       atab, self.luts.color, shade, persp, inv_unit, normal_off, slice_step,
                       proj.coef, proj.steps, qe, cuts, fp.table, fp.params,
@@ -279,15 +280,21 @@ class Renderer:
             bands = _bands(nty, self.threads)
             per_band = [np.zeros(3, dtype=np.int64) for _ in bands]
 
-            def run(bi):
+            dirty_lists = [np.empty(H * W + 1, np.int64) for _ in bands]
+
+            def run(bi, part):
                 y0, y1 = bands[bi]
-                render_axis(*common, np.empty(H * W + 1, np.int64), self.dtype(et_val), per_band[bi],
+                render_axis(part, *common, dirty_lists[bi], self.dtype(et_val), per_band[bi],
                             y0 * TILE, min(H, y1 * TILE))
 
-            if len(bands) == 1:
-                run(0)
-            else:
-                list(_pool(self.threads).map(run, range(len(bands))))
+            # with a progress bar (stderr is a terminal), the slices go in chunks so the bar can move;
+            # the kernel's state (image, saturation) carries over from one chunk to the next
+            parts = np.array_split(order, 20) if progress.enabled() and len(order) >= 40 else [order]
+            for part in progress.bar(parts, desc=f"slices ({len(order)})", unit="chunk", disable=len(parts) == 1):
+                if len(bands) == 1:
+                    run(0, part)
+                else:
+                    list(_pool(self.threads).map(run, range(len(bands)), [part] * len(bands)))
             # voxels are examined once per band; report them once
             stats[0] = per_band[0][0]
             stats[1] = sum(int(b[1]) for b in per_band)

@@ -848,7 +848,7 @@ def _render(ctx: _Ctx, tree: dict) -> RenderOptions:
     method = ctx.choice(p + ("method",), t.get("method", "indexed"), ("indexed", "full"))
     early = ctx.number(p + ("early_termination",), t.get("early_termination", 0.99),
                        "expected an opacity in (0, 1] (1 = off)", lo=0.0, hi=1.0, lo_open=True)
-    radius = ctx.number(p + ("footprint_radius",), t.get("footprint_radius", 2.0),
+    radius = ctx.number(p + ("footprint_radius",), t.get("footprint_radius", 2.5),
                         "expected a cut-off in Gaussian sigmas in 0.5..6", lo=0.5, hi=6.0)
     sigma = ctx.number(p + ("footprint_sigma",), t.get("footprint_sigma", 0.7),
                        "expected a sigma in voxel steps in 0.3..3", lo=0.3, hi=3.0)

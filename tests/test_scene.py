@@ -111,7 +111,7 @@ def test_defaults():
     assert s.cuts == ()
     r = s.render
     assert (r.method, r.early_termination, r.footprint_radius, r.footprint_sigma, r.footprint_table, r.precision,
-            r.threads) == ("indexed", 0.99, 2.0, 0.7, 1024, "float32", 0)
+            r.threads) == ("indexed", 0.99, 2.5, 0.7, 1024, "float32", 0)
     assert s.views == (s.camera,)
 
 

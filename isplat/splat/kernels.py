@@ -37,7 +37,7 @@ def _composite(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et):
         x = p - y * w
         dirty_px[y, x] = 0
         sa = sheet[y, x, 3]
-        if sa > 0.0:
+        if sa > 0.0 and sat[y, x] == 0:
             scale = 1.0
             if sa > 1.0:
                 # overlapping footprints can sum past 1: keep the colour/opacity ratio

@@ -29,7 +29,7 @@ from . import _doc
 REPO = Path(__file__).resolve().parents[2]
 CACHE = REPO / "bench-out"
 
-DEFAULTS = {"method": "indexed", "early_termination": 0.99, "footprint_radius": 2.0, "footprint_table": 1024,
+DEFAULTS = {"method": "indexed", "early_termination": 0.99, "footprint_radius": 2.5, "footprint_table": 1024,
             "precision": "float32", "threads": 0}
 REFERENCE = {"method": "full", "early_termination": 1.0, "footprint_radius": 4.0, "footprint_table": 1 << 20,
              "precision": "float64", "threads": 0}
@@ -402,14 +402,11 @@ def _reading(knob, res):
                 f"where float64 is closer.")
     if knob == "threads":
         dh, de = _threads_diff(h), _threads_diff(e)
-        return (f"Threads split the image into bands of tile rows, so 1 and 2 threads should give identical "
-                f"images. They do not with early termination on: max difference head {_e(dh)}, engine {_e(de)} "
-                f"(with it off: max difference head {_e(res['head']['threads_et_off'])}, engine {_e(res['engine']['threads_et_off'])}). The cause is in the early-termination "
-                f"skip: a voxel is skipped only when *every* pixel under its (band-clipped) footprint is saturated, "
-                f"and when it is not skipped it is also splatted and composited into its saturated pixels. With two "
-                f"bands the footprint is cut at the band edge, so a voxel can be skipped in one band while a single "
-                f"band would still have added it to the saturated pixels there. The differences sit in the tile rows "
-                f"next to the band edge and are below 1 - early_termination. Time: 2 threads take head "
+        return (f"Threads split the image into bands of tile rows; each band walks every slice and splats into its "
+                f"own rows only. The images of 1 and 2 threads are identical: max difference head {_e(dh)}, engine "
+                f"{_e(de)} with early termination on (off: head {_e(res['head']['threads_et_off'])}, engine "
+                f"{_e(res['engine']['threads_et_off'])}), because a saturated pixel takes no more contributions, so "
+                f"where a band edge cuts a footprint changes nothing. Time: 2 threads take head "
                 f"{t(h, 2) / t(h, 1):.2f}x, engine {t(e, 2) / t(e, 1):.2f}x the single-thread time (every band walks "
                 f"every slice; the splatting is what is shared).")
     return ""
@@ -421,13 +418,13 @@ def render_doc(res, pops, quick, size, frames, gain, seconds, load0) -> str:
          f"Machine: {_doc.machine_line()}; git {_doc.git_rev()}; load average {load0:.2f} at the start; the bench "
          f"took {seconds:.0f} s.\n",
          f"Every image is {size}x{size}, orthographic. Each knob is varied alone, the others at their format "
-         f"defaults (`method = \"indexed\"`, `early_termination = 0.99`, `footprint_radius = 2`, "
+         f"defaults (`method = \"indexed\"`, `early_termination = 0.99`, `footprint_radius = {DEFAULTS['footprint_radius']:g}`, "
          f"`footprint_table = 1024`, `precision = \"float32\"`, `threads = 0` = all cores; sigma 0.7 throughout). "
          f"Times are medians of {frames} frames per setting after 2 warm-up frames, the settings of one table "
          f"rendered in turn (interleaved), so load from other processes hits them alike. Error is against a "
          f"**reference** render of the same view: float64, `footprint_table = 2^20`, early termination off, "
          f"method full, and either `footprint_radius = 4` (the *untruncated reference*: what the Gaussian model "
-         f"gives) or the row's own radius (the *same-kernel reference*: 2 for every knob but the radius). The "
+         f"gives) or the row's own radius (the *same-kernel reference*: {DEFAULTS['footprint_radius']:g} for every knob but the radius). The "
          f"default radius truncates the kernel enough to dominate every other error (see the error budget), so "
          f"each knob's own cost is read against the same-kernel reference; the untruncated PSNR is in a column "
          f"of its own. Errors are over RGB in [0, 1] after compositing on the scene's "
@@ -554,18 +551,19 @@ def _recommend(res) -> str:
     r = h["footprint_radius"], e["footprint_radius"]
     rip2 = [res[c]["ripple"][2.0] for c in CASES]
     rip25 = [res[c]["ripple"][2.5] for c in CASES]
-    out.append(f"- `footprint_radius = 2`: the one default worth discussing. It is the largest error in the default "
-               f"image (PSNR against the untruncated Gaussian head {_psnr(_row(r[0], 2.0)['err']['psnr'])}, engine "
-               f"{_psnr(_row(r[1], 2.0)['err']['psnr'])} dB; a uniform slice's opacity ripples by a factor "
-               f"{rip2[0][0]:.3f}..{rip2[0][1]:.3f} in the head view, {rip2[1][0]:.3f}..{rip2[1][1]:.3f} in the engine "
-               f"view; docs/stability.md row 2 has the uniform slab at one pixel per voxel). "
-               f"2.5 gives PSNR {_psnr(_row(r[0], 2.5)['err']['psnr'])} / {_psnr(_row(r[1], 2.5)['err']['psnr'])} dB "
-               f"and a ripple {rip25[0][0]:.3f}..{rip25[0][1]:.3f} / {rip25[1][0]:.3f}..{rip25[1][1]:.3f} for x{_row(r[0], 2.5)['ms'] / _row(r[0], 2.0)['ms']:.2f} / "
-               f"x{_row(r[1], 2.5)['ms'] / _row(r[1], 2.0)['ms']:.2f} the time. Keep 2 for interactive use; "
-               f"suggest 2.5 (or 3) for semi-transparent stills, where the ripple shows as texture.")
+    out.append(f"- `footprint_radius = 2.5` (the default; it was 2 until this table showed the ripple): a uniform "
+               f"slice's opacity ripples by a factor {rip25[0][0]:.3f}..{rip25[0][1]:.3f} in the head view, "
+               f"{rip25[1][0]:.3f}..{rip25[1][1]:.3f} in the engine view, PSNR against the untruncated Gaussian "
+               f"{_psnr(_row(r[0], 2.5)['err']['psnr'])} / {_psnr(_row(r[1], 2.5)['err']['psnr'])} dB. Radius 2 "
+               f"takes x{_row(r[0], 2.0)['ms'] / _row(r[0], 2.5)['ms']:.2f} / x{_row(r[1], 2.0)['ms'] / _row(r[1], 2.5)['ms']:.2f} "
+               f"the time but ripples by {rip2[0][0]:.3f}..{rip2[0][1]:.3f} / {rip2[1][0]:.3f}..{rip2[1][1]:.3f} "
+               f"(PSNR {_psnr(_row(r[0], 2.0)['err']['psnr'])} / {_psnr(_row(r[1], 2.0)['err']['psnr'])} dB; "
+               f"docs/stability.md has the uniform slab at one pixel per voxel): `--set render.footprint_radius=2` "
+               f"for quick previews.")
     out.append(f"- `footprint_table = 1024`, `precision = \"float32\"`, `threads = 0`: keep.")
-    out.append(f"- Bug to fix rather than a default: threads change the image when early termination is on "
-               f"(max {_e(_threads_diff(h['threads']))} on the head); see `render.threads`.")
+    out.append(f"- `threads`: exact. One and two threads give the same image (max difference "
+               f"{_e(_threads_diff(h['threads']))} on the head), early termination on or off: a saturated pixel takes "
+               f"no more contributions, so where a thread's band cuts a footprint does not matter.")
     return "\n".join(out) + "\n"
 
 

@@ -27,6 +27,29 @@ QA, QB, QC, EX, EY, R2, TSCALE = range(7)
 
 
 @nb.njit(cache=True, nogil=True)
+def _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
+    """True when every pixel of the box [x0, x1] x [y0, y1] has reached the early-termination opacity.
+
+    Tiles whose pixels are all saturated answer at once; otherwise the byte mask (small, stays in cache) does.
+    """
+    whole = True
+    for ty in range(y0 // TILE, y1 // TILE + 1):
+        for tx in range(x0 // TILE, x1 // TILE + 1):
+            if tile_sat[ty, tx] < tile_npix[ty, tx]:
+                whole = False
+                break
+        if not whole:
+            break
+    if whole:
+        return True
+    for y in range(y0, y1 + 1):
+        for x in range(x0, x1 + 1):
+            if sat[y, x] == 0:
+                return False
+    return True
+
+
+@nb.njit(cache=True, nogil=True)
 def _composite(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et):
     """Composite the slice's sheet over the image front to back (premultiplied 'over') at the pixels the
     slice touched, clear them, and count pixels that crossed the early-termination threshold."""
@@ -274,27 +297,8 @@ def render_axis(order, full, sel_cell_ptr, sel_cell_start, sel_cell_id, sel_a, s
                     gx1 = min(int(math.floor(cx1 + ex * smax)), img_w - 1)
                     if gy0 > gy1 or gx0 > gx1:
                         continue                    # no footprint of this cell reaches this band
-                    if et_on:
-                        open_tile = False
-                        for ty in range(gy0 // TILE, gy1 // TILE + 1):
-                            for tx in range(gx0 // TILE, gx1 // TILE + 1):
-                                if tile_sat[ty, tx] < tile_npix[ty, tx]:
-                                    open_tile = True
-                                    break
-                            if open_tile:
-                                break
-                        if open_tile:
-                            # not all whole tiles: the byte mask over the cell's box decides
-                            open_tile = False
-                            for yy in range(gy0, gy1 + 1):
-                                for xx in range(gx0, gx1 + 1):
-                                    if sat[yy, xx] == 0:
-                                        open_tile = True
-                                        break
-                                if open_tile:
-                                    break
-                        if not open_tile:
-                            continue                # every pixel it could touch is saturated
+                    if et_on and _saturated(tile_sat, tile_npix, sat, gx0, gx1, gy0, gy1):
+                        continue                    # every pixel it could touch is saturated
             for n in range(cstart[q], cstart[q + 1]):
                 a = np.int64(src_a[n])
                 b = np.int64(src_b[n])
@@ -345,33 +349,10 @@ def render_axis(order, full, sel_cell_ptr, sel_cell_start, sel_cell_id, sel_a, s
                 y1 = min(int(fy1), band_y1 - 1)
                 if y0 > y1:
                     continue
-                tx0 = x0 // TILE
-                tx1 = x1 // TILE
-                ty0 = y0 // TILE
-                ty1 = y1 // TILE
-                if et_on:
-                    # skip the voxel when every pixel under its footprint is saturated: exact (such pixels
-                    # take no more contribution) and much cheaper than shading and splatting it. Whole
-                    # saturated tiles answer at once; otherwise a byte mask (small, stays in cache) is read.
-                    open_px = False
-                    for ty in range(ty0, ty1 + 1):
-                        for tx in range(tx0, tx1 + 1):
-                            if tile_sat[ty, tx] < tile_npix[ty, tx]:
-                                open_px = True
-                                break
-                        if open_px:
-                            break
-                    if open_px:
-                        open_px = False
-                        for y in range(y0, y1 + 1):
-                            for x in range(x0, x1 + 1):
-                                if sat[y, x] == 0:
-                                    open_px = True
-                                    break
-                            if open_px:
-                                break
-                    if not open_px:
-                        continue
+                # skip the voxel when every pixel under its footprint is saturated: exact (such pixels take
+                # no more contribution) and much cheaper than shading and splatting it
+                if et_on and _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
+                    continue
                 if persp:
                     # path length through the slab along this voxel's ray, in unit distances
                     vx = pb0 + a * steps[0, 0] + b * steps[1, 0]

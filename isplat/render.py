@@ -11,6 +11,7 @@ channel only for the ``full`` method (the index already carries densities).
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from dataclasses import dataclass, field
@@ -68,16 +69,25 @@ def shade_table(shading, frame, geom, dtype=np.float32) -> np.ndarray:
         h /= max(np.linalg.norm(h), 1e-12)
         rows.append([*lv, *h, *(light.intensity * np.asarray(light.color, float))])
     lights = np.asarray(rows, dtype=np.float64).reshape(-1, 9)
-    out = np.empty((65536, 6), dtype=dtype)
+    # white lights: r, g and b factors are equal, one diffuse and one specular factor per code will do
+    white = bool(np.all(lights[:, 6:9] == lights[:, 6:7]))
+    out = np.empty((65536, 2 if white else 6), dtype=dtype)
     shade_codes(decode_lut(), lights, float(shading.ambient), float(shading.diffuse), float(shading.specular),
                 float(shading.shininess), bool(shading.two_sided), out)
-    if np.all(lights[:, 6:9] == lights[:1, 6:7]):
-        # white lights: r, g and b factors are equal; keep one of each (diffuse, specular)
-        return np.ascontiguousarray(out[:, [0, 3]])
     return out
 
 
 GATHER_SLAB = 8      # k-slices read at a time when gathering channel values
+
+
+@functools.lru_cache(maxsize=8)
+def _tile_pixels(h: int, w: int, tile: int) -> np.ndarray:
+    """Pixels in each tile of an h x w image (edge tiles are smaller)."""
+    rows = np.minimum(tile, h - np.arange(0, h, tile))
+    cols = np.minimum(tile, w - np.arange(0, w, tile))
+    out = np.outer(rows, cols).astype(np.int32)
+    out.flags.writeable = False
+    return out
 
 
 def gather_channels(aug, loaded: dict, channels, geom) -> dict:
@@ -259,10 +269,7 @@ class Renderer:
             shade = shade_table(scene.shading, frame, geom) if self.use_shade else np.zeros((1, 6), np.float32)
             cuts = cut_coefficients(scene.cuts, geom, axis)
             ntx, nty = -(-W // TILE), -(-H // TILE)
-            tile_npix = np.empty((nty, ntx), dtype=np.int32)
-            for ty in range(nty):
-                for tx in range(ntx):
-                    tile_npix[ty, tx] = (min(H, ty * TILE + TILE) - ty * TILE) * (min(W, tx * TILE + TILE) - tx * TILE)
+            tile_npix = _tile_pixels(H, W, TILE)
             sheet = np.zeros((H, W, 4), dtype=self.dtype)
             et_val = ro.early_termination if et is None else et
             gm, nrm = self.attrs[axis]

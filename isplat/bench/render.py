@@ -204,7 +204,7 @@ def doc(main, st, pv, orb, e2e, rss, scaling, r0, quick, seconds) -> str:
         f"The same synthetic head sampled on cubic grids (`isplat sample head --shape N,N,N`), the same scene, "
         f"{SIZE} x {SIZE}. The indexed time grows with the voxels of interest, and more slowly than they do: the "
         "finer the grid, the more of them lie behind the first opaque layer, where early termination skips them "
-        "a cell of 8x8 at a time. The full method pays for every voxel of the volume.",
+        "a cell of 4x4 voxels at a time. The full method pays for every voxel of the volume.",
         "",
         "| grid | voxels | voxels of interest | indexed (ms) | ns / voxel of interest | full (ms) | full / indexed |",
         "|---|---:|---:|---:|---:|---:|---:|",

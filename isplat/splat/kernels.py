@@ -18,7 +18,7 @@ import numba as nb
 import numpy as np
 
 TILE = 8
-CELL = 8         # voxels per side of the cells a slice's voxels are grouped in for early termination
+CELL = 4         # voxels per side of the cells a slice's voxels are grouped in for early termination
 
 # coef layout (camera.Projection.coef)
 X0, XA, XB, XC, Y0, YA, YB, YC, W0, WA, WB, WC, CX, CY, WPE, NEAR = range(16)
@@ -84,11 +84,13 @@ def _composite(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et):
 
 @nb.njit(cache=True, nogil=True)
 def shade_codes(normals, lights, ambient, diffuse, specular, shininess, two_sided, out):
-    """Phong terms per normal code: ``out[c] = (diffuse r, g, b, specular r, g, b)``.
+    """Phong terms per normal code: ``out[c] = (diffuse r, g, b, specular r, g, b)``, or, when ``out`` has two
+    columns (every light white), ``(diffuse, specular)``.
 
     ``lights`` rows: (L_i, L_j, L_k, H_i, H_j, H_k, r, g, b) in volume axes, L towards the light, H the
-    half vector with the viewer, rgb the light's colour times intensity.
+    half vector with the viewer, rgb the light's colour times intensity (r for a white light).
     """
+    mono = out.shape[1] == 2
     for c in range(normals.shape[0]):
         nx = normals[c, 0]
         ny = normals[c, 1]
@@ -110,19 +112,23 @@ def shade_codes(normals, lights, ambient, diffuse, specular, shininess, two_side
                     ndl = 0.0
                     ndh = 0.0
                 ndh = max(ndh, 0.0)
-            sp = specular * ndh ** shininess if ndh > 0.0 else 0.0
+            sp = specular * ndh ** shininess if ndh > 0.0 and specular != 0.0 else 0.0
             dr += diffuse * ndl * lights[li, 6]
-            dg += diffuse * ndl * lights[li, 7]
-            db += diffuse * ndl * lights[li, 8]
             sr += sp * lights[li, 6]
-            sg += sp * lights[li, 7]
-            sb += sp * lights[li, 8]
+            if not mono:
+                dg += diffuse * ndl * lights[li, 7]
+                db += diffuse * ndl * lights[li, 8]
+                sg += sp * lights[li, 7]
+                sb += sp * lights[li, 8]
         out[c, 0] = dr
-        out[c, 1] = dg
-        out[c, 2] = db
-        out[c, 3] = sr
-        out[c, 4] = sg
-        out[c, 5] = sb
+        if mono:
+            out[c, 1] = sr
+        else:
+            out[c, 1] = dg
+            out[c, 2] = db
+            out[c, 3] = sr
+            out[c, 4] = sg
+            out[c, 5] = sb
 
 
 @nb.njit(cache=True, nogil=True)

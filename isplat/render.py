@@ -49,7 +49,7 @@ class LoadReport:
     intervals: list = field(default_factory=list)
 
 
-def shade_table(shading, frame, geom, dtype=np.float32) -> np.ndarray:
+def shade_table(shading, frame, geom, dtype=np.float32, threads: int = 1) -> np.ndarray:
     """Per normal code: (diffuse r, g, b, specular r, g, b) for this view's lights (Phong, infinite viewer),
     or just (diffuse, specular) when every light is white.
 
@@ -72,8 +72,16 @@ def shade_table(shading, frame, geom, dtype=np.float32) -> np.ndarray:
     # white lights: r, g and b factors are equal, one diffuse and one specular factor per code will do
     white = bool(np.all(lights[:, 6:9] == lights[:, 6:7]))
     out = np.empty((65536, 2 if white else 6), dtype=dtype)
-    shade_codes(decode_lut(), lights, float(shading.ambient), float(shading.diffuse), float(shading.specular),
-                float(shading.shininess), bool(shading.two_sided), out)
+    normals = decode_lut()
+    args = (float(shading.ambient), float(shading.diffuse), float(shading.specular), float(shading.shininess),
+            bool(shading.two_sided))
+    # the codes are independent: share them out between the threads (the kernel releases the GIL)
+    cuts = np.linspace(0, normals.shape[0], max(1, threads) + 1).astype(int)
+    parts = [(normals[a:b], out[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
+    if len(parts) == 1:
+        shade_codes(normals, lights, *args, out)
+    else:
+        list(_pool(threads).map(lambda p: shade_codes(p[0], lights, *args, p[1]), parts))
     return out
 
 
@@ -266,7 +274,8 @@ class Renderer:
             else:
                 atab = alpha_table(self.luts, proj.ds / self.unit)
                 normal_off, slice_step, inv_unit, qe = 0.0, 1.0, 1.0, np.zeros(3)
-            shade = shade_table(scene.shading, frame, geom) if self.use_shade else np.zeros((1, 6), np.float32)
+            shade = (shade_table(scene.shading, frame, geom, threads=self.threads) if self.use_shade
+                     else np.zeros((1, 6), np.float32))
             cuts = cut_coefficients(scene.cuts, geom, axis)
             ntx, nty = -(-W // TILE), -(-H // TILE)
             tile_npix = _tile_pixels(H, W, TILE)

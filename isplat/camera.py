@@ -167,8 +167,7 @@ def principal_axis(frame: ViewFrame, geom: VolumeGeometry) -> tuple[str, int]:
     Chosen in grid space (spacing accounted for): the axis whose slices the viewing ray crosses fastest,
     so a ray moves at most about one voxel within a slice per slice step (§2.2).
     """
-    d = frame.direction if frame.projection == "orthographic" else frame.direction
-    d_grid = (geom.unit_axes @ d) / geom.spacing
+    d_grid = (geom.unit_axes @ frame.direction) / geom.spacing
     c = int(np.argmax(np.abs(d_grid)))
     return AXES[c], (1 if d_grid[c] > 0 else -1)
 

@@ -252,7 +252,7 @@ class Renderer:
         axis, sign = cam_mod.principal_axis(frame, geom)
         H, W = frame.height, frame.width
         img = np.zeros((H, W, 4), dtype=self.dtype)
-        stats = np.zeros(3, dtype=np.int64)
+        examined = splatted = slices = 0
         if len(self.luts.intervals):
             ia, ib, ic = cam_mod.SLICE_AXES[axis]
             n_kji = geom.shape
@@ -311,12 +311,12 @@ class Renderer:
                     run(0, part)
                 else:
                     list(_pool(self.threads).map(run, range(len(bands)), [part] * len(bands)))
-            # voxels are examined once per band; report them once
-            stats[0] = per_band[0][0]
-            stats[1] = sum(int(b[1]) for b in per_band)
-            stats[2] = max(int(b[2]) for b in per_band)
+            # every band examines every voxel: count them once; one band counts each splatted voxel
+            examined = int(per_band[0][0])
+            splatted = sum(int(b[1]) for b in per_band)
+            slices = max(int(b[2]) for b in per_band)
         out = composite_background(img, scene.image.background)
-        return out, FrameStats(axis, sign, int(stats[0]), int(stats[1]), int(stats[2]), time.perf_counter() - t0)
+        return out, FrameStats(axis, sign, examined, splatted, slices, time.perf_counter() - t0)
 
 
 def composite_background(img: np.ndarray, background) -> np.ndarray:

@@ -192,15 +192,9 @@ def test_head_sample_density_index_estimate():
 
 def index_bytes_per_voxel(d):
     """1 byte per voxel plus 2 per gap > 255 between same-density voxels of a k-slice (from position -1)."""
-    flat = d.reshape(d.shape[0], -1)
-    big = 0
-    for row in flat:
-        order = np.argsort(row, kind="stable")
-        dens = row[order]
-        prev = np.r_[-1, order[:-1]]
-        prev[np.r_[True, dens[1:] != dens[:-1]]] = -1
-        big += int(((order - prev) > 255).sum())
-    return (d.size + 2 * big) / d.size
+    from isplat.bench.augment import index_estimate
+
+    return index_estimate(d)[0]
 
 
 # --- the format examples ---------------------------------------------------------------------------------------

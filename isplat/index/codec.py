@@ -120,6 +120,29 @@ def _escape_coords(buf, c, escape_width):
 
 
 @njit(cache=True, nogil=True)
+def _next_position(buf, c, end, prev, n_a, n_b, n_pos, escape_width):
+    """Read the position at ``buf[c]`` (an offset byte from ``prev``, or an escape; §2.3) without reading
+    past ``end``; return ``(status, position, next c)``, status OK or the error found."""
+    v = np.int64(buf[c])
+    if v != 0:
+        p = prev + v
+        c += 1
+    else:
+        if c + 1 + 2 * escape_width > end:
+            return ERR_TRUNCATED, prev, c
+        a, b = _escape_coords(buf, c, escape_width)
+        c += 1 + 2 * escape_width
+        if a >= n_a or b >= n_b:
+            return ERR_COORD, prev, c
+        p = a + b * n_a
+    if p <= prev:
+        return ERR_ORDER, prev, c
+    if p >= n_pos:
+        return ERR_RANGE, prev, c
+    return OK, p, c
+
+
+@njit(cache=True, nogil=True)
 def decode_blocks(buf, starts, ends, counts, dest, n_a, n_b, escape_width, out):
     """Decode block e = ``buf[starts[e]:ends[e]]`` into ``out[dest[e] : dest[e] + counts[e]]``.
 
@@ -137,22 +160,9 @@ def decode_blocks(buf, starts, ends, counts, dest, n_a, n_b, escape_width, out):
         while c < end:
             if n >= cnt:
                 return ERR_TOO_MANY, e
-            v = np.int64(buf[c])
-            if v != 0:
-                p = prev + v
-                c += 1
-            else:
-                if c + 1 + 2 * escape_width > end:
-                    return ERR_TRUNCATED, e
-                a, b = _escape_coords(buf, c, escape_width)
-                c += 1 + 2 * escape_width
-                if a >= n_a or b >= n_b:
-                    return ERR_COORD, e
-                p = a + b * n_a
-            if p <= prev:
-                return ERR_ORDER, e
-            if p >= n_pos:
-                return ERR_RANGE, e
+            status, p, c = _next_position(buf, c, end, prev, n_a, n_b, n_pos, escape_width)
+            if status != OK:
+                return status, e
             out[w + n] = p
             n += 1
             prev = p
@@ -179,22 +189,9 @@ def decode_stream(buf, counts, dest, n_a, n_b, escape_width, out):
         for n in range(cnt):
             if c >= end:
                 return ERR_TOO_FEW, e
-            v = np.int64(buf[c])
-            if v != 0:
-                p = prev + v
-                c += 1
-            else:
-                if c + 1 + 2 * escape_width > end:
-                    return ERR_TRUNCATED, e
-                a, b = _escape_coords(buf, c, escape_width)
-                c += 1 + 2 * escape_width
-                if a >= n_a or b >= n_b:
-                    return ERR_COORD, e
-                p = a + b * n_a
-            if p <= prev:
-                return ERR_ORDER, e
-            if p >= n_pos:
-                return ERR_RANGE, e
+            status, p, c = _next_position(buf, c, end, prev, n_a, n_b, n_pos, escape_width)
+            if status != OK:
+                return status, e
             out[w + n] = p
             prev = p
     if c != end:

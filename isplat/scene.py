@@ -37,7 +37,7 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class Data:
-    augmented: Path
+    augmented: Path | None       # None: a scene for a volume in memory (parse_scene(data_required=False))
     index: Path | None
 
 
@@ -582,8 +582,10 @@ def _sin_angle(a, b) -> float:
 # --------------------------------------------------------------------------------------------------------------------
 # Sections
 
-def _data(ctx: _Ctx, tree: dict, method: str) -> Data:
+def _data(ctx: _Ctx, tree: dict, method: str, required: bool = True) -> Data:
     t = ctx.table(tree, ("data",), DATA_KEYS)
+    if not required and not t:
+        return Data(None, None)
     if "augmented" not in t:
         ctx.missing(("data", "augmented"))
     augmented = ctx.path_value(("data", "augmented"), t["augmented"])
@@ -950,11 +952,13 @@ def _apply_override(tree: dict, arg: str, set_args: dict[tuple, str]) -> None:
 # --------------------------------------------------------------------------------------------------------------------
 # Entry points
 
-def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: Iterable[str] = ()) -> Scene:
+def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: Iterable[str] = (),
+                data_required: bool = True) -> Scene:
     """Parse and validate scene ``text``; relative data paths are taken from ``base_dir``.
 
     ``source_name`` starts every error message; ``overrides`` are ``--set key=value`` strings applied to the
-    TOML tree before validation.
+    TOML tree before validation. ``data_required=False`` accepts a scene without ``[data]`` (its
+    ``data.augmented`` is then None), for volumes already in memory (:meth:`isplat.selection.Selection.from_arrays`).
     """
     try:
         tree = tomllib.loads(text)
@@ -979,7 +983,7 @@ def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: It
             ctx.fail(("version",), v, f"this isplat reads scene version {SCENE_VERSION} only")
     ctx.check_keys(tree, (), TOP_KEYS)
     render = _render(ctx, tree)
-    data = _data(ctx, tree, render.method)
+    data = _data(ctx, tree, render.method, data_required)
     image = _image(ctx, tree)
     volume = _volume(ctx, tree)
     camera, views = _cameras(ctx, tree)

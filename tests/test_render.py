@@ -308,7 +308,7 @@ def test_extreme_opacities_stay_finite_and_agree(tmp_path, make_scene, alpha, pr
 
 def test_select_voxels_refuses_a_slice_with_more_voxels_than_positions():
     """A crafted index listing the same positions under two densities of one 2x2 slice must not overrun."""
-    from isplat.splat.kernels import select_voxels
+    from isplat.splat.select import select_voxels
     with pytest.raises(ValueError, match="more voxels than it has positions"):
         select_voxels(np.array([0, 2]), np.array([1, 2], np.uint8), np.array([0, 4, 8]),
                       np.array([0, 1, 2, 3, 0, 1, 2, 3], np.int32), np.array([[0, 255]]), 2, 2)
@@ -319,7 +319,7 @@ def test_select_voxels_groups_by_cell_and_keeps_every_voxel(shape):
     """Every selected voxel appears once, in its slice, in the cell its coordinates give."""
     from isplat.augfile import write_augmented
     from isplat.index import build_index_file, open_index
-    from isplat.splat.kernels import CELL, select_voxels
+    from isplat.splat.select import CELL, select_voxels
     dens = rng_volume(11, shape)
     n_k, n_j, n_i = shape
     with tempfile.TemporaryDirectory() as t:

@@ -4,7 +4,7 @@
 whose images are known analytically (uniform slabs seen along a grid axis, where the opacity of a pixel is
 ``1 - (1 - a)^(path / unit_distance)``), each rendered with ``precision = "float32"`` and ``"float64"``; the
 value measured, its error and whether every pixel came out finite (the renderer refuses to return non-finite
-pixels: :func:`isplat.render.composite_background` raises).
+pixels: :func:`isplat.frame.finish_image` raises).
 
 Unless a case is about them, the kernel knobs are at reference values (``footprint_radius = 4``,
 ``footprint_table = 2^20``, early termination off) so that the kernel's own error (the partition of unity,

@@ -1,0 +1,237 @@
+"""Compare two versions of isplat side by side: the same images, and frame times interleaved in one run.
+
+    python benchmarks/commits.py --old REV [--frames 15] [--out docs/render-core.md]
+
+REV (a commit) is checked out into a temporary git worktree; one worker process runs each version (the old
+one with its worktree first on ``sys.path``), and both load the same scenes through the public API both
+versions have (``Renderer(scene).render_view(0)``). Frames are timed inside the workers, alternating between
+them frame by frame, so load on this shared machine falls on both alike.
+
+Images: every scene of the list below (small random volumes as the tests render them, indexed and full,
+orthographic and perspective, 1 and 2 threads, shading, gradient modulation, cuts, early termination on and
+off; and the head and engine samples) is rendered by both; the page gives, per scene, whether they are bit
+for bit equal and the largest difference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+WORK = ROOT / "out" / "bench-commits"
+
+WORKER = r"""
+import json, sys, time
+import numpy as np
+from isplat.render import Renderer
+from isplat.scene import load_scene
+held = {}
+for line in sys.stdin:
+    cmd = json.loads(line)
+    if cmd["op"] == "load":
+        held[cmd["key"]] = Renderer(load_scene(cmd["scene"], cmd["overrides"]))
+        held[cmd["key"]].render_view(0)                          # warm-up
+        out = {}
+    elif cmd["op"] == "time":
+        r = held[cmd["key"]]
+        t = time.perf_counter(); r.render_view(0); out = {"s": time.perf_counter() - t}
+    elif cmd["op"] == "image":
+        img, st = Renderer(load_scene(cmd["scene"], cmd["overrides"])).render_view(0)
+        np.save(cmd["path"], img)
+        out = {"examined": st.voxels_examined, "splatted": st.voxels_splatted, "slices": st.slices}
+    print(json.dumps(out), flush=True)
+"""
+
+
+class Worker:
+    """A process running one version of isplat, driven by JSON lines."""
+
+    def __init__(self, tree: Path):
+        env = dict(os.environ, PYTHONPATH=str(tree), ISPLAT_PROGRESS="0")
+        self.p = subprocess.Popen([sys.executable, "-c", WORKER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                  env=env, text=True, cwd=tree)
+
+    def ask(self, **cmd) -> dict:
+        self.p.stdin.write(json.dumps(cmd) + "\n")
+        self.p.stdin.flush()
+        line = self.p.stdout.readline()
+        if not line:
+            raise RuntimeError(f"worker failed on {cmd}")
+        return json.loads(line)
+
+    def close(self):
+        self.p.stdin.close()
+        self.p.wait()
+
+
+def _isplat(*args):
+    subprocess.run([sys.executable, "-m", "isplat", *map(str, args), "-q"], check=True, stdout=subprocess.DEVNULL)
+
+
+def sample(name: str, shape=None) -> tuple[Path, Path]:
+    """A sample augmented and indexed under out/bench-commits (reused)."""
+    WORK.mkdir(parents=True, exist_ok=True)
+    tag = name if shape is None else f"{name}-{shape}"
+    npy, aug, idx = (WORK / f"{tag}{e}" for e in (".npy", ".aug.h5", ".idx.h5"))
+    if not idx.exists():
+        _isplat("sample", name, "-o", npy, "--force", *([] if shape is None else ["--shape", shape]))
+        _isplat("augment", npy, "-o", aug, "--force")
+        _isplat("index", aug, "-o", idx, "--force")
+        npy.unlink()
+    return aug, idx
+
+
+def random_volume() -> tuple[Path, Path]:
+    """A small random volume with random normals and gradient magnitudes (as tests/test_render.py makes)."""
+    from isplat.augfile import write_augmented
+    from isplat.index import build_index_file
+    from isplat.normals import encode
+
+    WORK.mkdir(parents=True, exist_ok=True)
+    aug, idx = WORK / "random.aug.h5", WORK / "random.idx.h5"
+    if not idx.exists():
+        r = np.random.default_rng(1)
+        shape = (9, 11, 13)
+        dens = r.choice(np.array([0, 60, 120, 200], np.uint8), size=shape, p=[0.55, 0.15, 0.15, 0.15])
+        write_augmented(aug, dens, r.integers(0, 256, shape).astype(np.uint8), encode(r.normal(size=shape + (3,))),
+                        (1.0, 1.2, 0.8), (0.0, 255.0), 0.5)
+        build_index_file(aug, idx, force=True)
+    return aug, idx
+
+
+def image_cases() -> list[tuple[str, str, list]]:
+    """(name, scene file, overrides) of every compared image."""
+    aug, idx = random_volume()
+    scene = WORK / "random.toml"
+    scene.write_text(f'[data]\naugmented = "{aug}"\nindex = "{idx}"\n[image]\nwidth = 40\nheight = 32\n'
+                     '[transfer]\nopacity = [[50, 0.0], [60, 0.3], [130, 0.1], [200, 0.9]]\n'
+                     'color = [[0, 1, 0, 0], [255, 0, 0.5, 1]]\n')
+    cases = []
+    for proj in ("orthographic", "perspective"):
+        for az, el in ((0, 0), (90, 0), (33, 21), (150, -40), (0, 90)):
+            for method in ("indexed", "full"):
+                for threads in (1, 2):
+                    for et in (1.0, 0.95):
+                        o = [f"camera.projection={proj}", f"camera.azimuth={az}", f"camera.elevation={el}",
+                             f"render.method={method}", f"render.threads={threads}",
+                             f"render.early_termination={et}"]
+                        cases.append((f"random {proj} az{az} el{el} {method} t{threads} et{et}", scene, o))
+    extra = [("shading, gradient opacity", ["shading.enabled=true", "transfer.gradient_opacity=[[0, 0.2], [60, 1]]"]),
+             ("cut", ['cut=[{point = [0, 0, 0], normal = [1, 0.3, 0]}]']),
+             ("float64", ["render.precision=float64"])]
+    for name, o in extra:
+        for method in ("indexed", "full"):
+            cases.append((f"random {name} {method}", scene, o + [f"render.method={method}"]))
+    for name, shape, toml in (("head", "128,128,112", "head.toml"), ("engine", None, "engine.toml")):
+        a, i = sample(name, shape)
+        for method in ("indexed", "full"):
+            cases.append((f"{name} {method}", ROOT / "examples" / toml,
+                          [f'data.augmented="{a}"', f'data.index="{i}"', f"render.method={method}"]))
+    return cases
+
+
+def compare_images(old: Worker, new: Worker) -> list[dict]:
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n, (name, scene, o) in enumerate(image_cases()):
+            imgs, stats = [], []
+            for tag, w in (("old", old), ("new", new)):
+                path = f"{tmp}/{n}-{tag}.npy"
+                stats.append(w.ask(op="image", scene=str(scene), overrides=o, path=path))
+                imgs.append(np.load(path))
+            diff = float(np.abs(imgs[0].astype(np.float64) - imgs[1]).max())
+            rows.append({"case": name, "bit_equal": bool(np.array_equal(imgs[0], imgs[1])), "max_diff": diff,
+                         "same_counts": stats[0] == stats[1]})
+    return rows
+
+
+def time_cases() -> list[tuple[str, str, list]]:
+    head_aug, head_idx = sample("head")
+    eng_aug, eng_idx = sample("engine")
+    head = [f'data.augmented="{head_aug}"', f'data.index="{head_idx}"']
+    eng = [f'data.augmented="{eng_aug}"', f'data.index="{eng_idx}"']
+    cases = []
+    for method in ("indexed", "full"):
+        for size in (256, 512):
+            cases.append((f"head bone {size}x{size} {method}", ROOT / "examples" / "head.toml",
+                          head + [f"image.width={size}", f"image.height={size}", f"render.method={method}"]))
+        cases.append((f"engine 512x384 {method}", ROOT / "examples" / "engine.toml",
+                      eng + [f"render.method={method}"]))
+    return cases
+
+
+def compare_times(old: Worker, new: Worker, frames: int) -> list[dict]:
+    rows = []
+    for name, scene, o in time_cases():
+        for w in (old, new):
+            w.ask(op="load", key=name, scene=str(scene), overrides=o)
+        t = {"old": [], "new": []}
+        for _ in range(frames):
+            for tag, w in (("old", old), ("new", new)):
+                t[tag].append(w.ask(op="time", key=name)["s"])
+        mo, mn = statistics.median(t["old"]), statistics.median(t["new"])
+        rows.append({"case": name, "old_ms": mo * 1e3, "new_ms": mn * 1e3, "ratio": mn / mo})
+    return rows
+
+
+def write_page(out: Path, rev: str, images: list, times: list, frames: int, command: str):
+    n_equal = sum(r["bit_equal"] for r in images)
+    worst = max(r["max_diff"] for r in images)
+    lines = [
+        "# Render core in stages: the same images, the same speed", "",
+        f"Made by `{command}` (old = `{rev}`, new = the working tree), on {_machine()}.", "",
+        "## Images", "",
+        f"{len(images)} scenes rendered by both versions: {n_equal} bit for bit equal, largest difference "
+        f"{worst:.3g} (straight RGBA in [0, 1]); voxel, splat and slice counts equal in "
+        f"{sum(r['same_counts'] for r in images)} of {len(images)}.", "",
+        "| scene | bit for bit | max difference | same counts |", "|---|---|---:|---|"]
+    lines += [f"| {r['case']} | {'yes' if r['bit_equal'] else 'no'} | {r['max_diff']:.3g} | "
+              f"{'yes' if r['same_counts'] else 'no'} |" for r in images]
+    lines += ["", "## Frame time", "",
+              f"Median of {frames} warm frames each, the two versions alternating frame by frame, all cores.", "",
+              "| case | old (ms) | new (ms) | new / old |", "|---|---:|---:|---:|"]
+    lines += [f"| {r['case']} | {r['old_ms']:.1f} | {r['new_ms']:.1f} | {r['ratio']:.3f} |" for r in times]
+    out.write_text("\n".join(lines) + "\n")
+
+
+def _machine() -> str:
+    cpu = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
+                if ln.startswith("model name")), "unknown CPU")
+    return f"{cpu}, {len(os.sched_getaffinity(0))} cores usable"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--old", required=True, help="the revision to compare with (a commit or tag)")
+    ap.add_argument("--frames", type=int, default=15)
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "render-core.md")
+    args = ap.parse_args(argv)
+    rev = subprocess.run(["git", "rev-parse", "--short", args.old], cwd=ROOT, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "old"
+        subprocess.run(["git", "worktree", "add", "--detach", "-q", str(tree), rev], cwd=ROOT, check=True)
+        try:
+            old, new = Worker(tree), Worker(ROOT)
+            images = compare_images(old, new)
+            times = compare_times(old, new, args.frames)
+            old.close()
+            new.close()
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, check=False)
+    cmd = f"python benchmarks/commits.py --old {args.old} --frames {args.frames}"
+    write_page(args.out, rev, images, times, args.frames, cmd)
+    print(args.out.read_text())
+
+
+if __name__ == "__main__":
+    main()

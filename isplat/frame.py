@@ -1,0 +1,265 @@
+"""One frame from a selection: views, per-frame tables, slabs of slices as partial images, and compositing.
+
+No file I/O here: a frame is ``render_frame(selection, view)``, with the selection made once by
+:mod:`isplat.selection`. The unit that threads, Dask workers and out-of-core streaming share is the slab: a
+contiguous run of the frame's slices in front-to-back order, rendered by :func:`render_slab` into a
+:class:`Partial` (premultiplied RGBA plus its saturation state). Slabs either continue one another (pass the
+front slab's partial as ``state``: exactly the one-pass frame, early termination included) or are rendered
+apart and composited in order with :func:`composite` ('over'; equal to the one-pass frame up to rounding
+with early termination off, see docs/design.md for the bound with it on).
+
+>>> import numpy as np
+>>> from isplat.scene import parse_scene
+>>> from isplat.selection import Selection
+>>> vol = np.zeros((8, 8, 8), np.uint8); vol[2:6, 2:6, 2:6] = 200
+>>> scene = parse_scene("[image]\\nwidth = 32\\nheight = 32\\n[transfer]\\nopacity = [[100, 0], [200, 0.8]]",
+...                     ".", "example", data_required=False)
+>>> sel = Selection.from_arrays(vol, scene)
+>>> rgba, stats = render_frame(sel, views_for(scene, sel)[0])
+>>> rgba.shape, stats.voxels_splatted
+((32, 32, 4), 64)
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from functools import cached_property, lru_cache
+
+import numpy as np
+
+from . import camera as cam_mod
+from . import grid, progress
+from .errors import IsplatError
+from .splat import kernels as K
+from .splat.composite import TILE, finish, over, saturation
+from .splat.footprint import make_footprint
+from .splat.shade import shade_table
+from .threads import default_threads, run_parallel
+from .transfer import alpha_table
+
+
+@dataclass
+class FrameStats:
+    axis: str
+    sign: int
+    voxels_examined: int
+    voxels_splatted: int
+    slices: int
+    seconds: float
+
+
+@dataclass(frozen=True)
+class View:
+    """Everything of one frame but the selection: where the camera is and the scene's per-frame settings."""
+
+    frame: cam_mod.ViewFrame
+    geom: cam_mod.VolumeGeometry
+    render: object              # scene.RenderOptions
+    shading: object             # scene.Shading
+    cuts: tuple
+    background: tuple
+
+    @cached_property
+    def axis_sign(self) -> tuple[str, int]:
+        """The principal (slice) axis and its traversal sign."""
+        return cam_mod.principal_axis(self.frame, self.geom)
+
+    @cached_property
+    def order(self) -> np.ndarray:
+        """The slice indices of the principal axis, front to back."""
+        return cam_mod.slice_order(self.frame, self.geom, *self.axis_sign)
+
+
+def scene_geometry(scene, shape, spacing_ijk) -> cam_mod.VolumeGeometry:
+    """Where the volume sits: the scene's ``[volume]`` (spacing defaults to the data's)."""
+    sp = scene.volume.spacing or spacing_ijk
+    return cam_mod.volume_geometry(shape, sp, scene.volume.origin, scene.volume.axes)
+
+
+def views_for(scene, data, cameras=None) -> list[View]:
+    """The :class:`View` of each camera (default: the scene's views) for ``data`` (anything with ``shape``
+    and ``spacing_ijk``: a Selection or an augmented file)."""
+    geom = scene_geometry(scene, data.shape, data.spacing_ijk)
+    W, H = scene.image.width, scene.image.height
+    return [View(cam_mod.view_frame(c, geom, W, H), geom, scene.render, scene.shading, scene.cuts,
+                 tuple(scene.image.background)) for c in (scene.views if cameras is None else cameras)]
+
+
+def axes_of(views) -> str:
+    """The principal axes of ``views``, in i, j, k order: the index axes their frames read."""
+    used = {v.axis_sign[0] for v in views}
+    return "".join(a for a in grid.AXES if a in used)
+
+
+@dataclass
+class Partial:
+    """A slab's partial image: premultiplied RGBA, its saturation state (``sat`` per pixel, ``tile_sat`` per
+    tile), and per thread band the counters (voxels examined, splatted, slices)."""
+
+    img: np.ndarray
+    sat: np.ndarray
+    tile_sat: np.ndarray
+    band_stats: np.ndarray       # int64[bands, 3]
+
+
+@dataclass
+class Setup:
+    """A frame's tables and scratch buffers, made once per frame (:func:`prepare`); renders one slab at a time."""
+
+    view: View
+    kernel: object
+    vox: tuple
+    cls: K.Classify
+    geo: K.SliceGeometry
+    fp: K.FootprintTable
+    bands: list
+    tile_npix: np.ndarray
+    sheet: np.ndarray
+    dirty_px: np.ndarray
+    dirty: list
+    et: float
+    threads: int
+    empty: bool
+
+
+def prepare(sel, view: View, et: float | None = None) -> Setup:
+    """Make the frame's tables: opacity corrected for this view's path length, shading for its lights, the
+    footprint for its projection, and the §3 coefficients."""
+    ro, geom, frame = view.render, view.geom, view.frame
+    dtype = np.float64 if ro.precision == "float64" else np.float32
+    H, W = frame.height, frame.width
+    threads = ro.threads or default_threads()
+    axis = view.axis_sign[0]
+    et_val = float(ro.early_termination if et is None else et)
+    bands = _bands(-(-H // TILE), threads)
+    scratch = (np.zeros((H, W, 4), dtype), np.zeros((H, W), np.uint8), [np.empty(H * W + 1, np.int64) for _ in bands])
+    if sel.empty:
+        return Setup(view, None, (), None, None, None, bands, _tile_pixels(H, W), *scratch, et_val, threads, True)
+    proj = cam_mod.projection(frame, geom, axis)
+    fp = make_footprint(proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, dtype)
+    unit = sel.unit_distance or float(geom.spacing.min())
+    ic = grid.SLICE_AXES[axis][2]
+    coef, steps = _floats(proj.coef), tuple(_floats(row) for row in proj.steps)
+    cuts = cut_coefficients(view.cuts, geom, axis)
+    if frame.projection == "perspective":
+        atab = alpha_table(sel.luts, None)
+        geo = K.SliceGeometry(coef, steps, _floats(geom.q - frame.e), True, float(geom.spacing[ic]) / unit,
+                              float((geom.q - frame.e) @ geom.unit_axes[ic]), float(geom.spacing[ic]), cuts)
+    else:
+        atab = alpha_table(sel.luts, proj.ds / unit)
+        geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts)
+    shade = (shade_table(view.shading, frame, geom, threads=threads) if sel.use_shade
+             else np.zeros((1, 6), np.float32))
+    cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
+    kernel = K.render_full if sel.method == "full" else K.render_indexed
+    return Setup(view, kernel, sel.voxels(axis), cls, geo, K.FootprintTable(fp.table, fp.params), bands,
+                 _tile_pixels(H, W), *scratch, et_val, threads, False)
+
+
+def blank(setup: Setup) -> Partial:
+    """An empty partial image (nothing in front): the state a frame starts from."""
+    H, W = setup.view.frame.height, setup.view.frame.width
+    return Partial(np.zeros((H, W, 4), setup.sheet.dtype), np.zeros((H, W), np.uint8),
+                   np.zeros(setup.tile_npix.shape, np.int32), np.zeros((len(setup.bands), 3), np.int64))
+
+
+def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Partial | None = None) -> Partial:
+    """Render the slices ``order[start:stop]`` of the frame (front to back) over ``state`` (the partial image
+    of the slices in front, updated in place; a blank one when None) and return it."""
+    part = blank(setup) if state is None else state
+    slices = setup.view.order[start:stop]
+    if setup.empty or slices.size == 0:
+        return part
+    H = setup.view.frame.height
+
+    def run(bi):
+        y0, y1 = setup.bands[bi]
+        buf = K.Buffers(part.img, setup.sheet, part.sat, part.tile_sat, setup.tile_npix, setup.dirty_px,
+                        setup.dirty[bi], part.band_stats[bi])
+        setup.kernel(slices, setup.vox, setup.cls, setup.geo, setup.fp, buf,
+                     K.Band(y0 * TILE, min(H, y1 * TILE), part.img.dtype.type(setup.et)))
+
+    run_parallel(run, range(len(setup.bands)), setup.threads)
+    return part
+
+
+def composite(front: Partial, back: Partial, et: float = 1.0) -> Partial:
+    """``front`` over ``back`` (premultiplied, in visibility order) as a new partial; counters add up, and the
+    saturation state is that of the result for early-termination opacity ``et``."""
+    out = Partial(np.empty_like(front.img), np.empty_like(front.sat), np.empty_like(front.tile_sat),
+                  front.band_stats + back.band_stats)
+    over(front.img, back.img, out.img)
+    saturation(out.img, out.img.dtype.type(et), out.sat, out.tile_sat)
+    return out
+
+
+def slab_bounds(n_slices: int, n_slabs: int) -> list[tuple[int, int]]:
+    """Cut ``n_slices`` slices (in front-to-back order) into ``n_slabs`` contiguous slabs ``[start, stop)``."""
+    edges = np.linspace(0, n_slices, max(1, n_slabs) + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def frame_stats(view: View, part: Partial, seconds: float) -> FrameStats:
+    """The frame's counters: every band examines every voxel (count them once), one band counts each
+    splatted voxel, and the slices are those of the band that went deepest."""
+    axis, sign = view.axis_sign
+    bs = part.band_stats
+    return FrameStats(axis, sign, int(bs[0, 0]), int(bs[:, 1].sum()), int(bs[:, 2].max()), seconds)
+
+
+def render_frame(sel, view: View, et: float | None = None):
+    """Render one frame; returns (straight RGBA float array (H, W, 4) over the background, FrameStats).
+
+    With a progress bar (stderr a terminal) the slices go in slabs that continue one another, so the bar can
+    move; the image and the counters are the same as in one pass.
+    """
+    t0 = time.perf_counter()
+    setup = prepare(sel, view, et)
+    n = len(view.order)
+    slabs = slab_bounds(n, 20) if progress.enabled() and n >= 40 and not setup.empty else [(0, n)]
+    part = blank(setup)
+    for start, stop in progress.bar(slabs, desc=f"slices ({n})", unit="slab", disable=len(slabs) == 1):
+        render_slab(setup, start, stop, part)
+    return finish_image(part.img, view.background), frame_stats(view, part, time.perf_counter() - t0)
+
+
+def finish_image(img: np.ndarray, background) -> np.ndarray:
+    """Premultiplied RGBA over the background colour -> straight RGBA (float)."""
+    out = np.empty(img.shape, dtype=img.dtype)
+    if not finish(img, np.asarray(background, dtype=np.float64), out):
+        raise IsplatError("render produced non-finite pixels; please report this scene")
+    return out
+
+
+def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:
+    """Cutting planes as rows (g0, ga, gb, gc) in slice coordinates: keep ``g0 + a ga + b gb + c gc >= 0``."""
+    ia, ib, ic = grid.SLICE_AXES[axis]
+    S = geom.steps
+    rows = []
+    for cut in cuts:
+        n = np.asarray(cut.normal, float)
+        rows.append([(geom.q - np.asarray(cut.point, float)) @ n, S[ia] @ n, S[ib] @ n, S[ic] @ n])
+    return np.asarray(rows, dtype=dtype).reshape(-1, 4)
+
+
+def _floats(values) -> tuple:
+    return tuple(float(x) for x in values)
+
+
+@lru_cache(maxsize=8)
+def _tile_pixels(h: int, w: int, tile: int = TILE) -> np.ndarray:
+    """Pixels in each tile of an h x w image (edge tiles are smaller)."""
+    rows = np.minimum(tile, h - np.arange(0, h, tile))
+    cols = np.minimum(tile, w - np.arange(0, w, tile))
+    out = np.outer(rows, cols).astype(np.int32)
+    out.flags.writeable = False
+    return out
+
+
+def _bands(n_tile_rows: int, threads: int):
+    """Split the tile rows into one band per thread (each band traverses every slice, so more bands
+    would repeat the traversal; the splatting is what the bands share out)."""
+    nb = 1 if threads <= 1 else min(n_tile_rows, threads)
+    edges = np.linspace(0, n_tile_rows, nb + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]

@@ -1,0 +1,51 @@
+"""The voxel grid's axis conventions, in one place (docs/design.md, "Axes and names").
+
+Arrays are indexed ``[k, j, i]`` with i fastest. A slice perpendicular to axis ``c`` has two in-slice axes,
+``a`` (fastest) and ``b``, which keep their memory order, so a slice's scan-line order is its memory order
+and the paper's in-slice position is ``ind = a + b * n_a``:
+
+====  ===  ===  =================
+c     a    b    ind
+====  ===  ===  =================
+k     i    j    ``i + j * n_i``
+j     i    k    ``i + k * n_i``
+i     j    k    ``j + k * n_j``
+====  ===  ===  =================
+
+>>> slice_shape((4, 5, 6), "j")          # (n_slices, n_a, n_b) of a volume [k=4, j=5, i=6]
+(5, 6, 4)
+>>> flat_strides((4, 5, 6), "j").tolist()  # flat [k, j, i] steps along a, b, c
+[1, 30, 6]
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+AXES = "ijk"
+# slice axis -> (a, b, c) as indices into (i, j, k)
+SLICE_AXES = {"k": (0, 1, 2), "j": (0, 2, 1), "i": (1, 2, 0)}
+# slice axis -> the names of its in-slice axes a, b
+IN_SLICE_AXES = {c: AXES[ia] + AXES[ib] for c, (ia, ib, _) in SLICE_AXES.items()}
+# axis -> small integer for compiled code (the position of the letter in AXES)
+AXIS_CODE = {a: n for n, a in enumerate(AXES)}
+
+
+def shape_ijk(shape_kji) -> tuple[int, int, int]:
+    """``(n_i, n_j, n_k)`` of an array shape ``(n_k, n_j, n_i)``."""
+    n_k, n_j, n_i = (int(x) for x in shape_kji)
+    return n_i, n_j, n_k
+
+
+def slice_shape(shape_kji, axis: str) -> tuple[int, int, int]:
+    """``(n_slices, n_a, n_b)`` of the slices perpendicular to ``axis``."""
+    n = shape_ijk(shape_kji)
+    ia, ib, ic = SLICE_AXES[axis]
+    return n[ic], n[ia], n[ib]
+
+
+def flat_strides(shape_kji, axis: str) -> np.ndarray:
+    """int64[3]: steps of the flat ``[k, j, i]`` index along ``a``, ``b`` and ``c`` of ``axis``'s slices."""
+    n_i, n_j, _ = shape_ijk(shape_kji)
+    per_axis = (1, n_i, n_i * n_j)                      # i, j, k
+    return np.array([per_axis[x] for x in SLICE_AXES[axis]], dtype=np.int64)

@@ -16,8 +16,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[all,test]'
 	touch $(STAMP)
 
+# The tests, and the examples in isplat's docstrings as doctests.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q isplat tests
 
 demo: $(STAMP)
 	OUT=$(OUT) ISPLAT=$(ISPLAT) bash scripts/demo.sh

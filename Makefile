@@ -6,7 +6,7 @@ ISPLAT := $(BIN)/isplat
 OUT    ?= out
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench data paper-table bench-peers clean venv readme-images
+.PHONY: demo test bench bench-check wheel-check data paper-table bench-peers clean venv readme-images
 
 venv: $(STAMP)
 
@@ -16,14 +16,25 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[all,test]'
 	touch $(STAMP)
 
+# The tests, and the examples in isplat's docstrings as doctests.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q isplat tests
 
 demo: $(STAMP)
 	OUT=$(OUT) ISPLAT=$(ISPLAT) bash scripts/demo.sh
 
+# The benchmarks live in benchmarks/ (not installed); each writes its page of docs/ with the command that made it.
 bench: $(STAMP)
-	$(BIN)/python -m isplat.bench all --out docs
+	$(BIN)/python -m benchmarks all --out docs
+
+# Every benchmark at small sizes into $(OUT)/bench-check (docs/ untouched), and the benchmarks' doctests.
+bench-check: $(STAMP)
+	$(BIN)/python -m pytest -q --doctest-modules benchmarks
+	$(BIN)/python -m benchmarks all --quick --out $(OUT)/bench-check
+
+# The wheel holds isplat/ (library and CLI) only.
+wheel-check: $(STAMP)
+	$(BIN)/python scripts/check_wheel.py
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info
@@ -32,12 +43,12 @@ data: $(STAMP)
 	$(BIN)/python scripts/fetch_data.py --out data --keep-going
 
 paper-table: $(STAMP)
-	$(BIN)/python -m isplat.bench paper --out docs
+	$(BIN)/python -m benchmarks paper --out docs
 
 # Optional, not in CI: isplat against VTK's CPU ray caster (installs vtk; needs Mesa EGL or OSMesa).
 bench-peers: $(STAMP)
 	$(BIN)/pip install --quiet vtk
-	$(BIN)/python -m isplat.bench.peers --out docs
+	$(BIN)/python -m benchmarks.peers --out docs
 
 # The README's pictures: make demo, then 256-pixel copies of its images into docs/img/.
 readme-images: demo

@@ -1,10 +1,35 @@
-"""isplat: fast, exact direct volume rendering by indexed splatting (Ihm & Lee).
+r"""Fast, exact direct volume rendering by indexed splatting (Ihm & Lee).
 
-Each stage is a plain function first and a command second:
+Preprocess once, render many times. Each stage is a plain function first and a command second
+(``isplat sample``, ``isplat augment``, ``isplat index``, ``isplat render``, ``isplat stats``; ``isplat --help``):
 
->>> import isplat
->>> isplat.augment.augment_file("head.npy", "head.aug.h5")          # doctest: +SKIP
->>> isplat.index.build_index_file("head.aug.h5", "head.idx.h5")      # doctest: +SKIP
+>>> import pathlib, tempfile, numpy as np
+>>> from isplat.samples import make_sample
+>>> from isplat.augment import augment_file
+>>> from isplat.index import build_index_file
+>>> from isplat.render import Renderer
+>>> from isplat.scene import load_scene
+>>> tmp = tempfile.TemporaryDirectory()
+>>> folder = pathlib.Path(tmp.name)
+>>> volume, spacing = make_sample("head", (48, 48, 42))       # array [k, j, i]; shape and spacing along i, j, k
+>>> np.save(folder / "head.npy", volume)
+>>> augment_file(folder / "head.npy", folder / "head.aug.h5", spacing=spacing)["shape_ijk"]
+(48, 48, 42)
+>>> build_index_file(folder / "head.aug.h5", folder / "head.idx.h5").name
+'head.idx.h5'
+>>> scene = folder / "head.toml"                             # the scene format: formats/scene.md
+>>> _ = scene.write_text('[data]\naugmented = "head.aug.h5"\nindex = "head.idx.h5"\n'
+...                      '[transfer]\nopacity = [[150, 0], [255, 1]]\n[image]\nwidth = 64\nheight = 48\n')
+>>> rgba, stats = Renderer(load_scene(scene)).render_view(0)  # float (H, W, 4), and what the view visited
+>>> rgba.shape
+(48, 64, 4)
+>>> tmp.cleanup()
+
+Modules: isplat.samples (synthetic volumes), isplat.volume_io (reading scans), isplat.augment and
+isplat.augfile (the augmented volume, formats/augmented.md), isplat.index (the density index,
+formats/index.md), isplat.scene (scene files, formats/scene.md), isplat.render (rendering), isplat.stats (the
+paper's Figure 5 figures), isplat.cli (the command). Log lines go through the logging module, under the
+``isplat`` logger; progress bars (isplat.progress) show only while that logger lets INFO through.
 """
 
 __version__ = "0.1.0"

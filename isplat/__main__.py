@@ -1,3 +1,6 @@
+"""``python -m isplat``: the same as the ``isplat`` command."""
+
 from .cli.main import main
 
-main()
+if __name__ == "__main__":
+    main()

@@ -17,6 +17,7 @@ The volume is processed in slabs of k-slices with a one-slice halo, so memory st
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 
 import h5py
@@ -29,6 +30,8 @@ from .errors import IsplatError
 from .fileio import atomic_output, check_output
 from .normals import NO_NORMAL, _encode_one
 from .volume_io import Volume, read_volume
+
+log = logging.getLogger(__name__)
 
 SLAB_VOXELS = 1 << 22      # voxels per slab (about 4 M: ~100 MB of temporaries)
 SUBSAMPLE_PER_AXIS = 64    # robust window: at most 64 samples per axis
@@ -303,6 +306,9 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
     extra = {"source": name, "source_format": vol.meta.get("format", "unknown"),
              "source_dtype": str(vol.meta.get("source_dtype", vol.array.dtype.name)),
              "density_window_method": "given" if window is not None else "robust 0.1/99.9 percentiles"}
+    log.debug(f"isplat augment: read {name} ({extra['source_format']}, {extra['source_dtype']}, NI,NJ,NK="
+              f"{','.join(map(str, vol.array.shape[::-1]))}); window {sl.lo:g},{sl.hi:g} "
+              f"({extra['density_window_method']}); {len(sl.ranges)} slabs")
     with progress.bar(total=2 * len(sl.ranges), desc="augment", unit="slab") as bar:
         gmax, sha = _first_pass(sl, bar)
         with atomic_output(out, force) as tmp:

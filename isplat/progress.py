@@ -1,29 +1,26 @@
-"""Progress bars on stderr, off when stderr is not a terminal or when the user asked for quiet."""
+"""Progress bars on stderr, shown only while the ``isplat`` logger lets INFO through.
+
+Log lines go through the standard :mod:`logging` module (``logging.getLogger(__name__)`` in each module, all
+under the ``isplat`` logger). The command line sets that logger's level from ``-v``/``-q`` (INFO by default);
+a program using isplat as a library sees neither log lines nor bars until it configures logging, e.g.
+``logging.basicConfig(level=logging.INFO)``.
+"""
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 
 from tqdm import tqdm
 
-_QUIET = False
-
-
-def set_quiet(quiet: bool) -> None:
-    """Switch every progress bar of this process off (``--quiet``)."""
-    global _QUIET
-    _QUIET = bool(quiet)
-
-
-def quiet() -> bool:
-    """True when --quiet was given."""
-    return _QUIET
+LOGGER = logging.getLogger("isplat")
 
 
 def enabled() -> bool:
-    """True when bars should be shown: not quiet, stderr is a terminal, ISPLAT_PROGRESS not 0."""
-    if _QUIET or os.environ.get("ISPLAT_PROGRESS", "") == "0":
+    """True when bars should be shown: the ``isplat`` logger lets INFO through (not ``-q``), stderr is a
+    terminal and ISPLAT_PROGRESS is not 0."""
+    if not LOGGER.isEnabledFor(logging.INFO) or os.environ.get("ISPLAT_PROGRESS", "") == "0":
         return False
     return sys.stderr.isatty()
 
@@ -34,9 +31,3 @@ def bar(iterable=None, **kwargs):
     kwargs.setdefault("dynamic_ncols", True)
     kwargs["disable"] = kwargs.get("disable", False) or not enabled()
     return tqdm(iterable, file=sys.stderr, **kwargs)
-
-
-def log(message: str) -> None:
-    """One log line on stderr (suppressed by --quiet)."""
-    if not _QUIET:
-        print(message, file=sys.stderr)

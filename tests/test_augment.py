@@ -191,10 +191,23 @@ def test_head_sample_density_index_estimate():
 
 
 def index_bytes_per_voxel(d):
-    """1 byte per voxel plus 2 per gap > 255 between same-density voxels of a k-slice (from position -1)."""
-    from isplat.bench.augment import index_estimate
+    """1 byte per voxel plus 2 per gap > 255 between same-density voxels of a k-slice (from position -1).
 
-    return index_estimate(d)[0]
+    A slow, plain copy of the estimate in benchmarks/augment.py (tests do not import the benchmarks)."""
+    gaps = 0
+    for plane in d.reshape(d.shape[0], -1):
+        for v in np.unique(plane):
+            gaps += int((np.diff(np.flatnonzero(plane == v), prepend=-1) > 255).sum())
+    return (d.size + 2 * gaps) / d.size
+
+
+def test_index_estimate_counts_long_gaps():
+    d = np.zeros((2, 1, 600), np.uint8)
+    d[0, 0, [0, 300, 599]] = 7            # 7: steps 1, 300, 299 from -1: two > 255; 0: steps of 1 or 2
+    d[1, 0, 256] = 9                      # 9: a step of 257 from -1; 0: steps of 1 or 2
+    assert index_bytes_per_voxel(d) == (1200 + 2 * 3) / 1200
+    d[1, 0, 256] = 0
+    assert index_bytes_per_voxel(d) == (1200 + 2 * 2) / 1200
 
 
 # --- the format examples ---------------------------------------------------------------------------------------

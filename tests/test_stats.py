@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from isplat.augfile import write_augmented
-from isplat.bench.paper import decimate
 from isplat.cli.main import main
 from isplat.index import build_index_file, open_index
 from isplat.stats import collect, format_table
@@ -225,12 +224,3 @@ def test_bad_input(vol, capsys):
     one_error(*run(capsys, aug, idx, "--scene", write_scene(folder), "--view", "3", "-q"), "--view")
     bad = write_scene(folder, name="bad.toml", opacity="[[100, 2.0]]")
     one_error(*run(capsys, aug, idx, "--scene", bad, "-q"), "bad.toml", "opacity")
-
-
-def test_decimate_block_means():
-    a = np.arange(5 * 4 * 3, dtype=np.float32).reshape(5, 4, 3)
-    d = decimate(a)
-    assert d.shape == (3, 2, 2)
-    p = np.pad(a, [(0, 1), (0, 0), (0, 1)], mode="edge")
-    assert d[1, 1, 0] == pytest.approx(p[2:4, 2:4, 0:2].mean())
-    assert d[2, 0, 1] == pytest.approx(p[4:6, 0:2, 2:4].mean())

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import logging
+
 import click
 
-from .. import progress
 from ..volume_io import BYTE_ORDERS, RAW_DTYPES, parse_triple
 from .options import force_option, quiet_option
+
+log = logging.getLogger(__name__)
 
 
 @click.command()
@@ -46,8 +49,8 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     info = augment_file(input, out, force=force, window=win, spacing=sp, shape=shp, dtype=dtype,
                         byte_order=byte_order, header_bytes=header_bytes)
     lo, hi = info["density_window"]
-    progress.log(f"isplat augment: wrote {out} (NI,NJ,NK={','.join(map(str, info['shape_ijk']))}, "
-                 f"window {lo:g},{hi:g}, gradient scale {info['gradient_magnitude_scale']:g}/code)")
+    log.info(f"isplat augment: wrote {out} (NI,NJ,NK={','.join(map(str, info['shape_ijk']))}, "
+             f"window {lo:g},{hi:g}, gradient scale {info['gradient_magnitude_scale']:g}/code)")
 
 
 def _pair(text):

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import logging
+
 import click
 
 from .options import force_option, quiet_option
+
+log = logging.getLogger(__name__)
 
 
 @click.command("index")
@@ -17,7 +21,6 @@ from .options import force_option, quiet_option
 @quiet_option
 def index(augmented, output, densities, axes, force):
     """Index AUG.h5 by density, slice by slice, along each axis; write OUT.idx.h5 atomically."""
-    from .. import progress
     from ..fileio import check_output
     from ..index import build_index_file, open_index, parse_axes, parse_ranges
 
@@ -25,11 +28,11 @@ def index(augmented, output, densities, axes, force):
     ranges = parse_ranges(densities) if densities is not None else None
     check_output(output, force)
     path = build_index_file(augmented, output, axes=axes, ranges=ranges, force=force)
-    if not progress.quiet():
+    if log.isEnabledFor(logging.INFO):
         idx = open_index(path)
         counts = {a: int(idx.voxel_counts(a).sum()) for a in idx.axes}
         size = path.stat().st_size
         n = next(iter(counts.values()))
         per = size / max(1, n * len(counts))
-        progress.log(f"isplat index: wrote {path} (axes {idx.axes}, {n} voxels indexed per axis, "
-                     f"{size} bytes, {per:.3f} bytes per indexed voxel per axis)")
+        log.info(f"isplat index: wrote {path} (axes {idx.axes}, {n} voxels indexed per axis, "
+                 f"{size} bytes, {per:.3f} bytes per indexed voxel per axis)")

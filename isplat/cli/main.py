@@ -10,6 +10,7 @@ import click
 
 from .. import __version__
 from ..errors import IsplatError
+from .options import start_verbosity
 
 # name -> (module, attribute, one-line help)
 SUBCOMMANDS = {
@@ -44,7 +45,11 @@ def _available(name: str) -> bool:
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="isplat")
-def cli():
+@click.option("-v", "--verbose", count=True, help="More on stderr: debug detail, e.g. what a render read and "
+                                                  "per-view timing (as render -v).")
+@click.option("-q", "--quiet", count=True, help="Less on stderr: no log lines or progress bars (as each "
+                                                "subcommand's -q); -qq hides warnings too. Errors always show.")
+def cli(verbose, quiet):
     """Fast, exact direct volume rendering by indexed splatting.
 
     Preprocess once, render many times:
@@ -55,7 +60,10 @@ def cli():
       isplat index head.aug.h5 -o head.idx.h5
       isplat render scene.toml -o head.png
       isplat stats head.aug.h5 head.idx.h5 --scene scene.toml --json
+
+    Images, printed commands and JSON go to stdout; log lines and progress bars to stderr.
     """
+    start_verbosity(verbose - quiet)
 
 
 def main(argv=None):

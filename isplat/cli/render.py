@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import logging
 import sys
 from pathlib import Path
 
 import click
 
 from .. import progress
-from .options import force_option, quiet_option
+from .options import force_option, quiet_option, verbose_option
+
+log = logging.getLogger(__name__)
 
 
 @click.command("render")
@@ -22,13 +25,13 @@ from .options import force_option, quiet_option
               help="Override a scene key, e.g. --set camera.azimuth=45 --set render.method=full (repeatable).")
 @click.option("--view", "view", type=int, default=None, metavar="N",
               help="Render only view N (0-based) of the scene's batch of views.")
-@click.option("-v", "--verbose", is_flag=True, help="Report on stderr what was read (bytes, channels, axes) "
-                                                    "and per-view timing and voxel counts.")
+@verbose_option("Report on stderr what was read (bytes, channels, axes) and per-view timing and voxel "
+                "counts (same as isplat -v).")
 @click.option("--json", "as_json", is_flag=True, help="Print that report as one JSON object on stdout "
                                                       "(not with -o -).")
 @force_option
 @quiet_option
-def render(scene_file, out, overrides, view, verbose, as_json, force):
+def render(scene_file, out, overrides, view, as_json, force):
     """Render SCENE (a TOML file, see formats/scene.md) to images.
 
     Only what the scene needs is read: the index axes its views use, the blocks in the transfer
@@ -85,11 +88,8 @@ def render(scene_file, out, overrides, view, verbose, as_json, force):
     if as_json:
         json.dump(report, sys.stdout)
         sys.stdout.write("\n")
-    if verbose:
-        e = sys.stderr
-        print(f"read: {rep.augmented_bytes} bytes of augmented channels {rep.channels or '(none)'}; "
-              f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} "
-              f"for density intervals {rep.intervals}", file=e)
-        for v in per_view:
-            print(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, "
-                  f"{v['voxels_splatted']} splatted, {v['seconds'] * 1000:.1f} ms", file=e)
+    log.debug(f"read: {rep.augmented_bytes} bytes of augmented channels {rep.channels or '(none)'}; "
+              f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}")
+    for v in per_view:
+        log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, "
+                  f"{v['voxels_splatted']} splatted, {v['seconds'] * 1000:.1f} ms")

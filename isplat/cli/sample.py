@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import logging
 import shlex
 
 import click
 import numpy as np
 
-from .. import progress
 from ..errors import IsplatError
 from ..fileio import atomic_output, check_output
 from ..samples import DEFAULT_SHAPES, DTYPES, NAMES, make_sample
 from ..volume_io import parse_triple
 from .options import force_option, quiet_option
+
+log = logging.getLogger(__name__)
 
 _NAME_HELP = "\n".join(f"  {n:<17} {DTYPES[n]:<8} default {','.join(map(str, DEFAULT_SHAPES[n]))}" for n in NAMES)
 
@@ -80,6 +82,6 @@ def sample(name, out, shape, seed, dtype, force):
     shp = parse_triple(shape, "--shape", int) if shape else None
     arr, spacing = make_sample(name, shp, seed, dtype)
     cmd = write_sample(arr, spacing, out, force)
-    progress.log(f"isplat sample: wrote {out} ({name}, {arr.dtype}, NI,NJ,NK={','.join(map(str, arr.shape[::-1]))}, "
-                 f"spacing {','.join(_fmt(s) for s in spacing)})")
+    log.info(f"isplat sample: wrote {out} ({name}, {arr.dtype}, NI,NJ,NK={','.join(map(str, arr.shape[::-1]))}, "
+             f"spacing {','.join(_fmt(s) for s in spacing)})")
     click.echo(cmd)

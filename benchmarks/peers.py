@@ -1,12 +1,12 @@
 """Side by side with what users would pick instead: isplat against VTK's CPU ray caster.
 
-``python -m isplat.bench.peers [--out docs] [--quick] [--data DIR]`` (``make bench-peers``, which first runs
+``python -m benchmarks.peers [--out docs] [--quick] [--data DIR]`` (``make bench-peers``, which first runs
 ``pip install vtk``) renders the same volumes, transfer functions, lights, views and image size with
 ``vtkFixedPointVolumeRayCastMapper`` (offscreen) and with isplat, timing both in one process, interleaved,
 and writes the section ``peers`` of ``performance.md`` plus ``img/peers_<case>.png`` (isplat left, VTK right).
 
 Not part of ``make test`` or CI: VTK is a large optional download and needs an OpenGL context even for its
-CPU mapper (Mesa's EGL or OSMesa; see :func:`offscreen_window_class`). Under ``python -m isplat.bench all``
+CPU mapper (Mesa's EGL or OSMesa; see :func:`offscreen_window_class`). Under ``python -m benchmarks all``
 the benchmark is skipped with a note when VTK is not installed or no context can be made; run on its own it
 fails with a message naming the Debian packages.
 
@@ -53,7 +53,7 @@ import numpy as np
 from . import _doc
 
 SECTION = "peers"
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 SAMPLE_DISTANCE = 0.5        # VTK's ray step, in units of the smallest voxel spacing
 SIZE = 256
 REPEATS = 21                 # timed frames per renderer (after the warm-up), interleaved
@@ -486,7 +486,7 @@ def _body(results, command, window_cls, vtk_ver, repeats, out_dir: Path) -> str:
 
 def run(out_dir: Path, quick: bool, required: bool = False, data_dir: Path | None = None,
         command: str | None = None) -> Path:
-    """Bench entry point (``python -m isplat.bench peers``); without VTK or an OpenGL context it skips with a
+    """Bench entry point (``python -m benchmarks peers``); without VTK or an OpenGL context it skips with a
     note, unless ``required``."""
     out_dir = Path(out_dir)
     doc = out_dir / "performance.md"
@@ -510,22 +510,22 @@ def run(out_dir: Path, quick: bool, required: bool = False, data_dir: Path | Non
         r = results[-1]
         print(f"[peers] {case}: isplat {r['ms']['indexed']:.1f} ms (full {r['ms']['full']:.1f}), "
               f"VTK {r['ms']['vtk']:.1f} ms; RMSE {r['rmse']:.4f}, PSNR {r['psnr']:.1f} dB", file=sys.stderr)
-    command = command or ("python -m isplat.bench peers" + (" --quick" if quick else ""))
+    command = command or ("python -m benchmarks peers" + (" --quick" if quick else ""))
     return _doc.update_section(doc, SECTION, _body(results, command, cls, ver, repeats, out_dir),
                                title="Performance")
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m isplat.bench.peers", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.peers", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="docs", type=Path, help="folder of performance.md (images under OUT/img)")
     ap.add_argument("--quick", action="store_true", help="3 frames instead of 21 (a smoke test)")
     ap.add_argument("--data", type=Path, help="folder for the sample volumes (default out/bench-peers; reused)")
     a = ap.parse_args(argv)
-    cmd = "make bench-peers   # = pip install vtk; python -m isplat.bench.peers" + (" --quick" if a.quick else "")
+    cmd = "make bench-peers   # = pip install vtk; python -m benchmarks.peers" + (" --quick" if a.quick else "")
     try:
         path = run(a.out, a.quick, required=True, data_dir=a.data, command=cmd)
     except PeerUnavailable as exc:
-        print(f"isplat.bench.peers: error: {exc}", file=sys.stderr)
+        print(f"benchmarks.peers: error: {exc}", file=sys.stderr)
         return 3
     print(f"[peers] wrote {path}", file=sys.stderr)
     return 0

@@ -1,6 +1,6 @@
 """Numerical stability on stiff and extreme cases, float32 against float64.
 
-``python -m isplat.bench stability [--out docs] [--quick]`` writes ``stability.md``: small synthetic volumes
+``python -m benchmarks stability [--out docs] [--quick]`` writes ``stability.md``: small synthetic volumes
 whose images are known analytically (uniform slabs seen along a grid axis, where the opacity of a pixel is
 ``1 - (1 - a)^(path / unit_distance)``), each rendered with ``precision = "float32"`` and ``"float64"``; the
 value measured, its error and whether every pixel came out finite (the renderer refuses to return non-finite
@@ -53,8 +53,8 @@ class Lab:
         self.n = 0
 
     def volume(self, density, spacing=(1.0, 1.0, 1.0), normal=None, gm=None):
-        from ..augfile import write_augmented
-        from ..index import build_index_file
+        from isplat.augfile import write_augmented
+        from isplat.index import build_index_file
 
         self.n += 1
         density = np.ascontiguousarray(density, dtype=np.uint8)
@@ -67,9 +67,9 @@ class Lab:
 
     def augmented(self, array, spacing=(1.0, 1.0, 1.0), window=(0.0, 255.0)):
         """A volume through the real augment step (gradients, normals: NO_NORMAL where the gradient is 0)."""
-        from ..augfile import write_augmented
-        from ..augment import augment_array
-        from ..index import build_index_file
+        from isplat.augfile import write_augmented
+        from isplat.augment import augment_array
+        from isplat.index import build_index_file
 
         self.n += 1
         o = augment_array(np.asarray(array, np.float32), spacing, window)
@@ -81,7 +81,7 @@ class Lab:
 
     def scene(self, vol, *, size=16, camera, transfer, shading="enabled = false", render=FINE,
               background="[0, 0, 0, 0]", precision="float32"):
-        from ..scene import parse_scene
+        from isplat.scene import parse_scene
 
         aug, idx = vol[0], vol[1]
         text = (f'[data]\naugmented = "{aug}"\nindex = "{idx}"\n'
@@ -92,8 +92,8 @@ class Lab:
 
     def render(self, vol, **kw):
         """Render view 0 -> (image or None, stats or None, finite)."""
-        from ..errors import IsplatError
-        from ..render import Renderer
+        from isplat.errors import IsplatError
+        from isplat.render import Renderer
 
         try:
             r = Renderer(self.scene(vol, **kw))
@@ -295,7 +295,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
                                  "transparency), so the total is about the sum of the slices' opacities"))
     # 9. constant volume with shading: no gradient, NO_NORMAL
     lab_aug = lab.augmented(np.full((16, 16, 16), 200.0, np.float32))
-    from ..normals import NO_NORMAL
+    from isplat.normals import NO_NORMAL
 
     n_nonormal = int((lab_aug[2]["normal"] == NO_NORMAL).mean() * 100)
     cam, _ = ortho_down_k(16, 16)
@@ -384,7 +384,7 @@ def _err(row, prec):
 
 
 def render_doc(rows, quick, seconds, load0) -> str:
-    cmd = "python -m isplat.bench stability" + (" --quick" if quick else "")
+    cmd = "python -m benchmarks stability" + (" --quick" if quick else "")
     L = [f"```\n{cmd}\n```\n", "# Numerical stability: stiff and extreme cases\n",
          f"Machine: {_doc.machine_line()}; git {_doc.git_rev()}; load average {load0:.2f} at the start; the bench "
          f"took {seconds:.0f} s.\n",

@@ -1,6 +1,6 @@
 """Error against run time for every speed knob of ``[render]``, and the popping of axis-aligned sheets.
 
-``python -m isplat.bench accuracy [--out docs] [--quick]`` writes ``accuracy.md`` (and ``img/popping_head.png``
+``python -m benchmarks accuracy [--out docs] [--quick]`` writes ``accuracy.md`` (and ``img/popping_head.png``
 next to it). For each knob value (the other knobs at their format defaults) on the head (opaque bone) and the
 engine (semi-transparent), both 256x256 orthographic: the median frame time (frames interleaved across the
 settings compared, after a warm-up) and the error of the image against a reference render (float64,
@@ -26,7 +26,7 @@ import numpy as np
 
 from . import _doc
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / "bench-out"
 
 DEFAULTS = {"method": "indexed", "early_termination": 0.99, "footprint_radius": 2.5, "footprint_table": 1024,
@@ -58,10 +58,10 @@ def sample_data(name: str, cache: Path = CACHE) -> tuple[Path, Path]:
     aug, idx = cache / f"{name}.aug.h5", cache / f"{name}.idx.h5"
     if aug.exists() and idx.exists():
         return aug, idx
-    from ..augfile import write_augmented
-    from ..augment import augment_array
-    from ..index import build_index_file
-    from ..samples import make_sample
+    from isplat.augfile import write_augmented
+    from isplat.augment import augment_array
+    from isplat.index import build_index_file
+    from isplat.samples import make_sample
 
     cache.mkdir(parents=True, exist_ok=True)
     arr, sp = make_sample(name)
@@ -80,7 +80,7 @@ def sample_data(name: str, cache: Path = CACHE) -> tuple[Path, Path]:
 
 
 def make_scene(case: str, size: int, render: dict, extra=()):
-    from ..scene import load_scene
+    from isplat.scene import load_scene
 
     aug, idx = sample_data(case)
     ov = [f"data.augmented={aug}", f"data.index={idx}", f"image.width={size}", f"image.height={size}",
@@ -135,7 +135,7 @@ def _e(x):
 def ripple(jac, radius: float, sigma: float = 0.7, table: int = 1 << 20, offsets: int = 256):
     """Partition of unity of the footprint: min and max over random sub-pixel offsets of the sum of the
     weights of a slice's lattice at one pixel (1 for an untruncated, finely tabulated Gaussian)."""
-    from ..splat.footprint import footprint_weight, make_footprint
+    from isplat.splat.footprint import footprint_weight, make_footprint
 
     fp = make_footprint(jac, sigma, radius, table, np.float64)
     a, b = np.meshgrid(np.arange(-16, 17), np.arange(-16, 17))
@@ -147,8 +147,8 @@ def ripple(jac, radius: float, sigma: float = 0.7, table: int = 1 << 20, offsets
 
 
 def measure_knobs(size: int, frames: int):
-    from .. import camera as C
-    from ..render import Renderer
+    from isplat import camera as C
+    from isplat.render import Renderer
 
     out = {}
     radii = dict(KNOBS)["footprint_radius"]
@@ -210,8 +210,8 @@ def measure_knobs(size: int, frames: int):
 # ---- popping ------------------------------------------------------------------------------------------------
 def switch_azimuth(scene, lo=0.0, hi=90.0) -> tuple[float, str, str]:
     """The azimuth in (lo, hi) where the principal axis of ``scene``'s camera changes (bisection)."""
-    from .. import camera as C
-    from ..augfile import open_augmented
+    from isplat import camera as C
+    from isplat.augfile import open_augmented
 
     aug = open_augmented(scene.data.augmented)
     geom = C.volume_geometry(aug.shape, scene.volume.spacing or aug.spacing_ijk, scene.volume.origin,
@@ -237,7 +237,7 @@ def switch_azimuth(scene, lo=0.0, hi=90.0) -> tuple[float, str, str]:
 @contextlib.contextmanager
 def forced_axis(axis_sign):
     """Make the renderer slice along ``axis_sign`` (axis, sign) whatever the view (for a bench only)."""
-    from .. import camera as C
+    from isplat import camera as C
 
     orig = C.principal_axis
     C.principal_axis = lambda frame, geom: axis_sign
@@ -248,8 +248,8 @@ def forced_axis(axis_sign):
 
 
 def measure_popping(size: int, settings: dict, label: str):
-    from .. import camera as C
-    from ..render import Renderer
+    from isplat import camera as C
+    from isplat.render import Renderer
 
     base = make_scene("head", size, settings)
     s, ax_lo, ax_hi = switch_azimuth(base)
@@ -413,7 +413,7 @@ def _reading(knob, res):
 
 
 def render_doc(res, pops, quick, size, frames, gain, seconds, load0) -> str:
-    cmd = "python -m isplat.bench accuracy" + (" --quick" if quick else "")
+    cmd = "python -m benchmarks accuracy" + (" --quick" if quick else "")
     L = [f"```\n{cmd}\n```\n", "# Accuracy against run time, knob by knob\n",
          f"Machine: {_doc.machine_line()}; git {_doc.git_rev()}; load average {load0:.2f} at the start; the bench "
          f"took {seconds:.0f} s.\n",

@@ -1,4 +1,4 @@
-"""The paper's Figure 5, reproduced side by side: ``python -m isplat.bench paper [--quick]`` (make paper-table).
+"""The paper's Figure 5, reproduced side by side: ``python -m benchmarks paper [--quick]`` (make paper-table).
 
 Seven cases shaped like Ihm & Lee's (§4): H1 (head, bone), H2 (head with a cutting plane), HD (head decimated
 to half resolution), B1 and BD (an MRI head at full and half resolution), E1 (engine, semi-transparent), E2 (a
@@ -27,7 +27,7 @@ import numpy as np
 
 from . import _doc
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 IMAGE = 256
 FRAMES, FRAMES_QUICK = 15, 3
 THREADS = 1          # the paper's machine had one CPU; one thread also makes the shared machine less noisy
@@ -134,7 +134,16 @@ def _log(msg):
 # ------------------------------------------------------------------------------------------------ volumes
 
 def decimate(arr: np.ndarray) -> np.ndarray:
-    """2 x 2 x 2 block means of ``arr[k, j, i]`` (float32); an odd last slice is averaged with itself."""
+    """2 x 2 x 2 block means of ``arr[k, j, i]`` (float32); an odd last slice is averaged with itself.
+
+    >>> a = np.arange(5 * 4 * 3, dtype=np.float32).reshape(5, 4, 3)
+    >>> d = decimate(a)
+    >>> d.shape
+    (3, 2, 2)
+    >>> p = np.pad(a, [(0, 1), (0, 0), (0, 1)], mode="edge")
+    >>> bool(d[1, 1, 0] == p[2:4, 2:4, 0:2].mean()), bool(d[2, 0, 1] == p[4:6, 0:2, 2:4].mean())
+    (True, True)
+    """
     a = np.asarray(arr, dtype=np.float32)
     pad = [(0, n % 2) for n in a.shape]
     if any(p[1] for p in pad):
@@ -144,9 +153,9 @@ def decimate(arr: np.ndarray) -> np.ndarray:
 
 
 def _write(work: Path, key: str, arr, spacing, window=None, source="") -> tuple[Path, Path, tuple]:
-    from ..augfile import write_augmented
-    from ..augment import augment_array
-    from ..index import build_index_file
+    from isplat.augfile import write_augmented
+    from isplat.augment import augment_array
+    from isplat.index import build_index_file
 
     o = augment_array(arr, spacing, window)
     aug, idx = work / f"{key}.aug.h5", work / f"{key}.idx.h5"
@@ -158,7 +167,7 @@ def _write(work: Path, key: str, arr, spacing, window=None, source="") -> tuple[
 
 def synthetic_mri(shape):
     """A synthetic MRI-like head: the ``head`` sample with CT values mapped to T1-like ones."""
-    from ..samples import make_sample
+    from isplat.samples import make_sample
 
     ct, sp = make_sample("head", shape=shape)
     return np.interp(ct.astype(np.float32), _CT, _T1).astype(np.float32), sp
@@ -166,7 +175,7 @@ def synthetic_mri(shape):
 
 def prepare(work: Path, quick: bool) -> dict:
     """Write the volumes the cases use into ``work``; returns key -> dict(aug, idx, source)."""
-    from ..samples import make_sample
+    from isplat.samples import make_sample
 
     f = 4 if quick else 1
     vols = {}
@@ -183,8 +192,8 @@ def prepare(work: Path, quick: bool) -> dict:
     data = Path(os.environ.get("ISPLAT_DATA", ROOT / "data"))
     real = [data / "mri-head.nii.gz", data / "mri-head.aug.h5", data / "mri-head.idx.h5"]
     if not quick and all(p.exists() for p in real):
-        from ..augfile import open_augmented
-        from ..volume_io import read_volume
+        from isplat.augfile import open_augmented
+        from isplat.volume_io import read_volume
 
         win = open_augmented(real[1]).density_window
         vols["mri"] = dict(aug=real[1], idx=real[2], real=True,
@@ -225,9 +234,9 @@ def write_scene(work: Path, case: Case, vol: dict, size: int, projection: str = 
 # -------------------------------------------------------------------------------------------------- measure
 
 def measure(case: Case, vol: dict, work: Path, frames: int, size: int) -> dict:
-    from ..render import Renderer
-    from ..scene import load_scene
-    from ..stats import collect
+    from isplat.render import Renderer
+    from isplat.scene import load_scene
+    from isplat.stats import collect
 
     scene_path = write_scene(work, case, vol, size)
     persp_path = write_scene(work, case, vol, size, "perspective")
@@ -292,7 +301,7 @@ def _res(shape_ijk) -> str:
 
 
 def render_doc(rows, quick: bool, seconds: float) -> str:
-    cmd = "python -m isplat.bench paper" + (" --quick" if quick else "") + "   (make paper-table)"
+    cmd = "python -m benchmarks paper" + (" --quick" if quick else "") + "   (make paper-table)"
     L = [
         "## Figure 5 of the paper, reproduced",
         "",

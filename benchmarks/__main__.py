@@ -1,4 +1,4 @@
-"""python -m isplat.bench NAME|all [--out docs] [--quick]"""
+"""python -m benchmarks NAME|all [--out docs] [--quick]   (from the repository root)"""
 
 import argparse
 import importlib
@@ -6,7 +6,7 @@ import pkgutil
 import sys
 from pathlib import Path
 
-import isplat.bench as pkg
+import benchmarks as pkg
 
 
 def names():
@@ -14,7 +14,7 @@ def names():
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m isplat.bench", description=__doc__)
+    ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
     ap.add_argument("name", help="benchmark name or 'all': " + ", ".join(names()))
     ap.add_argument("--out", default="docs", type=Path, help="folder for the Markdown results")
     ap.add_argument("--quick", action="store_true", help="smaller sizes, fewer repeats (for a smoke test)")
@@ -22,12 +22,12 @@ def main(argv=None):
     todo = names() if a.name == "all" else [a.name]
     for n in todo:
         if n not in names():
-            print(f"isplat.bench: error: unknown benchmark {n!r}; expected one of {names()}", file=sys.stderr)
+            print(f"benchmarks: error: unknown benchmark {n!r}; expected one of {names()}", file=sys.stderr)
             return 2
     a.out.mkdir(parents=True, exist_ok=True)
     for n in todo:
         print(f"[bench] {n}", file=sys.stderr)
-        path = importlib.import_module(f"isplat.bench.{n}").run(a.out, a.quick)
+        path = importlib.import_module(f"benchmarks.{n}").run(a.out, a.quick)
         print(f"[bench] wrote {path}", file=sys.stderr)
     return 0
 

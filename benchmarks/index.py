@@ -1,6 +1,6 @@
 """Index benchmark: build time, index size per indexed voxel, load efficiency and peak memory (paper §2.3, §4).
 
-``python -m isplat.bench index [--quick]`` writes ``index-performance.md``.
+``python -m benchmarks index [--quick]`` writes ``index-performance.md``.
 """
 
 from __future__ import annotations
@@ -87,14 +87,15 @@ def run(out_dir: Path, quick: bool) -> Path:
     out_dir = Path(out_dir)
     repeats = 1 if quick else 3
     big = (192, 192, 192) if quick else (512, 512, 512)
-    lines = ["```", "python -m isplat.bench index" + (" --quick" if quick else ""), "```", ""]
+    lines = ["```", "python -m benchmarks index" + (" --quick" if quick else ""), "```", ""]
     with tempfile.TemporaryDirectory(prefix="isplat-bench-index-") as tmp:
         tmp = Path(tmp)
         # peak memory first: RUSAGE_CHILDREN keeps the maximum over all children waited for
         big_aug = tmp / "big.aug.h5"
         print(f"[bench index] augmenting head at {big}", file=sys.stderr)
-        subprocess.run([sys.executable, "-c", "import sys; from isplat.bench.index import _augment_to; "
-                        f"_augment_to({str(big_aug)!r}, shape={big!r})"], check=True)
+        subprocess.run([sys.executable, "-c", "import sys; from benchmarks.index import _augment_to; "
+                        f"_augment_to({str(big_aug)!r}, shape={big!r})"], check=True,
+                       cwd=Path(__file__).resolve().parents[1])
         big_rss, big_time = _peak_rss_child(big_aug, tmp / "big.idx.h5")
         big_file = os.path.getsize(tmp / "big.idx.h5")
         big_aug.unlink()

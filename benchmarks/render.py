@@ -1,4 +1,4 @@
-"""Render speed: ``python -m isplat.bench render [--quick]`` (part of ``make bench``).
+"""Render speed: ``python -m benchmarks render [--quick]`` (part of ``make bench``).
 
 Measures, on this machine, warm (numba cache present), the `head` sample with the bone transfer function of
 examples/head.toml at 256 x 256, orthographic:
@@ -26,7 +26,7 @@ import numpy as np
 
 from . import _doc
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 WORK = ROOT / "out" / "bench"
 SCENE = ROOT / "examples" / "head.toml"
 SIZE = 256
@@ -165,7 +165,7 @@ def doc(main, st, pv, orb, e2e, rss, scaling, r0, quick, seconds) -> str:
     L = [
         "## Rendering speed",
         "",
-        f"Made by `python -m isplat.bench render{' --quick' if quick else ''}` (part of `make bench`) on "
+        f"Made by `python -m benchmarks render{' --quick' if quick else ''}` (part of `make bench`) on "
         f"{_doc.machine_line()}, git {_doc.git_rev()}, in {seconds:.0f} s. Do not edit: rerun the command.",
         "",
         f"The `head` sample (256 x 256 x 225, uint16) augmented and indexed with default settings; the scene is "

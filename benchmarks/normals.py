@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import normals as N
+from isplat import normals as N
 
 
 def _errors(v):
@@ -37,7 +37,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     used = np.unique(N.encode(allc)).size
     p = Path(out_dir) / "normals.md"
     p.write_text(f"""```
-python -m isplat.bench normals{' --quick' if quick else ''}
+python -m benchmarks normals{' --quick' if quick else ''}
 ```
 
 # Octahedral 16-bit normals: accuracy

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..samples import make_sample
+from isplat.samples import make_sample
 
 
 def _run(cmd):
@@ -48,7 +48,7 @@ def index_estimate(d: np.ndarray) -> tuple[float, int]:
 
 
 def run(out_dir: Path, quick: bool) -> Path:
-    from ..augfile import open_augmented
+    from isplat.augfile import open_augmented
 
     head_shape = (64, 64, 56) if quick else (256, 256, 225)
     big_n = 128 if quick else 512
@@ -81,7 +81,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     rss = (lambda b: f"{b * mb:.0f} MiB" if b else "n/a")
     p = Path(out_dir) / "augment.md"
     p.write_text(f"""```
-python -m isplat.bench augment{' --quick' if quick else ''}
+python -m benchmarks augment{' --quick' if quick else ''}
 ```
 
 # `isplat augment`: time and memory

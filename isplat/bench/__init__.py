@@ -1,3 +1,0 @@
-"""Benchmarks behind `make bench`. Each module NAME has ``run(out_dir: Path, quick: bool) -> Path`` that
-measures, writes one Markdown file under ``out_dir`` (docs/ by default) starting with the command that made it,
-and returns its path. Timings are medians of several runs; ratios are measured side by side in one run."""

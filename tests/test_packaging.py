@@ -1,0 +1,45 @@
+"""The wheel's allow-list (scripts/check_wheel.py, run by make wheel-check): library and CLI only."""
+
+import ast
+import importlib.util
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("check_wheel", ROOT / "scripts" / "check_wheel.py")
+cw = importlib.util.module_from_spec(spec)
+sys.modules["check_wheel"] = cw
+spec.loader.exec_module(cw)
+
+GOOD = ["isplat/__init__.py", "isplat/cli/main.py", "isplat/render.py", "isplat/index/store.py",
+        "isplat-0.1.0.dist-info/METADATA", "isplat-0.1.0.dist-info/entry_points.txt"]
+
+
+def test_library_and_cli_pass():
+    assert cw.offenders(GOOD) == []
+
+
+def test_benchmarks_tests_and_strays_are_named():
+    strays = ["benchmarks/paper.py", "isplat/bench/paper.py", "tests/conftest.py", "conftest.py", "data/x.npy"]
+    assert cw.offenders(GOOD + strays) == strays
+
+
+def test_a_missing_cli_is_named():
+    assert cw.offenders([n for n in GOOD if n != "isplat/cli/main.py"]) == ["missing: isplat/cli/main.py"]
+
+
+def imported_modules(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    return {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names} | \
+           {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+
+
+def test_imported_modules_sees_nested_imports(tmp_path):
+    (tmp_path / "t.py").write_text("import os\ndef f():\n    from benchmarks.paper import decimate\n")
+    assert imported_modules(tmp_path / "t.py") == {"os", "benchmarks.paper"}
+
+
+def test_tests_do_not_import_the_benchmarks():
+    for path in [*(ROOT / "tests").glob("*.py"), ROOT / "conftest.py"]:
+        bench = {m for m in imported_modules(path) if m.split(".")[0] == "benchmarks" or m.startswith("isplat.bench")}
+        assert not bench, (path.name, bench)

@@ -28,6 +28,7 @@ from . import progress
 from .augfile import create_augmented
 from .errors import IsplatError
 from .fileio import atomic_output, check_output
+from .jit import jit
 from .normals import NO_NORMAL, _encode_one
 from .volume_io import Volume, read_volume
 
@@ -40,7 +41,7 @@ WINDOW_PERCENTILES = (0.1, 99.9)
 
 # --- kernels ---------------------------------------------------------------------------------------------------
 
-@numba.njit(cache=True, parallel=True)
+@jit(parallel=True)
 def _window_kernel(x, lo, scale, t_out, d_out):
     """Windowed density of a float64 slab: ``t_out`` float32 clipped to 0..255, ``d_out`` its rint as uint8.
 
@@ -66,7 +67,7 @@ def _window_kernel(x, lo, scale, t_out, d_out):
     return -1
 
 
-@numba.njit(cache=True, parallel=True)
+@jit(parallel=True)
 def _gradient_kernel(f, r0, nrows, kg0, nk, si, sj, sk, g):
     """Gradient of rows ``r0 : r0 + nrows`` of slab ``f`` (float32, with halo rows) into ``g[3, nrows, nj, ni]``.
 
@@ -110,7 +111,7 @@ def _gradient_kernel(f, r0, nrows, kg0, nk, si, sj, sk, g):
                 g[2, rr, j, i] = gk
 
 
-@numba.njit(cache=True)
+@jit
 def _magnitude(g, r, j, i):
     """|g| at (r, j, i) of a gradient slab ``g[3, ...]``, in float64."""
     a = np.float64(g[0, r, j, i])
@@ -119,7 +120,7 @@ def _magnitude(g, r, j, i):
     return math.sqrt(a * a + b * b + c * c)
 
 
-@numba.njit(cache=True, parallel=True)
+@jit(parallel=True)
 def _magnitude_max(g):
     n = g.shape[1]
     m = np.zeros(n, dtype=np.float64)
@@ -134,7 +135,7 @@ def _magnitude_max(g):
     return m.max() if n else 0.0
 
 
-@numba.njit(cache=True, parallel=True)
+@jit(parallel=True)
 def _encode_kernel(g, gmax, mag_out, nrm_out):
     """Magnitude codes ``rint(min(|g|/gmax, 1) * 255)`` and oct16 normal codes of gradients ``g[3, ...]``."""
     n = g.shape[1]

@@ -14,10 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import IsplatError
+from .grid import AXES, SLICE_AXES  # noqa: F401  (the axis convention, re-exported)
 
-AXES = "ijk"
-# slice axis -> (a, b, c): in-slice axes (a fastest) and the slice axis, as indices into (i, j, k)
-SLICE_AXES = {"k": (0, 1, 2), "j": (0, 2, 1), "i": (1, 2, 0)}
 
 
 @dataclass(frozen=True)

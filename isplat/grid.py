@@ -27,15 +27,11 @@ AXES = "ijk"
 SLICE_AXES = {"k": (0, 1, 2), "j": (0, 2, 1), "i": (1, 2, 0)}
 # slice axis -> the names of its in-slice axes a, b
 IN_SLICE_AXES = {c: AXES[ia] + AXES[ib] for c, (ia, ib, _) in SLICE_AXES.items()}
-# axis -> small integer for compiled code (the position of the letter in AXES)
-AXIS_CODE = {a: n for n, a in enumerate(AXES)}
-
 
 def shape_ijk(shape_kji) -> tuple[int, int, int]:
     """``(n_i, n_j, n_k)`` of an array shape ``(n_k, n_j, n_i)``."""
     n_k, n_j, n_i = (int(x) for x in shape_kji)
     return n_i, n_j, n_k
-
 
 def slice_shape(shape_kji, axis: str) -> tuple[int, int, int]:
     """``(n_slices, n_a, n_b)`` of the slices perpendicular to ``axis``."""
@@ -43,6 +39,20 @@ def slice_shape(shape_kji, axis: str) -> tuple[int, int, int]:
     ia, ib, ic = SLICE_AXES[axis]
     return n[ic], n[ia], n[ib]
 
+def slice_coefficients(shape_kji, axis: str) -> tuple[int, ...]:
+    """``(si, sj, sk, pi, pj, pk)``: voxel ``(i, j, k)`` lies in slice ``i*si + j*sj + k*sk`` of ``axis`` at
+    in-slice position ``ind = i*pi + j*pj + k*pk`` (for compiled code, which takes no dictionaries).
+
+    >>> slice_coefficients((4, 5, 6), "i")      # slice i, ind = j + k * n_j
+    (1, 0, 0, 0, 1, 5)
+    """
+    ia, ib, ic = SLICE_AXES[axis]
+    n = shape_ijk(shape_kji)
+    s, p = [0, 0, 0], [0, 0, 0]
+    s[ic] = 1
+    p[ia] = 1
+    p[ib] = n[ia]
+    return (*s, *p)
 
 def flat_strides(shape_kji, axis: str) -> np.ndarray:
     """int64[3]: steps of the flat ``[k, j, i]`` index along ``a``, ``b`` and ``c`` of ``axis``'s slices."""

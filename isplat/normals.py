@@ -19,18 +19,19 @@ from __future__ import annotations
 
 import functools
 
-import numba
 import numpy as np
+
+from .jit import jit
 
 NO_NORMAL = 0x8080
 
 
-@numba.njit(cache=True, inline="always")
+@jit(inline="always")
 def _sgn(x):
     return 1.0 if x >= 0.0 else -1.0
 
 
-@numba.njit(cache=True, inline="always")
+@jit(inline="always")
 def _decode_uv(cu, cv):
     """Unnormalised direction of the snorm8 pair (cu, cv) in -127..127."""
     x = cu / 127.0
@@ -41,7 +42,7 @@ def _decode_uv(cu, cv):
     return x, y, z
 
 
-@numba.njit(cache=True)
+@jit
 def _encode_one(x, y, z):
     n1 = abs(x) + abs(y) + abs(z)
     if not (n1 > 0.0) or not np.isfinite(n1):
@@ -71,7 +72,7 @@ def _encode_one(x, y, z):
     return ((best_u & 0xFF) << 8) | (best_v & 0xFF)
 
 
-@numba.njit(cache=True)
+@jit
 def _encode_flat(v, out):
     for n in range(out.shape[0]):
         out[n] = _encode_one(np.float64(v[n, 0]), np.float64(v[n, 1]), np.float64(v[n, 2]))

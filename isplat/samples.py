@@ -13,11 +13,11 @@ import math
 import numba
 import numpy as np
 
+from .jit import jit
 from .errors import IsplatError
 
 # primitive kinds
 ELLIPSOID, CYLINDER, BOX = 0, 1, 2
-AXES = {"i": 0, "j": 1, "k": 2}
 # width of the partial-volume ramp at a surface, in voxels: wide enough that central differences give
 # smooth normals (a one-voxel ramp leaves ~6 degrees of staircase error), narrow enough to stay sharp
 EDGE = 2.0
@@ -34,7 +34,7 @@ DTYPES = {"head": "uint16", "engine": "uint8", "marschner-lobb": "float32", "sph
           "two-density-cube": "uint8"}
 
 
-@numba.njit(cache=True, parallel=True)
+@jit(parallel=True)
 def _paint(vol, kinds, params, values, edge):
     """Paint primitives in order into ``vol[k, j, i]`` (float32) with a linear edge ``edge`` voxels wide.
 

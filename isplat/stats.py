@@ -27,7 +27,6 @@ from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
 STATS_VERSION = 1
-AXES = ("i", "j", "k")
 
 
 def density_histogram(aug) -> np.ndarray:

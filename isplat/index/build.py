@@ -9,10 +9,9 @@ import numpy as np
 
 from .. import progress
 from ..errors import IsplatError
+from ..grid import AXES, IN_SLICE_AXES, slice_coefficients, slice_shape
 from . import codec
 
-AXES = "ijk"
-IN_SLICE_AXES = {"k": "ij", "j": "ik", "i": "jk"}   # docs/design.md: (a, b), a fastest
 MAX_IN_SLICE = 65536                                # reach of the 2-byte escape
 MAX_POSITIONS = 2**31 - 1                           # LoadedAxis positions are int32
 SLAB_VOXELS = 1 << 22                               # voxels per kernel call (progress granularity)
@@ -57,10 +56,7 @@ class AxisIndex:
         return self.bytes[self.entry_byte_offset[e]:self.entry_byte_offset[e + 1]].tobytes()
 
 
-def axis_geometry(shape, axis: str) -> tuple[int, int, int]:
-    """``(n_slices, n_a, n_b)`` of ``axis`` for a volume of shape ``(n_k, n_j, n_i)`` (design.md table)."""
-    n_k, n_j, n_i = (int(x) for x in shape)
-    return {"k": (n_k, n_i, n_j), "j": (n_j, n_i, n_k), "i": (n_i, n_j, n_k)}[axis]
+axis_geometry = slice_shape      # ``(n_slices, n_a, n_b)`` of an axis (isplat.grid)
 
 
 def escape_width(n_a: int, n_b: int) -> int:
@@ -156,7 +152,7 @@ def build_axis(density: np.ndarray, axis: str, ranges=None) -> AxisIndex:
     density = _check_density(density)
     n_slices, n_a, n_b = axis_geometry(density.shape, axis)
     ew = escape_width(n_a, n_b)
-    code = codec.AXIS_CODE[axis]
+    coef = slice_coefficients(density.shape, axis)
     indexed = ranges_mask(ranges)
     slabs = _slabs(density.shape[0], density.shape[1] * density.shape[2])
 
@@ -165,7 +161,7 @@ def build_axis(density: np.ndarray, axis: str, ranges=None) -> AxisIndex:
     lengths = np.zeros((256, n_slices), dtype=np.int64)
     with progress.bar(total=2 * density.shape[0], desc=f"index {axis}", unit="slice") as pb:
         for k0, k1 in slabs:
-            codec.measure_slab(density, k0, k1, code, indexed, codec.escape_cost(ew), prev, counts, lengths)
+            codec.measure_slab(density, k0, k1, coef, indexed, codec.escape_cost(ew), prev, counts, lengths)
             pb.update(k1 - k0)
 
         # density-major entries: by density, then by slice (formats/index.md)
@@ -184,7 +180,7 @@ def build_axis(density: np.ndarray, axis: str, ranges=None) -> AxisIndex:
 
         prev.fill(-1)
         for k0, k1 in slabs:
-            codec.encode_slab(density, k0, k1, code, indexed, n_a, ew, prev, cursor, out)
+            codec.encode_slab(density, k0, k1, coef, indexed, n_a, ew, prev, cursor, out)
             pb.update(k1 - k0)
     if not np.array_equal(cursor[present], offsets[1:]):   # every block filled exactly
         raise AssertionError("index encoder: block lengths disagree between passes")

@@ -12,9 +12,8 @@ positions of each slice in increasing order, so one pass keeps a ``prev`` per (s
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-AXIS_CODE = {"i": 0, "j": 1, "k": 2}
+from ..jit import jit
 
 # decoder status codes
 OK = 0
@@ -40,18 +39,14 @@ def escape_cost(escape_width: int) -> int:
     return 1 + 2 * escape_width
 
 
-@njit(cache=True, nogil=True)
-def _slice_pos(axis_code, k, j, i, n_j, n_i):
-    # design.md in-slice table: k -> i + j*n_i, j -> i + k*n_i, i -> j + k*n_j
-    if axis_code == 2:
-        return k, i + j * n_i
-    elif axis_code == 1:
-        return j, i + k * n_i
-    return i, j + k * n_j
+@jit
+def _slice_pos(coef, k, j, i):
+    """(slice, in-slice position) of voxel (i, j, k); ``coef`` from :func:`isplat.grid.slice_coefficients`."""
+    return (i * coef[0] + j * coef[1] + k * coef[2], i * coef[3] + j * coef[4] + k * coef[5])
 
 
-@njit(cache=True, nogil=True)
-def measure_slab(density, k0, k1, axis_code, indexed, esc, prev, counts, lengths):
+@jit
+def measure_slab(density, k0, k1, coef, indexed, esc, prev, counts, lengths):
     """Add the voxel counts and encoded byte lengths of slab ``k0:k1`` to ``counts``/``lengths[d, s]``.
 
     ``prev[s, d]`` (start at -1) carries the last position across slabs; ``esc`` is the escape's byte cost.
@@ -64,7 +59,7 @@ def measure_slab(density, k0, k1, axis_code, indexed, esc, prev, counts, lengths
                 d = density[k, j, i]
                 if not indexed[d]:
                     continue
-                s, p = _slice_pos(axis_code, k, j, i, n_j, n_i)
+                s, p = _slice_pos(coef, k, j, i)
                 off = p - prev[s, d]
                 if off <= 255:
                     lengths[d, s] += 1
@@ -74,8 +69,8 @@ def measure_slab(density, k0, k1, axis_code, indexed, esc, prev, counts, lengths
                 counts[d, s] += 1
 
 
-@njit(cache=True, nogil=True)
-def encode_slab(density, k0, k1, axis_code, indexed, n_a, escape_width, prev, cursor, out):
+@jit
+def encode_slab(density, k0, k1, coef, indexed, n_a, escape_width, prev, cursor, out):
     """Encode slab ``k0:k1`` into ``out``: the next byte of block (d, s) goes to ``out[cursor[d, s]]`` (§2.3)."""
     n_j = density.shape[1]
     n_i = density.shape[2]
@@ -85,7 +80,7 @@ def encode_slab(density, k0, k1, axis_code, indexed, n_a, escape_width, prev, cu
                 d = density[k, j, i]
                 if not indexed[d]:
                     continue
-                s, p = _slice_pos(axis_code, k, j, i, n_j, n_i)
+                s, p = _slice_pos(coef, k, j, i)
                 off = p - prev[s, d]
                 c = cursor[d, s]
                 if off <= 255:
@@ -110,7 +105,7 @@ def encode_slab(density, k0, k1, axis_code, indexed, n_a, escape_width, prev, cu
                 prev[s, d] = p
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _escape_coords(buf, c, escape_width):
     """The explicit in-slice coordinates (a, b) after the escape byte at ``buf[c]``, little-endian."""
     if escape_width == 1:
@@ -119,7 +114,7 @@ def _escape_coords(buf, c, escape_width):
             np.int64(buf[c + 3]) | (np.int64(buf[c + 4]) << 8))
 
 
-@njit(cache=True, nogil=True)
+@jit
 def _next_position(buf, c, end, prev, n_a, n_b, n_pos, escape_width):
     """Read the position at ``buf[c]`` (an offset byte from ``prev``, or an escape; §2.3) without reading
     past ``end``; return ``(status, position, next c)``, status OK or the error found."""
@@ -142,7 +137,7 @@ def _next_position(buf, c, end, prev, n_a, n_b, n_pos, escape_width):
     return OK, p, c
 
 
-@njit(cache=True, nogil=True)
+@jit
 def decode_blocks(buf, starts, ends, counts, dest, n_a, n_b, escape_width, out):
     """Decode block e = ``buf[starts[e]:ends[e]]`` into ``out[dest[e] : dest[e] + counts[e]]``.
 
@@ -171,7 +166,7 @@ def decode_blocks(buf, starts, ends, counts, dest, n_a, n_b, escape_width, out):
     return OK, -1
 
 
-@njit(cache=True, nogil=True)
+@jit
 def decode_stream(buf, counts, dest, n_a, n_b, escape_width, out):
     """Decode consecutive blocks from ``buf``: block e is the next ``counts[e]`` positions, into ``out[dest[e]:]``.
 

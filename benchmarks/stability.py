@@ -198,7 +198,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
     rows.append(slab_case(lab, "alpha exactly 1, 4 slices", 1.0, 1.0, 4,
                           why="log1p(-1) = -inf",
                           does="alpha clamped to 1 - 2^-40 before the log (transfer._ALPHA_MAX); a sheet summing "
-                               "past 1 is scaled back to 1 keeping its colour ratio (kernels._composite)"))
+                               "past 1 is scaled back to 1 keeping its colour ratio (composite.composite_sheet)"))
     rows.append(slab_case(lab, "alpha 1 - 1e-12, 4 slices", 1 - 1e-12, 1.0, 4,
                           why="1 - alpha is 1e-12: below float32 resolution near 1",
                           does="log1p(-a) = -27.6 computed in float64, finite"))
@@ -234,7 +234,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
         ("eye inside the volume, between slices", (0.0, 0.0, -0.5), "", 16,
          "voxels at depth 0.5 in front of and all around the eye",
          "near plane: voxels closer than camera.near (default: the smallest spacing) along -w are culled "
-         "(kernels.render_axis); slices ordered outward from the eye (camera.slice_order)"),
+         "(kernels._project); slices ordered outward from the eye (camera.slice_order)"),
         ("eye exactly on a voxel", (0.0, 0.0, 0.0), "", 16,
          "the voxel at the eye has depth 0: t0 = wpe / D would divide by 0",
          "culled by the near plane before the division; the slice at depth exactly 1 = near is kept"),
@@ -260,7 +260,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
     off = math.degrees(math.atan(math.tan(math.radians(85)) * math.sqrt(2)))
     rows.append(Row(f"eye inside, fov 170 (corner rays {off:.1f} degrees off the slice normal)", "centre opacity", column(a, 16), got,
                     fin, why="path length ds / cos grows without bound towards the image corners",
-                    does="cosine clamped to 0.25 in the perspective path length (kernels.render_axis), so a "
+                    does="cosine clamped to 0.25 in the perspective path length (kernels._path_alpha), so a "
                          "corner ray's per-slice path is at most 4 slice spacings (underestimated there)"))
     cam = ('projection = "perspective"\nposition = [0.0, 0.0, -60.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0, 1, 0]\n'
            'fov = 30')
@@ -305,7 +305,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
     rows.append(Row("constant volume, shading on", "centre red (colour 0.8 x ambient 0.25)", 0.2, got, fin,
                     why=f"zero gradient everywhere: no normal ({n_nonormal}% of voxels are NO_NORMAL)",
                     does="NO_NORMAL decodes to (0, 0, 0): n.l = n.h = 0, so only ambient light; the specular "
-                         "power is not evaluated at 0 (kernels.shade_codes)"))
+                         "power is not evaluated at 0 (shade.shade_codes)"))
     # 10. gradient-modulated opacity at 0
     got, fin, notes = both(lab, lab_aug, lambda img, st: float(img[..., 3].max()), camera=cam,
                            transfer=opacity_tf(0.5, 1.0) + "\ngradient_opacity = [[0, 0.0], [10, 1.0]]")
@@ -396,7 +396,7 @@ def render_doc(rows, quick, seconds, load0) -> str:
          "odd sizes). Kernel knobs at reference values (`footprint_radius = 4`, `footprint_table = 2^20`, early "
          "termination off) except rows 2 and the early-termination row, so the kernel's partition-of-unity error "
          "(row 1) is the floor every error sits on. *finite*: the render returned (the renderer refuses to "
-         "return a non-finite pixel: `finish()` in kernels.py reports it and `composite_background` raises) and "
+         "return a non-finite pixel: `finish()` in splat/composite.py reports it and `frame.finish_image` raises) and "
          "every pixel is finite.\n",
          "| # | case | quantity | expected | float32 | float64 | error f32 | error f64 | finite f32/f64 |",
          "|---:|---|---|---:|---:|---:|---:|---:|---|"]
@@ -446,7 +446,8 @@ def reading(rows) -> str:
     if zo:
         out.append("- Zoomed far out, the integral of opacity is kept for thin material (ratio "
                    f"{zo[0].got['float32']:.3f}; the shortfall is a 0.5-pixel Gaussian centred between four pixels, "
-                   "sampled at the pixel centres, and the n a / (1 - (1 - a)^n) of adding thin slices) but overestimated {zo[1].got['float32']:.1f}x for opaque material: "
+                   "sampled at the pixel centres, and the n a / (1 - (1 - a)^n) of adding thin slices) but "
+                   f"overestimated {zo[1].got['float32']:.1f}x for opaque material: "
                    "each sub-pixel slice is spread over a pixel-sized footprint and then composited as if it were "
                    "semi-transparent over the whole footprint. This is the splatting model's limit (partial "
                    "coverage becomes transparency), not rounding; MIN_SIGMA_PIXELS keeps the splats on the pixel "

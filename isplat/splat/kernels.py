@@ -37,7 +37,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..jit import jit
+from ..jit import jit, leaf
 from .composite import TILE, composite_sheet
 from .select import CELL
 
@@ -147,7 +147,7 @@ def _full_cells(c, vox, cls, cand, cell_start, cell_id):
     return nq
 
 
-@jit(_nrt=False)
+@leaf
 def _slice_bases(c, geo, cs):
     """§3.1: the per-slice bases, two additions per slice: (xs, ys, ws, pb0, pb1, pb2, hc); ``cs`` gets the
     cutting planes' offsets for this slice."""
@@ -252,7 +252,7 @@ def _cell_box(cell, n_a, n_b, base, coef, persp, ex, ey):
                   int(math.ceil(cy0 - ey * smax)), int(math.floor(cy1 + ey * smax)))
 
 
-@jit(_nrt=False)
+@leaf
 def _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
     """True when every pixel of the box [x0, x1] x [y0, y1] has reached the early-termination opacity.
 
@@ -275,7 +275,7 @@ def _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
     return True
 
 
-@jit(_nrt=False)
+@leaf
 def _cut_away(a, b, cuts, cs):
     """Stage 3a: True when a cutting plane removes the voxel at (a, b) of the slice (``cs``: the planes'
     offsets for this slice)."""
@@ -285,7 +285,7 @@ def _cut_away(a, b, cuts, cs):
     return False
 
 
-@jit(_nrt=False)
+@leaf
 def _project(a, b, base, coef, persp, ex, ey, y0b, y1b, img_w):
     """Stage 3b, §3: the voxel's pixel position (two multiply-adds per coordinate from the slice's bases),
     perspective scale and footprint box ``(x0, x1, y0, y1)`` clipped to the image and the band of rows
@@ -319,7 +319,7 @@ def _project(a, b, base, coef, persp, ex, ey, y0b, y1b, img_w):
     return box[2] <= box[3], px, py, s, box
 
 
-@jit(_nrt=False)
+@leaf
 def _path_alpha(L, a, b, base, s, steps, persp, inv_unit):
     """Stage 3c: the voxel's opacity. Orthographic: ``L`` (already corrected for the path length).
     Perspective: corrected here for the path length through the slab along this voxel's ray."""
@@ -335,7 +335,7 @@ def _path_alpha(L, a, b, base, s, steps, persp, inv_unit):
     return -math.expm1(inv_unit / cosang * L)   # inv_unit = slice spacing / unit distance
 
 
-@jit(_nrt=False)
+@leaf
 def _shade(d, code, alpha, color, shade, use_shade):
     """Stage 3d: premultiplied colour of density ``d`` (Phong factors of normal ``code`` from the per-code
     table when shading is on)."""
@@ -358,7 +358,7 @@ def _shade(d, code, alpha, color, shade, use_shade):
     return cr * alpha, cg * alpha, cb * alpha
 
 
-@jit(_nrt=False)
+@leaf
 def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty, nd):
     """Stage 4: add the voxel's footprint into the sheet over ``box``; returns the new touched-pixel count.
 

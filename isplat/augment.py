@@ -290,14 +290,14 @@ def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None) -> dict:
 
 
 def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, dtype=None,
-                 byte_order="little", header_bytes=0) -> dict:
+                 byte_order="little", header_bytes=0, level=None, series=None) -> dict:
     """Augment the volume at ``inp`` (see :func:`isplat.volume_io.read_volume`) into ``out`` atomically.
 
     Returns a summary dict (shape, window, gradient scale, sha256).
     """
     check_output(out, force)  # fail before any work
     vol = read_volume(inp, shape=shape, dtype=dtype, byte_order=byte_order, header_bytes=header_bytes,
-                      spacing=spacing)
+                      spacing=spacing, level=level, series=series)
     name = str(inp)
     sl = _prepare(vol, window, name)
     extra = {"source": name, "source_format": vol.meta.get("format", "unknown"),

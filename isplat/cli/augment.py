@@ -23,12 +23,18 @@ from .options import force_option, quiet_option
               help="Raw input: byte order.")
 @click.option("--header-bytes", type=click.IntRange(min=0), default=0, show_default=True,
               help="Raw input: bytes to skip before the data.")
+@click.option("--level", type=click.IntRange(min=0), default=None, metavar="N",
+              help="OME-Zarr input: multiscale level to read (0 = full resolution, the default).")
+@click.option("--series", metavar="UID", default=None,
+              help="DICOM folder with several series: the SeriesInstanceUID to read (an error lists them).")
 @quiet_option
-def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes):
+def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series):
     """Augment INPUT into 4-byte voxels: density, gradient magnitude, octahedral normal (formats/augmented.md).
 
     INPUT is a .npy array [k,j,i], a .nrrd/.nhdr, a .nii/.nii.gz, a multi-page .tif/.tiff, a folder of
-    TIFF slices or of one DICOM series, or raw data (a file, or - for stdin) with --shape and --dtype.
+    TIFF slices or of DICOM files (--series picks one of several), a MetaImage .mha/.mhd, VTK image
+    data .vti, a Zarr array or OME-Zarr store (read lazily, --level picks the resolution), or raw data
+    (a file, or - for stdin) with --shape and --dtype.
     Densities are 8-bit through --window; gradients are central differences of the windowed density in
     physical units (spacing-aware).
 
@@ -44,7 +50,7 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     sp = parse_triple(spacing, "--spacing") if spacing else None
     shp = parse_triple(shape, "--shape", int) if shape else None
     info = augment_file(input, out, force=force, window=win, spacing=sp, shape=shp, dtype=dtype,
-                        byte_order=byte_order, header_bytes=header_bytes)
+                        byte_order=byte_order, header_bytes=header_bytes, level=level, series=series)
     lo, hi = info["density_window"]
     progress.log(f"isplat augment: wrote {out} (NI,NJ,NK={','.join(map(str, info['shape_ijk']))}, "
                  f"window {lo:g},{hi:g}, gradient scale {info['gradient_magnitude_scale']:g}/code)")

@@ -13,9 +13,13 @@ from .options import force_option, quiet_option
 @click.argument("input", metavar="INPUT")
 @click.option("-o", "--output", "out", required=True, metavar="OUT.aug.h5", help="Augmented HDF5 file to write.")
 @force_option
-@click.option("--window", metavar="LO,HI",
-              help="Input values mapped to densities 0 and 255 (default: 0.1 and 99.9 percentiles of a "
-                   "strided subsample). Write negative values as --window=-1000,2000.")
+@click.option("--window", metavar="LO,HI|NAME",
+              help="Input values mapped to densities 0 and 255: numbers (write negative values as "
+                   "--window=-1000,2000), percentiles of a strided subsample (p0.5,p99.9, or mixed: "
+                   "--window=-1024,p99.9), or a name: ct-full (-1024..3071 HU), ct-bone (W2000/L300), "
+                   "ct-soft-tissue (W400/L40), ct-lung (W1500/L-600), ct-brain (W80/L40). Default: ct-full for "
+                   "Hounsfield data (a CT rescale in the file, or values starting at -1024, -2048 or about "
+                   "-1000), else the 0.1 and 99.9 percentiles.")
 @click.option("--spacing", metavar="SX,SY,SZ", help="Voxel spacing along i, j, k; overrides the file's.")
 @click.option("--shape", metavar="NI,NJ,NK", help="Raw input: volume size, i fastest.")
 @click.option("--dtype", metavar="TYPE", help=f"Raw input: voxel type, one of {', '.join(RAW_DTYPES)}.")
@@ -46,17 +50,14 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     """
     from ..augment import augment_file  # numba import only when the command runs
 
-    win = _pair(window) if window else None
+    win = window if window else None
     sp = parse_triple(spacing, "--spacing") if spacing else None
     shp = parse_triple(shape, "--shape", int) if shape else None
     info = augment_file(input, out, force=force, window=win, spacing=sp, shape=shp, dtype=dtype,
                         byte_order=byte_order, header_bytes=header_bytes, level=level, series=series)
     lo, hi = info["density_window"]
+    below, above = info["clipped"]
+    progress.log(f"isplat augment: window {lo:g},{hi:g} ({info['density_window_method']}); clipped "
+                 f"{100 * below:.2f}% of voxels below {lo:g}, {100 * above:.2f}% above {hi:g}")
     progress.log(f"isplat augment: wrote {out} (NI,NJ,NK={','.join(map(str, info['shape_ijk']))}, "
                  f"window {lo:g},{hi:g}, gradient scale {info['gradient_magnitude_scale']:g}/code)")
-
-
-def _pair(text):
-    from ..volume_io import parse_numbers
-
-    return parse_numbers(text, "--window", 2)

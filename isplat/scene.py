@@ -166,7 +166,8 @@ LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
                "precision", "threads")
-VIEWS_KEYS = ("orbit_steps", "list")
+VIEWS_KEYS = ("orbit_steps", "list", "path", "frames")
+DEFAULT_PATH_FRAMES = 60
 
 DEFAULT_LIGHT_DIRECTION = (-0.4, 0.6, 1.0)
 ORTHONORMAL_TOLERANCE = 1e-3
@@ -973,15 +974,25 @@ def _cameras(ctx: _Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
         ctx.fail(vp + ("list",), vlist, "expected an array of camera tables, e.g. [{azimuth = 0}, {azimuth = 90}]")
     if steps > 0 and vlist:
         ctx.fail(vp + ("list",), vlist, "views.orbit_steps and views.list cannot both be given")
+    if "path" in views_t or "frames" in views_t:
+        if steps > 0 or vlist:
+            key = "path" if "path" in views_t else "frames"
+            ctx.fail(vp + (key,), views_t[key], "views.path cannot be combined with views.orbit_steps or views.list")
+        return camera, _path_views(ctx, views_t, raw_cam, cam_paths)
     if steps > 0:
         if camera.mode != "orbit":
             ctx.fail(vp + ("orbit_steps",), steps, f'needs camera mode "orbit" (the camera is in mode "{camera.mode}")')
         return camera, tuple(replace(camera, azimuth=camera.azimuth + n * 360.0 / steps) for n in range(steps))
     if not vlist:
         return camera, (camera,)
+    return camera, _merged_cameras(ctx, vp + ("list",), vlist, raw_cam, cam_paths)
+
+
+def _merged_cameras(ctx: _Ctx, lp: tuple, entries: list, raw_cam: dict, cam_paths: dict) -> tuple[Camera, ...]:
+    """Each entry's camera keys merged over [camera] and validated as a whole camera."""
     views = []
-    for n, entry in enumerate(vlist):
-        ep = vp + ("list", n)
+    for n, entry in enumerate(entries):
+        ep = lp + (n,)
         if not isinstance(entry, dict):
             ctx.fail(ep, entry, "expected a table of camera keys, e.g. {azimuth = 90}")
         ctx.check_keys(entry, ep, CAMERA_KEYS, "camera")
@@ -990,7 +1001,29 @@ def _cameras(ctx: _Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
         paths = dict(cam_paths)
         paths.update({k: ep + (k,) for k in entry})
         views.append(_camera(ctx, merged, paths))
-    return camera, tuple(views)
+    return tuple(views)
+
+
+def _path_views(ctx: _Ctx, views_t: dict, raw_cam: dict, cam_paths: dict) -> tuple[Camera, ...]:
+    """``views.path`` keyframes interpolated into ``views.frames`` cameras (isplat.camera_path)."""
+    from .camera_path import PathError, interpolate
+
+    vp = ("views",)
+    if "path" not in views_t:
+        ctx.fail(vp + ("frames",), views_t["frames"], "needs views.path (the keyframes to interpolate)")
+    keys = views_t["path"]
+    if not isinstance(keys, list) or len(keys) < 2:
+        ctx.fail(vp + ("path",), keys, "expected an array of at least 2 camera tables (keyframes), "
+                 "e.g. [{azimuth = 0}, {azimuth = 90, zoom = 2}]")
+    frames = ctx.integer(vp + ("frames",), views_t.get("frames", DEFAULT_PATH_FRAMES),
+                         "expected an integer number of frames >= 2", lo=2)
+    cams = _merged_cameras(ctx, vp + ("path",), keys, raw_cam, cam_paths)
+    try:
+        return interpolate(list(cams), frames)
+    except PathError as exc:
+        if exc.field in keys[exc.key]:
+            ctx.fail(vp + ("path", exc.key, exc.field), keys[exc.key][exc.field], str(exc))
+        ctx.fail(vp + ("path", exc.key), keys[exc.key], str(exc))
 
 
 # --------------------------------------------------------------------------------------------------------------------

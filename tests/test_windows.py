@@ -83,3 +83,14 @@ def test_cli_prints_window_and_clipping(capsys, tmp_path):
     assert open_augmented(out).density_window == (-160.0, 240.0)
     code, _, err = run(capsys, "augment", str(p), "-o", str(out), "--force", "--window", "ct-skull")
     _one_error(code, err, "--window 'ct-skull' invalid", "ct-full, ct-bone")
+
+
+def test_augment_index_flag_writes_both(capsys, tmp_path):
+    from isplat.index import open_index
+
+    p = tmp_path / "ct.npy"
+    np.save(p, _ct())
+    code, _, err = run(capsys, "augment", str(p), "-o", str(tmp_path / "ct.aug.h5"), "--index")
+    assert code == 0 and open_index(tmp_path / "ct.idx.h5").axes == "ijk"
+    code, _, err = run(capsys, "augment", str(p), "-o", str(tmp_path / "ct.aug.h5"), "--index")
+    _one_error(code, err, "ct.idx.h5: output exists; use --force")  # checked before any work

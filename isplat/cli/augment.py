@@ -31,8 +31,10 @@ from .options import force_option, quiet_option
               help="OME-Zarr input: multiscale level to read (0 = full resolution, the default).")
 @click.option("--series", metavar="UID", default=None,
               help="DICOM folder with several series: the SeriesInstanceUID to read (an error lists them).")
+@click.option("--index", "with_index", is_flag=True,
+              help="Also build the index beside OUT (NAME.aug.h5 -> NAME.idx.h5), as `isplat index` would.")
 @quiet_option
-def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series):
+def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, with_index):
     """Augment INPUT into 4-byte voxels: density, gradient magnitude, octahedral normal (formats/augmented.md).
 
     INPUT is a .npy array [k,j,i], a .nrrd/.nhdr, a .nii/.nii.gz, a multi-page .tif/.tiff, a folder of
@@ -49,7 +51,11 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
       cat scan.raw | isplat augment - -o scan.aug.h5 --shape 256,256,225 --dtype uint16 --byte-order big
     """
     from ..augment import augment_file  # numba import only when the command runs
+    from ..fileio import check_output
 
+    idx = index_path(out) if with_index else None
+    if idx is not None:
+        check_output(idx, force)  # before any work
     win = window if window else None
     sp = parse_triple(spacing, "--spacing") if spacing else None
     shp = parse_triple(shape, "--shape", int) if shape else None
@@ -61,3 +67,13 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
                  f"{100 * below:.2f}% of voxels below {lo:g}, {100 * above:.2f}% above {hi:g}")
     progress.log(f"isplat augment: wrote {out} (NI,NJ,NK={','.join(map(str, info['shape_ijk']))}, "
                  f"window {lo:g},{hi:g}, gradient scale {info['gradient_magnitude_scale']:g}/code)")
+    if idx is not None:
+        from ..index import build_index_file
+
+        build_index_file(out, idx, force=force)
+        progress.log(f"isplat augment: wrote {idx} (the index, all axes)")
+
+
+def index_path(out: str) -> str:
+    """NAME.aug.h5 -> NAME.idx.h5 (else OUT + .idx.h5)."""
+    return out[: -len(".aug.h5")] + ".idx.h5" if out.endswith(".aug.h5") else out + ".idx.h5"

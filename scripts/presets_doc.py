@@ -88,7 +88,7 @@ def markdown(sizes) -> str:
     lines += ["", "Where a source is 3D Slicer, the values are those of its `presets.xml`; where isplat changed them "
               "the source column says how and why. The window names of `isplat augment --window` (`ct-bone` = "
               "W2000/L300, `ct-soft-tissue` = W400/L40, `ct-lung` = W1500/L-600, `ct-brain` = W80/L40) are the "
-              "common radiology display windows (docs/augment.md).", ""]
+              "common radiology display windows (formats/augmented.md §4).", ""]
     return "\n".join(lines)
 
 

@@ -122,3 +122,26 @@ def test_render_path_to_numbered_frames(tmp_path):
         main(["render", str(scene), "-o", str(tmp_path / "f.png"), "-q"])
     assert e.value.code == 0
     assert sorted(p.name for p in tmp_path.glob("f_*.png")) == ["f_000.png", "f_001.png", "f_002.png"]
+
+
+@pytest.mark.parametrize("ext", [".gif", ".mp4"])
+def test_render_path_to_movie(tmp_path, ext):
+    import imageio.v3 as iio
+
+    from conftest import scene_text, write_volume
+    from isplat.cli.main import main
+
+    if ext == ".mp4":
+        pytest.importorskip("imageio_ffmpeg")
+    d = np.zeros((8, 8, 8), np.uint8)
+    d[2:6, 2:6, 2:6] = 200
+    aug, idx = write_volume(tmp_path, d)
+    scene = tmp_path / "p.toml"
+    scene.write_text(scene_text(aug, idx, transfer="opacity = [[100, 0], [200, 1]]",
+                                image="width = 16\nheight = 16",
+                                views="frames = 4\npath = [{azimuth = 0}, {azimuth = 90, zoom = 2}]"))
+    with pytest.raises(SystemExit) as e:
+        main(["render", str(scene), "-o", str(tmp_path / f"p{ext}"), "-q"])
+    assert e.value.code == 0
+    frames = iio.imread(tmp_path / f"p{ext}", index=None)
+    assert frames.shape[0] == 4

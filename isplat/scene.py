@@ -451,6 +451,7 @@ class _Ctx:
         self.window_from = "the given density window"
         self.aug_source = None         # the augmented file's source attribute, for the re-augment hint
         self.window_used = False
+        self.aug_units = "HU"          # the file's density_units once read (given windows are trusted)
 
     def override_for(self, path: tuple) -> str | None:
         for k in range(len(path), 0, -1):
@@ -811,6 +812,7 @@ def _density_window(ctx: _Ctx, data: Data, path: tuple, value: Any) -> tuple[flo
             ctx.fail(path, value, f"{why}: {exc}")
         ctx.window, ctx.window_from = aug.density_window, data.written
         ctx.aug_source = aug.attrs.get("source")
+        ctx.aug_units = aug.attrs.get("density_units")
     ctx.window_used = True
     return ctx.window
 
@@ -842,6 +844,12 @@ def _preset_points(ctx: _Ctx, data: Data, preset, key: str) -> tuple:
     else:
         window = _density_window(ctx, data, ("transfer", "preset"), preset.name)
         codes = tuple((float(_units.to_code(x, window)), *rest) for x, *rest in points)
+        if ctx.aug_units != "HU" and key == "opacity":
+            from . import progress
+
+            progress.log(f"isplat: warning: {ctx.where(('transfer', 'preset'))}: preset {preset.name} is in "
+                         f"Hounsfield units, but {data.written} does not record Hounsfield data "
+                         f"(its window {window[0]:g}..{window[1]:g} is taken as HU)")
     clipped = _units.clip_points(codes, zero_outside=key == "opacity")
     if not clipped:
         lo, hi = ctx.window

@@ -162,3 +162,64 @@ def test_dicom_several_series(tmp_path, vol):
         read_volume(d, series="1.2.3")
     with pytest.raises(IsplatError, match="--series applies to a DICOM folder only"):
         read_volume(_npy(tmp_path, vol), series=uids[0])
+
+
+def test_ome_zarr_0_5_metadata_under_ome_key(tmp_path, vol):
+    zarr = pytest.importorskip("zarr")
+    g = zarr.open_group(str(tmp_path / "v5.zarr"), mode="w")
+    g.create_array("s0", shape=vol.shape, dtype=vol.dtype)[...] = vol
+    g.attrs["ome"] = {"version": "0.5", "multiscales": [{
+        "axes": [{"name": n, "type": "space"} for n in "zyx"],
+        "datasets": [{"path": "s0", "coordinateTransformations": [{"type": "scale", "scale": [3.0, 2.0, 1.0]}]}]}]}
+    v = read_volume(tmp_path / "v5.zarr")
+    assert np.array_equal(np.asarray(v.array), vol) and v.spacing_ijk == (1.0, 2.0, 3.0)
+
+
+def test_nifti_ct_rescale_marks_hounsfield(tmp_path, vol):
+    nib = pytest.importorskip("nibabel")
+    img = nib.Nifti1Image((vol + 1024).astype(np.uint16).transpose(2, 1, 0), np.eye(4))
+    img.header.set_slope_inter(1.0, -1024.0)
+    nib.save(img, str(tmp_path / "ct.nii.gz"))
+    v = read_volume(tmp_path / "ct.nii.gz")
+    assert v.meta["hounsfield"] and np.allclose(v.array, vol)
+
+
+@pytest.mark.parametrize("name, module, message", [
+    ("v.mha", "SimpleITK", r"reading \.mha/\.mhd needs SimpleITK: pip install 'isplat\[metaimage\]'"),
+    ("v.vti", "vtkmodules", r"reading \.vti needs vtk: pip install 'isplat\[vtk\]'"),
+    ("v.zarr", "zarr", r"reading Zarr / OME-Zarr needs zarr: pip install 'isplat\[zarr\]'"),
+])
+def test_missing_extra_named(tmp_path, monkeypatch, name, module, message):
+    import builtins
+
+    real = builtins.__import__
+
+    def fake(n, *a, **k):
+        if n == module:
+            raise ImportError("no")
+        return real(n, *a, **k)
+
+    p = tmp_path / name
+    if name.endswith(".zarr"):
+        p.mkdir()
+    else:
+        p.write_text("x")
+    monkeypatch.setattr(builtins, "__import__", fake)
+    with pytest.raises(IsplatError, match=message):
+        read_volume(p)
+
+
+def test_cli_series_and_level(capsys, tmp_path, vol):
+    pytest.importorskip("pydicom")
+    from test_cli_augment import _one_error, run
+
+    d, uids = _two_series(tmp_path, vol)
+    code, _, err = run(capsys, "augment", str(d), "-o", str(tmp_path / "s.aug.h5"))
+    _one_error(code, err, "holds 2 DICOM series; choose one with --series UID", uids[0], uids[1])
+    assert not (tmp_path / "s.aug.h5").exists()
+    code, _, err = run(capsys, "augment", str(d), "-o", str(tmp_path / "s.aug.h5"), "--series", uids[0])
+    assert code == 0 and "Hounsfield data (dicom rescale): ct-full" in err
+    p = _ome(tmp_path, vol)
+    code, _, err = run(capsys, "augment", str(p), "-o", str(tmp_path / "z.aug.h5"), "--level", "1", "-q")
+    from isplat.augfile import open_augmented
+    assert code == 0 and open_augmented(tmp_path / "z.aug.h5").shape == vol[::2, ::2, ::2].shape

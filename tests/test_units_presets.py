@@ -148,3 +148,19 @@ def test_presets_command(capsys):
     assert code == 0 and 'units = "data"' in out and "opacity = [[143.556, 0]" in out
     code, _, err = run(capsys, "presets", "nope")
     assert code == 2 and "preset 'nope' unknown" in err
+
+
+def test_hounsfield_preset_on_non_hounsfield_file_warns(tmp_path, capsys):
+    import isplat.progress as progress
+
+    d = np.zeros((2, 2, 2), np.uint8)
+    write_augmented(tmp_path / "v.aug.h5", d, d, np.full(d.shape, 0x8080, np.uint16), (1, 1, 1), (0, 4095), 0.5,
+                    {"density_units": "HU"})
+    progress.set_quiet(False)
+    _scene(tmp_path, 'preset = "ct-bone"')
+    assert capsys.readouterr().err == ""
+    write_augmented(tmp_path / "w.aug.h5", d, d, np.full(d.shape, 0x8080, np.uint16), (1, 1, 1), (0, 4095), 0.5)
+    _scene(tmp_path, 'preset = "ct-bone"', aug="w.aug.h5")
+    err = capsys.readouterr().err
+    assert err == ("isplat: warning: s.toml:6: preset ct-bone is in Hounsfield units, but w.aug.h5 does not record "
+                   "Hounsfield data (its window 0..4095 is taken as HU)\n")

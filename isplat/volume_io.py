@@ -13,6 +13,8 @@ from __future__ import annotations
 import os
 import re
 import sys
+import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -412,12 +414,32 @@ def _read_dicom(files, p, series=None):
 
 # --- MetaImage (.mha/.mhd) through SimpleITK ---------------------------------------------------------------------
 
+@contextmanager
+def _c_stderr_captured():
+    """Capture what C/C++ code writes to file descriptor 2 (ITK's MetaIO prints its parse errors there);
+    yields a list that holds the captured lines afterwards."""
+    lines: list[str] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            lines.extend(x for x in tmp.read().decode("utf-8", "replace").splitlines() if x.strip())
+
+
 def _read_metaimage(p):
     sitk = _need("SimpleITK", "SimpleITK", "metaimage", ".mha/.mhd", p)
     try:
-        img = sitk.ReadImage(str(p))
-    except Exception as exc:  # SimpleITK raises RuntimeError with ITK's multi-line text
-        raise IsplatError(f"{p}: not a readable MetaImage file ({_short(exc)})") from None
+        with _c_stderr_captured() as said:
+            img = sitk.ReadImage(str(p))
+    except Exception as exc:  # SimpleITK raises RuntimeError naming only its own source line; MetaIO said why
+        why = said[0].strip() if said else _short(exc)
+        raise IsplatError(f"{p}: not a readable MetaImage file ({why})") from None
     if img.GetNumberOfComponentsPerPixel() != 1 or img.GetDimension() != 3:
         raise IsplatError(f"{p}: MetaImage has {img.GetDimension()} dimensions and "
                           f"{img.GetNumberOfComponentsPerPixel()} components per voxel; expected a 3-D scalar volume")
@@ -435,9 +457,14 @@ def _read_vti(p):
 
     reader = vtkXMLImageDataReader()
     if not reader.CanReadFile(str(p)):
-        raise IsplatError(f"{p}: not a readable VTK XML image data (.vti) file")
+        raise IsplatError(f"{p}: not a readable VTK image data (.vti) file")
     reader.SetFileName(str(p))
-    reader.Update()
+    with _c_stderr_captured() as said:   # VTK logs its errors on file descriptor 2
+        reader.Update()
+    errors = [re.sub(r"\x1b\[[0-9;]*m", "", x) for x in said if "ERR|" in x]
+    if errors:
+        why = errors[0].split("ERR|", 1)[1].split("): ", 1)[-1].strip()
+        raise IsplatError(f"{p}: not a readable VTK image data (.vti) file ({why})")
     img = reader.GetOutput()
     scalars = img.GetPointData().GetScalars() if img is not None else None
     if scalars is None:

@@ -223,3 +223,25 @@ def test_cli_series_and_level(capsys, tmp_path, vol):
     code, _, err = run(capsys, "augment", str(p), "-o", str(tmp_path / "z.aug.h5"), "--level", "1", "-q")
     from isplat.augfile import open_augmented
     assert code == 0 and open_augmented(tmp_path / "z.aug.h5").shape == vol[::2, ::2, ::2].shape
+
+
+def test_cli_bad_files_one_line(capsys, tmp_path):
+    """Libraries that print their own errors (ITK's MetaIO, VTK's log) still give one line and no output."""
+    from test_cli_augment import _one_error, run
+
+    pytest.importorskip("SimpleITK")
+    pytest.importorskip("vtkmodules")
+    (tmp_path / "bad.mha").write_text("ObjectType = Image\nNDims = 3\n")
+    (tmp_path / "cut.vti").write_text('<?xml version="1.0"?>\n<VTKFile type="ImageData" version="0.1">\n'
+                                      '<ImageData WholeExtent="0 1 0 1 0 1" Origin="0 0 0" Spacing="1 1 1">\n<Pie')
+    (tmp_path / "short.vti").write_text(
+        '<?xml version="1.0"?>\n<VTKFile type="ImageData" version="0.1" byte_order="LittleEndian">\n'
+        '<ImageData WholeExtent="0 1 0 1 0 1" Origin="0 0 0" Spacing="1 1 1">\n<Piece Extent="0 1 0 1 0 1">'
+        '<PointData Scalars="d"><DataArray type="UInt8" Name="d" format="ascii">1 2 3</DataArray></PointData>'
+        '</Piece></ImageData></VTKFile>\n')
+    for name, needle in [("bad.mha", "not a readable MetaImage file (DimSize required and not defined.)"),
+                         ("cut.vti", "not a readable VTK image data (.vti) file (Error parsing XML"),
+                         ("short.vti", "not a readable VTK image data (.vti) file (Error reading extent")]:
+        code, _, err = run(capsys, "augment", str(tmp_path / name), "-o", str(tmp_path / "o.aug.h5"))
+        _one_error(code, err, needle)
+        assert not (tmp_path / "o.aug.h5").exists()

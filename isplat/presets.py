@@ -44,16 +44,17 @@ _MR_DEFAULT_X = (0, 20, 40, 120, 220, 1024)   # Slicer MR-Default points, in MR 
 
 PRESETS = {p.name: p for p in [
     Preset("ct-bone", "CT", "data", "bone and teeth above 200-400 HU, skin and soft tissue transparent",
-           f"{SLICER} CT-Bone colours and plateau opacity; opacity ramp moved by isplat from -16..641 HU to "
+           f"{SLICER} CT-Bone colours (its -3024 HU point, below the opacity, dropped) and plateau opacity; "
+           "opacity ramp moved by isplat from -16..641 HU to "
            "200..400 HU so that soft tissue (below about 100 HU) stays transparent",
            _p([200, 0], [400, 0.715686], [3071, 0.705882]), _SLICER_BONE_COLOR),
     Preset("ct-skin", "CT", "data", "the skin surface (air/tissue boundary near -400 HU), bone transparent",
            "isplat's own: a surface between air (-1000 HU) and skin (0..100 HU), cut off above soft tissue; "
-           f"colours from {SLICER} CT-Muscle",
+           f"colours: {SLICER} CT-Muscle's points from -155 to 420 HU (its -3024 and 3071 HU points dropped)",
            _p([-500, 0], [-300, 0.6], [120, 0.6], [200, 0]), _SLICER_MUSCLE_COLOR),
     Preset("ct-soft-tissue", "CT", "data", "fat, muscle and organs (-160..240 HU) semi-transparent",
            "the soft-tissue display window W400/L40 (-160..240 HU) as the opacity's support, shape isplat's own; "
-           f"colours from {SLICER} CT-Muscle",
+           f"colours: {SLICER} CT-Muscle's points from -155 to 420 HU (its -3024 and 3071 HU points dropped)",
            _p([-160, 0], [-100, 0.03], [30, 0.08], [140, 0.08], [240, 0]), _SLICER_MUSCLE_COLOR),
     Preset("ct-angio", "CT", "data", "contrast-filled vessels (150-400 HU) red-orange, bone white",
            f"{SLICER} CT-AAA, unchanged above 143.556 HU (its -3024 HU point has zero opacity and is dropped)",

@@ -859,19 +859,24 @@ def _preset_points(ctx: _Ctx, data: Data, preset, key: str) -> tuple:
     return clipped
 
 
+def _preset(ctx: _Ctx, t: dict):
+    """The preset named by ``transfer.preset``, or None."""
+    if "preset" not in t:
+        return None
+    from .presets import PRESETS
+
+    name = t["preset"]
+    if not isinstance(name, str) or name not in PRESETS:
+        close = difflib.get_close_matches(str(name), list(PRESETS), n=1, cutoff=0.6)
+        ctx.fail(("transfer", "preset"), name, "expected a preset name (isplat presets lists them): "
+                 + ", ".join(PRESETS) + (f"; did you mean '{close[0]}'?" if close else ""))
+    return PRESETS[name]
+
+
 def _transfer(ctx: _Ctx, tree: dict, data: Data) -> Transfer:
     t = ctx.table(tree, ("transfer",), TRANSFER_KEYS)
     p = ("transfer",)
-    preset = None
-    if "preset" in t:
-        from .presets import PRESETS
-
-        name = t["preset"]
-        if not isinstance(name, str) or name not in PRESETS:
-            close = difflib.get_close_matches(str(name), list(PRESETS), n=1, cutoff=0.6)
-            ctx.fail(p + ("preset",), name, "expected a preset name (isplat presets lists them): "
-                     + ", ".join(PRESETS) + (f"; did you mean '{close[0]}'?" if close else ""))
-        preset = PRESETS[name]
+    preset = _preset(ctx, t)
     units = ctx.choice(p + ("units",), t.get("units", "data" if preset else "code"), ("code", "data"))
     if "opacity" not in t and preset is None:
         ctx.missing(p + ("opacity",))

@@ -171,13 +171,14 @@ def _raise_nonfinite(name, arr, k0, flat):
                       "(no NaN or Inf)")
 
 
-def robust_window(arr, name="input") -> tuple[float, float]:
+def robust_window(arr, name="input", sub=None) -> tuple[float, float]:
     """Default window: the 0.1 and 99.9 percentiles (numpy 'linear') of ``arr[::sk, ::sj, ::si]``.
 
     ``s = ceil(n / 64)`` per axis (at most 64^3 samples, deterministic). If they are equal, the subsample's
-    min and max; if still equal, the whole volume's min and max; a constant volume has no window.
+    min and max; if still equal, the whole volume's min and max; a constant volume has no window. ``sub`` is
+    that subsample when the caller already has it.
     """
-    sub = _subsample(arr, name)
+    sub = _subsample(arr, name) if sub is None else sub
     lo, hi = (float(x) for x in np.percentile(sub, WINDOW_PERCENTILES))
     if lo == hi:
         lo, hi = float(sub.min()), float(sub.max())
@@ -197,7 +198,7 @@ def robust_window(arr, name="input") -> tuple[float, float]:
 
 # Named windows (LO, HI) in Hounsfield units. ct-full is the 12-bit range CT scanners store (-1024..3071); the others
 # are the common radiology display windows written as width/level: W2000/L300 bone, W400/L40 soft tissue,
-# W1500/L-600 lung, W80/L40 brain (docs/augment.md).
+# W1500/L-600 lung, W80/L40 brain (formats/augmented.md §4).
 NAMED_WINDOWS = {
     "ct-full": (-1024.0, 3071.0),
     "ct-bone": (-700.0, 1300.0),
@@ -264,10 +265,11 @@ def resolve_window(window, arr, meta=None, name="input") -> tuple[tuple[float, f
         lo, hi = NAMED_WINDOWS[window]
         return (lo, hi), f"named {window}"
     if window is None:
-        why = looks_hounsfield(_subsample(arr, name), meta or {})
+        sub = _subsample(arr, name)   # read once: a lazy (Zarr) input touches every chunk for it
+        why = looks_hounsfield(sub, meta or {})
         if why:
             return NAMED_WINDOWS[HOUNSFIELD_DEFAULT], f"Hounsfield data ({why}): {HOUNSFIELD_DEFAULT}"
-        return robust_window(arr, name), "robust 0.1/99.9 percentiles"
+        return robust_window(arr, name, sub), "robust 0.1/99.9 percentiles"
     ends = list(window)
     if any(isinstance(e, tuple) for e in ends) and len(ends) == 2:
         sub = _subsample(arr, name)

@@ -144,6 +144,7 @@ class Scene:
     cuts: tuple[Cut, ...]
     render: RenderOptions
     views: tuple[Camera, ...]
+    fps: float = 12.0            # frames per second of a GIF or MP4 of the views
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -166,7 +167,7 @@ LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
                "precision", "threads")
-VIEWS_KEYS = ("orbit_steps", "list", "path", "frames")
+VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
 DEFAULT_PATH_FRAMES = 60
 
 DEFAULT_LIGHT_DIRECTION = (-0.4, 0.6, 1.0)
@@ -1136,7 +1137,9 @@ def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: It
     transfer = _transfer(ctx, tree, data)
     shading = _shading(ctx, tree)
     cuts = _cuts(ctx, tree)
-    return Scene(None, data, image, volume, camera, transfer, shading, cuts, render, views)
+    fps = ctx.number(("views", "fps"), ctx.table(tree, ("views",), VIEWS_KEYS).get("fps", 12.0),
+                     "expected frames per second, 0 < fps <= 100", lo=0.0, hi=100.0, lo_open=True)
+    return Scene(None, data, image, volume, camera, transfer, shading, cuts, render, views, fps)
 
 
 def scene_to_dict(scene: Scene, relative_to: Path | str | None = None) -> dict:

@@ -139,9 +139,11 @@ def test_render_path_to_movie(tmp_path, ext):
     scene = tmp_path / "p.toml"
     scene.write_text(scene_text(aug, idx, transfer="opacity = [[100, 0], [200, 1]]",
                                 image="width = 16\nheight = 16",
-                                views="frames = 4\npath = [{azimuth = 0}, {azimuth = 90, zoom = 2}]"))
+                                views="frames = 4\nfps = 8\npath = [{azimuth = 0}, {azimuth = 90, zoom = 2}]"))
     with pytest.raises(SystemExit) as e:
         main(["render", str(scene), "-o", str(tmp_path / f"p{ext}"), "-q"])
     assert e.value.code == 0
     frames = iio.imread(tmp_path / f"p{ext}", index=None)
     assert frames.shape[0] == 4
+    meta = iio.immeta(tmp_path / f"p{ext}")
+    assert abs(meta["duration"] - 125) <= 10 if ext == ".gif" else meta["fps"] == 8   # GIF: centiseconds

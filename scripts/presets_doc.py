@@ -85,7 +85,10 @@ def markdown(sizes) -> str:
         unit = "HU" if p.units == "data" else "codes"
         lines.append(f"| `{p.name}` | {p.summary} | {SAMPLE[p.name]} | {unit}:<br>{_rows(p.opacity, scale)} | "
                      f"{_rows(p.color, scale)} | {p.source} | ![](img/preset-{p.name}.png) |")
-    lines += ["", "Where a source is 3D Slicer, the values are those of its `presets.xml`; where isplat changed them "
+    lines += ["", "A preset sets `[transfer]` only (Slicer's presets also carry shading coefficients; the scene's "
+              "`[shading]` applies here). tests/test_units_presets.py checks, voxel by voxel on these samples, that "
+              "each preset gives its material opacity and leaves the others at zero, and renders each one.", "",
+              "Where a source is 3D Slicer, the values are those of its `presets.xml`; where isplat changed them "
               "the source column says how and why. The window names of `isplat augment --window` (`ct-bone` = "
               "W2000/L300, `ct-soft-tissue` = W400/L40, `ct-lung` = W1500/L-600, `ct-brain` = W80/L40) are the "
               "common radiology display windows (formats/augmented.md §4).", ""]

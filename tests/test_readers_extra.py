@@ -245,3 +245,16 @@ def test_cli_bad_files_one_line(capsys, tmp_path):
         code, _, err = run(capsys, "augment", str(tmp_path / name), "-o", str(tmp_path / "o.aug.h5"))
         _one_error(code, err, needle)
         assert not (tmp_path / "o.aug.h5").exists()
+
+
+def test_ome_zarr_0_4_in_zarr_format_2(tmp_path, vol):
+    """OME-NGFF 0.4 stores are Zarr format 2 (.zgroup, .zattrs, .zarray), as most existing data."""
+    zarr = pytest.importorskip("zarr")
+    g = zarr.open_group(str(tmp_path / "v2.zarr"), mode="w", zarr_format=2)
+    g.create_array("0", shape=vol.shape, chunks=(1,) + vol.shape[1:], dtype=vol.dtype)[...] = vol
+    g.attrs["multiscales"] = [{"version": "0.4", "axes": [{"name": n, "type": "space"} for n in "zyx"],
+                               "datasets": [{"path": "0", "coordinateTransformations": [
+                                   {"type": "scale", "scale": [2.0, 0.7, 0.5]}]}]}]
+    assert (tmp_path / "v2.zarr" / ".zgroup").exists()
+    v = read_volume(tmp_path / "v2.zarr")
+    assert np.array_equal(v.array[1:4], vol[1:4]) and v.spacing_ijk == (0.5, 0.7, 2.0)

@@ -6,7 +6,7 @@ ISPLAT := $(BIN)/isplat
 OUT    ?= out
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench bench-check wheel-check data paper-table bench-peers clean venv readme-images
+.PHONY: demo test bench bench-check wheel-check data paper-table bench-peers clean venv readme-images presets-doc
 
 venv: $(STAMP)
 
@@ -53,3 +53,7 @@ bench-peers: $(STAMP)
 # The README's pictures: make demo, then 256-pixel copies of its images into docs/img/.
 readme-images: demo
 	$(BIN)/python scripts/readme_images.py $(OUT) docs/img
+
+# docs/presets.md and docs/img/preset-*.png: every transfer-function preset on a synthetic scan.
+presets-doc: $(STAMP)
+	$(BIN)/python scripts/presets_doc.py $(OUT)/presets docs

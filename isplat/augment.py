@@ -175,19 +175,14 @@ def _raise_nonfinite(name, arr, k0, flat):
                       "(no NaN or Inf)")
 
 
-def robust_window(arr, name="input") -> tuple[float, float]:
+def robust_window(arr, name="input", sub=None) -> tuple[float, float]:
     """Default window: the 0.1 and 99.9 percentiles (numpy 'linear') of ``arr[::sk, ::sj, ::si]``.
 
     ``s = ceil(n / 64)`` per axis (at most 64^3 samples, deterministic). If they are equal, the subsample's
-    min and max; if still equal, the whole volume's min and max; a constant volume has no window.
+    min and max; if still equal, the whole volume's min and max; a constant volume has no window. ``sub`` is
+    that subsample when the caller already has it.
     """
-    steps = [max(1, -(-n // SUBSAMPLE_PER_AXIS)) for n in arr.shape]
-    sub = np.asarray(arr[::steps[0], ::steps[1], ::steps[2]], dtype=np.float64)
-    bad = np.flatnonzero(~np.isfinite(sub))
-    if bad.size:
-        kk, jj, ii = np.unravel_index(bad[0], sub.shape)
-        raise IsplatError(f"{name}: value {sub[kk, jj, ii]} at voxel (i={ii * steps[2]}, j={jj * steps[1]}, "
-                          f"k={kk * steps[0]}); expected finite numbers (no NaN or Inf)")
+    sub = _subsample(arr, name) if sub is None else sub
     lo, hi = (float(x) for x in np.percentile(sub, WINDOW_PERCENTILES))
     if lo == hi:
         lo, hi = float(sub.min()), float(sub.max())
@@ -205,13 +200,96 @@ def robust_window(arr, name="input") -> tuple[float, float]:
     return lo, hi
 
 
-def check_window(window, name="input") -> tuple[float, float]:
+# Named windows (LO, HI) in Hounsfield units. ct-full is the 12-bit range CT scanners store (-1024..3071); the others
+# are the common radiology display windows written as width/level: W2000/L300 bone, W400/L40 soft tissue,
+# W1500/L-600 lung, W80/L40 brain (formats/augmented.md §4).
+NAMED_WINDOWS = {
+    "ct-full": (-1024.0, 3071.0),
+    "ct-bone": (-700.0, 1300.0),
+    "ct-soft-tissue": (-160.0, 240.0),
+    "ct-lung": (-1350.0, 150.0),
+    "ct-brain": (0.0, 80.0),
+}
+HOUNSFIELD_PADDING = (-1024.0, -2048.0, -3024.0)   # values scanners write outside the field of view
+HOUNSFIELD_DEFAULT = "ct-full"                     # keeps bone (< ~2000 HU) below metal (> 3000 HU)
+
+
+def _subsample(arr, name):
+    steps = [max(1, -(-n // SUBSAMPLE_PER_AXIS)) for n in arr.shape]
+    sub = np.asarray(arr[::steps[0], ::steps[1], ::steps[2]], dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(sub))
+    if bad.size:
+        kk, jj, ii = np.unravel_index(bad[0], sub.shape)
+        raise IsplatError(f"{name}: value {sub[kk, jj, ii]} at voxel (i={ii * steps[2]}, j={jj * steps[1]}, "
+                          f"k={kk * steps[0]}); expected finite numbers (no NaN or Inf)")
+    return sub
+
+
+def looks_hounsfield(sub, meta) -> str | None:
+    """Why the data are taken as Hounsfield units (the file says so, or air / padding at -1024 or -2048), or None."""
+    if meta.get("hounsfield"):
+        return f"{meta.get('format', 'file')} rescale"
+    lo, hi = float(sub.min()), float(sub.max())
+    if hi > 0 and (lo in HOUNSFIELD_PADDING or -1100.0 <= lo <= -950.0):
+        return f"values start at {lo:g}"
+    return None
+
+
+def parse_window(text: str, name="input"):
+    """``--window`` text: a name of :data:`NAMED_WINDOWS`, or ``LO,HI`` where each end is a number or ``pX``
+    (the X-th percentile). Returns ``(lo, hi)`` with floats or ``("p", X)`` ends, or a window name."""
+    t = str(text).strip()
+    if t in NAMED_WINDOWS:
+        return t
+    parts = [x.strip() for x in t.split(",")]
+    expected = (f"expected LO,HI (numbers or percentiles such as p0.5,p99.9) or a name: "
+                f"{', '.join(NAMED_WINDOWS)}")
+    if len(parts) != 2:
+        raise IsplatError(f"{name}: --window {t!r} invalid; {expected}")
+    ends = []
+    for x in parts:
+        try:
+            ends.append(("p", float(x[1:])) if x[:1].lower() == "p" else float(x))
+        except ValueError:
+            raise IsplatError(f"{name}: --window {t!r} invalid; {expected}") from None
+        if isinstance(ends[-1], tuple) and not 0.0 <= ends[-1][1] <= 100.0:
+            raise IsplatError(f"{name}: --window {t!r}: percentile {x} outside p0..p100")
+    return tuple(ends)
+
+
+def resolve_window(window, arr, meta=None, name="input") -> tuple[tuple[float, float], str]:
+    """The density window for ``arr`` and how it was chosen.
+
+    ``window`` is None (default: ``ct-full`` for Hounsfield data, else :func:`robust_window`), a name, a
+    ``--window`` string, or a pair whose ends are numbers or ``("p", X)`` percentiles of the subsample.
+    """
+    if isinstance(window, str):
+        window = parse_window(window, name)
+    if isinstance(window, str):
+        lo, hi = NAMED_WINDOWS[window]
+        return (lo, hi), f"named {window}"
+    if window is None:
+        sub = _subsample(arr, name)   # read once: a lazy (Zarr) input touches every chunk for it
+        why = looks_hounsfield(sub, meta or {})
+        if why:
+            return NAMED_WINDOWS[HOUNSFIELD_DEFAULT], f"Hounsfield data ({why}): {HOUNSFIELD_DEFAULT}"
+        return robust_window(arr, name, sub), "robust 0.1/99.9 percentiles"
+    ends = list(window)
+    if any(isinstance(e, tuple) for e in ends) and len(ends) == 2:
+        sub = _subsample(arr, name)
+        ends = [float(np.percentile(sub, e[1])) if isinstance(e, tuple) else e for e in ends]
+        text = "/".join(f"p{e[1]:g}" if isinstance(e, tuple) else f"{e:g}" for e in window)
+        return check_window(ends, name, f"{text} -> "), f"percentiles {text}"
+    return check_window(ends, name), "given"
+
+
+def check_window(window, name="input", prefix="") -> tuple[float, float]:
     try:
         lo, hi = (float(x) for x in window)
     except (TypeError, ValueError):
         raise IsplatError(f"{name}: --window {window!r} invalid; expected LO,HI") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-        raise IsplatError(f"{name}: --window {lo:g},{hi:g} invalid; expected finite LO < HI")
+        raise IsplatError(f"{name}: --window {prefix}{lo:g},{hi:g} invalid; expected finite LO < HI")
     return lo, hi
 
 
@@ -240,17 +318,32 @@ class _Slabber:
             _raise_nonfinite(self.name, self.arr, e0, bad)
         g = np.empty((3, k1 - k0, self.nj, self.ni), dtype=np.float32)
         _gradient_kernel(t, k0 - e0, k1 - k0, k0, self.nk, self.si, self.sj, self.sk, g)
+        self.last_clipped = _count_clipped(x[k0 - e0:k1 - e0], self.lo, self.hi)
         return d[k0 - e0:k1 - e0], g
 
 
+@numba.njit(cache=True)
+def _count_clipped(x, lo, hi):
+    below = above = 0
+    for v in x.ravel():
+        if v < lo:
+            below += 1
+        elif v > hi:
+            above += 1
+    return below, above
+
+
 def _first_pass(sl: _Slabber, bar):
-    """Max gradient magnitude and the density hash (augfile.density_sha256 semantics, slab by slab)."""
+    """Max gradient magnitude and the density hash (augfile.density_sha256 semantics, slab by slab); counts the
+    voxels below and above the window into ``sl.clipped``."""
     h = hashlib.sha256(np.asarray(sl.arr.shape, dtype="<i8").tobytes())
     gmax = 0.0
+    sl.clipped = [0, 0]
     for k0, k1 in sl.ranges:
         d, g = sl.slab(k0, k1)
         h.update(np.ascontiguousarray(d).tobytes())
         gmax = max(gmax, float(_magnitude_max(g)))
+        sl.clipped = [a + b for a, b in zip(sl.clipped, sl.last_clipped)]
         bar.update(1)
     return gmax, h.hexdigest()
 
@@ -272,8 +365,15 @@ def _prepare(vol: Volume, window, name):
         raise IsplatError(f"{name}: data has shape {arr.shape}; expected a 3-D volume [k, j, i]")
     if arr.dtype.kind not in "uif":
         raise IsplatError(f"{name}: data type {arr.dtype} is not supported; expected integers or floats")
-    win = check_window(window, name) if window is not None else robust_window(arr, name)
-    return _Slabber(arr, vol.spacing_ijk, win, name)
+    win, method = resolve_window(window, arr, vol.meta, name)
+    sl = _Slabber(arr, vol.spacing_ijk, win, name)
+    sl.method = method
+    return sl
+
+
+def _clipped_shares(sl: _Slabber) -> tuple[float, float]:
+    n = max(1, sl.nk * sl.nj * sl.ni)
+    return sl.clipped[0] / n, sl.clipped[1] / n
 
 
 def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None) -> dict:
@@ -289,29 +389,33 @@ def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None) -> dict:
             out["gradient_magnitude"][k0:k1] = mag
             out["normal"][k0:k1] = nrm
     out.update(spacing_ijk=(sl.si, sl.sj, sl.sk), density_window=(sl.lo, sl.hi),
-               gradient_magnitude_scale=gmax / 255.0, density_sha256=sha)
+               gradient_magnitude_scale=gmax / 255.0, density_sha256=sha, density_window_method=sl.method,
+               clipped=_clipped_shares(sl))
     return out
 
 
 def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, dtype=None,
-                 byte_order="little", header_bytes=0) -> dict:
+                 byte_order="little", header_bytes=0, level=None, series=None) -> dict:
     """Augment the volume at ``inp`` (see :func:`isplat.volume_io.read_volume`) into ``out`` atomically.
 
     Returns a summary dict (shape, window, gradient scale, sha256).
     """
     check_output(out, force)  # fail before any work
     vol = read_volume(inp, shape=shape, dtype=dtype, byte_order=byte_order, header_bytes=header_bytes,
-                      spacing=spacing)
+                      spacing=spacing, level=level, series=series)
     name = str(inp)
     sl = _prepare(vol, window, name)
     extra = {"source": name, "source_format": vol.meta.get("format", "unknown"),
              "source_dtype": str(vol.meta.get("source_dtype", vol.array.dtype.name)),
-             "density_window_method": "given" if window is not None else "robust 0.1/99.9 percentiles"}
+             "density_window_method": sl.method}
+    if sl.method.startswith("Hounsfield") or vol.meta.get("hounsfield"):
+        extra["density_units"] = "HU"
     log.debug(f"isplat augment: read {name} ({extra['source_format']}, {extra['source_dtype']}, NI,NJ,NK="
               f"{','.join(map(str, vol.array.shape[::-1]))}); window {sl.lo:g},{sl.hi:g} "
-              f"({extra['density_window_method']}); {len(sl.ranges)} slabs")
+              f"({sl.method}); {len(sl.ranges)} slabs")
     with progress.bar(total=2 * len(sl.ranges), desc="augment", unit="slab") as bar:
         gmax, sha = _first_pass(sl, bar)
+        extra["density_clipped_fraction"] = np.asarray(_clipped_shares(sl), dtype="<f8")
         with atomic_output(out, force) as tmp:
             with h5py.File(tmp, "w") as f:
                 create_augmented(f, vol.array.shape, (sl.si, sl.sj, sl.sk), (sl.lo, sl.hi), gmax / 255.0,
@@ -321,4 +425,5 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
                     f["gradient_magnitude"][k0:k1] = mag
                     f["normal"][k0:k1] = nrm
     return {"shape_ijk": tuple(reversed(vol.array.shape)), "spacing_ijk": (sl.si, sl.sj, sl.sk),
-            "density_window": (sl.lo, sl.hi), "gradient_magnitude_scale": gmax / 255.0, "density_sha256": sha}
+            "density_window": (sl.lo, sl.hi), "gradient_magnitude_scale": gmax / 255.0, "density_sha256": sha,
+            "density_window_method": sl.method, "clipped": _clipped_shares(sl)}

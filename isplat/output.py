@@ -51,7 +51,7 @@ def check_format(out: str, batch: bool) -> str:
         try:
             import imageio_ffmpeg  # noqa: F401
         except ImportError:
-            raise IsplatError(f"{out}: writing .mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg); "
+            raise IsplatError(f"{out}: writing .mp4 needs imageio-ffmpeg: pip install 'isplat[mp4]'; "
                               "or write .gif or numbered .png frames") from None
     return ext
 
@@ -95,8 +95,8 @@ def write_movie(out: str, frames: list[np.ndarray], force: bool, fps: float = 12
     with atomic_output(out, force) as tmp:
         if ext == ".gif":
             iio.imwrite(tmp, np.stack(px), extension=".gif", duration=1000.0 / fps, loop=0)
-        else:
-            iio.imwrite(tmp, np.stack(px), extension=".mp4", fps=fps)
+        else:  # the temporary name does not end in .mp4, so ffmpeg is told the container
+            iio.imwrite(tmp, np.stack(px), extension=".mp4", fps=fps, output_params=["-f", "mp4"])
 
 
 def check_outputs(paths, force: bool) -> None:

@@ -28,10 +28,13 @@ DEFAULT_SHAPES = {  # (n_i, n_j, n_k), as the paper quotes sizes
     "marschner-lobb": (41, 41, 41),
     "sphere": (32, 32, 32),
     "two-density-cube": (32, 32, 32),
+    "ct-head": (256, 256, 225),
+    "ct-chest": (256, 192, 160),
+    "mr-head": (256, 256, 225),
 }
 NAMES = tuple(DEFAULT_SHAPES)
 DTYPES = {"head": "uint16", "engine": "uint8", "marschner-lobb": "float32", "sphere": "float32",
-          "two-density-cube": "uint8"}
+          "two-density-cube": "uint8", "ct-head": "int16", "ct-chest": "int16", "mr-head": "uint16"}
 
 
 @jit(parallel=True)
@@ -142,30 +145,96 @@ def _add_noise(vol, sigma, seed, lo, hi):
 AIR, CSF, BRAIN, EYE, SOFT, BONE, TOOTH = 0.0, 1030.0, 1060.0, 1040.0, 1100.0, 2200.0, 2600.0
 
 
+# the head's primitives: (kind, centre (i, j, k), half sizes or (radius, half length), axis, value); the face is
+# at -j, the top at +k
+_HEAD_ITEMS = [
+    (CYLINDER, (0.0, 0.05, -0.85), (0.42, 0.25), 2, SOFT),            # neck
+    (ELLIPSOID, (0.0, 0.0, 0.05), (0.72, 0.90, 0.88), 0, SOFT),        # scalp / skin
+    (ELLIPSOID, (0.0, 0.0, 0.07), (0.67, 0.85, 0.83), 0, BONE),        # skull, outer table
+    (ELLIPSOID, (0.0, 0.0, 0.09), (0.60, 0.78, 0.76), 0, BRAIN),       # brain (inside the skull)
+    (ELLIPSOID, (-0.11, 0.02, 0.18), (0.07, 0.22, 0.12), 0, CSF),      # lateral ventricles
+    (ELLIPSOID, (0.11, 0.02, 0.18), (0.07, 0.22, 0.12), 0, CSF),
+    (ELLIPSOID, (0.0, 0.12, 0.02), (0.03, 0.06, 0.05), 0, CSF),        # third ventricle
+    (ELLIPSOID, (0.0, -0.35, 0.25), (0.05, 0.04, 0.05), 0, 1075.0),    # small lesion-like blob
+    (CYLINDER, (0.0, 0.25, -0.62), (0.09, 0.22), 2, BONE),            # cervical spine
+    (CYLINDER, (0.0, 0.25, -0.62), (0.04, 0.23), 2, CSF),             # spinal canal
+    (ELLIPSOID, (0.0, -0.62, -0.55), (0.40, 0.22, 0.10), 0, BONE),     # jaw
+    (ELLIPSOID, (0.0, -0.66, -0.48), (0.30, 0.14, 0.05), 0, TOOTH),    # teeth
+    (ELLIPSOID, (-0.27, -0.72, -0.12), (0.11, 0.11, 0.10), 0, EYE),    # eyes
+    (ELLIPSOID, (0.27, -0.72, -0.12), (0.11, 0.11, 0.10), 0, EYE),
+    (ELLIPSOID, (0.0, -0.70, -0.28), (0.10, 0.10, 0.10), 0, AIR),      # nasal cavity
+    (ELLIPSOID, (-0.62, 0.05, -0.20), (0.05, 0.05, 0.05), 0, AIR),     # ear canals
+    (ELLIPSOID, (0.62, 0.05, -0.20), (0.05, 0.05, 0.05), 0, AIR),
+]
+
+
 def _head(shape, seed):
-    E, C, B = ELLIPSOID, CYLINDER, BOX
-    # (kind, centre (i, j, k), half sizes or (radius, half length), axis, value); the face is at -j, the top at +k
-    items = [
-        (C, (0.0, 0.05, -0.85), (0.42, 0.25), 2, SOFT),            # neck
-        (E, (0.0, 0.0, 0.05), (0.72, 0.90, 0.88), 0, SOFT),        # scalp / skin
-        (E, (0.0, 0.0, 0.07), (0.67, 0.85, 0.83), 0, BONE),        # skull, outer table
-        (E, (0.0, 0.0, 0.09), (0.60, 0.78, 0.76), 0, BRAIN),       # brain (inside the skull)
-        (E, (-0.11, 0.02, 0.18), (0.07, 0.22, 0.12), 0, CSF),      # lateral ventricles
-        (E, (0.11, 0.02, 0.18), (0.07, 0.22, 0.12), 0, CSF),
-        (E, (0.0, 0.12, 0.02), (0.03, 0.06, 0.05), 0, CSF),        # third ventricle
-        (E, (0.0, -0.35, 0.25), (0.05, 0.04, 0.05), 0, 1075.0),    # small lesion-like blob
-        (C, (0.0, 0.25, -0.62), (0.09, 0.22), 2, BONE),            # cervical spine
-        (C, (0.0, 0.25, -0.62), (0.04, 0.23), 2, CSF),             # spinal canal
-        (E, (0.0, -0.62, -0.55), (0.40, 0.22, 0.10), 0, BONE),     # jaw
-        (E, (0.0, -0.66, -0.48), (0.30, 0.14, 0.05), 0, TOOTH),    # teeth
-        (E, (-0.27, -0.72, -0.12), (0.11, 0.11, 0.10), 0, EYE),    # eyes
-        (E, (0.27, -0.72, -0.12), (0.11, 0.11, 0.10), 0, EYE),
-        (E, (0.0, -0.70, -0.28), (0.10, 0.10, 0.10), 0, AIR),      # nasal cavity
-        (E, (-0.62, 0.05, -0.20), (0.05, 0.05, 0.05), 0, AIR),     # ear canals
-        (E, (0.62, 0.05, -0.20), (0.05, 0.05, 0.05), 0, AIR),
-    ]
-    vol = _painted(shape, AIR, items)
+    vol = _painted(shape, AIR, _HEAD_ITEMS)
     _add_noise(vol, 3.0, seed, 0.0, 65535.0)
+    np.rint(vol, out=vol)
+    return vol.astype(np.uint16), (1.0, 1.0, 1.0)
+
+
+# Hounsfield units of the CT samples (typical published values, rounded)
+HU = {"air": -1000.0, "lung": -850.0, "fat": -100.0, "csf": 10.0, "brain": 35.0, "soft": 45.0, "blood": 50.0,
+      "contrast": 350.0, "bone": 1200.0, "tooth": 1800.0, "metal": 3000.0}
+
+
+def _head_hu_items():
+    """The head sample's primitives in Hounsfield units, plus contrast-filled carotids and a metal filling."""
+    E, C = ELLIPSOID, CYLINDER
+    to_hu = {AIR: HU["air"], CSF: HU["csf"], BRAIN: HU["brain"], EYE: HU["csf"], SOFT: HU["soft"],
+             BONE: HU["bone"], TOOTH: HU["tooth"], 1075.0: HU["blood"]}
+    items = [(kind, c, h, axis, to_hu[val]) for kind, c, h, axis, val in _HEAD_ITEMS]
+    items += [
+        (C, (-0.20, -0.05, -0.80), (0.045, 0.22), 2, HU["contrast"]),   # carotid arteries, with contrast
+        (C, (0.20, -0.05, -0.80), (0.045, 0.22), 2, HU["contrast"]),
+        (E, (0.12, -0.74, -0.47), (0.04, 0.03, 0.03), 0, HU["metal"]),  # a metal dental filling
+    ]
+    return items
+
+
+def _ct_head(shape, seed):
+    """The head in Hounsfield units (int16): air -1000 with noise, clipped at the scanner's -1024."""
+    vol = _painted(shape, HU["air"], _head_hu_items())
+    _add_noise(vol, 5.0, seed, -1024.0, 3071.0)
+    np.rint(vol, out=vol)
+    return vol.astype(np.int16), (1.0, 1.0, 1.0)
+
+
+def _ct_chest(shape, seed):
+    """A chest CT in Hounsfield units: fat and muscle wall, two lungs, heart, contrast-filled aorta, spine."""
+    E, C = ELLIPSOID, CYLINDER
+    items = [
+        (C, (0.0, 0.0, 0.0), (0.90, 1.0), 2, HU["fat"]),                 # body (subcutaneous fat)
+        (C, (0.0, 0.0, 0.0), (0.82, 1.0), 2, HU["soft"]),                # chest wall muscle
+        (E, (-0.40, 0.0, 0.05), (0.33, 0.55, 0.85), 0, HU["lung"]),      # lungs
+        (E, (0.40, 0.0, 0.05), (0.33, 0.55, 0.85), 0, HU["lung"]),
+        (E, (0.05, -0.25, -0.15), (0.22, 0.30, 0.35), 0, HU["blood"]),   # heart (unenhanced wall)
+        (C, (0.05, 0.30, 0.0), (0.07, 1.0), 2, HU["contrast"]),          # descending aorta with contrast
+        (C, (0.0, 0.58, 0.0), (0.18, 1.0), 2, HU["bone"]),               # spine
+        (C, (0.0, 0.58, 0.0), (0.06, 1.0), 2, HU["csf"]),                # spinal canal
+    ]
+    vol = _painted(shape, HU["air"], items)
+    _add_noise(vol, 8.0, seed, -1024.0, 3071.0)
+    np.rint(vol, out=vol)
+    return vol.astype(np.int16), (1.0, 1.0, 1.5)
+
+
+# T1-weighted MRI signal (arbitrary scanner units): fat brightest, white matter > grey matter, CSF and bone dark
+T1 = {"background": 0.0, "scalp": 900.0, "bone": 60.0, "csf": 120.0, "grey": 420.0, "white": 620.0, "eye": 150.0}
+
+
+def _mr_head(shape, seed):
+    """A T1 MRI head: the head sample's geometry with T1 signal, white matter inside grey, noise on top."""
+    E = ELLIPSOID
+    to_t1 = {AIR: T1["background"], CSF: T1["csf"], BRAIN: T1["grey"], EYE: T1["eye"], SOFT: T1["scalp"],
+             BONE: T1["bone"], TOOTH: T1["bone"], 1075.0: T1["grey"]}
+    items = [(kind, c, h, axis, to_t1[val]) for kind, c, h, axis, val in _HEAD_ITEMS]
+    items.insert(4, (E, (0.0, 0.0, 0.12), (0.45, 0.60, 0.55), 0, T1["white"]))   # white matter
+    vol = _painted(shape, T1["background"], items)
+    _add_noise(vol, 5.0, seed, -1e9, 1e9)
+    np.abs(vol, out=vol)                       # magnitude images: Rician-like background
     np.rint(vol, out=vol)
     return vol.astype(np.uint16), (1.0, 1.0, 1.0)
 
@@ -251,6 +320,8 @@ def make_sample(name: str, shape=None, seed: int = 0, dtype: str | None = None):
         return _engine(shape, seed)
     if name == "marschner-lobb":
         return _marschner_lobb(shape)
+    if name in ("ct-head", "ct-chest", "mr-head"):
+        return {"ct-head": _ct_head, "ct-chest": _ct_chest, "mr-head": _mr_head}[name](shape, seed)
     if name == "sphere":
         return _sphere(shape, dtype or "float32"), (1.0, 1.0, 1.0)
     return _two_density_cube(shape, dtype or "uint8"), (1.0, 1.0, 1.0)

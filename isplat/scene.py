@@ -12,6 +12,7 @@ key (and each array element) starts. When it cannot place a key, the message lea
 from __future__ import annotations
 
 import difflib
+import logging
 import math
 import os
 import re
@@ -20,6 +21,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable
 
+from . import units as _units
 from .errors import IsplatError
 
 __all__ = [
@@ -39,6 +41,11 @@ Vec3 = tuple[float, float, float]
 class Data:
     augmented: Path | None       # None: a scene for a volume in memory (parse_scene(data_required=False))
     index: Path | None
+
+    @property
+    def written(self) -> str:
+        """The augmented path for messages: as written in the scene (set by the reader), else resolved."""
+        return self.__dict__.get("_written", str(self.augmented))
 
 
 @dataclass(frozen=True)
@@ -79,10 +86,16 @@ class Camera:
 
 @dataclass(frozen=True)
 class Transfer:
+    """Always in density codes (0..255) for the renderer; ``units``, ``preset`` and ``density_window`` record
+    what the scene said and the window its data-unit points were converted through (None for codes only)."""
+
     opacity: tuple[tuple[float, float], ...]
     color: tuple[tuple[float, float, float, float], ...]
     gradient_opacity: tuple[tuple[float, float], ...]
     unit_distance: float
+    units: str = "code"
+    preset: str | None = None
+    density_window: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -132,6 +145,7 @@ class Scene:
     cuts: tuple[Cut, ...]
     render: RenderOptions
     views: tuple[Camera, ...]
+    fps: float = 12.0            # frames per second of a GIF or MP4 of the views
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -148,13 +162,14 @@ CAMERA_MODE_KEYS = {
     "paper": ("reference_point", "view_up", "view_plane_normal", "eye"),
 }
 CAMERA_KEYS = CAMERA_COMMON_KEYS + tuple(k for keys in CAMERA_MODE_KEYS.values() for k in keys)
-TRANSFER_KEYS = ("opacity", "color", "gradient_opacity", "unit_distance")
+TRANSFER_KEYS = ("opacity", "color", "gradient_opacity", "unit_distance", "units", "preset")
 SHADING_KEYS = ("enabled", "ambient", "diffuse", "specular", "shininess", "two_sided", "light")
 LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
                "precision", "threads")
-VIEWS_KEYS = ("orbit_steps", "list")
+VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
+DEFAULT_PATH_FRAMES = 60
 
 DEFAULT_LIGHT_DIRECTION = (-0.4, 0.6, 1.0)
 ORTHONORMAL_TOLERANCE = 1e-3
@@ -428,11 +443,17 @@ def _kind(value: Any) -> str:
 # Validation context
 
 class _Ctx:
-    def __init__(self, source: str, text: str, base_dir: Path, set_args: dict[tuple, str]):
+    def __init__(self, source: str, text: str, base_dir: Path, set_args: dict[tuple, str],
+                 density_window: tuple[float, float] | None = None):
         self.source = source
         self.loc = locate_keys(text)
         self.base_dir = base_dir
         self.set_args = set_args  # key path -> the --set argument that wrote it
+        self.window = density_window   # given by the caller, else read from data.augmented when needed
+        self.window_from = "the given density window"
+        self.aug_source = None         # the augmented file's source attribute, for the re-augment hint
+        self.window_used = False
+        self.aug_units = "HU"          # the file's density_units once read (given windows are trusted)
 
     def override_for(self, path: tuple) -> str | None:
         for k in range(len(path), 0, -1):
@@ -594,7 +615,9 @@ def _data(ctx: _Ctx, tree: dict, method: str, required: bool = True) -> Data:
         index = ctx.path_value(("data", "index"), t["index"])
     elif method == "indexed":
         ctx.missing(("data", "index"), ' (render.method = "indexed" reads the index; use method = "full" without one)')
-    return Data(augmented, index)
+    data = Data(augmented, index)
+    object.__setattr__(data, "_written", t["augmented"])  # not a field: equality and to_dict ignore it
+    return data
 
 
 def _image(ctx: _Ctx, tree: dict) -> Image:
@@ -779,21 +802,118 @@ def _points(ctx: _Ctx, path: tuple, value: Any, width: int, what: str, first_ran
     return tuple(out)
 
 
-def _transfer(ctx: _Ctx, tree: dict) -> Transfer:
+def _density_window(ctx: _Ctx, data: Data, path: tuple, value: Any) -> tuple[float, float]:
+    """The augmented file's density window (read once), for converting data units; an error names ``path``."""
+    if ctx.window is None:
+        from .augfile import open_augmented
+
+        why = "data units are converted through the augmented file's density window, which cannot be read"
+        if data.augmented is None:
+            ctx.fail(path, value, "data units are converted through the volume's density window: give it "
+                                  "(parse_scene(..., density_window=(LO, HI))) for a volume in memory")
+        if not data.augmented.exists():
+            ctx.fail(path, value, f"{why}: {data.written} does not exist (augment the scan first)")
+        try:
+            aug = open_augmented(data.augmented)
+        except IsplatError as exc:
+            ctx.fail(path, value, f"{why}: {exc}")
+        ctx.window, ctx.window_from = aug.density_window, data.written
+        ctx.aug_source = aug.attrs.get("source")
+        ctx.aug_units = aug.attrs.get("density_units")
+    ctx.window_used = True
+    return ctx.window
+
+
+def _to_codes(ctx: _Ctx, data: Data, path: tuple, raw: list, points: tuple, units: str) -> tuple:
+    """User points in ``units`` as codes; a data-unit point outside the window is an error with the fix."""
+    if units == "code":
+        return points
+    window = _density_window(ctx, data, ("transfer", "units"), "data")
+    lo, hi = window
+    out = []
+    for n, point in enumerate(points):
+        code = float(_units.to_code(point[0], window))
+        if not _units.inside(code):
+            new = f"{min(lo, point[0]):g},{max(hi, point[0]):g}"
+            src = ctx.aug_source or "SCAN"
+            ctx.fail(path + (n,), raw[n], f"density {point[0]:g} (data units) is outside the density window "
+                     f"{lo:g}..{hi:g} of {ctx.window_from}; re-augment with a window that includes it: "
+                     f"isplat augment {src} -o OUT.aug.h5 --window={new}")
+        out.append((min(max(code, 0.0), 255.0),) + tuple(point[1:]))
+    return tuple(out)
+
+
+def _preset_points(ctx: _Ctx, data: Data, preset, key: str) -> tuple:
+    """A preset's opacity or colour as codes, restricted to the augmented file's window."""
+    points = getattr(preset, key)
+    if preset.units == "window":
+        codes = tuple((x * 255.0, *rest) for x, *rest in points)
+    else:
+        window = _density_window(ctx, data, ("transfer", "preset"), preset.name)
+        codes = tuple((float(_units.to_code(x, window)), *rest) for x, *rest in points)
+        if ctx.aug_units != "HU" and key == "opacity":
+            logging.getLogger(__name__).warning(
+                f"isplat: warning: {ctx.where(('transfer', 'preset'))}: preset {preset.name} is in Hounsfield "
+                f"units, but {data.written} does not record Hounsfield data (its window {window[0]:g}..{window[1]:g} "
+                "is taken as HU)")
+    clipped = _units.clip_points(codes, zero_outside=key == "opacity")
+    if not clipped:
+        lo, hi = ctx.window
+        ctx.fail(("transfer", "preset"), preset.name,
+                 f"its opacity ({points[0][0]:g}..{points[-1][0]:g} HU) lies outside the density window "
+                 f"{lo:g}..{hi:g} of {ctx.window_from}; re-augment the scan with --window ct-full")
+    return clipped
+
+
+def _preset(ctx: _Ctx, t: dict):
+    """The preset named by ``transfer.preset``, or None."""
+    if "preset" not in t:
+        return None
+    from .presets import PRESETS
+
+    name = t["preset"]
+    if not isinstance(name, str) or name not in PRESETS:
+        close = difflib.get_close_matches(str(name), list(PRESETS), n=1, cutoff=0.6)
+        ctx.fail(("transfer", "preset"), name, "expected a preset name (isplat presets lists them): "
+                 + ", ".join(PRESETS) + (f"; did you mean '{close[0]}'?" if close else ""))
+    return PRESETS[name]
+
+
+def _transfer(ctx: _Ctx, tree: dict, data: Data) -> Transfer:
     t = ctx.table(tree, ("transfer",), TRANSFER_KEYS)
     p = ("transfer",)
-    if "opacity" not in t:
+    preset = _preset(ctx, t)
+    units = ctx.choice(p + ("units",), t.get("units", "data" if preset else "code"), ("code", "data"))
+    if "opacity" not in t and preset is None:
         ctx.missing(p + ("opacity",))
-    opacity = _points(ctx, p + ("opacity",), t["opacity"], 2, "density, opacity", (0, 255), (0, 1),
-                      "density", "opacity", 1)
-    color = _points(ctx, p + ("color",), t.get("color", [[0, 1.0, 1.0, 1.0]]), 4, "density, r, g, b", (0, 255),
-                    (0, 1), "density", "r, g, b", 1)
+    first = (0, 255) if units == "code" else (-math.inf, None)
+    what = "density" if units == "code" else "value"
+
+    def user(key, width, names, default, rest_name, min_points):
+        pts = _points(ctx, p + (key,), t.get(key, default), width, names, first, (0, 1), "density", rest_name,
+                      min_points)
+        return _to_codes(ctx, data, p + (key,), t.get(key, default), pts, units)
+
+    if "opacity" in t or preset is None:
+        opacity = user("opacity", 2, f"{what}, opacity", None, "opacity", 1)
+    else:
+        opacity = _preset_points(ctx, data, preset, "opacity")
+    if "color" in t:
+        color = user("color", 4, f"{what}, r, g, b", None, "r, g, b", 1)
+    elif preset is not None:
+        color = _preset_points(ctx, data, preset, "color")
+    else:
+        color = ((0.0, 1.0, 1.0, 1.0),)   # white
     gradient = _points(ctx, p + ("gradient_opacity",), t.get("gradient_opacity", []), 2,
                        "gradient magnitude, factor", (0, None), (0, 1), "gradient magnitude", "factor", 0,
                        "gradient magnitudes")
-    unit = ctx.number(p + ("unit_distance",), t.get("unit_distance", 0.0),
+    if gradient and units == "data":
+        window = _density_window(ctx, data, ("transfer", "units"), "data")
+        gradient = tuple((float(_units.gradient_to_code(m, window)), f) for m, f in gradient)
+    unit = ctx.number(p + ("unit_distance",), t.get("unit_distance", preset.unit_distance if preset else 0.0),
                       "expected a distance >= 0 in world units (0 = renderer default)", lo=0.0)
-    return Transfer(opacity, color, gradient, unit)
+    return Transfer(opacity, color, gradient, unit, units, preset.name if preset else None,
+                    ctx.window if ctx.window_used else None)
 
 
 def _shading(ctx: _Ctx, tree: dict) -> Shading:
@@ -873,15 +993,25 @@ def _cameras(ctx: _Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
         ctx.fail(vp + ("list",), vlist, "expected an array of camera tables, e.g. [{azimuth = 0}, {azimuth = 90}]")
     if steps > 0 and vlist:
         ctx.fail(vp + ("list",), vlist, "views.orbit_steps and views.list cannot both be given")
+    if "path" in views_t or "frames" in views_t:
+        if steps > 0 or vlist:
+            key = "path" if "path" in views_t else "frames"
+            ctx.fail(vp + (key,), views_t[key], "views.path cannot be combined with views.orbit_steps or views.list")
+        return camera, _path_views(ctx, views_t, raw_cam, cam_paths)
     if steps > 0:
         if camera.mode != "orbit":
             ctx.fail(vp + ("orbit_steps",), steps, f'needs camera mode "orbit" (the camera is in mode "{camera.mode}")')
         return camera, tuple(replace(camera, azimuth=camera.azimuth + n * 360.0 / steps) for n in range(steps))
     if not vlist:
         return camera, (camera,)
+    return camera, _merged_cameras(ctx, vp + ("list",), vlist, raw_cam, cam_paths)
+
+
+def _merged_cameras(ctx: _Ctx, lp: tuple, entries: list, raw_cam: dict, cam_paths: dict) -> tuple[Camera, ...]:
+    """Each entry's camera keys merged over [camera] and validated as a whole camera."""
     views = []
-    for n, entry in enumerate(vlist):
-        ep = vp + ("list", n)
+    for n, entry in enumerate(entries):
+        ep = lp + (n,)
         if not isinstance(entry, dict):
             ctx.fail(ep, entry, "expected a table of camera keys, e.g. {azimuth = 90}")
         ctx.check_keys(entry, ep, CAMERA_KEYS, "camera")
@@ -890,7 +1020,29 @@ def _cameras(ctx: _Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
         paths = dict(cam_paths)
         paths.update({k: ep + (k,) for k in entry})
         views.append(_camera(ctx, merged, paths))
-    return camera, tuple(views)
+    return tuple(views)
+
+
+def _path_views(ctx: _Ctx, views_t: dict, raw_cam: dict, cam_paths: dict) -> tuple[Camera, ...]:
+    """``views.path`` keyframes interpolated into ``views.frames`` cameras (isplat.camera_path)."""
+    from .camera_path import PathError, interpolate
+
+    vp = ("views",)
+    if "path" not in views_t:
+        ctx.fail(vp + ("frames",), views_t["frames"], "needs views.path (the keyframes to interpolate)")
+    keys = views_t["path"]
+    if not isinstance(keys, list) or len(keys) < 2:
+        ctx.fail(vp + ("path",), keys, "expected an array of at least 2 camera tables (keyframes), "
+                 "e.g. [{azimuth = 0}, {azimuth = 90, zoom = 2}]")
+    frames = ctx.integer(vp + ("frames",), views_t.get("frames", DEFAULT_PATH_FRAMES),
+                         "expected an integer number of frames >= 2", lo=2)
+    cams = _merged_cameras(ctx, vp + ("path",), keys, raw_cam, cam_paths)
+    try:
+        return interpolate(list(cams), frames)
+    except PathError as exc:
+        if exc.field in keys[exc.key]:
+            ctx.fail(vp + ("path", exc.key, exc.field), keys[exc.key][exc.field], str(exc))
+        ctx.fail(vp + ("path", exc.key), keys[exc.key], str(exc))
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -953,12 +1105,14 @@ def _apply_override(tree: dict, arg: str, set_args: dict[tuple, str]) -> None:
 # Entry points
 
 def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: Iterable[str] = (),
-                data_required: bool = True) -> Scene:
+                data_required: bool = True, density_window: tuple[float, float] | None = None) -> Scene:
     """Parse and validate scene ``text``; relative data paths are taken from ``base_dir``.
 
     ``source_name`` starts every error message; ``overrides`` are ``--set key=value`` strings applied to the
     TOML tree before validation. ``data_required=False`` accepts a scene without ``[data]`` (its
     ``data.augmented`` is then None), for volumes already in memory (:meth:`isplat.selection.Selection.from_arrays`).
+    Transfer points in data units are converted through ``density_window`` if given, else through the window
+    recorded in ``data.augmented`` (read only then).
     """
     try:
         tree = tomllib.loads(text)
@@ -975,7 +1129,7 @@ def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: It
     set_args: dict[tuple, str] = {}
     for arg in overrides:
         _apply_override(tree, arg, set_args)
-    ctx = _Ctx(source_name, text, Path(base_dir), set_args)
+    ctx = _Ctx(source_name, text, Path(base_dir), set_args, density_window)
 
     if "version" in tree:  # first: a newer file's unknown keys are explained by its version
         v = tree["version"]
@@ -987,10 +1141,12 @@ def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: It
     image = _image(ctx, tree)
     volume = _volume(ctx, tree)
     camera, views = _cameras(ctx, tree)
-    transfer = _transfer(ctx, tree)
+    transfer = _transfer(ctx, tree, data)
     shading = _shading(ctx, tree)
     cuts = _cuts(ctx, tree)
-    return Scene(None, data, image, volume, camera, transfer, shading, cuts, render, views)
+    fps = ctx.number(("views", "fps"), ctx.table(tree, ("views",), VIEWS_KEYS).get("fps", 12.0),
+                     "expected frames per second, 0 < fps <= 100", lo=0.0, hi=100.0, lo_open=True)
+    return Scene(None, data, image, volume, camera, transfer, shading, cuts, render, views, fps)
 
 
 def scene_to_dict(scene: Scene, relative_to: Path | str | None = None) -> dict:

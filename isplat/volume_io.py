@@ -1,7 +1,10 @@
-"""Read a scalar volume from .npy, raw binary (file or stdin), NRRD, NIfTI, TIFF or a DICOM series.
+"""Read a scalar volume from .npy, raw binary (file or stdin), NRRD, NIfTI, TIFF, a DICOM series, MetaImage
+(.mha/.mhd), VTK image data (.vti) or a Zarr / OME-Zarr store.
 
 Every reader returns ``Volume(array[k, j, i], spacing_ijk, meta)``. Memory-mappable inputs (.npy, raw
-files) are mapped, never copied, so a volume larger than memory can be augmented slab by slab.
+files) are mapped, never copied, and Zarr stores are read lazily chunk by chunk (:class:`LazyZarr`), so a
+volume larger than memory can be augmented slab by slab. ``meta["hounsfield"]`` is True when the file says
+its values are Hounsfield units (a CT DICOM series with a rescale, a NIfTI with the CT rescale intercept).
 The format libraries are optional extras; a missing one gives one error line naming the extra.
 """
 
@@ -10,6 +13,8 @@ from __future__ import annotations
 import os
 import re
 import sys
+import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,6 +24,8 @@ from .errors import IsplatError
 
 RAW_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 BYTE_ORDERS = {"little": "<", "big": ">"}
+# rescale intercepts that mark CT stored values converted to Hounsfield units
+HOUNSFIELD_INTERCEPTS = (-1024.0, -2048.0, -3024.0)
 # numeric dtypes accepted from self-describing formats (bool and complex are not densities)
 _ACCEPTED_KINDS = "uif"
 
@@ -79,12 +86,30 @@ def parse_triple(text: str, what: str, cast=float):
     return parse_numbers(text, what, 3, cast)
 
 
-def read_volume(path, shape=None, dtype=None, byte_order="little", header_bytes=0, spacing=None) -> Volume:
+def read_volume(path, shape=None, dtype=None, byte_order="little", header_bytes=0, spacing=None,
+                level=None, series=None) -> Volume:
     """Read the volume at ``path`` (``'-'`` = raw data on stdin).
 
     Raw input needs ``shape=(n_i, n_j, n_k)`` and ``dtype``; a ``.raw``/``.bin`` file or ``-`` is raw, and
-    so is any file when ``shape`` is given. ``spacing`` (i, j, k) overrides the file's spacing.
+    so is any file when ``shape`` is given. ``spacing`` (i, j, k) overrides the file's spacing. ``level``
+    picks an OME-Zarr multiscale level (0 = full resolution); ``series`` a DICOM SeriesInstanceUID.
     """
+    vol = _read_any(path, shape, dtype, byte_order, header_bytes, level, series)
+    name = str(path)
+    if level is not None and vol.meta.get("format") != "zarr":
+        raise IsplatError(f"{name}: --level {level} applies to Zarr / OME-Zarr input only")
+    if series is not None and vol.meta.get("format") != "dicom":
+        raise IsplatError(f"{name}: --series applies to a DICOM folder only")
+    _check_array(name, vol.array, vol.meta.get("format", "input"))
+    if spacing is not None:
+        vol.spacing_ijk = _check_spacing(name, spacing, "--spacing")
+        vol.meta["spacing_source"] = "--spacing"
+    else:
+        vol.spacing_ijk = _check_spacing(name, vol.spacing_ijk, vol.meta.get("spacing_source", "the file"))
+    return vol
+
+
+def _read_any(path, shape, dtype, byte_order, header_bytes, level, series) -> Volume:
     raw = shape is not None or dtype is not None or header_bytes
     name = str(path)
     p = Path(name)
@@ -99,7 +124,9 @@ def read_volume(path, shape=None, dtype=None, byte_order="little", header_bytes=
         if p.is_dir():
             if raw:
                 raise IsplatError(f"{p}: raw options (--shape/--dtype/--header-bytes) need a file, got a folder")
-            vol = _read_folder(p)
+            if _is_zarr(p):
+                return _read_zarr(p, level)
+            vol = _read_folder(p, series)
         elif raw or low.endswith((".raw", ".bin", ".dat")):
             vol = _read_raw_file(p, shape, dtype, byte_order, header_bytes)
         elif low.endswith(".npy"):
@@ -112,15 +139,14 @@ def read_volume(path, shape=None, dtype=None, byte_order="little", header_bytes=
             vol = _read_tiff(p)
         elif low.endswith(".dcm"):
             vol = _read_dicom([p], p)
+        elif low.endswith((".mha", ".mhd")):
+            vol = _read_metaimage(p)
+        elif low.endswith(".vti"):
+            vol = _read_vti(p)
         else:
             raise IsplatError(f"{p}: unknown input format; expected .npy, .nrrd, .nhdr, .nii, .nii.gz, .tif, "
-                              ".tiff, a TIFF or DICOM folder, or raw data with --shape and --dtype")
-    _check_array(name, vol.array, vol.meta.get("format", "input"))
-    if spacing is not None:
-        vol.spacing_ijk = _check_spacing(name, spacing, "--spacing")
-        vol.meta["spacing_source"] = "--spacing"
-    else:
-        vol.spacing_ijk = _check_spacing(name, vol.spacing_ijk, vol.meta.get("spacing_source", "the file"))
+                              ".tiff, .mha, .mhd, .vti, a TIFF or DICOM folder, a Zarr / OME-Zarr folder, "
+                              "or raw data with --shape and --dtype")
     return vol
 
 
@@ -221,6 +247,7 @@ def _read_nifti(p):
         img = nib.load(str(p))
         data = np.asanyarray(img.dataobj)
         zooms = img.header.get_zooms()
+        inter = getattr(img.dataobj, "inter", None)
     except Exception as exc:
         raise IsplatError(f"{p}: not a readable NIfTI file ({_short(exc)})") from None
     if data.ndim == 4 and data.shape[3] == 1:
@@ -230,7 +257,9 @@ def _read_nifti(p):
     # NIfTI stores [x, y, z] with x fastest on disk; isplat indexes [k, j, i] = [z, y, x]
     arr = data.transpose(2, 1, 0)
     return Volume(arr, tuple(float(z) for z in zooms[:3]),
-                  {"format": "nifti", "source_dtype": arr.dtype.name, "spacing_source": "NIfTI pixdim (zooms)"})
+                  {"format": "nifti", "source_dtype": arr.dtype.name, "spacing_source": "NIfTI pixdim (zooms)",
+                   # dcm2niix and ITK store CT as stored values plus the scanner's rescale intercept
+                   "hounsfield": inter is not None and float(inter) in HOUNSFIELD_INTERCEPTS})
 
 
 # --- TIFF ------------------------------------------------------------------------------------------------------
@@ -274,18 +303,40 @@ def _is_dicom(f: Path) -> bool:
         return False
 
 
-def _read_folder(p):
+def _read_folder(p, series=None):
     files = sorted((f for f in p.iterdir() if f.is_file() and not f.name.startswith(".")), key=_natural_key)
     tifs = [f for f in files if f.suffix.lower() in (".tif", ".tiff")]
     if tifs:
         return _read_tiff(p, tifs)
     dcm = [f for f in files if _is_dicom(f)]
     if dcm:
-        return _read_dicom(dcm, p)
+        return _read_dicom(dcm, p, series)
     raise IsplatError(f"{p}: folder holds no .tif/.tiff files and no DICOM files (checked {len(files)} files)")
 
 
-def _read_dicom(files, p):
+def _pick_series(slices, p, series):
+    """The slices of one series: the only one, or ``series`` (a SeriesInstanceUID); else one line listing them."""
+    groups: dict[str, list] = {}
+    for f, ds in slices:
+        groups.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append((f, ds))
+    if series is not None:
+        if series not in groups:
+            raise IsplatError(f"{p}: no DICOM series with --series {series}; the folder holds {_series_list(groups)}")
+        return groups[series]
+    if len(groups) > 1:
+        raise IsplatError(f"{p}: the folder holds {len(groups)} DICOM series; choose one with --series UID: "
+                          f"{_series_list(groups)}")
+    return slices
+
+
+def _series_list(groups) -> str:
+    def one(uid, members):
+        desc = str(members[0][1].get("SeriesDescription", "") or "").strip()
+        return f"{uid or '(no UID)'} ({len(members)} slices{', ' + desc if desc else ''})"
+    return "; ".join(one(uid, m) for uid, m in sorted(groups.items()))
+
+
+def _read_dicom(files, p, series=None):
     pydicom = _need("pydicom", "pydicom", "dicom", "DICOM", p)
     slices = []
     for f in files:
@@ -295,6 +346,7 @@ def _read_dicom(files, p):
         except Exception as exc:
             raise IsplatError(f"{f}: not a readable DICOM image ({_short(exc)})") from None
         slices.append((f, ds))
+    slices = _pick_series(slices, p, series)
     f0, d0 = slices[0]
     for tag in ("Rows", "Columns", "PixelSpacing"):
         if tag not in d0:
@@ -354,5 +406,160 @@ def _read_dicom(files, p):
     ps = [float(x) for x in d0.PixelSpacing]
     if len(ps) != 2:
         raise IsplatError(f"{f0}: PixelSpacing has {len(ps)} values, expected 2")
+    hounsfield = str(d0.get("Modality", "")).upper() == "CT" and ("RescaleIntercept" in d0 or rescale)
     return Volume(arr, (ps[1], ps[0], step), {"format": "dicom", "source_dtype": str(first.dtype),
-                                               "spacing_source": "DICOM PixelSpacing and slice positions"})
+                                               "spacing_source": "DICOM PixelSpacing and slice positions",
+                                               "hounsfield": hounsfield})
+
+
+# --- MetaImage (.mha/.mhd) through SimpleITK ---------------------------------------------------------------------
+
+@contextmanager
+def _c_stderr_captured():
+    """Capture what C/C++ code writes to file descriptor 2 (ITK's MetaIO prints its parse errors there);
+    yields a list that holds the captured lines afterwards."""
+    lines: list[str] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            lines.extend(x for x in tmp.read().decode("utf-8", "replace").splitlines() if x.strip())
+
+
+def _read_metaimage(p):
+    sitk = _need("SimpleITK", "SimpleITK", "metaimage", ".mha/.mhd", p)
+    try:
+        with _c_stderr_captured() as said:
+            img = sitk.ReadImage(str(p))
+    except Exception as exc:  # SimpleITK raises RuntimeError naming only its own source line; MetaIO said why
+        why = said[0].strip() if said else _short(exc)
+        raise IsplatError(f"{p}: not a readable MetaImage file ({why})") from None
+    if img.GetNumberOfComponentsPerPixel() != 1 or img.GetDimension() != 3:
+        raise IsplatError(f"{p}: MetaImage has {img.GetDimension()} dimensions and "
+                          f"{img.GetNumberOfComponentsPerPixel()} components per voxel; expected a 3-D scalar volume")
+    arr = sitk.GetArrayFromImage(img)  # [z, y, x] = [k, j, i]
+    return Volume(arr, tuple(float(s) for s in img.GetSpacing()),
+                  {"format": "metaimage", "source_dtype": arr.dtype.name, "spacing_source": "MetaImage ElementSpacing"})
+
+
+# --- VTK image data (.vti) through VTK's own XML reader --------------------------------------------------------
+
+def _read_vti(p):
+    _need("vtkmodules", "vtk", "vtk", ".vti", p)
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOXML import vtkXMLImageDataReader
+
+    reader = vtkXMLImageDataReader()
+    if not reader.CanReadFile(str(p)):
+        raise IsplatError(f"{p}: not a readable VTK image data (.vti) file")
+    reader.SetFileName(str(p))
+    with _c_stderr_captured() as said:   # VTK logs its errors on file descriptor 2
+        reader.Update()
+    errors = [re.sub(r"\x1b\[[0-9;]*m", "", x) for x in said if "ERR|" in x]
+    if errors:
+        why = errors[0].split("ERR|", 1)[1].split("): ", 1)[-1].strip()
+        raise IsplatError(f"{p}: not a readable VTK image data (.vti) file ({why})")
+    img = reader.GetOutput()
+    scalars = img.GetPointData().GetScalars() if img is not None else None
+    if scalars is None:
+        arrays = img.GetPointData() if img is not None else None
+        if arrays is None or arrays.GetNumberOfArrays() != 1:
+            raise IsplatError(f"{p}: .vti holds no point scalars (and not exactly one point data array)")
+        scalars = arrays.GetArray(0)
+    if scalars.GetNumberOfComponents() != 1:
+        raise IsplatError(f"{p}: .vti array {scalars.GetName()!r} has {scalars.GetNumberOfComponents()} "
+                          "components; expected a scalar volume")
+    ni, nj, nk = img.GetDimensions()
+    arr = vtk_to_numpy(scalars).reshape(nk, nj, ni)  # VTK point order: x fastest
+    return Volume(arr, tuple(float(s) for s in img.GetSpacing()),
+                  {"format": "vti", "source_dtype": arr.dtype.name, "spacing_source": "VTK ImageData Spacing"})
+
+
+# --- Zarr and OME-Zarr, read lazily --------------------------------------------------------------------------------
+
+def _is_zarr(p: Path) -> bool:
+    return p.suffix.lower() == ".zarr" or any((p / n).exists() for n in ("zarr.json", ".zarray", ".zgroup"))
+
+
+class LazyZarr:
+    """A 3-D ``[k, j, i]`` view of a Zarr array whose other axes (OME-Zarr t, c) have size 1.
+
+    Indexing reads only the chunks it touches, so ``augment`` streams the store slab by slab.
+    """
+
+    def __init__(self, array, spatial: tuple[int, int, int]):
+        self.array, self.spatial = array, spatial
+        self.shape = tuple(int(array.shape[a]) for a in spatial)
+        self.dtype = np.dtype(array.dtype)
+        self.ndim = 3
+
+    def __getitem__(self, key):
+        key = key if isinstance(key, tuple) else (key,)
+        key = key + (slice(None),) * (3 - len(key))
+        full = [0] * len(self.array.shape)
+        for a, k in zip(self.spatial, key):
+            full[a] = k
+        return np.asarray(self.array[tuple(full)])
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(self[:, :, :], dtype=dtype)
+
+
+def _read_zarr(p, level):
+    zarr = _need("zarr", "zarr", "zarr", "Zarr / OME-Zarr", p)
+    try:
+        node = zarr.open(str(p), mode="r")
+    except Exception as exc:
+        raise IsplatError(f"{p}: not a readable Zarr store ({_short(exc)})") from None
+    if hasattr(node, "shape"):  # a plain array
+        if level not in (None, 0):
+            raise IsplatError(f"{p}: --level {level}: a plain Zarr array has one level (0)")
+        if len(node.shape) != 3:
+            raise IsplatError(f"{p}: Zarr array has shape {tuple(node.shape)}; expected a 3-D volume [z, y, x]")
+        return Volume(LazyZarr(node, (0, 1, 2)), (1.0, 1.0, 1.0),
+                      {"format": "zarr", "source_dtype": np.dtype(node.dtype).name,
+                       "spacing_source": "default 1,1,1 (a plain Zarr array has no spacing)"})
+    return _read_ome_zarr(p, node, level)
+
+
+def _ome_multiscale(p, group):
+    attrs = dict(group.attrs)
+    ms = attrs.get("multiscales") or attrs.get("ome", {}).get("multiscales")
+    if not ms:
+        raise IsplatError(f"{p}: Zarr group without OME-Zarr 'multiscales' metadata; give the array inside "
+                          f"it instead (e.g. {p}/0)")
+    return ms[0]
+
+
+def _read_ome_zarr(p, group, level):
+    ms = _ome_multiscale(p, group)
+    datasets = ms.get("datasets", [])
+    level = 0 if level is None else int(level)
+    if not 0 <= level < len(datasets):
+        raise IsplatError(f"{p}: --level {level} invalid; this OME-Zarr has levels 0..{len(datasets) - 1}")
+    ds = datasets[level]
+    arr = group[ds["path"]]
+    axes = ms.get("axes") or [{"name": n} for n in "tczyx"[-len(arr.shape):]]
+    names = [a["name"] if isinstance(a, dict) else str(a) for a in axes]
+    spatial = tuple(n for n, a in enumerate(axes) if (a.get("type") if isinstance(a, dict) else None) == "space"
+                    or names[n] in ("z", "y", "x"))
+    if len(spatial) != 3 or len(names) != len(arr.shape):
+        raise IsplatError(f"{p}: OME-Zarr axes {names} do not give three spatial axes for shape {tuple(arr.shape)}")
+    for n, size in enumerate(arr.shape):
+        if n not in spatial and size != 1:
+            raise IsplatError(f"{p}: OME-Zarr axis {names[n]!r} has {size} entries; isplat reads one scalar "
+                              "volume (t and c of size 1)")
+    scale = [1.0] * len(arr.shape)
+    for tr in ds.get("coordinateTransformations", []):
+        if tr.get("type") == "scale":
+            scale = [float(x) for x in tr["scale"]]
+    sp = tuple(scale[a] for a in reversed(spatial))  # i = x (last spatial axis)
+    return Volume(LazyZarr(arr, spatial), sp, {
+        "format": "zarr", "source_dtype": np.dtype(arr.dtype).name, "zarr_level": level,
+        "spacing_source": f"OME-Zarr level {level} scale"})

@@ -24,6 +24,18 @@ run "$ISPLAT" render examples/engine.toml $(data engine) -o "$OUT/engine.png" --
 # a 12-view orbit as an animated GIF
 run "$ISPLAT" render examples/head.toml $(data head) --set views.orbit_steps=12 --set image.width=256 \
     --set image.height=256 -o "$OUT/head-orbit.gif" --force
+# a camera path through three keyframes: 24 frames at constant angular speed, as an animated GIF
+run "$ISPLAT" render examples/head.toml $(data head) --set image.width=256 --set image.height=256 \
+    --set 'views.path=[{azimuth = -40, elevation = 0}, {azimuth = 60, elevation = 35, zoom = 1.6}, {azimuth = 160, elevation = 10}]' \
+    --set views.frames=24 -o "$OUT/head-path.gif" --force
+
+# your own scan: a CT in Hounsfield units (here the int16 ct-head sample) and a preset, in two commands
+run "$ISPLAT" sample ct-head -o "$OUT/ct.npy" --force >/dev/null
+run "$ISPLAT" augment "$OUT/ct.npy" -o "$OUT/ct.aug.h5" --index --force
+for p in ct-bone ct-skin; do
+  run "$ISPLAT" render examples/ct-preset.toml --set "data.augmented=$OUT/ct.aug.h5" --set "data.index=$OUT/ct.idx.h5" \
+      --set "transfer.preset=$p" -o "$OUT/$p.png" --force
+done
 if "$ISPLAT" stats --help >/dev/null 2>&1; then
   run "$ISPLAT" stats "$OUT/head.aug.h5" "$OUT/head.idx.h5" --scene examples/head.toml $(data head) \
       | tee "$OUT/head-stats.txt"

@@ -467,3 +467,8 @@ def test_error_line_points_at_the_bad_key(key, blank_lines, value):
     msg = error(text)
     line = int(msg.split(":")[1])
     assert text.splitlines()[line - 1].startswith(f"{key} = ")
+
+
+def test_scene_examples_window_file_is_the_augmented_example():
+    copy = EXAMPLES / "valid" / "window-0-100.aug.h5"
+    assert copy.read_bytes() == (ROOT / "formats" / "examples" / "augmented" / "valid.aug.h5").read_bytes()

@@ -16,9 +16,13 @@ log = logging.getLogger(__name__)
 @click.argument("input", metavar="INPUT")
 @click.option("-o", "--output", "out", required=True, metavar="OUT.aug.h5", help="Augmented HDF5 file to write.")
 @force_option
-@click.option("--window", metavar="LO,HI",
-              help="Input values mapped to densities 0 and 255 (default: 0.1 and 99.9 percentiles of a "
-                   "strided subsample). Write negative values as --window=-1000,2000.")
+@click.option("--window", metavar="LO,HI|NAME",
+              help="Input values mapped to densities 0 and 255: numbers (write negative values as "
+                   "--window=-1000,2000), percentiles of a strided subsample (p0.5,p99.9, or mixed: "
+                   "--window=-1024,p99.9), or a name: ct-full (-1024..3071 HU), ct-bone (W2000/L300), "
+                   "ct-soft-tissue (W400/L40), ct-lung (W1500/L-600), ct-brain (W80/L40). Default: ct-full for "
+                   "Hounsfield data (a CT rescale in the file, or values starting at -1024, -2048 or about "
+                   "-1000), else the 0.1 and 99.9 percentiles.")
 @click.option("--spacing", metavar="SX,SY,SZ", help="Voxel spacing along i, j, k; overrides the file's.")
 @click.option("--shape", metavar="NI,NJ,NK", help="Raw input: volume size, i fastest.")
 @click.option("--dtype", metavar="TYPE", help=f"Raw input: voxel type, one of {', '.join(RAW_DTYPES)}.")
@@ -26,12 +30,20 @@ log = logging.getLogger(__name__)
               help="Raw input: byte order.")
 @click.option("--header-bytes", type=click.IntRange(min=0), default=0, show_default=True,
               help="Raw input: bytes to skip before the data.")
+@click.option("--level", type=click.IntRange(min=0), default=None, metavar="N",
+              help="OME-Zarr input: multiscale level to read (0 = full resolution, the default).")
+@click.option("--series", metavar="UID", default=None,
+              help="DICOM folder with several series: the SeriesInstanceUID to read (an error lists them).")
+@click.option("--index", "with_index", is_flag=True,
+              help="Also build the index beside OUT (NAME.aug.h5 -> NAME.idx.h5), as `isplat index` would.")
 @quiet_option
-def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes):
+def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, with_index):
     """Augment INPUT into 4-byte voxels: density, gradient magnitude, octahedral normal (formats/augmented.md).
 
     INPUT is a .npy array [k,j,i], a .nrrd/.nhdr, a .nii/.nii.gz, a multi-page .tif/.tiff, a folder of
-    TIFF slices or of one DICOM series, or raw data (a file, or - for stdin) with --shape and --dtype.
+    TIFF slices or of DICOM files (--series picks one of several), a MetaImage .mha/.mhd, VTK image
+    data .vti, a Zarr array or OME-Zarr store (read lazily, --level picks the resolution), or raw data
+    (a file, or - for stdin) with --shape and --dtype.
     Densities are 8-bit through --window; gradients are central differences of the windowed density in
     physical units (spacing-aware).
 
@@ -42,18 +54,29 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
       cat scan.raw | isplat augment - -o scan.aug.h5 --shape 256,256,225 --dtype uint16 --byte-order big
     """
     from ..augment import augment_file  # numba import only when the command runs
+    from ..fileio import check_output
 
-    win = _pair(window) if window else None
+    idx = index_path(out) if with_index else None
+    if idx is not None:
+        check_output(idx, force)  # before any work
+    win = window if window else None
     sp = parse_triple(spacing, "--spacing") if spacing else None
     shp = parse_triple(shape, "--shape", int) if shape else None
     info = augment_file(input, out, force=force, window=win, spacing=sp, shape=shp, dtype=dtype,
-                        byte_order=byte_order, header_bytes=header_bytes)
+                        byte_order=byte_order, header_bytes=header_bytes, level=level, series=series)
     lo, hi = info["density_window"]
+    below, above = info["clipped"]
+    log.info(f"isplat augment: window {lo:g},{hi:g} ({info['density_window_method']}); clipped "
+             f"{100 * below:.2f}% of voxels below {lo:g}, {100 * above:.2f}% above {hi:g}")
     log.info(f"isplat augment: wrote {out} (NI,NJ,NK={','.join(map(str, info['shape_ijk']))}, "
              f"window {lo:g},{hi:g}, gradient scale {info['gradient_magnitude_scale']:g}/code)")
+    if idx is not None:
+        from ..index import build_index_file
+
+        build_index_file(out, idx, force=force)
+        log.info(f"isplat augment: wrote {idx} (the index, all axes)")
 
 
-def _pair(text):
-    from ..volume_io import parse_numbers
-
-    return parse_numbers(text, "--window", 2)
+def index_path(out: str) -> str:
+    """NAME.aug.h5 -> NAME.idx.h5 (else OUT + .idx.h5)."""
+    return out[: -len(".aug.h5")] + ".idx.h5" if out.endswith(".aug.h5") else out + ".idx.h5"

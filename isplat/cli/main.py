@@ -19,6 +19,7 @@ SUBCOMMANDS = {
     "index": ("isplat.cli.index", "index", "Build the three-axis density index (HDF5)."),
     "render": ("isplat.cli.render", "render", "Render images from a TOML scene."),
     "stats": ("isplat.cli.stats", "stats", "Report spatial ratio, memory and bytes a scene loads."),
+    "presets": ("isplat.cli.presets", "presets", "List the transfer-function presets (CT bone, lung, MRI, ...)."),
 }
 
 

@@ -80,7 +80,7 @@ def render(scene_file, out, overrides, view, as_json, force):
         else:
             write_still(out if out == "-" else str(paths[n]), rgba, scene.image.bit_depth, force)
     if movie:
-        write_movie(out, frames, force)
+        write_movie(out, frames, force, fps=scene.fps)
     report = {"scene": str(scene_file), "method": renderer.method, "output": out,
               "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
               "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,

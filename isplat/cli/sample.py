@@ -69,6 +69,9 @@ def sample(name, out, shape, seed, dtype, force):
     \b
     head            CT-like head (air, skin, skull, brain, ventricles), like the paper's H1
     engine          machined part (block, liners, bores, channels, ~1 % bolts), like E1/E2
+    ct-head         the head in Hounsfield units (int16), with contrast-filled carotids and a metal filling
+    ct-chest        a chest CT in Hounsfield units (int16): fat, muscle, lungs, heart, contrast aorta, spine
+    mr-head         the head as a T1-weighted MRI (uint16, arbitrary units: fat bright, CSF and bone dark)
     marschner-lobb  Marschner & Lobb (1994) test signal, fM=6, alpha=0.25 on [-1,1]^3
     sphere, two-density-cube   small shapes for tests
 

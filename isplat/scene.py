@@ -29,7 +29,10 @@ __all__ = [
     "RenderOptions", "load_scene", "parse_scene", "locate_keys", "scene_to_dict",
 ]
 
-SCENE_VERSION = 1
+SCENE_VERSION = 2
+# keys added by each version after 1: a file that says an older version must not use them
+KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
+              ("views", "fps"): 2}
 
 Vec3 = tuple[float, float, float]
 
@@ -1104,6 +1107,21 @@ def _apply_override(tree: dict, arg: str, set_args: dict[tuple, str]) -> None:
 # --------------------------------------------------------------------------------------------------------------------
 # Entry points
 
+def _check_version(ctx: _Ctx, tree: dict) -> None:
+    """First: a newer file's unknown keys are explained by its version, and an older one's version names
+    the keys it may not use yet (formats/scene.md, Version)."""
+    if "version" not in tree:
+        return
+    v = tree["version"]
+    if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= SCENE_VERSION:
+        ctx.fail(("version",), v, f"this isplat reads scene versions 1 to {SCENE_VERSION}")
+    for path, since in KEYS_SINCE.items():
+        table = tree.get(path[0])
+        if since > v and isinstance(table, dict) and path[1] in table:
+            ctx.fail(path, table[path[1]], f"this key is new in scene version {since}; the file says version = "
+                                           f"{v} (write version = {since}, or leave version out)")
+
+
 def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: Iterable[str] = (),
                 data_required: bool = True, density_window: tuple[float, float] | None = None) -> Scene:
     """Parse and validate scene ``text``; relative data paths are taken from ``base_dir``.
@@ -1131,10 +1149,7 @@ def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: It
         _apply_override(tree, arg, set_args)
     ctx = _Ctx(source_name, text, Path(base_dir), set_args, density_window)
 
-    if "version" in tree:  # first: a newer file's unknown keys are explained by its version
-        v = tree["version"]
-        if isinstance(v, bool) or not isinstance(v, int) or v != SCENE_VERSION:
-            ctx.fail(("version",), v, f"this isplat reads scene version {SCENE_VERSION} only")
+    _check_version(ctx, tree)
     ctx.check_keys(tree, (), TOP_KEYS)
     render = _render(ctx, tree)
     data = _data(ctx, tree, render.method, data_required)

@@ -273,7 +273,25 @@ def test_version_must_be_integer_one(value):
 
 
 def test_version_is_checked_before_unknown_keys():
-    assert "version = 2" in error("version = 2\n" + BASE + "[future]\nx = 1\n")
+    assert "version = 3: this isplat reads scene versions 1 to 2" in error("version = 3\n" + BASE + "[future]\nx = 1\n")
+
+
+@pytest.mark.parametrize("key, table", [("units", "transfer"), ("preset", "transfer"), ("frames", "views"),
+                                        ("path", "views"), ("fps", "views")])
+def test_keys_of_version_2_are_refused_in_a_version_1_file(key, table):
+    value = '"data"' if key == "units" else '"ct-bone"' if key == "preset" else "[]" if key == "path" else "10"
+    text = BASE if table == "transfer" else BASE + "[views]\n"
+    if table == "transfer":
+        text = text.replace("[transfer]\n", f"[transfer]\n{key} = {value}\n")
+    else:
+        text += f"{key} = {value}\n"
+    msg = error("version = 1\n" + text)
+    assert f"{table}.{key} = " in msg and "new in scene version 2" in msg
+
+
+def test_version_1_files_still_read():
+    parse_scene("version = 1\n" + BASE, ".", "s.toml")
+    parse_scene("version = 2\n" + BASE, ".", "s.toml")
 
 
 def test_point_rows_type_errors():

@@ -167,12 +167,9 @@ def test_presets_command(capsys):
 
 
 def test_hounsfield_preset_on_non_hounsfield_file_warns(tmp_path, capsys):
-    import isplat.progress as progress
-
     d = np.zeros((2, 2, 2), np.uint8)
     write_augmented(tmp_path / "v.aug.h5", d, d, np.full(d.shape, 0x8080, np.uint16), (1, 1, 1), (0, 4095), 0.5,
                     {"density_units": "HU"})
-    progress.set_quiet(False)
     _scene(tmp_path, 'preset = "ct-bone"')
     assert capsys.readouterr().err == ""
     write_augmented(tmp_path / "w.aug.h5", d, d, np.full(d.shape, 0x8080, np.uint16), (1, 1, 1), (0, 4095), 0.5)

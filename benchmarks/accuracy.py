@@ -148,7 +148,7 @@ def ripple(jac, radius: float, sigma: float = 0.7, table: int = 1 << 20, offsets
 
 def measure_knobs(size: int, frames: int):
     from isplat import camera as C
-    from isplat.render import Renderer
+    from isplat.renderer import Renderer
 
     out = {}
     radii = dict(KNOBS)["footprint_radius"]
@@ -249,7 +249,7 @@ def forced_axis(axis_sign):
 
 def measure_popping(size: int, settings: dict, label: str):
     from isplat import camera as C
-    from isplat.render import Renderer
+    from isplat.renderer import Renderer
 
     base = make_scene("head", size, settings)
     s, ax_lo, ax_hi = switch_azimuth(base)

@@ -32,7 +32,10 @@ WORK = ROOT / "out" / "bench-commits"
 WORKER = r"""
 import json, sys, time
 import numpy as np
-from isplat.render import Renderer
+try:
+    from isplat.renderer import Renderer
+except ImportError:                    # versions before the render core was cut into stages
+    from isplat.render import Renderer
 from isplat.scene import load_scene
 held = {}
 for line in sys.stdin:

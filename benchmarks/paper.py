@@ -234,7 +234,7 @@ def write_scene(work: Path, case: Case, vol: dict, size: int, projection: str = 
 # -------------------------------------------------------------------------------------------------- measure
 
 def measure(case: Case, vol: dict, work: Path, frames: int, size: int) -> dict:
-    from isplat.render import Renderer
+    from isplat.renderer import Renderer
     from isplat.scene import load_scene
     from isplat.stats import collect
 

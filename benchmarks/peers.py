@@ -348,7 +348,7 @@ def _dilate(m: np.ndarray, n: int) -> np.ndarray:
 
 
 def measure_case(case: str, aug: Path, idx: Path, repeats: int, size: int, img_dir: Path | None):
-    from isplat.render import Renderer
+    from isplat.renderer import Renderer
 
     scene, overrides = scene_for(case, aug, idx, size)
     r_idx = Renderer(scene)                      # the scene's defaults: method indexed, threads = all cores

@@ -60,7 +60,7 @@ def overrides(aug, idx, *extra):
 
 
 def renderer(aug, idx, *extra):
-    from isplat.render import Renderer
+    from isplat.renderer import Renderer
     from isplat.scene import load_scene
 
     return Renderer(load_scene(SCENE, overrides(aug, idx, *extra)))
@@ -97,7 +97,7 @@ def end_to_end(aug, idx, runs: int) -> tuple[float, float]:
 
 
 def orbit(aug, idx, single_median: float) -> dict:
-    from isplat.render import Renderer
+    from isplat.renderer import Renderer
     from isplat.scene import load_scene
 
     t0 = time.perf_counter()

@@ -93,7 +93,7 @@ class Lab:
     def render(self, vol, **kw):
         """Render view 0 -> (image or None, stats or None, finite)."""
         from isplat.errors import IsplatError
-        from isplat.render import Renderer
+        from isplat.renderer import Renderer
 
         try:
             r = Renderer(self.scene(vol, **kw))

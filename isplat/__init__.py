@@ -1,13 +1,14 @@
 r"""Fast, exact direct volume rendering by indexed splatting (Ihm & Lee).
 
-Preprocess once, render many times. Each stage is a plain function first and a command second
+In a notebook, one call from an array (or a scan's path) to a picture, ``isplat.render`` (isplat.api):
+``rgba = isplat.render(ct, preset="ct-bone", azimuth=30)``. From the shell, preprocess once, render many times. Each stage is a plain function first and a command second
 (``isplat sample``, ``isplat augment``, ``isplat index``, ``isplat render``, ``isplat stats``; ``isplat --help``):
 
 >>> import pathlib, tempfile, numpy as np
 >>> from isplat.samples import make_sample
 >>> from isplat.augment import augment_file
 >>> from isplat.index import build_index_file
->>> from isplat.render import Renderer
+>>> from isplat.renderer import Renderer
 >>> from isplat.scene import load_scene
 >>> tmp = tempfile.TemporaryDirectory()
 >>> folder = pathlib.Path(tmp.name)
@@ -27,9 +28,18 @@ Preprocess once, render many times. Each stage is a plain function first and a c
 
 Modules: isplat.samples (synthetic volumes), isplat.volume_io (reading scans), isplat.augment and
 isplat.augfile (the augmented volume, formats/augmented.md), isplat.index (the density index,
-formats/index.md), isplat.scene (scene files, formats/scene.md), isplat.render (rendering), isplat.stats (the
+formats/index.md), isplat.scene (scene files, formats/scene.md), isplat.renderer (rendering a scene's views), isplat.selection and isplat.frame (the render core), isplat.stats (the
 paper's Figure 5 figures), isplat.cli (the command). Log lines go through the logging module, under the
 ``isplat`` logger; progress bars (isplat.progress) show only while that logger lets INFO through.
 """
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # ``isplat.render(volume, preset=..., azimuth=...)`` (isplat.api), imported on first use so that
+    # ``import isplat`` stays light
+    if name == "render":
+        from .api import render
+        return render
+    raise AttributeError(f"module 'isplat' has no attribute {name!r}")

@@ -322,7 +322,7 @@ class _Slabber:
         return d[k0 - e0:k1 - e0], g
 
 
-@numba.njit(cache=True)
+@jit
 def _count_clipped(x, lo, hi):
     below = above = 0
     for v in x.ravel():

@@ -6,7 +6,7 @@
 ``collect`` returns one plain dict (the JSON of ``isplat stats --json``, keys documented in docs/stats.md);
 ``format_table`` renders it as readable text. Everything is counted, nothing estimated: voxel counts come from
 the index's per-density tables or the density channel, byte counts from the files' tables and from what the
-renderer actually read (:class:`isplat.render.LoadReport`).
+renderer actually read (:class:`isplat.selection.LoadReport`).
 
 The paper's *spatial ratio* is the number of voxels whose density lies in the transfer function's non-zero
 opacity intervals over all voxels (§4, "the spatial ratios of the number of voxels that were actually visited to
@@ -158,7 +158,7 @@ def _reconcile(scene_path, overrides, aug_path: Path, idx_path: Path | None) -> 
 
 def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | None, idx, hist_from_index,
                   view: int) -> tuple[dict, object]:
-    from .render import Renderer
+    from .renderer import Renderer
     from .scene import load_scene
     from .transfer import build_luts
 

@@ -12,7 +12,7 @@ import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-REQUIRED = ("isplat/__init__.py", "isplat/cli/main.py", "isplat/render.py")
+REQUIRED = ("isplat/__init__.py", "isplat/cli/main.py", "isplat/renderer.py")
 
 
 def offenders(names: list[str]) -> list[str]:

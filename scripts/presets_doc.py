@@ -16,7 +16,7 @@ from isplat.augment import augment_file
 from isplat.index import build_index_file
 from isplat.output import write_still
 from isplat.presets import PRESETS
-from isplat.render import Renderer
+from isplat.renderer import Renderer
 from isplat.samples import make_sample
 from isplat.scene import load_scene
 

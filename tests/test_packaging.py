@@ -11,7 +11,7 @@ cw = importlib.util.module_from_spec(spec)
 sys.modules["check_wheel"] = cw
 spec.loader.exec_module(cw)
 
-GOOD = ["isplat/__init__.py", "isplat/cli/main.py", "isplat/render.py", "isplat/index/store.py",
+GOOD = ["isplat/__init__.py", "isplat/cli/main.py", "isplat/renderer.py", "isplat/index/store.py",
         "isplat-0.1.0.dist-info/METADATA", "isplat-0.1.0.dist-info/entry_points.txt"]
 
 

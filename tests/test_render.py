@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 
 from conftest import write_volume
 from isplat import camera as C
-from isplat.render import Renderer
+from isplat.renderer import Renderer
 from render_reference import reference_render
 
 BIG_TABLE = "footprint_table = 1048576\n"

@@ -8,7 +8,7 @@ import pytest
 
 from conftest import scene_text, write_volume
 from isplat.augment import augment_array
-from isplat.render import Renderer
+from isplat.renderer import Renderer
 from isplat.scene import parse_scene
 
 # reference kernel knobs, so that the kernel's own error (about 2e-4) stays below what is looked for

@@ -127,7 +127,7 @@ def test_preset_selects_its_material(tmp_path, name):
 def test_every_preset_renders_on_its_sample(tmp_path, name):
     """Rendered through the whole pipeline on its sample, each preset draws a picture (which material it shows
     is checked voxel by voxel above; partial-volume edges make a picture-level check of that fuzzy)."""
-    from isplat.render import Renderer
+    from isplat.renderer import Renderer
 
     sample, window, _, _ = CASES[name]
     x, spacing = make_sample(sample, (40, 40, 36))
@@ -141,7 +141,7 @@ def test_every_preset_renders_on_its_sample(tmp_path, name):
 
 def test_bone_and_skin_render_differently_on_the_head(tmp_path):
     """Rendered: the skin preset covers the head's whole silhouette, the bone preset the smaller skull inside."""
-    from isplat.render import Renderer
+    from isplat.renderer import Renderer
 
     x, spacing = make_sample("ct-head", (48, 48, 42))
     aug = augment_array(x, spacing)

@@ -48,7 +48,7 @@ def render(scene_file, out, overrides, view, as_json, force):
     """
     from ..errors import IsplatError
     from ..output import check_format, check_outputs, frame_paths, write_movie, write_still
-    from ..render import Renderer
+    from ..renderer import Renderer
     from ..scene import load_scene
 
     scene = load_scene(scene_file, list(overrides))

@@ -1,0 +1,127 @@
+"""One call from a volume to a picture, for notebooks: ``isplat.render(volume, preset=..., azimuth=...)``.
+
+>>> import numpy as np, isplat
+>>> from isplat.samples import make_sample
+>>> ct, spacing = make_sample("ct-head", (64, 64, 56))          # Hounsfield units, [k, j, i]
+>>> rgba = isplat.render(ct, preset="ct-bone", azimuth=30, spacing=spacing, size=(96, 64))
+>>> rgba.shape, rgba.dtype, bool(rgba[..., :3].max() > 0.5)
+((64, 96, 4), dtype('float32'), True)
+
+The volume is augmented in memory once (window: ``window`` or, for Hounsfield data, ``ct-full``) and the
+selection of a transfer function is kept, so views of the same volume and transfer function after the first
+cost one frame each. Everything a scene file says can be said with ``set=["camera.fov=30", ...]``
+(formats/scene.md).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from .errors import IsplatError
+
+_CACHE: OrderedDict = OrderedDict()       # (augmented volumes, selections) of the last few calls
+_CACHE_SIZE = 4
+
+
+def render(volume, *, preset: str | None = None, opacity=None, color=None, azimuth: float = 0.0,
+           elevation: float = 0.0, zoom: float = 1.0, size=256, spacing=None, window=None, shading: bool = True,
+           background=None, projection: str = "orthographic", set=()) -> np.ndarray:  # noqa: A002
+    """Render ``volume`` and return straight RGBA floats ``(H, W, 4)`` in [0, 1] over the background.
+
+    ``volume``: a 3-D array ``[k, j, i]`` of the scan's values (Hounsfield units for CT), or the path of a
+    scan any ``isplat augment`` reader takes. ``preset`` (``isplat presets``) or ``opacity`` (and ``color``)
+    points ``[[value, opacity], ...]`` in the scan's own values give the transfer function; ``size`` is
+    ``N`` or ``(width, height)``; ``spacing`` (i, j, k) defaults to the file's or 1; ``window`` as for
+    ``isplat augment --window``; ``set`` takes further ``KEY=VALUE`` scene overrides.
+    """
+    if preset is None and opacity is None:
+        from .presets import PRESETS
+        raise IsplatError(f"isplat.render: give preset= (one of {', '.join(PRESETS)}) or opacity= points")
+    arr, spacing = _volume_array(volume, spacing)
+    aug = _cached(("augment", _digest(arr), spacing, str(window)), lambda: _augment(arr, spacing, window))
+    width, height = (size, size) if np.ndim(size) == 0 else size
+    keys = [f"image.width={int(width)}", f"image.height={int(height)}", f"camera.azimuth={float(azimuth)}",
+            f"camera.elevation={float(elevation)}", f"camera.zoom={float(zoom)}",
+            f'camera.projection="{projection}"', f"shading.enabled={'true' if shading else 'false'}"]
+    keys += [f'transfer.preset="{preset}"'] if preset is not None else ['transfer.units="data"']
+    keys += [f"transfer.opacity={_toml(opacity)}"] if opacity is not None else []
+    keys += [f"transfer.color={_toml(color)}"] if color is not None else []
+    keys += [f"image.background={_toml(background)}"] if background is not None else []
+    scene = _scene(keys + list(set), aug["density_window"])
+    return _render_scene(scene, aug, spacing)
+
+
+def _render_scene(scene, aug, spacing) -> np.ndarray:
+    from .frame import axes_of, render_frame, views_for
+    from .selection import Selection
+
+    views = views_for(scene, SimpleNamespace(shape=aug["density"].shape, spacing_ijk=spacing))
+    t = scene.transfer
+    key = ("select", aug["density_sha256"], spacing, t.opacity, t.color, t.gradient_opacity,
+           scene.shading.enabled, scene.render.method, axes_of(views))
+    sel = _cached(key, lambda: Selection.from_arrays(
+        aug["density"], scene, normal=aug["normal"], gradient_magnitude=aug["gradient_magnitude"],
+        gradient_magnitude_scale=aug["gradient_magnitude_scale"], spacing=spacing, axes=axes_of(views)))
+    rgba, _ = render_frame(sel, views[0])
+    return rgba
+
+
+def _volume_array(volume, spacing):
+    """The volume as an array and its spacing (i, j, k): given, else the file's, else 1."""
+    if isinstance(volume, (str, Path)):
+        from .volume_io import read_volume
+
+        vol = read_volume(volume, spacing=spacing)
+        return np.asarray(vol.array), tuple(float(s) for s in vol.spacing_ijk)
+    arr = np.asarray(volume)
+    if arr.ndim != 3 or min(arr.shape) < 1:
+        raise IsplatError(f"isplat.render: expected a 3-D volume [k, j, i], got shape {arr.shape}")
+    sp = tuple(float(s) for s in (spacing or (1.0, 1.0, 1.0)))
+    if len(sp) != 3 or not all(np.isfinite(sp)) or min(sp) <= 0:
+        raise IsplatError(f"isplat.render: spacing {sp} invalid; expected three positive numbers (i, j, k)")
+    return arr, sp
+
+
+def _augment(arr, spacing, window) -> dict:
+    from .augment import augment_array
+
+    return augment_array(arr, spacing, window)
+
+
+def _scene(overrides, density_window):
+    from .scene import parse_scene
+
+    return parse_scene("version = 2\n", ".", "isplat.render", overrides, data_required=False,
+                       density_window=tuple(density_window))
+
+
+def _digest(arr: np.ndarray) -> str:
+    """What identifies a volume's values: shape, dtype and a hash of its bytes (about 1 GB/s)."""
+    h = hashlib.blake2b(f"{arr.shape}{arr.dtype.str}".encode(), digest_size=16)
+    h.update(memoryview(np.ascontiguousarray(arr)).cast("B"))
+    return h.hexdigest()
+
+
+def _cached(key, make):
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    value = make()
+    _CACHE[key] = value
+    while len(_CACHE) > _CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return value
+
+
+def _toml(value) -> str:
+    """Numbers and nested lists of numbers as a TOML value."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise IsplatError(f"isplat.render: {value!r} is not numbers") from None
+    return str(arr.tolist())

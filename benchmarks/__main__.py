@@ -9,8 +9,13 @@ from pathlib import Path
 import benchmarks as pkg
 
 
+# not part of `all`: compares two versions of isplat, run as `python benchmarks/commits.py --old REV`
+STANDALONE = ("commits",)
+
+
 def names():
-    return sorted(m.name for m in pkgutil.iter_modules(pkg.__path__) if not m.name.startswith("_"))
+    return sorted(m.name for m in pkgutil.iter_modules(pkg.__path__)
+                  if not m.name.startswith("_") and m.name not in STANDALONE)
 
 
 def main(argv=None):

@@ -50,7 +50,15 @@ from pathlib import Path
 
 import numpy as np
 
+from isplat.augfile import open_augmented
+from isplat.threads import default_threads
+
 from . import _doc
+
+
+def _unit(renderer) -> float:
+    """The opacity unit distance the renderer uses: the scene's, else the smallest spacing."""
+    return float(renderer.selection.unit_distance or renderer.geom.spacing.min())
 
 SECTION = "peers"
 REPO = Path(__file__).resolve().parents[1]
@@ -153,7 +161,7 @@ class VTKView:
         if frame.projection != "orthographic":
             raise ValueError("peers bench: only orthographic views are matched")
         # data: the same 8-bit density codes, spacing and voxel positions
-        dens = np.ascontiguousarray(renderer.aug.read("density"), dtype=np.uint8)
+        dens = np.ascontiguousarray(open_augmented(scene.data.augmented).read("density"), dtype=np.uint8)
         nk, nj, ni = dens.shape
         img = vtkImageData()
         img.SetDimensions(ni, nj, nk)
@@ -182,10 +190,10 @@ class VTKView:
         prop = vtkVolumeProperty()
         prop.SetScalarOpacity(otf)
         prop.SetColor(ctf)
-        prop.SetScalarOpacityUnitDistance(float(renderer.unit))
+        prop.SetScalarOpacityUnitDistance(_unit(renderer))
         prop.SetInterpolationTypeToLinear()
         sh = scene.shading
-        if renderer.use_shade:
+        if renderer.selection.use_shade:
             prop.ShadeOn()
             prop.SetAmbient(float(sh.ambient))
             prop.SetDiffuse(float(sh.diffuse))
@@ -242,7 +250,7 @@ class VTKView:
                 if sign < 0:
                     self.mirror_lights.append(L)
                 ren.AddLight(L)
-        if renderer.use_shade and not ambient_done:     # no lit light: ambient only, through a dark light
+        if renderer.selection.use_shade and not ambient_done:     # no lit light: ambient only, through a dark light
             L = vtkLight()
             L.SetIntensity(1.0)
             L.SetDiffuseColor(0.0, 0.0, 0.0)
@@ -417,8 +425,8 @@ def measure_case(case: str, aug: Path, idx: Path, repeats: int, size: int, img_d
                 spread={k: (1000 * min(v), 1000 * max(v)) for k, v in times.items()},
                 rmse=rmse, psnr=psnr, maxd=maxd, best_shift=best,
                 band=(float(band.mean()), band_share, rmse_rest), coverage=(cov_ours, cov_theirs), png=png,
-                threads=(r_idx.threads, vtkv.threads), sample_distance=vtkv.sample_distance,
-                splatted=ours_stats.voxels_splatted, axis=ours_stats.axis, unit=r_idx.unit)
+                threads=(r_idx.scene.render.threads or default_threads(), vtkv.threads), sample_distance=vtkv.sample_distance,
+                splatted=ours_stats.voxels_splatted, axis=ours_stats.axis, unit=_unit(r_idx))
 
 
 # ---- the report ---------------------------------------------------------------------------------------------

@@ -55,6 +55,13 @@ class Renderer:
     def geom(self):
         return self.views[0].geom
 
+    @property
+    def threads(self) -> int:
+        """Threads a frame uses (``render.threads``, 0: every core this process may use)."""
+        from .threads import default_threads
+
+        return self.scene.render.threads or default_threads()
+
     def held_bytes(self) -> int:
         """Bytes of volume data kept for the frames (selection and gathered values, or whole channels)."""
         return self.selection.held_bytes()

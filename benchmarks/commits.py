@@ -7,6 +7,9 @@ one with its worktree first on ``sys.path``), and both load the same scenes thro
 versions have (``Renderer(scene).render_view(0)``). Frames are timed inside the workers, alternating between
 them frame by frame, so load on this shared machine falls on both alike.
 
+Images of the tests: the test suite of each version is run with a plugin that records every image
+``Renderer.render_view`` returns (by test and call); the images of the tests both versions have are compared.
+
 Images: every scene of the list below (small random volumes as the tests render them, indexed and full,
 orthographic and perspective, 1 and 2 threads, shading, gradient modulation, cuts, early termination on and
 off; and the head and engine samples) is rendered by both; the page gives, per scene, whether they are bit
@@ -142,6 +145,58 @@ def image_cases() -> list[tuple[str, str, list]]:
     return cases
 
 
+PLUGIN = r"""
+import hashlib, json, os
+import numpy as np
+import pytest
+try:
+    from isplat.renderer import Renderer
+except ImportError:
+    from isplat.render import Renderer
+RECORD, CURRENT = {}, {"test": None, "n": 0}
+_render_view = Renderer.render_view
+def render_view(self, *args, **kwargs):
+    img, stats = _render_view(self, *args, **kwargs)
+    key = f"{CURRENT['test']}#{CURRENT['n']}"
+    CURRENT["n"] += 1
+    RECORD[key] = {"sha": hashlib.sha256(np.ascontiguousarray(img).tobytes()).hexdigest(),
+                   "path": os.environ["RECORD_DIR"] + f"/{len(RECORD)}.npy"}
+    np.save(RECORD[key]["path"], img)
+    return img, stats
+Renderer.render_view = render_view
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_call(item):
+    CURRENT["test"], CURRENT["n"] = item.nodeid, 0
+def pytest_sessionfinish(session):
+    with open(os.environ["RECORD_DIR"] + "/record.json", "w") as f:
+        json.dump(RECORD, f)
+"""
+TEST_FILES = ("tests/test_render.py", "tests/test_stability.py", "tests/test_cli_render.py", "tests/test_stats.py")
+
+
+def record_tests(tree: Path, tmp: Path) -> dict:
+    """Every image the render tests of ``tree`` make, by test id and call number."""
+    (tmp / "isplat_record.py").write_text(PLUGIN)
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tmp}", RECORD_DIR=str(tmp), ISPLAT_PROGRESS="0")
+    files = [f for f in TEST_FILES if (tree / f).exists()]
+    subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "isplat_record", "-p", "no:cacheprovider", *files],
+                   cwd=tree, env=env, check=False, stdout=subprocess.DEVNULL)
+    return json.loads((tmp / "record.json").read_text())
+
+
+def compare_tests(tree_old: Path, tmp: Path) -> dict:
+    """Images of the tests both versions run: how many, how many bit for bit equal, the largest difference."""
+    (tmp / "rec-old").mkdir()
+    (tmp / "rec-new").mkdir()
+    old, new = record_tests(tree_old, tmp / "rec-old"), record_tests(ROOT, tmp / "rec-new")
+    common = sorted(set(old) & set(new))
+    equal = sum(old[k]["sha"] == new[k]["sha"] for k in common)
+    worst = max((float(np.abs(np.load(old[k]["path"]).astype(np.float64) - np.load(new[k]["path"])).max())
+                 for k in common), default=0.0)
+    return {"old": len(old), "new": len(new), "common": len(common), "equal": equal, "max_diff": worst,
+            "tests": len({k.rsplit("#", 1)[0] for k in common})}
+
+
 def compare_images(old: Worker, new: Worker) -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -186,13 +241,18 @@ def compare_times(old: Worker, new: Worker, frames: int) -> list[dict]:
     return rows
 
 
-def write_page(out: Path, rev: str, images: list, times: list, frames: int, command: str):
+def write_page(out: Path, rev: str, tests: dict, images: list, times: list, frames: int, command: str):
     n_equal = sum(r["bit_equal"] for r in images)
     worst = max(r["max_diff"] for r in images)
     lines = [
         "# Render core in stages: the same images, the same speed", "",
         f"Made by `{command}` (old = `{rev}`, new = the working tree), on {_machine()}.", "",
-        "## Images", "",
+        "## Images of the tests", "",
+        f"The render tests ({', '.join(TEST_FILES)}) of each version, every image `Renderer.render_view` returned "
+        f"recorded by test and call: {tests['old']} images (old), {tests['new']} (new); {tests['common']} from "
+        f"{tests['tests']} tests both versions have, of which {tests['equal']} bit for bit equal, largest "
+        f"difference {tests['max_diff']:.3g}.", "",
+        "## Images of the scenes below", "",
         f"{len(images)} scenes rendered by both versions: {n_equal} bit for bit equal, largest difference "
         f"{worst:.3g} (straight RGBA in [0, 1]); voxel, splat and slice counts equal in "
         f"{sum(r['same_counts'] for r in images)} of {len(images)}.", "",
@@ -224,6 +284,7 @@ def main(argv=None):
         tree = Path(tmp) / "old"
         subprocess.run(["git", "worktree", "add", "--detach", "-q", str(tree), rev], cwd=ROOT, check=True)
         try:
+            tests = compare_tests(tree, Path(tmp))
             old, new = Worker(tree), Worker(ROOT)
             images = compare_images(old, new)
             times = compare_times(old, new, args.frames)
@@ -232,7 +293,7 @@ def main(argv=None):
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, check=False)
     cmd = f"python benchmarks/commits.py --old {args.old} --frames {args.frames}"
-    write_page(args.out, rev, images, times, args.frames, cmd)
+    write_page(args.out, rev, tests, images, times, args.frames, cmd)
     print(args.out.read_text())
 
 

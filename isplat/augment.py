@@ -19,14 +19,13 @@ from __future__ import annotations
 import hashlib
 import math
 
-import h5py
 import numba
 import numpy as np
 
 from . import progress
 from .augfile import create_augmented
 from .errors import IsplatError
-from .fileio import atomic_output, check_output
+from .fileio import atomic_output, check_output, create_hdf5
 from .normals import NO_NORMAL, _encode_one
 from .volume_io import Volume, read_volume
 
@@ -306,7 +305,7 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
     with progress.bar(total=2 * len(sl.ranges), desc="augment", unit="slab") as bar:
         gmax, sha = _first_pass(sl, bar)
         with atomic_output(out, force) as tmp:
-            with h5py.File(tmp, "w") as f:
+            with create_hdf5(tmp) as f:
                 create_augmented(f, vol.array.shape, (sl.si, sl.sj, sl.sk), (sl.lo, sl.hi), gmax / 255.0,
                                  sha, extra)
                 for k0, k1, d, mag, nrm in _second_pass(sl, gmax, bar):

@@ -160,6 +160,10 @@ class Renderer:
         ro = scene.render
         self.dtype = np.float64 if ro.precision == "float64" else np.float32
         sp = scene.volume.spacing or self.aug.spacing_ijk
+        from .scene import spacing_problem
+        if spacing_problem(sp):
+            raise IsplatError(f"{self.aug.path}: attribute 'spacing_ijk' is {list(sp)}: {spacing_problem(sp)} "
+                              f"(or set volume.spacing in the scene)")
         self.geom = cam_mod.volume_geometry(self.aug.shape, sp, scene.volume.origin, scene.volume.axes)
         self.luts = build_luts(scene.transfer, self.aug.gradient_magnitude_scale)
         self.unit = scene.transfer.unit_distance or float(self.geom.spacing.min())

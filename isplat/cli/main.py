@@ -4,6 +4,7 @@ so ``isplat --help`` and a render start without importing every stage."""
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 
 import click
@@ -58,10 +59,35 @@ def cli():
     """
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that temporary outputs are removed on the way out."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def _usage_line(exc: click.UsageError) -> str:
+    ctx = exc.ctx
+    cmd = ctx.command_path if ctx is not None else "isplat"
+    return f"isplat: error: {cmd}: {exc.format_message()} (see {cmd} --help)".replace("\n", " ")
+
+
 def main(argv=None):
-    """Entry point: IsplatError becomes one line on stderr and exit status 2, never a traceback."""
+    """Entry point: IsplatError becomes one line on stderr and exit status 2, never a traceback.
+
+    SIGTERM and SIGINT remove temporary outputs (:func:`isplat.fileio.atomic_output`), print one line and exit
+    143 and 130; click usage errors are one line too."""
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         cli.main(args=argv, prog_name="isplat", standalone_mode=False)
+    except Terminated:
+        click.echo("isplat: terminated (SIGTERM); incomplete outputs removed", err=True)
+        sys.exit(143)
+    except click.UsageError as exc:
+        click.echo(_usage_line(exc), err=True)
+        sys.exit(exc.exit_code)
     except IsplatError as exc:
         click.echo(f"isplat: error: {exc}", err=True)
         sys.exit(exc.exit_code)
@@ -74,7 +100,7 @@ def main(argv=None):
     except BrokenPipeError:
         sys.exit(1)
     except KeyboardInterrupt:
-        click.echo("isplat: interrupted", err=True)
+        click.echo("isplat: interrupted (SIGINT); incomplete outputs removed", err=True)
         sys.exit(130)
     except MemoryError:
         click.echo("isplat: error: out of memory", err=True)

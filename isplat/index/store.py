@@ -220,11 +220,21 @@ class IndexFile:
 
     # -- public queries
     def voxel_counts(self, axis: str) -> np.ndarray:
-        """int64[256]: indexed voxels per density along ``axis`` (0 for densities not indexed)."""
+        """int64[256]: indexed voxels per density along ``axis`` (0 for densities not indexed).
+
+        Every table row of the axis is checked first (as a load with ``verify_offsets=True`` checks the rows it
+        reads: slices, counts, offsets from 0 to the end of ``bytes``), so the figures are consistent ones."""
         m = self._axis(axis)
         with self._open(axis) as g:
             ptr = self._read_ptr(g, axis)
+            sl = self._read(g, "entry_slice", 0, m.n_entries).astype(np.int64)
             cnt = self._read(g, "entry_voxel_count", 0, m.n_entries).astype(np.int64)
+            off = self._read(g, "entry_byte_offset", 0, m.n_entries + 1)
+        if off[0] != 0 or off[-1] != m.n_bytes:
+            self._fail(axis, f"entry_byte_offset runs from {int(off[0])} to {int(off[-1])}, expected 0 to the "
+                             f"{m.n_bytes} bytes of the blocks")
+        dens = np.repeat(np.arange(256, dtype=np.int64), np.diff(ptr))
+        self._check_entries(axis, m, dens, sl, cnt, off)
         cs = np.zeros(cnt.size + 1, dtype=np.int64)
         np.cumsum(cnt, out=cs[1:])
         return cs[ptr[1:]] - cs[ptr[:-1]]

@@ -60,11 +60,16 @@ def cli():
 
 
 class Terminated(BaseException):
-    """SIGTERM, raised in the main thread so that temporary outputs are removed on the way out."""
+    """SIGTERM or SIGINT, raised in the main thread so that temporary outputs are removed on the way out
+    (not KeyboardInterrupt, which click turns into Abort after writing a blank line)."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
 
 
-def _on_sigterm(signum, frame):
-    raise Terminated()
+def _on_signal(signum, frame):
+    raise Terminated(signum)
 
 
 def _usage_line(exc: click.UsageError) -> str:
@@ -78,21 +83,33 @@ def main(argv=None):
 
     SIGTERM and SIGINT remove temporary outputs (:func:`isplat.fileio.atomic_output`), print one line and exit
     143 and 130; click usage errors are one line too."""
-    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-        signal.signal(signal.SIGTERM, _on_sigterm)
+    previous = {}
+    for sig, default in ((signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.default_int_handler)):
+        if signal.getsignal(sig) is default:
+            previous[sig] = signal.signal(sig, _on_signal)
+    try:
+        _run(argv)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _run(argv):
     try:
         cli.main(args=argv, prog_name="isplat", standalone_mode=False)
-    except Terminated:
-        click.echo("isplat: terminated (SIGTERM); incomplete outputs removed", err=True)
-        sys.exit(143)
+    except Terminated as exc:
+        name = signal.Signals(exc.signum).name
+        click.echo(f"isplat: interrupted ({name}); incomplete outputs removed", err=True)
+        sys.exit(128 + exc.signum)
     except click.UsageError as exc:
         click.echo(_usage_line(exc), err=True)
         sys.exit(exc.exit_code)
     except IsplatError as exc:
-        click.echo(f"isplat: error: {exc}", err=True)
+        one_line = " ".join(str(exc).split())          # values shown with repr() may span lines
+        click.echo(f"isplat: error: {one_line[:2000]}", err=True)
         sys.exit(exc.exit_code)
     except click.exceptions.Abort:
-        click.echo("isplat: aborted", err=True)
+        click.echo("isplat: interrupted; incomplete outputs removed", err=True)
         sys.exit(130)
     except click.ClickException as exc:
         exc.show()

@@ -6,7 +6,7 @@ ISPLAT := $(BIN)/isplat
 OUT    ?= out
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench data paper-table bench-peers clean venv readme-images
+.PHONY: demo test bench data paper-table bench-peers clean venv readme-images reliability fuzz-boundscheck
 
 venv: $(STAMP)
 
@@ -42,3 +42,13 @@ bench-peers: $(STAMP)
 # The README's pictures: make demo, then 256-pixel copies of its images into docs/img/.
 readme-images: demo
 	$(BIN)/python scripts/readme_images.py $(OUT) docs/img
+
+# docs/reliability.md: the catalogue of bad inputs and their messages, fuzz figures, the checksums' cost.
+reliability: $(STAMP)
+	$(BIN)/python -m isplat.bench.reliability --out docs
+
+# The fuzz test with numba bounds checking on; a fresh cache, since numba reuses kernels compiled without it.
+FUZZ_SECONDS ?= 300
+fuzz-boundscheck: $(STAMP)
+	cache=$$(mktemp -d) && NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$$cache ISPLAT_FUZZ_SECONDS=$(FUZZ_SECONDS) \
+	  $(BIN)/python -m pytest -q tests/test_fuzz.py; status=$$?; rm -rf $$cache; exit $$status

@@ -138,11 +138,14 @@ def set_string_attr(obj, name: str, value: str) -> None:
 
 
 def chunk_shape(shape, itemsize: int, target: int = MAX_CHUNK_BYTES) -> tuple:
-    """Chunks of about ``target`` bytes, filled from the fastest axis outwards (whole rows, then whole planes);
-    a partial first axis is a power of two, so k-slabs of 8 (the renderer's reads) align with chunks."""
+    """Chunks of about ``target`` bytes, filled from the fastest axis outwards (whole rows, then whole planes).
+    A volume's chunks hold at most 8 k-planes, a power of two when they do not hold all: the renderer reads
+    8-plane slabs, which then align with chunks, and a partial last chunk (stored whole) wastes < 8 planes."""
     chunk, size = [1] * len(shape), int(itemsize)
     for ax in reversed(range(len(shape))):
         n, fit = max(1, int(shape[ax])), max(1, target // size)
+        if ax == 0 and len(shape) == 3:
+            fit = min(fit, 8)
         if n <= fit:
             chunk[ax], size = n, size * n
             continue

@@ -77,7 +77,8 @@ def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None):
     try:
         f = h5py.File(p, "r")
     except (OSError, KeyError, ValueError, RuntimeError) as exc:
-        raise IsplatError(f"{p}: not a readable HDF5 file ({_h5_reason(exc)})") from None
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else exc.__class__.__name__
+        raise IsplatError(f"{p}: not a readable HDF5 file: truncated, corrupted or not HDF5 ({why[:160]})") from None
     try:
         with hdf5_errors(p, "root attributes"):
             fmt = attr_string(f.attrs, "format")
@@ -216,7 +217,7 @@ def attr_array(path, attrs, name: str, kind: str, shape: tuple | None = None):
         raise IsplatError(f"{path}: missing attribute {name!r}")
     v = np.asarray(attrs[name])
     want = np.dtype("<i8" if kind == "i" else "<f8")
-    if v.dtype.newbyteorder("<") != want or v.dtype.kind != want.kind:
+    if v.dtype != want:
         raise IsplatError(f"{path}: attribute {name!r} has type {v.dtype}, expected {want.name}"
                           f" ({'H5T_STD_I64LE' if kind == 'i' else 'H5T_IEEE_F64LE'})")
     if shape is None and v.shape != ():

@@ -409,6 +409,8 @@ def _cli_cases(fx: dict, w: Path) -> list[tuple[str, list]]:
         vol = _np.zeros((16, 18, 20), _np.uint8)
         vol[3, 3, 3] = 9
         write_index(other, build_index(vol, "ijk"), vol.shape, "0" * 64, force=True)
+    orbit = w / "orbit.toml"
+    orbit.write_text(fx["indexed"].read_text().split("[views]")[0] + "[views]\norbit_steps = 720\n")
     part = w / "part.idx.h5"
     if not part.exists():
         from ..index import build_index_file
@@ -435,8 +437,7 @@ def _cli_cases(fx: dict, w: Path) -> list[tuple[str, list]]:
         ("perspective camera.fov = 179.9", ["render", sc, "--set", "camera.projection=perspective", "--set",
                                             "camera.fov=179.9", "-o", str(w / "x.png")]),
         ("image buffers beyond the memory available (8192^2, 720 views, GIF)",
-         ["render", sc, "--set", "image.width=8192", "--set", "image.height=8192", "--set", "views.orbit_steps=720",
-          "-o", str(w / "x.gif")]),
+         ["render", str(orbit), "--set", "image.width=8192", "--set", "image.height=8192", "-o", str(w / "x.gif")]),
         ("augment: input missing", ["augment", str(w / "missing.npy"), "-o", str(w / "m.aug.h5")]),
         ("augment: constant volume", ["augment", str(w / "const.npy"), "-o", str(w / "c.aug.h5")]),
         ("index: input is not HDF5", ["index", str(w / "not.h5"), "-o", str(w / "n.idx.h5")]),
@@ -453,8 +454,10 @@ def catalogue(fx: dict, w: Path) -> list[dict]:
     """Every bad input with its exit status and message (temporary folders shown as W/)."""
     rows = []
 
+    repo = str(Path(__file__).resolve().parents[2]) + "/"
+
     def clean(text):
-        return text.strip().replace(str(w) + "/", "W/").replace(str(fx["folder"]) + "/", "W/")
+        return text.strip().replace(str(w) + "/", "W/").replace(str(fx["folder"]) + "/", "W/").replace(repo, "")
 
     for what, target, obj, op in _pair_cases(fx):
         path = fx[target]

@@ -57,7 +57,8 @@ def _write_axis(f: h5py.File, ax: AxisIndex) -> None:
     for name, dt in DATASET_DTYPES.items():
         # chunked with the Fletcher-32 checksum filter, little-endian (formats/index.md §1)
         data = np.ascontiguousarray(getattr(ax, name), dtype=dt)
-        create_checked_dataset(g, name, data.shape, dt, data)
+        # small chunks: a load reads single rows of entry_byte_offset and row ranges, each rounded out to chunks
+        create_checked_dataset(g, name, data.shape, dt, data, target=(1 << 16) if name == "bytes" else (1 << 14))
 
 
 def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, ranges=None,

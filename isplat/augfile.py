@@ -21,13 +21,14 @@ import h5py
 import numpy as np
 
 from .errors import IsplatError
-from .fileio import (attr_array, attr_string, check_checked_dataset, create_checked_dataset, create_hdf5,
-                     hdf5_errors, open_hdf5, set_string_attr)
+from .fileio import (attr_array, attr_string, check_checked_dataset, check_string_attrs, create_checked_dataset,
+                     create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
 
 FORMAT_NAME = "isplat-augmented"
 FORMAT_VERSION = 2
 CHANNELS = {"density": np.uint8, "gradient_magnitude": np.uint8, "normal": np.uint16}
 CHANNEL_DTYPES = {"density": "|u1", "gradient_magnitude": "|u1", "normal": "<u2"}
+OPTIONAL_STRINGS = ("source", "source_format", "source_dtype", "density_window_method")
 
 
 def density_sha256(density: np.ndarray) -> str:
@@ -86,8 +87,7 @@ def open_augmented(path) -> AugmentedVolume:
         spacing = tuple(float(x) for x in attr_array(p, a, "spacing_ijk", "f", (3,)))
         window = tuple(float(x) for x in attr_array(p, a, "density_window", "f", (2,)))
         gscale = float(attr_array(p, a, "gradient_magnitude_scale", "f"))
-        if "density_sha256" not in a:
-            raise IsplatError(f"{p}: missing attribute 'density_sha256'")
+        check_string_attrs(p, a, ("density_sha256", "created_by"), OPTIONAL_STRINGS)
         sha = attr_string(a, "density_sha256")
         if sha is None or len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
             raise IsplatError(f"{p}: attribute 'density_sha256' is {a['density_sha256']!r}, expected 64 lower-case "

@@ -81,14 +81,14 @@ def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None):
         raise IsplatError(f"{p}: not a readable HDF5 file: truncated, corrupted or not HDF5 ({why[:160]})") from None
     try:
         with hdf5_errors(p, "root attributes"):
+            check_string_attrs(p, f.attrs, ("format",))
             fmt = attr_string(f.attrs, "format")
             ver = f.attrs.get("format_version")
             superblock = f.id.get_create_plist().get_version()[0]
         if fmt != format_name:
-            shown = fmt if fmt is not None else f.attrs.get("format")
-            raise IsplatError(f"{p}: attribute 'format' is {shown!r}, expected {format_name!r}")
+            raise IsplatError(f"{p}: attribute 'format' is {fmt!r}, expected {format_name!r}")
         ver_arr = np.asarray(ver) if ver is not None else None
-        if ver_arr is None or ver_arr.shape != () or ver_arr.dtype.kind != "i" or ver_arr.dtype.itemsize != 8:
+        if ver_arr is None or ver_arr.shape != () or ver_arr.dtype != np.dtype("<i8"):
             raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}"
                               f"{'' if ver_arr is None else f' ({ver_arr.dtype})'}, expected the int64 scalar "
                               f"{version}")
@@ -199,17 +199,30 @@ def hdf5_errors(path, what: str = ""):
         raise IsplatError(f"{where}: {_h5_reason(exc)}") from None
 
 
+def _string_type_problem(attrs, name: str) -> str | None:
+    """Why attribute ``name`` is not a fixed-length UTF-8 (or ASCII) scalar string, or None if it is one."""
+    import h5py
+
+    tid = attrs.get_id(name).get_type()
+    if not isinstance(tid, h5py.h5t.TypeStringID):
+        v = np.asarray(attrs[name])
+        return f"has type {v.dtype} and shape {v.shape}, expected a fixed-length UTF-8 string"
+    if tid.is_variable_str():
+        return ("is a variable-length string; format version 2 stores fixed-length UTF-8 strings (in the "
+                "checksummed object header)")
+    if np.asarray(attrs[name]).shape != ():
+        return f"has shape {np.asarray(attrs[name]).shape}, expected a scalar string"
+    return None
+
+
 def attr_string(attrs, name: str):
-    """A string attribute (fixed- or variable-length) as ``str``, or None when absent or not a string."""
-    v = attrs.get(name)
-    if isinstance(v, np.ndarray) and v.shape == ():
-        v = v[()]
-    if isinstance(v, (bytes, np.bytes_)):
-        try:
-            return bytes(v).decode("utf-8")
-        except UnicodeDecodeError:
-            return None
-    return v if isinstance(v, str) else None
+    """A fixed-length string attribute as ``str``; None when absent, of another type or not UTF-8."""
+    if name not in attrs or _string_type_problem(attrs, name):
+        return None
+    try:
+        return bytes(np.asarray(attrs[name])[()]).decode("utf-8")
+    except UnicodeDecodeError:
+        return None
 
 
 def attr_array(path, attrs, name: str, kind: str, shape: tuple | None = None):
@@ -229,3 +242,17 @@ def attr_array(path, attrs, name: str, kind: str, shape: tuple | None = None):
     if kind == "f" and not np.all(np.isfinite(v)):
         raise IsplatError(f"{path}: attribute {name!r} is {v.tolist()}, expected finite numbers")
     return v.astype(want.newbyteorder("="))
+
+
+def check_string_attrs(path, attrs, required=(), optional=()) -> None:
+    """Refuse a missing required string attribute, or a required or optional one that is not a UTF-8 string."""
+    for name in (*required, *optional):
+        if name not in attrs:
+            if name in required:
+                raise IsplatError(f"{path}: missing attribute {name!r}")
+            continue
+        problem = _string_type_problem(attrs, name)
+        if problem:
+            raise IsplatError(f"{path}: attribute {name!r} {problem}")
+        if attr_string(attrs, name) is None:
+            raise IsplatError(f"{path}: attribute {name!r} is not valid UTF-8")

@@ -4,9 +4,10 @@ gets, and what the checksums cost (docs/reliability.md).
     python -m isplat.bench.reliability --out docs [--fuzz-seconds 120] [--seed 0]
 
 The fuzzer mutates the bytes of a small head's augmented and index files (bit flips, random bytes, zeroed runs,
-truncation) and renders each mutant through the CLI, in process: every run must end in one ``isplat: error:``
-line with a non-zero exit, or in images equal to the unmutated ones. tests/test_fuzz.py runs it for a bounded
-time; ``make fuzz-boundscheck`` runs it with numba bounds checking on (a fresh NUMBA_CACHE_DIR).
+truncation) and renders each mutant through the CLI, in process, and runs ``isplat stats --json`` on it: every run
+must end in one ``isplat: error:`` line with a non-zero exit, or in images and figures equal to the unmutated
+ones. tests/test_fuzz.py runs it for a bounded time; ``make fuzz-boundscheck`` runs it with numba bounds checking
+on (a fresh NUMBA_CACHE_DIR).
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ import argparse
 import contextlib
 import io
 import os
-import shutil
 import signal
 import statistics
 import tempfile
@@ -81,6 +81,10 @@ def make_fixture(folder: Path, aug: Path | None = None, idx: Path | None = None)
         if code != 0:
             raise RuntimeError(f"reference render failed: {err}")
         fx[f"ref_{method}"] = images
+    code, out, err = run_cli(["stats", str(aug), str(idx), "--json"])
+    if code != 0:
+        raise RuntimeError(f"reference stats failed: {err}")
+    fx["ref_stats"] = out
     return fx
 
 
@@ -146,7 +150,8 @@ def _alarm(signum, frame):
 
 
 def check_mutant(fx: dict, target: str, data: bytes, mutation: str, limit: float = 20.0) -> Outcome:
-    """Write the mutant over the fixture's ``target`` file, render both scenes, restore the file."""
+    """Write the mutant over the fixture's ``target`` file, render both scenes and run ``stats --json``, restore
+    the file. Each must end in one error line and a non-zero exit, or give the unmutated images and figures."""
     path = fx[target]
     original = path.read_bytes()
     if data == original:
@@ -164,6 +169,13 @@ def check_mutant(fx: dict, target: str, data: bytes, mutation: str, limit: float
                 return Outcome(target, mutation, "error", lines[0])
             what = "different image" if code == 0 else f"exit {code}, {len(lines)} stderr lines"
             return Outcome(target, mutation, f"FAIL ({method}: {what})", err[-2000:])
+        code, out, err = run_cli(["stats", str(fx["aug"]), str(fx["idx"]), "--json"])
+        lines = err.strip().splitlines()
+        if code != 0 and len(lines) == 1 and lines[0].startswith("isplat: error: ") and not out:
+            return Outcome(target, mutation, "error", lines[0])
+        if code != 0 or out != fx["ref_stats"]:
+            return Outcome(target, mutation, "FAIL (stats: " + ("other figures)" if code == 0 else f"exit {code})"),
+                           err[-2000:] or out[-2000:])
         return Outcome(target, mutation, "equal")
     except _Timeout:
         return Outcome(target, mutation, "FAIL (hang)", f"no answer in {limit:g} s")
@@ -207,8 +219,9 @@ def fuzz(fx: dict, seconds: float, seed: int = 0, max_runs: int | None = None) -
 # ------------------------------------------------------------------------------ named corruptions (the walk)
 
 REQUIRED = {"aug": {"format", "format_version", "shape", "spacing_ijk", "density_window", "gradient_magnitude_scale",
-                    "density_sha256", "density", "gradient_magnitude", "normal"},
-            "idx": {"format", "format_version", "shape", "density_sha256", "density_ranges", "axis", "n_slices",
+                    "density_sha256", "created_by", "density", "gradient_magnitude", "normal"},
+            "idx": {"format", "format_version", "shape", "density_sha256", "density_ranges", "created_by", "axis",
+                    "n_slices",
                     "in_slice_axes", "n_a", "n_b", "escape_width", "density_entry_ptr", "entry_slice",
                     "entry_voxel_count", "entry_byte_offset", "bytes"}}
 DATASET_OPS = ("flip_chunk", "flip_header", "delete", "dtype", "shape", "contiguous", "gzip", "dataspace")
@@ -580,9 +593,10 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
         f"{'x'.join(map(str, SHAPE_IJK))}, alternately): a bit flip (half of them), a random byte, a zeroed run of "
         "1-64 bytes or a truncation, at a uniformly random position. Each mutant is rendered through the CLI with "
         "both methods (three views, one per axis, every density visible, shading and gradient-modulated opacity, "
-        "so every dataset is read). A run passes if it ends in exactly one `isplat: error:` line, a non-zero exit "
-        "and no output, or in PNGs byte-equal to the unmutated ones; a failure is anything else (another "
-        "image, a traceback, a hang of 20 s).",
+        "so every dataset is read), then `isplat stats AUG IDX --json` runs on it. A run passes if it ends in "
+        "exactly one `isplat: error:` line, a non-zero exit and no output, or in PNGs byte-equal to the unmutated "
+        "ones and the same figures; a failure is anything else (another image or figure, a traceback, a hang of "
+        "20 s).",
         "",
         _fuzz_table(fz),
         "",
@@ -594,8 +608,9 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
         "## What the checksums cost",
         "",
         f"A head of {'x'.join(map(str, c['shape_ijk']))} voxels; median of {c['repeats']} interleaved runs. "
-        "*checked*: the files as isplat writes them (chunks of about "
-        f"{c['chunk_target'] // 1024} KiB with Fletcher-32); *unchecked*: the same files rewritten with contiguous, "
+        "*checked*: the files as isplat writes them (Fletcher-32 chunks of about "
+        f"{c['chunk_target'] // 1024} KiB in the channels, 16 KiB in the index tables, 64 KiB in its bytes); "
+        "*unchecked*: the same files rewritten with contiguous, "
         "unfiltered datasets (metadata checksums kept), read with the layout check switched off.",
         "",
         "| load | checked | unchecked | ratio |",
@@ -608,7 +623,8 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
         f"{c['frame_checked'] / c['frame_unchecked']:.2f} |",
         f"| everything: three whole channels, all densities on three axes | {1000 * c['whole_checked']:.1f} ms | "
         f"{1000 * c['whole_unchecked']:.1f} ms | {c['whole_checked'] / c['whole_unchecked']:.2f} |",
-        f"| index bytes a bone load reads: requested, and in the chunks HDF5 reads and checks | "
+        "| index bytes a bone load reads: whole chunks, read and checked (checked) against the rows and bytes "
+        "requested (unchecked) | "
         f"{c['bone_chunk_bytes']:,} B | {c['bone_requested_bytes']:,} B | "
         f"{c['bone_chunk_bytes'] / c['bone_requested_bytes']:.2f} |",
         f"| augmented file size | {c['aug_bytes']:,} B | {c['aug_bytes_unchecked']:,} B | "

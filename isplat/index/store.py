@@ -15,8 +15,8 @@ import h5py
 import numpy as np
 
 from ..errors import IsplatError
-from ..fileio import (attr_array, attr_string, atomic_output, check_checked_dataset, create_checked_dataset,
-                      create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
+from ..fileio import (attr_array, attr_string, atomic_output, check_checked_dataset, check_string_attrs,
+                      create_checked_dataset, create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, axis_geometry, build_axis, escape_width,
                     normalize_ranges, parse_axes)
@@ -389,8 +389,7 @@ def open_index(path) -> IndexFile:
     with f, hdf5_errors(p, "attributes and tables"):
         a = f.attrs
         shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
-        if "density_sha256" not in a:
-            raise IsplatError(f"{p}: missing attribute 'density_sha256'")
+        check_string_attrs(p, a, ("density_sha256", "created_by"))
         sha = attr_string(a, "density_sha256")
         if min(shape) < 1:
             raise IsplatError(f"{p}: attribute 'shape' is {shape}, expected three positive sizes")
@@ -426,6 +425,7 @@ def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
         if key not in g.attrs:
             raise IsplatError(f"{where}: missing attribute {key!r}")
         if isinstance(want, str):
+            check_string_attrs(where, g.attrs, (key,))
             got = attr_string(g.attrs, key)
             ok = got == want
         else:

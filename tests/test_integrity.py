@@ -190,6 +190,17 @@ def test_degenerate_geometry_refused(examples, tmp_path, setting, word):
     assert code == 2 and word in err and err.count("\n") == 1 and not list(tmp_path.iterdir())
 
 
+def test_degenerate_spacing_in_the_file_refused(tmp_path, make_scene):
+    from conftest import write_volume
+    from isplat.errors import IsplatError
+    from isplat.render import Renderer
+
+    aug, idx = write_volume(tmp_path, np.full((4, 4, 4), 200, np.uint8), spacing=(1e-7, 1.0, 1.0))
+    scene = make_scene(aug, idx, transfer="opacity = [[0, 0.5], [255, 0.5]]")
+    with pytest.raises(IsplatError, match="'spacing_ijk'.*ratio 1e\\+07"):
+        Renderer(scene)
+
+
 def test_image_buffers_beyond_memory_refused(examples, tmp_path, monkeypatch):
     from isplat import output
 

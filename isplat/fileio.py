@@ -127,7 +127,18 @@ def create_hdf5(path):
     fapl.set_libver_bounds(h5py.h5f.LIBVER_V110, h5py.h5f.LIBVER_LATEST)
     fcpl = h5py.h5p.create(h5py.h5p.FILE_CREATE)
     fcpl.set_attr_phase_change(MAX_COMPACT_ATTRIBUTES, 0)
+    fcpl.set_obj_track_times(False)                  # no timestamps: the same content gives the same bytes
     return h5py.File(h5py.h5f.create(os.fsencode(str(path)), h5py.h5f.ACC_TRUNC, fcpl=fcpl, fapl=fapl))
+
+
+def create_group(parent, name: str):
+    """A subgroup without timestamps, attributes compact in its (checksummed) object header."""
+    import h5py
+
+    gcpl = h5py.h5p.create(h5py.h5p.GROUP_CREATE)
+    gcpl.set_obj_track_times(False)
+    gcpl.set_attr_phase_change(MAX_COMPACT_ATTRIBUTES, 0)
+    return h5py.Group(h5py.h5g.create(parent.id, name.encode(), gcpl=gcpl))
 
 
 def set_string_attr(obj, name: str, value: str) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import IsplatError
 from ..fileio import (attr_array, attr_string, atomic_output, check_checked_dataset, check_string_attrs,
-                      create_checked_dataset, create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
+                      create_checked_dataset, create_group, create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, axis_geometry, build_axis, escape_width,
                     normalize_ranges, parse_axes)
@@ -43,11 +43,11 @@ def _write_root(f: h5py.File, shape, sha: str, ranges) -> None:
     set_string_attr(f, "density_sha256", str(sha))
     f.attrs["density_ranges"] = np.asarray(normalize_ranges(ranges), dtype="<i8").reshape(-1, 2)
     set_string_attr(f, "created_by", f"isplat {__version__}")
-    f.create_group("axes")
+    create_group(f, "axes")
 
 
 def _write_axis(f: h5py.File, ax: AxisIndex) -> None:
-    g = f["axes"].create_group(ax.axis)
+    g = create_group(f["axes"], ax.axis)
     set_string_attr(g, "axis", ax.axis)
     g.attrs["n_slices"] = np.int64(ax.n_slices)
     set_string_attr(g, "in_slice_axes", ax.in_slice_axes)

@@ -6,7 +6,7 @@ ISPLAT := $(BIN)/isplat
 OUT    ?= out
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench bench-check wheel-check data paper-table bench-peers clean venv readme-images presets-doc
+.PHONY: demo test bench bench-check wheel-check data paper-table bench-peers clean venv readme-images presets-doc reliability fuzz-boundscheck
 
 venv: $(STAMP)
 
@@ -57,3 +57,13 @@ readme-images: demo
 # docs/presets.md and docs/img/preset-*.png: every transfer-function preset on a synthetic scan.
 presets-doc: $(STAMP)
 	$(BIN)/python scripts/presets_doc.py $(OUT)/presets docs
+
+# docs/reliability.md: the catalogue of bad inputs and their messages, fuzz figures, the checksums' cost.
+reliability: $(STAMP)
+	$(BIN)/python -m benchmarks reliability --out docs
+
+# The fuzz test with numba bounds checking on; a fresh cache, since numba reuses kernels compiled without it.
+FUZZ_SECONDS ?= 300
+fuzz-boundscheck: $(STAMP)
+	cache=$$(mktemp -d) && NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$$cache ISPLAT_FUZZ_SECONDS=$(FUZZ_SECONDS) \
+	  $(BIN)/python -m pytest -q tests/test_fuzz.py; status=$$?; rm -rf $$cache; exit $$status

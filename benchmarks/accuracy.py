@@ -53,10 +53,24 @@ def _log(msg):
 
 
 # ---- data ---------------------------------------------------------------------------------------------------
+def _readable(aug: Path, idx: Path) -> bool:
+    """False for cached files this isplat refuses (an older format version, a corrupted file): rebuild them."""
+    from ..augfile import open_augmented
+    from ..errors import IsplatError
+    from ..index import open_index
+
+    try:
+        open_augmented(aug)
+        open_index(idx)
+    except IsplatError:
+        return False
+    return True
+
+
 def sample_data(name: str, cache: Path = CACHE) -> tuple[Path, Path]:
     """The augmented and indexed sample ``name`` (default shape) in ``cache``, built once and reused."""
     aug, idx = cache / f"{name}.aug.h5", cache / f"{name}.idx.h5"
-    if aug.exists() and idx.exists():
+    if aug.exists() and idx.exists() and _readable(aug, idx):
         return aug, idx
     from isplat.augfile import write_augmented
     from isplat.augment import augment_array

@@ -33,16 +33,47 @@ ROOT = Path(__file__).resolve().parents[1]
 WORK = ROOT / "out" / "bench-commits"
 
 WORKER = r"""
-import json, sys, time
+import json, os, subprocess, sys, time
 import numpy as np
 try:
     from isplat.renderer import Renderer
 except ImportError:                    # versions before the render core was cut into stages
     from isplat.render import Renderer
 from isplat.scene import load_scene
+DATA = sys.argv[1]                     # this version's copies of the data (file formats differ between versions)
 held = {}
+
+
+def isplat(*args):
+    subprocess.run([sys.executable, "-m", "isplat", *map(str, args), "-q"], check=True, stdout=subprocess.DEVNULL)
+
+
+def prepare():
+    os.makedirs(DATA, exist_ok=True)
+    for name, shape in (("head", None), ("head", "128,128,112"), ("engine", None)):
+        tag = name if shape is None else f"{name}-{shape}"
+        npy, aug, idx = (f"{DATA}/{tag}{e}" for e in (".npy", ".aug.h5", ".idx.h5"))
+        if not os.path.exists(idx):
+            isplat("sample", name, "-o", npy, "--force", *([] if shape is None else ["--shape", shape]))
+            isplat("augment", npy, "-o", aug, "--force")
+            isplat("index", aug, "-o", idx, "--force")
+            os.unlink(npy)
+    if not os.path.exists(f"{DATA}/random.idx.h5"):
+        from isplat.augfile import write_augmented
+        from isplat.index import build_index_file
+        from isplat.normals import encode
+        r = np.random.default_rng(1)
+        shape = (9, 11, 13)
+        dens = r.choice(np.array([0, 60, 120, 200], np.uint8), size=shape, p=[0.55, 0.15, 0.15, 0.15])
+        write_augmented(f"{DATA}/random.aug.h5", dens, r.integers(0, 256, shape).astype(np.uint8),
+                        encode(r.normal(size=shape + (3,))), (1.0, 1.2, 0.8), (0.0, 255.0), 0.5)
+        build_index_file(f"{DATA}/random.aug.h5", f"{DATA}/random.idx.h5", force=True)
+
+
+prepare()
 for line in sys.stdin:
     cmd = json.loads(line)
+    cmd["overrides"] = [o.replace("{DATA}", DATA) for o in cmd.get("overrides", [])]
     if cmd["op"] == "load":
         held[cmd["key"]] = Renderer(load_scene(cmd["scene"], cmd["overrides"]))
         held[cmd["key"]].render_view(0)                          # warm-up
@@ -61,10 +92,10 @@ for line in sys.stdin:
 class Worker:
     """A process running one version of isplat, driven by JSON lines."""
 
-    def __init__(self, tree: Path):
+    def __init__(self, tree: Path, data: Path):
         env = dict(os.environ, PYTHONPATH=str(tree), ISPLAT_PROGRESS="0")
-        self.p = subprocess.Popen([sys.executable, "-c", WORKER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                  env=env, text=True, cwd=tree)
+        self.p = subprocess.Popen([sys.executable, "-c", WORKER, str(data)], stdin=subprocess.PIPE,
+                                  stdout=subprocess.PIPE, env=env, text=True, cwd=tree)
 
     def ask(self, **cmd) -> dict:
         self.p.stdin.write(json.dumps(cmd) + "\n")
@@ -79,46 +110,16 @@ class Worker:
         self.p.wait()
 
 
-def _isplat(*args):
-    subprocess.run([sys.executable, "-m", "isplat", *map(str, args), "-q"], check=True, stdout=subprocess.DEVNULL)
-
-
-def sample(name: str, shape=None) -> tuple[Path, Path]:
-    """A sample augmented and indexed under out/bench-commits (reused)."""
-    WORK.mkdir(parents=True, exist_ok=True)
-    tag = name if shape is None else f"{name}-{shape}"
-    npy, aug, idx = (WORK / f"{tag}{e}" for e in (".npy", ".aug.h5", ".idx.h5"))
-    if not idx.exists():
-        _isplat("sample", name, "-o", npy, "--force", *([] if shape is None else ["--shape", shape]))
-        _isplat("augment", npy, "-o", aug, "--force")
-        _isplat("index", aug, "-o", idx, "--force")
-        npy.unlink()
-    return aug, idx
-
-
-def random_volume() -> tuple[Path, Path]:
-    """A small random volume with random normals and gradient magnitudes (as tests/test_render.py makes)."""
-    from isplat.augfile import write_augmented
-    from isplat.index import build_index_file
-    from isplat.normals import encode
-
-    WORK.mkdir(parents=True, exist_ok=True)
-    aug, idx = WORK / "random.aug.h5", WORK / "random.idx.h5"
-    if not idx.exists():
-        r = np.random.default_rng(1)
-        shape = (9, 11, 13)
-        dens = r.choice(np.array([0, 60, 120, 200], np.uint8), size=shape, p=[0.55, 0.15, 0.15, 0.15])
-        write_augmented(aug, dens, r.integers(0, 256, shape).astype(np.uint8), encode(r.normal(size=shape + (3,))),
-                        (1.0, 1.2, 0.8), (0.0, 255.0), 0.5)
-        build_index_file(aug, idx, force=True)
-    return aug, idx
+def _data(tag: str) -> list[str]:
+    """Overrides naming a worker's own copy of data set ``tag`` (the worker fills in {DATA})."""
+    return [f'data.augmented="{{DATA}}/{tag}.aug.h5"', f'data.index="{{DATA}}/{tag}.idx.h5"']
 
 
 def image_cases() -> list[tuple[str, str, list]]:
     """(name, scene file, overrides) of every compared image."""
-    aug, idx = random_volume()
+    WORK.mkdir(parents=True, exist_ok=True)
     scene = WORK / "random.toml"
-    scene.write_text(f'[data]\naugmented = "{aug}"\nindex = "{idx}"\n[image]\nwidth = 40\nheight = 32\n'
+    scene.write_text('[data]\naugmented = "random.aug.h5"\nindex = "random.idx.h5"\n[image]\nwidth = 40\nheight = 32\n'
                      '[transfer]\nopacity = [[50, 0.0], [60, 0.3], [130, 0.1], [200, 0.9]]\n'
                      'color = [[0, 1, 0, 0], [255, 0, 0.5, 1]]\n')
     cases = []
@@ -127,7 +128,7 @@ def image_cases() -> list[tuple[str, str, list]]:
             for method in ("indexed", "full"):
                 for threads in (1, 2):
                     for et in (1.0, 0.95):
-                        o = [f"camera.projection={proj}", f"camera.azimuth={az}", f"camera.elevation={el}",
+                        o = [*_data("random"), f"camera.projection={proj}", f"camera.azimuth={az}", f"camera.elevation={el}",
                              f"render.method={method}", f"render.threads={threads}",
                              f"render.early_termination={et}"]
                         cases.append((f"random {proj} az{az} el{el} {method} t{threads} et{et}", scene, o))
@@ -136,12 +137,10 @@ def image_cases() -> list[tuple[str, str, list]]:
              ("float64", ["render.precision=float64"])]
     for name, o in extra:
         for method in ("indexed", "full"):
-            cases.append((f"random {name} {method}", scene, o + [f"render.method={method}"]))
-    for name, shape, toml in (("head", "128,128,112", "head.toml"), ("engine", None, "engine.toml")):
-        a, i = sample(name, shape)
+            cases.append((f"random {name} {method}", scene, [*_data("random"), *o, f"render.method={method}"]))
+    for name, tag, toml in (("head", "head-128,128,112", "head.toml"), ("engine", "engine", "engine.toml")):
         for method in ("indexed", "full"):
-            cases.append((f"{name} {method}", ROOT / "examples" / toml,
-                          [f'data.augmented="{a}"', f'data.index="{i}"', f"render.method={method}"]))
+            cases.append((f"{name} {method}", ROOT / "examples" / toml, [*_data(tag), f"render.method={method}"]))
     return cases
 
 
@@ -213,10 +212,7 @@ def compare_images(old: Worker, new: Worker) -> list[dict]:
 
 
 def time_cases() -> list[tuple[str, str, list]]:
-    head_aug, head_idx = sample("head")
-    eng_aug, eng_idx = sample("engine")
-    head = [f'data.augmented="{head_aug}"', f'data.index="{head_idx}"']
-    eng = [f'data.augmented="{eng_aug}"', f'data.index="{eng_idx}"']
+    head, eng = _data("head"), _data("engine")
     cases = []
     for method in ("indexed", "full"):
         for size in (256, 512):
@@ -285,7 +281,7 @@ def main(argv=None):
         subprocess.run(["git", "worktree", "add", "--detach", "-q", str(tree), rev], cwd=ROOT, check=True)
         try:
             tests = compare_tests(tree, Path(tmp))
-            old, new = Worker(tree), Worker(ROOT)
+            old, new = Worker(tree, WORK / f"data-{rev}"), Worker(ROOT, WORK / "data-new")
             images = compare_images(old, new)
             times = compare_times(old, new, args.frames)
             old.close()

@@ -21,12 +21,14 @@ import h5py
 import numpy as np
 
 from .errors import IsplatError
-from .fileio import open_hdf5
+from .fileio import (attr_array, attr_string, check_checked_dataset, check_string_attrs, create_checked_dataset,
+                     create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
 
 FORMAT_NAME = "isplat-augmented"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 CHANNELS = {"density": np.uint8, "gradient_magnitude": np.uint8, "normal": np.uint16}
 CHANNEL_DTYPES = {"density": "|u1", "gradient_magnitude": "|u1", "normal": "<u2"}
+OPTIONAL_STRINGS = ("source", "source_format", "source_dtype", "density_window_method")
 
 
 def density_sha256(density: np.ndarray) -> str:
@@ -61,56 +63,61 @@ class AugmentedVolume:
         """Read one channel (optionally the k-slab ``k0:k1``) into memory; adds to :attr:`bytes_read`."""
         if channel not in CHANNELS:
             raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
-        try:
+        with hdf5_errors(self.path, f"dataset {channel!r}"):
             with h5py.File(self.path, "r") as f:
                 ds = f[channel]
                 k1 = ds.shape[0] if k1 is None else k1
                 arr = ds[k0:k1]
-        except (OSError, KeyError) as exc:
-            raise IsplatError(f"{self.path}: cannot read dataset {channel!r} ({exc})") from None
         arr = np.ascontiguousarray(arr, dtype=CHANNELS[channel])
         self.bytes_read += arr.nbytes
         return arr
 
 
+def _rebuild_hint(p, f) -> str:
+    src = attr_string(f.attrs, "source")
+    return f"isplat augment {src if src else 'SOURCE'} -o {p} --force"
+
+
 def open_augmented(path) -> AugmentedVolume:
     """Open and validate an augmented file; raise :class:`IsplatError` naming any problem."""
-    p, f = open_hdf5(path, "augmented volume", FORMAT_NAME, FORMAT_VERSION)
-    with f:
+    p, f = open_hdf5(path, "augmented volume", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint)
+    with f, hdf5_errors(p, "attributes and datasets"):
         a = f.attrs
-        try:
-            shape = tuple(int(x) for x in a["shape"])
-            spacing = tuple(float(x) for x in a["spacing_ijk"])
-            window = tuple(float(x) for x in a["density_window"])
-            gscale = float(a["gradient_magnitude_scale"])
-            sha = a["density_sha256"]
-        except KeyError as exc:
-            raise IsplatError(f"{p}: missing attribute {exc.args[0]!r}") from None
-        if isinstance(sha, bytes):
-            sha = sha.decode()
-        if len(shape) != 3 or min(shape) < 1:
+        shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
+        spacing = tuple(float(x) for x in attr_array(p, a, "spacing_ijk", "f", (3,)))
+        window = tuple(float(x) for x in attr_array(p, a, "density_window", "f", (2,)))
+        gscale = float(attr_array(p, a, "gradient_magnitude_scale", "f"))
+        check_string_attrs(p, a, ("density_sha256", "created_by"), OPTIONAL_STRINGS)
+        sha = attr_string(a, "density_sha256")
+        if sha is None or len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+            raise IsplatError(f"{p}: attribute 'density_sha256' is {a['density_sha256']!r}, expected 64 lower-case "
+                              f"hex digits")
+        if min(shape) < 1:
             raise IsplatError(f"{p}: attribute 'shape' is {shape}, expected three positive sizes")
-        if len(spacing) != 3 or not all(np.isfinite(spacing)) or min(spacing) <= 0:
+        if min(spacing) <= 0:
             raise IsplatError(f"{p}: attribute 'spacing_ijk' is {spacing}, expected three positive numbers")
-        if not np.isfinite(gscale) or gscale < 0:
+        if not window[0] < window[1]:
+            raise IsplatError(f"{p}: attribute 'density_window' is {window}, expected LO < HI")
+        if gscale < 0:
             raise IsplatError(f"{p}: attribute 'gradient_magnitude_scale' is {gscale}, expected a finite number >= 0")
         for name, dt in CHANNEL_DTYPES.items():
-            if name not in f:
+            if name not in f or not isinstance(f[name], h5py.Dataset):
                 raise IsplatError(f"{p}: dataset {name!r} is missing")
             ds = f[name]
             if tuple(ds.shape) != shape:
                 raise IsplatError(f"{p}: dataset {name!r} has shape {ds.shape}, attribute 'shape' says {shape}")
             if ds.dtype != np.dtype(dt):
                 raise IsplatError(f"{p}: dataset {name!r} has dtype {ds.dtype}, expected {np.dtype(dt)}")
-        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in a.items()}
-    return AugmentedVolume(p, shape, spacing, window, gscale, str(sha), attrs)
+            check_checked_dataset(f"{p}: dataset {name!r}", ds)
+        attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
+    return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs)
 
 
 def write_augmented(path, density, gradient_magnitude, normal, spacing_ijk, density_window,
                     gradient_magnitude_scale, extra_attrs: dict | None = None) -> None:
     """Write a complete augmented file at ``path`` (the caller makes it atomic)."""
     shape = tuple(int(x) for x in density.shape)
-    with h5py.File(path, "w") as f:
+    with create_hdf5(path) as f:
         create_augmented(f, shape, spacing_ijk, density_window, gradient_magnitude_scale,
                          density_sha256(density), extra_attrs)
         f["density"][...] = density
@@ -123,15 +130,18 @@ def create_augmented(f: h5py.File, shape, spacing_ijk, density_window, gradient_
     """Create the attributes and empty channel datasets of an augmented file in open file ``f``."""
     from . import __version__
 
-    f.attrs["format"] = FORMAT_NAME
+    set_string_attr(f, "format", FORMAT_NAME)
     f.attrs["format_version"] = np.int64(FORMAT_VERSION)
     f.attrs["shape"] = np.asarray(shape, dtype="<i8")
     f.attrs["spacing_ijk"] = np.asarray(spacing_ijk, dtype="<f8")
     f.attrs["density_window"] = np.asarray(density_window, dtype="<f8")
     f.attrs["gradient_magnitude_scale"] = np.float64(gradient_magnitude_scale)
-    f.attrs["density_sha256"] = sha
-    f.attrs["created_by"] = f"isplat {__version__}"
+    set_string_attr(f, "density_sha256", sha)
+    set_string_attr(f, "created_by", f"isplat {__version__}")
     for k, v in (extra_attrs or {}).items():
-        f.attrs[k] = v
+        if isinstance(v, str):
+            set_string_attr(f, k, v)
+        else:
+            f.attrs[k] = v
     for name, dt in CHANNEL_DTYPES.items():
-        f.create_dataset(name, shape=shape, dtype=dt)
+        create_checked_dataset(f, name, shape, dt)

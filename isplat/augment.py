@@ -20,14 +20,13 @@ import hashlib
 import logging
 import math
 
-import h5py
 import numba
 import numpy as np
 
 from . import progress
 from .augfile import create_augmented
 from .errors import IsplatError
-from .fileio import atomic_output, check_output
+from .fileio import atomic_output, check_output, create_hdf5
 from .jit import jit
 from .normals import NO_NORMAL, _encode_one
 from .volume_io import Volume, read_volume
@@ -417,7 +416,7 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
         gmax, sha = _first_pass(sl, bar)
         extra["density_clipped_fraction"] = np.asarray(_clipped_shares(sl), dtype="<f8")
         with atomic_output(out, force) as tmp:
-            with h5py.File(tmp, "w") as f:
+            with create_hdf5(tmp) as f:
                 create_augmented(f, vol.array.shape, (sl.si, sl.sj, sl.sk), (sl.lo, sl.hi), gmax / 255.0,
                                  sha, extra)
                 for k0, k1, d, mag, nrm in _second_pass(sl, gmax, bar):

@@ -10,6 +10,8 @@ import os
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from .errors import IsplatError
 
 
@@ -64,29 +66,204 @@ def atomic_output(path: str | os.PathLike, force: bool = False):
         raise
 
 
-def open_hdf5(path, what: str, format_name: str, version: int):
+def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None):
     """Open an isplat HDF5 container read-only after checking its ``format`` and ``format_version``
-    attributes; return ``(path, h5py.File)``. Every problem is one :class:`IsplatError` line."""
+    attributes (an int64 scalar) and that it carries HDF5 metadata checksums; return ``(path, h5py.File)``.
+    Every problem is one :class:`IsplatError` line; ``rebuild(path, file)`` gives the command that remakes
+    an old file."""
     import h5py
-    import numpy as np
 
     p = check_input(path, what)
     try:
         f = h5py.File(p, "r")
-    except OSError as exc:
-        raise IsplatError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__}: truncated or not HDF5)") from None
-    fmt = f.attrs.get("format")
-    if isinstance(fmt, bytes):
-        fmt = fmt.decode(errors="replace")
-    ver = f.attrs.get("format_version")
+    except (OSError, KeyError, ValueError, RuntimeError) as exc:
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else exc.__class__.__name__
+        raise IsplatError(f"{p}: not a readable HDF5 file: truncated, corrupted or not HDF5 ({why[:160]})") from None
     try:
-        ver_ok = ver is not None and np.ndim(ver) == 0 and int(ver) == version
-    except (TypeError, ValueError):
-        ver_ok = False
-    if fmt != format_name:
+        with hdf5_errors(p, "root attributes"):
+            check_string_attrs(p, f.attrs, ("format",))
+            fmt = attr_string(f.attrs, "format")
+            ver = f.attrs.get("format_version")
+            superblock = f.id.get_create_plist().get_version()[0]
+        if fmt != format_name:
+            raise IsplatError(f"{p}: attribute 'format' is {fmt!r}, expected {format_name!r}")
+        ver_arr = np.asarray(ver) if ver is not None else None
+        if ver_arr is None or ver_arr.shape != () or ver_arr.dtype != np.dtype("<i8"):
+            raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}"
+                              f"{'' if ver_arr is None else f' ({ver_arr.dtype})'}, expected the int64 scalar "
+                              f"{version}")
+        if int(ver_arr) != version:
+            old = f"; files of version {int(ver_arr)} have no checksums, rebuild it: {rebuild(p, f)}" \
+                if 0 < int(ver_arr) < version and rebuild else ""
+            raise IsplatError(f"{p}: attribute 'format_version' is {int(ver_arr)}, this isplat reads version "
+                              f"{version}{old}")
+        if superblock < 2:
+            raise IsplatError(f"{p}: HDF5 superblock version {superblock} has no checksums; format version "
+                              f"{version} requires the HDF5 1.10 file format (superblock 2 or later)")
+    except BaseException:
         f.close()
-        raise IsplatError(f"{p}: attribute 'format' is {fmt!r}, expected {format_name!r}")
-    if not ver_ok:
-        f.close()
-        raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}, this isplat reads version {version}")
+        raise
     return p, f
+
+
+# ------------------------------------------------------------------------------- HDF5 with checksums
+#
+# Version 2 of both containers (formats/augmented.md, formats/index.md) relies on HDF5's own checksums:
+# files are written in the HDF5 1.10 file format (superblock v3, object headers v2: every piece of metadata,
+# attributes included, carries a Jenkins lookup3 checksum) with attributes kept in the object header and
+# fixed-length strings (so nothing lives in the unchecksummed global heap), and every dataset is chunked with
+# the Fletcher-32 filter. HDF5 verifies both on every read; :func:`hdf5_errors` turns its failures into one line.
+
+MAX_CHUNK_BYTES = 1 << 18          # writers' chunk size target; readers refuse chunks above READ_CHUNK_LIMIT
+READ_CHUNK_LIMIT = 1 << 24
+MAX_COMPACT_ATTRIBUTES = 64
+
+
+def create_hdf5(path):
+    """Create (truncate) an HDF5 file with metadata checksums and attributes kept in object headers."""
+    import h5py
+
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_V110, h5py.h5f.LIBVER_LATEST)
+    fcpl = h5py.h5p.create(h5py.h5p.FILE_CREATE)
+    fcpl.set_attr_phase_change(MAX_COMPACT_ATTRIBUTES, 0)
+    fcpl.set_obj_track_times(False)                  # no timestamps: the same content gives the same bytes
+    return h5py.File(h5py.h5f.create(os.fsencode(str(path)), h5py.h5f.ACC_TRUNC, fcpl=fcpl, fapl=fapl))
+
+
+def create_group(parent, name: str):
+    """A subgroup without timestamps, attributes compact in its (checksummed) object header."""
+    import h5py
+
+    gcpl = h5py.h5p.create(h5py.h5p.GROUP_CREATE)
+    gcpl.set_obj_track_times(False)
+    gcpl.set_attr_phase_change(MAX_COMPACT_ATTRIBUTES, 0)
+    return h5py.Group(h5py.h5g.create(parent.id, name.encode(), gcpl=gcpl))
+
+
+def set_string_attr(obj, name: str, value: str) -> None:
+    """A fixed-length UTF-8 string attribute (stored in the checksummed object header)."""
+    import h5py
+
+    data = str(value).encode("utf-8") or b"\0"
+    obj.attrs.create(name, data=data, dtype=h5py.string_dtype("utf-8", len(data)))
+
+
+def chunk_shape(shape, itemsize: int, target: int = MAX_CHUNK_BYTES) -> tuple:
+    """Chunks of about ``target`` bytes, filled from the fastest axis outwards (whole rows, then whole planes).
+    A volume's chunks hold at most 8 k-planes, a power of two when they do not hold all: the renderer reads
+    8-plane slabs, which then align with chunks, and a partial last chunk (stored whole) wastes < 8 planes."""
+    chunk, size = [1] * len(shape), int(itemsize)
+    for ax in reversed(range(len(shape))):
+        n, fit = max(1, int(shape[ax])), max(1, target // size)
+        if ax == 0 and len(shape) == 3:
+            fit = min(fit, 8)
+        if n <= fit:
+            chunk[ax], size = n, size * n
+            continue
+        chunk[ax] = 1 << (fit.bit_length() - 1) if ax == 0 else fit
+        break
+    return tuple(chunk)
+
+
+def create_checked_dataset(group, name: str, shape, dtype, data=None, target: int = MAX_CHUNK_BYTES):
+    """A chunked dataset with the Fletcher-32 filter, chunks of about ``target`` bytes (empty datasets are
+    resizable, so a chunk fits)."""
+    shape = tuple(int(n) for n in shape)
+    dt = np.dtype(dtype)
+    kw = {"maxshape": tuple(None if n == 0 else n for n in shape)} if 0 in shape else {}
+    return group.create_dataset(name, shape=shape, dtype=dt, data=data, chunks=chunk_shape(shape, dt.itemsize, target),
+                                fletcher32=True, track_times=False, **kw)
+
+
+def check_checked_dataset(where: str, ds) -> None:
+    """Refuse a dataset that is not chunked with Fletcher-32 as its only filter, or has oversized chunks."""
+    plist = ds.id.get_create_plist()
+    filters = [plist.get_filter(n)[0] for n in range(plist.get_nfilters())]
+    if ds.chunks is None or filters != [3]:          # H5Z_FILTER_FLETCHER32
+        layout = "contiguous" if ds.chunks is None else f"chunked with filters {filters}"
+        raise IsplatError(f"{where}: dataset is {layout}; format version 2 requires chunks with the Fletcher-32 "
+                          f"filter only (checksums)")
+    if int(np.prod(ds.chunks)) * ds.dtype.itemsize > READ_CHUNK_LIMIT:
+        raise IsplatError(f"{where}: chunks of {ds.chunks} exceed {READ_CHUNK_LIMIT} bytes")
+
+
+def _h5_reason(exc: BaseException) -> str:
+    text = str(exc)
+    if "fletcher32" in text.lower() or "filter returned failure" in text:   # Fletcher-32 is the only filter allowed
+        return "checksum mismatch in its data (Fletcher-32): the file is corrupted"
+    if "checksum" in text.lower():
+        return "checksum mismatch in HDF5 metadata: the file is corrupted"
+    first = text.strip().splitlines()[0] if text.strip() else exc.__class__.__name__
+    return f"unreadable ({exc.__class__.__name__}: {first[:120]}): truncated or corrupt file"
+
+
+@contextlib.contextmanager
+def hdf5_errors(path, what: str = ""):
+    """Turn any exception h5py raises inside the block into one :class:`IsplatError` line naming ``what``."""
+    try:
+        yield
+    except IsplatError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError, AttributeError) as exc:
+        where = f"{path}: {what}" if what else f"{path}"
+        raise IsplatError(f"{where}: {_h5_reason(exc)}") from None
+
+
+def _string_type_problem(attrs, name: str) -> str | None:
+    """Why attribute ``name`` is not a fixed-length UTF-8 (or ASCII) scalar string, or None if it is one."""
+    import h5py
+
+    tid = attrs.get_id(name).get_type()
+    if not isinstance(tid, h5py.h5t.TypeStringID):
+        v = np.asarray(attrs[name])
+        return f"has type {v.dtype} and shape {v.shape}, expected a fixed-length UTF-8 string"
+    if tid.is_variable_str():
+        return ("is a variable-length string; format version 2 stores fixed-length UTF-8 strings (in the "
+                "checksummed object header)")
+    if np.asarray(attrs[name]).shape != ():
+        return f"has shape {np.asarray(attrs[name]).shape}, expected a scalar string"
+    return None
+
+
+def attr_string(attrs, name: str):
+    """A fixed-length string attribute as ``str``; None when absent, of another type or not UTF-8."""
+    if name not in attrs or _string_type_problem(attrs, name):
+        return None
+    try:
+        return bytes(np.asarray(attrs[name])[()]).decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+
+
+def attr_array(path, attrs, name: str, kind: str, shape: tuple | None = None):
+    """A numeric attribute, checked: ``kind`` 'i' (int64) or 'f' (float64), exact ``shape`` (None = scalar)."""
+    if name not in attrs:
+        raise IsplatError(f"{path}: missing attribute {name!r}")
+    v = np.asarray(attrs[name])
+    want = np.dtype("<i8" if kind == "i" else "<f8")
+    if v.dtype != want:
+        raise IsplatError(f"{path}: attribute {name!r} has type {v.dtype}, expected {want.name}"
+                          f" ({'H5T_STD_I64LE' if kind == 'i' else 'H5T_IEEE_F64LE'})")
+    if shape is None and v.shape != ():
+        raise IsplatError(f"{path}: attribute {name!r} has shape {v.shape}, expected a scalar")
+    if shape is not None and len(v.shape) != len(shape) or shape is not None and any(
+            s != -1 and s != n for s, n in zip(shape, v.shape)):
+        raise IsplatError(f"{path}: attribute {name!r} has shape {v.shape}, expected {shape}")
+    if kind == "f" and not np.all(np.isfinite(v)):
+        raise IsplatError(f"{path}: attribute {name!r} is {v.tolist()}, expected finite numbers")
+    return v.astype(want.newbyteorder("="))
+
+
+def check_string_attrs(path, attrs, required=(), optional=()) -> None:
+    """Refuse a missing required string attribute, or a required or optional one that is not a UTF-8 string."""
+    for name in (*required, *optional):
+        if name not in attrs:
+            if name in required:
+                raise IsplatError(f"{path}: missing attribute {name!r}")
+            continue
+        problem = _string_type_problem(attrs, name)
+        if problem:
+            raise IsplatError(f"{path}: attribute {name!r} {problem}")
+        if attr_string(attrs, name) is None:
+            raise IsplatError(f"{path}: attribute {name!r} is not valid UTF-8")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 from pathlib import Path
@@ -102,3 +103,40 @@ def write_movie(out: str, frames: list[np.ndarray], force: bool, fps: float = 12
 def check_outputs(paths, force: bool) -> None:
     for p in paths:
         check_output(p, force)
+
+
+def memory_available() -> int | None:
+    """Bytes this machine can still give (``MemAvailable`` of /proc/meminfo, else free pages), or None."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def output_buffer_bytes(width: int, height: int, n_views: int, movie: bool, ext: str, itemsize: int,
+                        threads: int) -> int:
+    """Bytes of the image buffers a render allocates: image and sheet (RGBA, ``itemsize``), the composited
+    copy, saturation masks, one touched-pixel list (int64) per thread, the pixels written (float32 RGBA for TIFF),
+    and for a movie every frame kept until the file is written, plus their 8-bit stack."""
+    px = int(width) * int(height)
+    frame = px * 4 * itemsize
+    work = 3 * frame + 2 * px + max(1, threads) * (px + 1) * 8
+    written = px * 4 * (4 if ext in (".tif", ".tiff") else 2)
+    if movie:
+        return work + int(n_views) * (frame + 2 * px * 3)
+    return work + written
+
+
+def check_memory(needed: int, what: str) -> None:
+    """Refuse, before allocating, buffers larger than the memory available."""
+    avail = memory_available()
+    if avail is not None and needed > avail:
+        raise IsplatError(f"{what} needs {needed / 2**30:.2f} GiB of image buffers, {avail / 2**30:.2f} GiB of "
+                          f"memory is available; make the image smaller, use fewer views, or free memory")

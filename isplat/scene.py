@@ -178,6 +178,9 @@ DEFAULT_LIGHT_DIRECTION = (-0.4, 0.6, 1.0)
 ORTHONORMAL_TOLERANCE = 1e-3
 # sin of the smallest angle accepted between an up vector and the viewing direction
 PARALLEL_TOLERANCE = 1e-6
+MAX_SPACING_RATIO = 1e6       # beyond it the thin axis's voxels project to nothing (docs/reliability.md)
+SPACING_RANGE = (1e-30, 1e30)  # beyond it world coordinates lose the precision the camera needs
+FOV_MAX = 180.0 * (1 - 1e-3)  # a wider field of view (within 1e-3 of 180, relative) leaves nothing visible
 
 # --------------------------------------------------------------------------------------------------------------------
 # Locator: key path -> line number, by scanning the TOML source
@@ -623,6 +626,18 @@ def _data(ctx: _Ctx, tree: dict, method: str, required: bool = True) -> Data:
     return data
 
 
+def spacing_problem(spacing) -> str | None:
+    """Why a voxel spacing cannot give a visible image (None when it can): degenerate ratios or magnitudes."""
+    lo, hi = min(spacing), max(spacing)
+    if not (SPACING_RANGE[0] <= lo and hi <= SPACING_RANGE[1]):
+        return (f"spacing outside {SPACING_RANGE[0]:g}..{SPACING_RANGE[1]:g} world units loses the precision "
+                f"the camera needs; rescale the units")
+    if hi / lo > MAX_SPACING_RATIO:
+        return (f"spacing ratio {hi / lo:.3g} exceeds {MAX_SPACING_RATIO:g}: the volume is flat to within a "
+                f"pixel and renders as nothing")
+    return None
+
+
 def _image(ctx: _Ctx, tree: dict) -> Image:
     t = ctx.table(tree, ("image",), IMAGE_KEYS)
     p = ("image",)
@@ -644,6 +659,9 @@ def _volume(ctx: _Ctx, tree: dict) -> Volume:
     if "spacing" in t:
         spacing = ctx.vector(p + ("spacing",), t["spacing"], lo=0.0, lo_open=True,
                              expected="expected 3 numbers > 0 (i, j, k spacing in world units)")
+        problem = spacing_problem(spacing)
+        if problem:
+            ctx.fail(p + ("spacing",), t["spacing"], problem)
     origin = None
     if "origin" in t:
         origin = ctx.vector(p + ("origin",), t["origin"], expected="expected 3 numbers (world position of voxel 0,0,0)")
@@ -717,6 +735,9 @@ def _camera(ctx: _Ctx, raw: dict, paths: dict[str, tuple]) -> Camera:
     zoom = ctx.number(pth("zoom"), g("zoom", 1.0), "expected a number > 0", lo=0.0, lo_open=True)
     fov = ctx.number(pth("fov"), g("fov", 30.0), "expected a number of degrees with 0 < fov < 180",
                      lo=0.0, hi=180.0, lo_open=True, hi_open=True)
+    if projection == "perspective" and fov > FOV_MAX:
+        ctx.fail(pth("fov"), fov, f"a field of view this close to 180 degrees shrinks the volume to nothing on "
+                                  f"the image; expected fov <= {FOV_MAX:g}")
     near = ctx.number(pth("near"), g("near", 0.0), "expected a distance >= 0 in world units (0 = renderer default)",
                       lo=0.0)
 

@@ -87,12 +87,32 @@ def augmented_section(aug) -> dict:
     }
 
 
+def check_counts(idx, counts: dict, n_voxels: int) -> None:
+    """The index's per-density voxel counts agree between axes and with the volume, before any is printed."""
+    axes = list(counts)
+    for a in axes[1:]:
+        bad = np.flatnonzero(counts[a] != counts[axes[0]])
+        if bad.size:
+            d = int(bad[0])
+            raise IsplatError(f"{idx.path}: axis {a} indexes {int(counts[a][d]):,} voxels of density {d}, axis "
+                              f"{axes[0]} {int(counts[axes[0]][d]):,}: the tables disagree (corrupt index); "
+                              f"rebuild it with isplat index")
+    total = int(counts[axes[0]].sum())
+    full = [tuple(r) for r in idx.density_ranges] == [(0, 255)]
+    if total > n_voxels or (full and total != n_voxels):
+        raise IsplatError(f"{idx.path}: the index holds {total:,} voxels, the volume {n_voxels:,}"
+                          f"{' (all densities are indexed, so they must be equal)' if full else ''}: corrupt index; "
+                          f"rebuild it with isplat index")
+
+
 def index_section(idx, aug) -> dict:
     per_axis, counts = {}, {}
     for a in idx.axes:
+        counts[a] = idx.voxel_counts(a)
+    check_counts(idx, counts, aug.n_voxels)
+    for a in idx.axes:
         info = idx.axis_info(a)
-        c = idx.voxel_counts(a)
-        counts[a] = c
+        c = counts[a]
         nbytes = idx.nbytes(a)
         vox = int(c.sum())
         per_axis[a] = {

@@ -47,7 +47,7 @@ def test_index_ok(tmp_path, aug, capsys):
     idx = open_index(out)
     assert idx.axes == "jk" and idx.density_ranges == [(10, 40), (200, 200)]
     with h5py.File(aug, "r") as f:
-        assert idx.density_sha256 == f.attrs["density_sha256"]
+        assert idx.density_sha256 == f.attrs["density_sha256"].decode()
         d = f["density"][()]
     want = np.bincount(d.ravel(), minlength=256)
     want[~np.isin(np.arange(256), list(range(10, 41)) + [200])] = 0
@@ -87,7 +87,7 @@ def test_bad_augmented(tmp_path, aug, capsys, case):
     if case == "format":
         _set_attr(aug, "format", "isplat-something")
     elif case == "version":
-        _set_attr(aug, "format_version", np.int64(2))
+        _set_attr(aug, "format_version", np.int64(3))
     elif case == "truncated":
         data = aug.read_bytes()
         aug.write_bytes(data[: len(data) // 2])
@@ -210,7 +210,7 @@ def test_corrupt_escape_coordinates(tmp_path):
 @pytest.mark.parametrize("case", ["version", "format", "shape", "escape_width", "dtype", "truncated", "no_axes"])
 def test_bad_index_header(index_file, case):
     if case == "version":
-        _set_attr(index_file, "format_version", np.int64(2))
+        _set_attr(index_file, "format_version", np.int64(3))
     elif case == "format":
         _set_attr(index_file, "format", "isplat-augmented")
     elif case == "shape":

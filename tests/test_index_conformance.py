@@ -74,15 +74,17 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
     assert np.array_equal(np.load(EXAMPLES / f"{name}.npy"), vol)
     path = EXAMPLES / f"{name}.idx.h5"
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == "isplat-index" and int(f.attrs["format_version"]) == 1
-        assert f.attrs["density_sha256"] == density_sha256(vol)
+        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(2)
+        assert f.attrs["format_version"].dtype == np.dtype("<i8")
+        assert f.attrs["density_sha256"].decode() == density_sha256(vol)
+        assert f.id.get_create_plist().get_version()[0] >= 2       # superblock with checksums
         assert np.array_equal(f.attrs["density_ranges"], ex["density_ranges"])
         for axis, spec in ex["axes"].items():
             g = f["axes"][axis]
             assert g.attrs["escape_width"] == spec["escape_width"]
             for key, want in expected_tables(spec).items():
                 ds = g[key]
-                assert ds.chunks is None and ds.compression is None
+                assert ds.chunks is not None and ds.fletcher32 and ds.compression is None
                 assert ds.dtype.str in ("<i8", "<u4", "|u1") and np.array_equal(ds[()], want), (axis, key)
     idx = open_index(path)
     for axis, spec in ex["axes"].items():

@@ -18,6 +18,7 @@ import numpy as np
 from isplat import normals
 from isplat.augfile import write_augmented
 from isplat.augment import augment_array
+from isplat.fileio import set_string_attr
 
 HERE = Path(__file__).resolve().parent / "augmented"
 SHAPE_IJK = (4, 3, 2)
@@ -45,25 +46,42 @@ def build(out_dir: Path) -> list[Path]:
     write_augmented(valid, *args, extra_attrs=extra)
     # the tool version would make the file change with every release; pin it for the committed example
     with h5py.File(valid, "a") as f:
-        f.attrs["created_by"] = "isplat 0.1.0"
+        set_string_attr(f, "created_by", "isplat 0.1.0")
 
     wrong_version = out_dir / "invalid-wrong-version.aug.h5"
     write_augmented(wrong_version, *args, extra_attrs=extra)
     with h5py.File(wrong_version, "a") as f:
-        f.attrs["format_version"] = np.int64(2)
-        f.attrs["created_by"] = "isplat 0.1.0"
+        f.attrs["format_version"] = np.int64(3)
+        set_string_attr(f, "created_by", "isplat 0.1.0")
 
     wrong_name = out_dir / "invalid-wrong-format.aug.h5"
     write_augmented(wrong_name, *args, extra_attrs=extra)
     with h5py.File(wrong_name, "a") as f:
-        f.attrs["format"] = "isplat-index"
-        f.attrs["created_by"] = "isplat 0.1.0"
+        set_string_attr(f, "format", "isplat-index")
+        set_string_attr(f, "created_by", "isplat 0.1.0")
 
     missing = out_dir / "invalid-missing-normal.aug.h5"
     write_augmented(missing, *args, extra_attrs=extra)
     with h5py.File(missing, "a") as f:
         del f["normal"]
-        f.attrs["created_by"] = "isplat 0.1.0"
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+
+    old = out_dir / "invalid-version-1.aug.h5"       # the layout of version 1: contiguous, no checksums
+    with h5py.File(old, "w") as f:
+        for k, v in h5py.File(valid, "r").attrs.items():
+            f.attrs[k] = v
+        f.attrs["format_version"] = np.int64(1)
+        for name in ("density", "gradient_magnitude", "normal"):
+            f.create_dataset(name, data=aug[name])
+
+    flipped = out_dir / "invalid-flipped-bit.aug.h5"  # one bit of the normal channel flipped on disk
+    write_augmented(flipped, *args, extra_attrs=extra)
+    with h5py.File(flipped, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+        at = f["normal"].id.get_chunk_info(0).byte_offset
+    data = bytearray(flipped.read_bytes())
+    data[at + 3] ^= 0x04
+    flipped.write_bytes(bytes(data))
 
     nrm = aug["normal"]
     expected = {
@@ -81,11 +99,13 @@ def build(out_dir: Path) -> list[Path]:
             "invalid-wrong-version.aug.h5": "format_version",
             "invalid-wrong-format.aug.h5": "format",
             "invalid-missing-normal.aug.h5": "normal",
+            "invalid-version-1.aug.h5": "format_version",
+            "invalid-flipped-bit.aug.h5": "Fletcher-32",
         },
     }
     exp = out_dir / "valid.expected.json"
     exp.write_text(json.dumps(expected, indent=1) + "\n")
-    return [valid, wrong_version, wrong_name, missing, exp]
+    return [valid, wrong_version, wrong_name, missing, old, flipped, exp]
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ so ``isplat --help`` and a render start without importing every stage."""
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 
 import click
@@ -67,15 +68,57 @@ def cli(verbose, quiet):
     start_verbosity(verbose - quiet)
 
 
+class Terminated(BaseException):
+    """SIGTERM or SIGINT, raised in the main thread so that temporary outputs are removed on the way out
+    (not KeyboardInterrupt, which click turns into Abort after writing a blank line)."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _on_signal(signum, frame):
+    raise Terminated(signum)
+
+
+def _usage_line(exc: click.UsageError) -> str:
+    ctx = exc.ctx
+    cmd = ctx.command_path if ctx is not None else "isplat"
+    return f"isplat: error: {cmd}: {exc.format_message()} (see {cmd} --help)".replace("\n", " ")
+
+
 def main(argv=None):
-    """Entry point: IsplatError becomes one line on stderr and exit status 2, never a traceback."""
+    """Entry point: IsplatError becomes one line on stderr and exit status 2, never a traceback.
+
+    SIGTERM and SIGINT remove temporary outputs (:func:`isplat.fileio.atomic_output`), print one line and exit
+    143 and 130; click usage errors are one line too."""
+    previous = {}
+    for sig, default in ((signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.default_int_handler)):
+        if signal.getsignal(sig) is default:
+            previous[sig] = signal.signal(sig, _on_signal)
+    try:
+        _run(argv)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _run(argv):
     try:
         cli.main(args=argv, prog_name="isplat", standalone_mode=False)
+    except Terminated as exc:
+        name = signal.Signals(exc.signum).name
+        click.echo(f"isplat: interrupted ({name}); incomplete outputs removed", err=True)
+        sys.exit(128 + exc.signum)
+    except click.UsageError as exc:
+        click.echo(_usage_line(exc), err=True)
+        sys.exit(exc.exit_code)
     except IsplatError as exc:
-        click.echo(f"isplat: error: {exc}", err=True)
+        one_line = " ".join(str(exc).split())          # values shown with repr() may span lines
+        click.echo(f"isplat: error: {one_line[:2000]}", err=True)
         sys.exit(exc.exit_code)
     except click.exceptions.Abort:
-        click.echo("isplat: aborted", err=True)
+        click.echo("isplat: interrupted; incomplete outputs removed", err=True)
         sys.exit(130)
     except click.ClickException as exc:
         exc.show()
@@ -83,7 +126,7 @@ def main(argv=None):
     except BrokenPipeError:
         sys.exit(1)
     except KeyboardInterrupt:
-        click.echo("isplat: interrupted", err=True)
+        click.echo("isplat: interrupted (SIGINT); incomplete outputs removed", err=True)
         sys.exit(130)
     except MemoryError:
         click.echo("isplat: error: out of memory", err=True)

@@ -47,8 +47,10 @@ def render(scene_file, out, overrides, view, as_json, force):
       isplat render orbit.toml -o orbit.gif              # a batch of views as an animated GIF
     """
     from ..errors import IsplatError
-    from ..output import check_format, check_outputs, frame_paths, write_movie, write_still
+    from ..output import (check_format, check_memory, check_outputs, frame_paths, output_buffer_bytes, write_movie,
+                          write_still)
     from ..renderer import Renderer
+    from ..threads import default_threads
     from ..scene import load_scene
 
     scene = load_scene(scene_file, list(overrides))
@@ -63,7 +65,14 @@ def render(scene_file, out, overrides, view, as_json, force):
     if as_json and out == "-":
         raise IsplatError("--json and -o - both want stdout; choose one")
     ext = check_format(out, batch)
+    if out == "-" and sys.stdout.isatty():
+        raise IsplatError("-o -: standard output is a terminal, not a place for PNG bytes; redirect it "
+                          "(-o - > image.png) or pipe it (-o - | display -)")
     movie = ext in (".gif", ".mp4")
+    itemsize = 8 if scene.render.precision == "float64" else 4
+    check_memory(output_buffer_bytes(scene.image.width, scene.image.height, len(views), movie, ext, itemsize,
+                                     scene.render.threads or default_threads()),
+                 f"{scene.image.width}x{scene.image.height}" + (f", {len(views)} views" if movie else ""))
     paths = [] if out == "-" else ([Path(out)] if movie else frame_paths(out, len(views)))
     check_outputs(paths, force)
 
@@ -86,7 +95,7 @@ def render(scene_file, out, overrides, view, as_json, force):
               "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
               "views": per_view}
     if as_json:
-        json.dump(report, sys.stdout)
+        json.dump(report, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     log.debug(f"read: {rep.augmented_bytes} bytes of augmented channels {rep.channels or '(none)'}; "
               f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}")

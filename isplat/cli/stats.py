@@ -47,7 +47,11 @@ def stats(augmented, index, scene_file, overrides, view, as_json):
         raise IsplatError("--set needs --scene SCENE.toml")
     figures = collect(augmented, index, scene=scene_file, overrides=list(overrides), view=view)
     if as_json:
-        json.dump(figures, sys.stdout, sort_keys=False)
+        try:
+            text = json.dumps(figures, sort_keys=False, allow_nan=False)     # strict JSON: no NaN, no Infinity
+        except ValueError:
+            raise IsplatError("a figure is not a finite number; please report this with the files") from None
+        sys.stdout.write(text)
         sys.stdout.write("\n")
     else:
         sys.stdout.write(format_table(figures))

@@ -7,6 +7,7 @@ at the first block that does not match its count or range.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,13 +15,14 @@ import h5py
 import numpy as np
 
 from ..errors import IsplatError
-from ..fileio import atomic_output, open_hdf5
+from ..fileio import (attr_array, attr_string, atomic_output, check_checked_dataset, check_string_attrs,
+                      create_checked_dataset, create_group, create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, axis_geometry, build_axis, escape_width,
                     normalize_ranges, parse_axes)
 
 FORMAT_NAME = "isplat-index"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 DATASET_DTYPES = {
     "density_entry_ptr": "<i8",
     "entry_slice": "<u4",
@@ -35,33 +37,35 @@ DATASET_DTYPES = {
 def _write_root(f: h5py.File, shape, sha: str, ranges) -> None:
     from .. import __version__
 
-    f.attrs["format"] = FORMAT_NAME
+    set_string_attr(f, "format", FORMAT_NAME)
     f.attrs["format_version"] = np.int64(FORMAT_VERSION)
     f.attrs["shape"] = np.asarray(shape, dtype="<i8")
-    f.attrs["density_sha256"] = str(sha)
+    set_string_attr(f, "density_sha256", str(sha))
     f.attrs["density_ranges"] = np.asarray(normalize_ranges(ranges), dtype="<i8").reshape(-1, 2)
-    f.attrs["created_by"] = f"isplat {__version__}"
-    f.create_group("axes")
+    set_string_attr(f, "created_by", f"isplat {__version__}")
+    create_group(f, "axes")
 
 
 def _write_axis(f: h5py.File, ax: AxisIndex) -> None:
-    g = f["axes"].create_group(ax.axis)
-    g.attrs["axis"] = ax.axis
+    g = create_group(f["axes"], ax.axis)
+    set_string_attr(g, "axis", ax.axis)
     g.attrs["n_slices"] = np.int64(ax.n_slices)
-    g.attrs["in_slice_axes"] = ax.in_slice_axes
+    set_string_attr(g, "in_slice_axes", ax.in_slice_axes)
     g.attrs["n_a"] = np.int64(ax.n_a)
     g.attrs["n_b"] = np.int64(ax.n_b)
     g.attrs["escape_width"] = np.int64(ax.escape_width)
     for name, dt in DATASET_DTYPES.items():
-        # contiguous (no chunks, no filters), little-endian
-        g.create_dataset(name, data=np.ascontiguousarray(getattr(ax, name), dtype=dt), track_times=False)
+        # chunked with the Fletcher-32 checksum filter, little-endian (formats/index.md §1)
+        data = np.ascontiguousarray(getattr(ax, name), dtype=dt)
+        # small chunks: a load reads single rows of entry_byte_offset and row ranges, each rounded out to chunks
+        create_checked_dataset(g, name, data.shape, dt, data, target=(1 << 16) if name == "bytes" else (1 << 14))
 
 
 def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, ranges=None,
                 force: bool = False) -> Path:
     """Write the axes of ``index`` (from :func:`build_index`) to ``path`` atomically."""
     with atomic_output(path, force) as tmp:
-        with h5py.File(tmp, "w") as f:
+        with create_hdf5(tmp) as f:
             _write_root(f, shape, density_sha256, ranges)
             for a in AXES:
                 if a in index:
@@ -80,7 +84,7 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
         escape_width(*axis_geometry(aug.shape, a)[1:])     # refuse impossible sizes before any work
     with atomic_output(out_path, force) as tmp:
         density = aug.read("density")
-        with h5py.File(tmp, "w") as f:
+        with create_hdf5(tmp) as f:
             _write_root(f, aug.shape, aug.density_sha256, ranges)
             for a in axes:
                 ax = build_axis(density, a, ranges)
@@ -136,10 +140,6 @@ class _AxisMeta:
     n_bytes: int
 
 
-def _attr_str(v):
-    return v.decode() if isinstance(v, bytes) else v
-
-
 class IndexFile:
     """An open, validated index file. Arrays are read on demand; :attr:`bytes_read` counts every request."""
 
@@ -186,18 +186,15 @@ class IndexFile:
             where += f", slice {int(slice_)}"
         raise IsplatError(f"{self.path}: {where}: {msg}")
 
-    def _open(self):
-        try:
-            return h5py.File(self.path, "r")
-        except OSError as exc:
-            raise IsplatError(f"{self.path}: not a readable HDF5 file ({exc.__class__.__name__})") from None
+    @contextlib.contextmanager
+    def _open(self, axis):
+        with hdf5_errors(self.path, f"/axes/{axis}"):
+            with h5py.File(self.path, "r") as f:
+                yield f["axes"][axis]
 
     def _read(self, g, name, lo, hi):
-        try:
+        with hdf5_errors(self.path, f"dataset /axes/{g.name.rsplit('/', 1)[-1]}/{name} [{lo}:{hi}]"):
             arr = g[name][lo:hi]
-        except (OSError, KeyError, ValueError) as exc:
-            raise IsplatError(f"{self.path}: cannot read /axes/{g.name.rsplit('/', 1)[-1]}/{name} "
-                              f"[{lo}:{hi}] ({exc.__class__.__name__}: truncated or corrupt file)") from None
         arr = np.ascontiguousarray(arr, dtype=np.dtype(DATASET_DTYPES[name]).newbyteorder("="))
         self.bytes_read += int(arr.nbytes)
         return arr
@@ -224,12 +221,21 @@ class IndexFile:
 
     # -- public queries
     def voxel_counts(self, axis: str) -> np.ndarray:
-        """int64[256]: indexed voxels per density along ``axis`` (0 for densities not indexed)."""
+        """int64[256]: indexed voxels per density along ``axis`` (0 for densities not indexed).
+
+        Every table row of the axis is checked first (as a load with ``verify_offsets=True`` checks the rows it
+        reads: slices, counts, offsets from 0 to the end of ``bytes``), so the figures are consistent ones."""
         m = self._axis(axis)
-        with self._open() as f:
-            g = f["axes"][axis]
+        with self._open(axis) as g:
             ptr = self._read_ptr(g, axis)
+            sl = self._read(g, "entry_slice", 0, m.n_entries).astype(np.int64)
             cnt = self._read(g, "entry_voxel_count", 0, m.n_entries).astype(np.int64)
+            off = self._read(g, "entry_byte_offset", 0, m.n_entries + 1)
+        if off[0] != 0 or off[-1] != m.n_bytes:
+            self._fail(axis, f"entry_byte_offset runs from {int(off[0])} to {int(off[-1])}, expected 0 to the "
+                             f"{m.n_bytes} bytes of the blocks")
+        dens = np.repeat(np.arange(256, dtype=np.int64), np.diff(ptr))
+        self._check_entries(axis, m, dens, sl, cnt, off)
         cs = np.zeros(cnt.size + 1, dtype=np.int64)
         np.cumsum(cnt, out=cs[1:])
         return cs[ptr[1:]] - cs[ptr[:-1]]
@@ -241,8 +247,7 @@ class IndexFile:
             return 257 * 8 + m.n_entries * (4 + 4 + 8) + 8 + m.n_bytes
         ivs = self._intervals(intervals)
         total = 257 * 8
-        with self._open() as f:
-            g = f["axes"][axis]
+        with self._open(axis) as g:
             ptr = self._read_ptr(g, axis)
             for lo, hi in ivs:
                 r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
@@ -267,8 +272,7 @@ class IndexFile:
         before = self.bytes_read
         dens_l, sl_l, cnt_l, st_l, en_l, buf_l = [], [], [], [], [], []
         base = 0
-        with self._open() as f:
-            g = f["axes"][axis]
+        with self._open(axis) as g:
             ptr = self._read_ptr(g, axis)
             for lo, hi in ivs:
                 r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
@@ -359,30 +363,39 @@ def _fmt_ranges(ranges) -> str:
     return ",".join(f"{lo}:{hi}" for lo, hi in ranges)
 
 
+def _rebuild_hint(p, f) -> str:
+    return f"isplat index AUG.h5 -o {p} --force (AUG.h5: the augmented volume it was built from)"
+
+
+def _stored_ranges(p, a) -> list[tuple[int, int]]:
+    """``density_ranges`` exactly as §2 says: int64 (R, 2), in 0..255, sorted, disjoint and not touching."""
+    raw = attr_array(p, a, "density_ranges", "i", (-1, 2))
+    if raw.shape[0] < 1:
+        raise IsplatError(f"{p}: attribute 'density_ranges' is empty, expected at least one range")
+    ranges = [(int(lo), int(hi)) for lo, hi in raw]
+    try:
+        normal = normalize_ranges(ranges)
+    except IsplatError as exc:
+        raise IsplatError(f"{p}: attribute 'density_ranges': {exc}") from None
+    if normal != ranges:
+        raise IsplatError(f"{p}: attribute 'density_ranges' is {raw.tolist()}, expected sorted, disjoint ranges "
+                          f"that do not touch (hi + 1 < next lo), e.g. {[list(r) for r in normal]}")
+    return ranges
+
+
 def open_index(path) -> IndexFile:
     """Open and validate an index file's attributes and dataset shapes; raise :class:`IsplatError` on any problem."""
-    p, f = open_hdf5(path, "index", FORMAT_NAME, FORMAT_VERSION)
-    with f:
+    p, f = open_hdf5(path, "index", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint)
+    with f, hdf5_errors(p, "attributes and tables"):
         a = f.attrs
-        try:
-            shape = tuple(int(x) for x in np.asarray(a["shape"]).reshape(-1))
-            sha = _attr_str(a["density_sha256"])
-            raw_ranges = np.asarray(a["density_ranges"])
-        except KeyError as exc:
-            raise IsplatError(f"{p}: missing attribute {exc.args[0]!r}") from None
-        except (TypeError, ValueError):
-            raise IsplatError(f"{p}: attribute 'shape' is not three integers") from None
-        if len(shape) != 3 or min(shape) < 1:
+        shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
+        check_string_attrs(p, a, ("density_sha256", "created_by"))
+        sha = attr_string(a, "density_sha256")
+        if min(shape) < 1:
             raise IsplatError(f"{p}: attribute 'shape' is {shape}, expected three positive sizes")
-        if not isinstance(sha, str) or len(sha) != 64:
-            raise IsplatError(f"{p}: attribute 'density_sha256' is not a SHA-256 hex digest")
-        if raw_ranges.ndim != 2 or raw_ranges.shape[1:] != (2,) or raw_ranges.shape[0] < 1 \
-                or raw_ranges.dtype.kind not in "iu":
-            raise IsplatError(f"{p}: attribute 'density_ranges' must be integer pairs, shape (R, 2)")
-        try:
-            ranges = normalize_ranges([(int(lo), int(hi)) for lo, hi in raw_ranges])
-        except IsplatError as exc:
-            raise IsplatError(f"{p}: attribute 'density_ranges': {exc}") from None
+        if sha is None or len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+            raise IsplatError(f"{p}: attribute 'density_sha256' is not a SHA-256 hex digest (64 lower-case hex digits)")
+        ranges = _stored_ranges(p, a)
         if "axes" not in f or not isinstance(f["axes"], h5py.Group):
             raise IsplatError(f"{p}: group '/axes' is missing")
         names = list(f["axes"].keys())
@@ -393,7 +406,7 @@ def open_index(path) -> IndexFile:
             if name not in AXES:
                 raise IsplatError(f"{p}: unknown axis group '/axes/{name}'; expected i, j or k")
             meta[name] = _check_axis_group(p, f["axes"][name], name, shape)
-        attrs = {k: _attr_str(v) for k, v in a.items()}
+        attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
     return IndexFile(p, shape, sha, ranges, meta, attrs)
 
 
@@ -411,11 +424,13 @@ def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
     for key, want in expect.items():
         if key not in g.attrs:
             raise IsplatError(f"{where}: missing attribute {key!r}")
-        got = _attr_str(g.attrs[key])
-        try:
-            ok = (got == want) if isinstance(want, str) else (np.ndim(got) == 0 and int(got) == want)
-        except (TypeError, ValueError):
-            ok = False
+        if isinstance(want, str):
+            check_string_attrs(where, g.attrs, (key,))
+            got = attr_string(g.attrs, key)
+            ok = got == want
+        else:
+            got = int(attr_array(where, g.attrs, key, "i"))
+            ok = got == want
         if not ok:
             raise IsplatError(f"{where}: attribute {key!r} is {got!r}, expected {want!r} for shape {shape}")
     for name, dt in DATASET_DTYPES.items():
@@ -426,6 +441,7 @@ def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
             raise IsplatError(f"{where}/{name}: expected 1-D, has shape {ds.shape}")
         if ds.dtype != np.dtype(dt):
             raise IsplatError(f"{where}/{name}: dtype {ds.dtype}, expected {np.dtype(dt)} ({dt})")
+        check_checked_dataset(f"{where}/{name}", ds)
     n_e = g["entry_slice"].shape[0]
     if g["density_entry_ptr"].shape[0] != 257:
         raise IsplatError(f"{where}/density_entry_ptr: length {g['density_entry_ptr'].shape[0]}, expected 257")

@@ -1,0 +1,386 @@
+"""Reliability: a seeded fuzzer over index and augmented files, the catalogue of bad inputs with the message each
+gets, and what the checksums cost (docs/reliability.md).
+
+    python -m benchmarks reliability --out docs [--fuzz-seconds 120] [--seed 0]
+
+The fuzzer mutates the bytes of a small head's augmented and index files (bit flips, random bytes, zeroed runs,
+truncation) and renders each mutant through the CLI, in process, and runs ``isplat stats --json`` on it: every run
+must end in one ``isplat: error:`` line with a non-zero exit, or in images and figures equal to the unmutated
+ones. tests/test_fuzz.py runs it for a bounded time; ``make fuzz-boundscheck`` runs it with numba bounds checking
+on (a fresh NUMBA_CACHE_DIR).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+# the fuzzer and the corruptions are the tests' (tests/fuzzlab.py); this page runs them for longer
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from fuzzlab import (SHAPE_IJK, make_fixture, run_cli, mutate, check_mutant, fuzz, corrupt, _rewrite_unchecked)  # noqa: E402
+
+
+def chunk_rounding(idx_path: Path, interval=(170, 255)) -> dict:
+    """Bytes a bone-interval load requests from the index, and the bytes of the chunks HDF5 reads (and checks)
+    for them: whole chunks, so a read of a row range is rounded out to chunk boundaries."""
+    from unittest import mock
+
+    from isplat.index import open_index, store
+
+    real = store.IndexFile._read
+    seen = {"requested": 0, "chunks": 0}
+
+    def counting(self, g, name, lo, hi):
+        ds = g[name]
+        step, item = ds.chunks[0], ds.dtype.itemsize
+        if hi > lo:
+            seen["requested"] += (hi - lo) * item
+            seen["chunks"] += ((hi - 1) // step - lo // step + 1) * step * item
+        return real(self, g, name, lo, hi)
+
+    with mock.patch.object(store.IndexFile, "_read", counting):
+        ix = open_index(idx_path)
+        for ax in "ijk":
+            ix.load_axis(ax, [interval])
+    return {"bone_requested_bytes": seen["requested"], "bone_chunk_bytes": seen["chunks"]}
+
+
+def checksum_cost(folder: Path, shape_ijk=(256, 256, 160), repeats: int = 7) -> dict:
+    """Median load time of a bone scene (index blocks + normals) and of whole channels, with and without
+    checksums, interleaved in one run."""
+    from unittest import mock
+
+    from isplat import augfile, fileio
+    from isplat.augfile import open_augmented, write_augmented
+    from isplat.augment import augment_array
+    from isplat.index import build_index_file, open_index
+    from isplat.index import store
+    from isplat.samples import make_sample
+
+    arr, spacing = make_sample("head", shape_ijk, 0)
+    a = augment_array(arr, spacing)
+    aug, idx = folder / "cost.aug.h5", folder / "cost.idx.h5"
+    write_augmented(aug, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
+                    a["density_window"], a["gradient_magnitude_scale"])
+    build_index_file(aug, idx, force=True)
+    aug0, idx0 = folder / "cost0.aug.h5", folder / "cost0.idx.h5"
+    _rewrite_unchecked(aug, aug0)
+    _rewrite_unchecked(idx, idx0)
+    no_check = [mock.patch.object(m, "check_checked_dataset", lambda *a: None) for m in (augfile, store)]
+
+    def load_scene_data(aug_path, idx_path):
+        ix = open_index(idx_path)
+        for ax in "ijk":
+            ix.load_axis(ax, [(170, 255)])
+        av = open_augmented(aug_path)
+        for k0 in range(0, av.shape[0], 8):
+            av.read("normal", k0, k0 + 8)
+
+    def whole(aug_path, idx_path):
+        av = open_augmented(aug_path)
+        for ch in ("density", "gradient_magnitude", "normal"):
+            av.read(ch)
+        ix = open_index(idx_path)
+        for ax in "ijk":
+            ix.load_axis(ax, [(0, 255)])
+
+    def render_first_frame(aug_path, idx_path):
+        from isplat.renderer import Renderer
+        from isplat.scene import parse_scene
+
+        text = (f'version = 1\n[data]\naugmented = "{aug_path}"\nindex = "{idx_path}"\n[image]\nwidth = 256\n'
+                'height = 256\n[transfer]\nopacity = [[170, 0.0], [200, 1.0], [255, 1.0]]\n[shading]\n'
+                'ambient = 0.2\n[render]\nmethod = "indexed"\n')
+        Renderer(parse_scene(text, folder, "bench.toml")).render_view(0)
+
+    render_first_frame(aug, idx)            # compile and warm the page cache before timing
+    times = {(w, v): [] for w in ("scene", "whole", "frame") for v in ("checked", "unchecked")}
+    with contextlib.ExitStack() as st:
+        for p in no_check:
+            st.enter_context(p)
+        for _ in range(repeats):
+            for w, fn in (("scene", load_scene_data), ("whole", whole), ("frame", render_first_frame)):
+                for v, (ap, ip) in (("checked", (aug, idx)), ("unchecked", (aug0, idx0))):
+                    t = time.perf_counter()
+                    fn(ap, ip)
+                    times[(w, v)].append(time.perf_counter() - t)
+    med = {f"{w}_{v}": statistics.median(ts) for (w, v), ts in times.items()}
+    med.update(chunk_rounding(idx))
+    med.update(shape_ijk=list(shape_ijk), repeats=repeats, aug_bytes=aug.stat().st_size,
+               aug_bytes_unchecked=aug0.stat().st_size, idx_bytes=idx.stat().st_size,
+               idx_bytes_unchecked=idx0.stat().st_size, chunk_target=fileio.MAX_CHUNK_BYTES)
+    return med
+
+
+# ----------------------------------------------------------------------------------------------- catalogue
+
+def _pair_cases(fx: dict) -> list[tuple[str, str, str, str]]:
+    """(input, target, object, op): named corruptions of the fixture's files, each rendered."""
+    cases = [
+        ("index block byte flipped on disk", "idx", "/axes/k/bytes", "flip_chunk"),
+        ("index table byte flipped on disk", "idx", "/axes/j/entry_voxel_count", "flip_chunk"),
+        ("index offsets byte flipped on disk", "idx", "/axes/i/entry_byte_offset", "flip_chunk"),
+        ("index density_entry_ptr byte flipped", "idx", "/axes/k/density_entry_ptr", "flip_chunk"),
+        ("normal channel byte flipped on disk", "aug", "/normal", "flip_chunk"),
+        ("gradient magnitude byte flipped on disk", "aug", "/gradient_magnitude", "flip_chunk"),
+        ("density channel byte flipped on disk", "aug", "/density", "flip_chunk"),
+        ("index dataset header (dataspace) corrupted", "idx", "/axes/k/entry_slice", "dataspace"),
+        ("augmented dataset header (dataspace) corrupted", "aug", "/normal", "dataspace"),
+        ("augmented attribute bytes flipped (spacing)", "aug", "/@spacing_ijk", "flip_header"),
+        ("index attribute bytes flipped (n_a)", "idx", "/axes/k@n_a", "flip_header"),
+        ("index root attribute bytes flipped (shape)", "idx", "/@shape", "flip_header"),
+    ]
+    for target, objs in (("aug", ["/normal", "/density"]), ("idx", ["/axes/k/bytes", "/axes/i/entry_slice"])):
+        for obj in objs:
+            for op in ("delete", "dtype", "shape", "contiguous", "gzip"):
+                cases.append((f"dataset {obj}: {op}", target, obj, op))
+    for target, obj in (("aug", "/@format_version"), ("aug", "/@spacing_ijk"), ("aug", "/@density_window"),
+                        ("idx", "/@format_version"), ("idx", "/@density_ranges"), ("idx", "/axes/j@escape_width")):
+        for op in ("delete", "as_string", "as_float", "as_int32", "as_array", "nan"):
+            cases.append((f"attribute {obj}: {op}", target, obj, op))
+    return cases
+
+
+def _cli_cases(fx: dict, w: Path) -> list[tuple[str, list]]:
+    """(input, argv): misuse of the command line and of the pipeline."""
+    aug, idx, sc = str(fx["aug"]), str(fx["idx"]), str(fx["indexed"])
+    (w / "exists.png").write_bytes(b"")
+    (w / "const.npy").write_bytes(b"")
+    import numpy as _np
+    _np.save(w / "const.npy", _np.zeros((4, 4, 4), _np.float32))
+    (w / "not.h5").write_text("not hdf5")
+    other = w / "other.idx.h5"
+    if not other.exists():
+        from isplat.index import build_index, write_index
+        vol = _np.zeros((16, 18, 20), _np.uint8)
+        vol[3, 3, 3] = 9
+        write_index(other, build_index(vol, "ijk"), vol.shape, "0" * 64, force=True)
+    orbit = w / "orbit.toml"
+    orbit.write_text(fx["indexed"].read_text().split("[views]")[0] + "[views]\norbit_steps = 720\n")
+    part = w / "part.idx.h5"
+    if not part.exists():
+        from isplat.index import build_index_file
+        build_index_file(aug, part, ranges=[(200, 255)], force=True)
+    return [
+        ("unknown subcommand", ["bogus"]),
+        ("unknown sample name", ["sample", "bogus", "-o", str(w / "x.npy")]),
+        ("missing argument", ["render"]),
+        ("unknown option", ["render", sc, "--nope"]),
+        ("too many arguments", ["stats", aug, idx, "extra"]),
+        ("scene file missing", ["render", str(w / "missing.toml")]),
+        ("output exists without --force", ["render", sc, "--view", "0", "-o", str(w / "exists.png")]),
+        ("output folder missing", ["render", sc, "--view", "0", "-o", str(w / "no" / "x.png")]),
+        ("unknown image type", ["render", sc, "--view", "0", "-o", str(w / "x.bmp")]),
+        ("batch of views to stdout", ["render", sc, "-o", "-"]),
+        ("--json with -o -", ["render", sc, "--view", "0", "--json", "-o", "-"]),
+        ("--view out of range", ["render", sc, "--view", "7", "-o", str(w / "x.png")]),
+        ("--set without '='", ["render", sc, "--set", "camera.azimuth", "-o", str(w / "x.png")]),
+        ("--set of an unknown key", ["render", sc, "--set", "camera.azimut=3", "-o", str(w / "x.png")]),
+        ("stats --set without --scene", ["stats", aug, "--set", "camera.azimuth=3"]),
+        ("volume.spacing = [1e-300, 1, 1]", ["render", sc, "--set", "volume.spacing=[1e-300,1,1]", "-o",
+                                             str(w / "x.png")]),
+        ("volume.spacing ratio 1e7", ["render", sc, "--set", "volume.spacing=[1e-4,1,1000]", "-o", str(w / "x.png")]),
+        ("perspective camera.fov = 179.9", ["render", sc, "--set", "camera.projection=perspective", "--set",
+                                            "camera.fov=179.9", "-o", str(w / "x.png")]),
+        ("image buffers beyond the memory available (8192^2, 720 views, GIF)",
+         ["render", str(orbit), "--set", "image.width=8192", "--set", "image.height=8192", "-o", str(w / "x.gif")]),
+        ("augment: input missing", ["augment", str(w / "missing.npy"), "-o", str(w / "m.aug.h5")]),
+        ("augment: constant volume", ["augment", str(w / "const.npy"), "-o", str(w / "c.aug.h5")]),
+        ("index: input is not HDF5", ["index", str(w / "not.h5"), "-o", str(w / "n.idx.h5")]),
+        ("index: input is an index file", ["index", idx, "-o", str(w / "n.idx.h5")]),
+        ("stats: index of another volume", ["stats", aug, str(other)]),
+        ("render: transfer function outside the indexed densities",
+         ["render", sc, "--set", f"data.index=\"{part}\"", "-o", str(w / "x.png")]),
+        ("version-1 augmented file (no checksums)",
+         ["stats", str(Path(__file__).resolve().parents[2] / "formats/examples/augmented/invalid-version-1.aug.h5")]),
+    ]
+
+
+def catalogue(fx: dict, w: Path) -> list[dict]:
+    """Every bad input with its exit status and message (temporary folders shown as W/)."""
+    rows = []
+
+    repo = str(Path(__file__).resolve().parents[2]) + "/"
+
+    def clean(text):
+        return text.strip().replace(str(w) + "/", "W/").replace(str(fx["folder"]) + "/", "W/").replace(repo, "")
+
+    for what, target, obj, op in _pair_cases(fx):
+        path = fx[target]
+        original = path.read_bytes()
+        try:
+            corrupt(path, obj, op)
+            mutant = path.read_bytes()
+        finally:
+            path.write_bytes(original)
+        o = check_mutant(fx, target, mutant, op)
+        rows.append({"input": what, "command": f"render ({target} file corrupted)", "result": o.result,
+                     "message": clean(o.message) if o.message else f"({o.result})"})
+    for what, argv in _cli_cases(fx, w):
+        code, _, err = run_cli(argv)
+        rows.append({"input": what, "command": " ".join(argv[:1]), "result": f"exit {code}",
+                     "message": clean(err) or "(no message)"})
+    root = Path(__file__).resolve().parents[2] / "formats/examples/scene/invalid"
+    for toml in sorted(root.glob("*.toml")):
+        code, _, err = run_cli(["render", str(toml), "-o", str(w / "x.png")])
+        rows.append({"input": f"scene {toml.name}", "command": "render", "result": f"exit {code}",
+                     "message": clean(err).replace(str(root) + "/", "")})
+    return rows
+
+
+# ------------------------------------------------------------------------------------------------- report
+
+def fuzz_figures(seconds: float, seed: int) -> dict:
+    """Fuzz for ``seconds`` in a fresh fixture; the counts by outcome."""
+    with tempfile.TemporaryDirectory() as td:
+        fx = make_fixture(Path(td))
+        rep = fuzz(fx, seconds, seed)
+    by = {}
+    for o in rep.outcomes:
+        key = o.result if not o.result.startswith("FAIL") else "failure"
+        by[key] = by.get(key, 0) + 1
+    return {"seconds": round(rep.seconds, 1), "seed": seed, "runs": len(rep.outcomes), "by_result": by,
+            "boundscheck": os.environ.get("NUMBA_BOUNDSCHECK", "0") == "1",
+            "failures": [f"{o.target}: {o.mutation}: {o.result}" for o in rep.failures][:20]}
+
+
+def fuzz_boundscheck(seconds: float, seed: int) -> dict:
+    """The same fuzzing in a child process with NUMBA_BOUNDSCHECK=1 and a fresh NUMBA_CACHE_DIR."""
+    import json
+    import subprocess
+    import sys
+
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_BOUNDSCHECK="1", NUMBA_CACHE_DIR=cache, ISPLAT_PROGRESS="0")
+        t = time.perf_counter()
+        r = subprocess.run([sys.executable, "-m", "benchmarks.reliability", "--fuzz-json", str(seconds),
+                            "--seed", str(seed)], env=env, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"bounds-checked fuzzing failed: {r.stderr[-2000:]}")
+        out = json.loads(r.stdout.strip().splitlines()[-1])
+        out["wall_seconds_with_compilation"] = round(time.perf_counter() - t, 1)
+        return out
+
+
+def _fuzz_table(rows: list[dict]) -> str:
+    lines = ["| run | bounds checking | seed | seconds | mutants | one error line | same images | bytes unchanged | "
+             "failures |", "|---|---|---|---|---|---|---|---|---|"]
+    for name, f in rows:
+        b = f["by_result"]
+        lines.append(f"| {name} | {'on' if f['boundscheck'] else 'off'} | {f['seed']} | {f['seconds']} | {f['runs']} | "
+                     f"{b.get('error', 0)} | {b.get('equal', 0)} | {b.get('unchanged', 0)} | {b.get('failure', 0)} |")
+    return "\n".join(lines)
+
+
+def _md(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
+    from ._doc import git_rev, machine_line, update_section
+
+    c = cost
+    body = [
+        "Made by `python -m benchmarks.reliability --out docs` (`make reliability`) at commit "
+        f"{git_rev()} on {machine_line()}. Every figure below is measured by that command.",
+        "",
+        "## Fuzzing",
+        "",
+        "Mutants of a small head's augmented and index files (`SHAPE_IJK` "
+        f"{'x'.join(map(str, SHAPE_IJK))}, alternately): a bit flip (half of them), a random byte, a zeroed run of "
+        "1-64 bytes or a truncation, at a uniformly random position. Each mutant is rendered through the CLI with "
+        "both methods (three views, one per axis, every density visible, shading and gradient-modulated opacity, "
+        "so every dataset is read), then `isplat stats AUG IDX --json` runs on it. A run passes if it ends in "
+        "exactly one `isplat: error:` line, a non-zero exit and no output, or in PNGs byte-equal to the unmutated "
+        "ones and the same figures; a failure is anything else (another image or figure, a traceback, a hang of "
+        "20 s).",
+        "",
+        _fuzz_table(fz),
+        "",
+        "The bounds-checked run is a child process with `NUMBA_BOUNDSCHECK=1` and a fresh `NUMBA_CACHE_DIR` "
+        "(numba would otherwise reuse kernels compiled without checks); its wall time including compilation was "
+        f"{fz[-1][1].get('wall_seconds_with_compilation', '?')} s. `make test` fuzzes for 45 s "
+        "(tests/test_fuzz.py); `make fuzz-boundscheck` runs that test with bounds checking.",
+        "",
+        "## What the checksums cost",
+        "",
+        f"A head of {'x'.join(map(str, c['shape_ijk']))} voxels; median of {c['repeats']} interleaved runs. "
+        "*checked*: the files as isplat writes them (Fletcher-32 chunks of about "
+        f"{c['chunk_target'] // 1024} KiB in the channels, 16 KiB in the index tables, 64 KiB in its bytes); "
+        "*unchecked*: the same files rewritten with contiguous, "
+        "unfiltered datasets (metadata checksums kept), read with the layout check switched off.",
+        "",
+        "| load | checked | unchecked | ratio |",
+        "|---|---|---|---|",
+        f"| bone scene: index blocks of densities 170..255 on three axes, normals in 8-slice slabs | "
+        f"{1000 * c['scene_checked']:.1f} ms | {1000 * c['scene_unchecked']:.1f} ms | "
+        f"{c['scene_checked'] / c['scene_unchecked']:.2f} |",
+        f"| bone scene end to end: Renderer (load, decode, select, gather) and its first 256x256 frame | "
+        f"{1000 * c['frame_checked']:.1f} ms | {1000 * c['frame_unchecked']:.1f} ms | "
+        f"{c['frame_checked'] / c['frame_unchecked']:.2f} |",
+        f"| everything: three whole channels, all densities on three axes | {1000 * c['whole_checked']:.1f} ms | "
+        f"{1000 * c['whole_unchecked']:.1f} ms | {c['whole_checked'] / c['whole_unchecked']:.2f} |",
+        "| index bytes a bone load reads: whole chunks, read and checked (checked) against the rows and bytes "
+        "requested (unchecked) | "
+        f"{c['bone_chunk_bytes']:,} B | {c['bone_requested_bytes']:,} B | "
+        f"{c['bone_chunk_bytes'] / c['bone_requested_bytes']:.2f} |",
+        f"| augmented file size | {c['aug_bytes']:,} B | {c['aug_bytes_unchecked']:,} B | "
+        f"{c['aug_bytes'] / c['aug_bytes_unchecked']:.3f} |",
+        f"| index file size | {c['idx_bytes']:,} B | {c['idx_bytes_unchecked']:,} B | "
+        f"{c['idx_bytes'] / c['idx_bytes_unchecked']:.3f} |",
+        "",
+        f"## Catalogue of bad inputs ({len(cat)})",
+        "",
+        "Each row was run by the command above; `W/` is its temporary folder. Corrupted files are rendered "
+        "(both methods); the result is `error` when the run ended in one error line and a non-zero exit.",
+        "",
+        "| # | input | command | result | message |",
+        "|---|---|---|---|---|",
+    ]
+    for n, r in enumerate(cat, 1):
+        body.append(f"| {n} | {_md(r['input'])} | {r['command']} | {r['result']} | {_md(r['message'])[:400]} |")
+    out.mkdir(parents=True, exist_ok=True)
+    return update_section(out / "reliability.md", "reliability", "\n".join(body), title="Reliability: bad input, "
+                          "corrupted files, interruptions")
+
+
+def run(out: Path, quick: bool = False, fuzz_seconds: float | None = None, seed: int = 0) -> Path:
+    secs = fuzz_seconds if fuzz_seconds is not None else (10.0 if quick else 120.0)
+    with tempfile.TemporaryDirectory() as td:
+        w = Path(td)
+        fx = make_fixture(w / "fx")
+        cat = catalogue(fx, w)
+        cost = checksum_cost(w, (64, 64, 48) if quick else (256, 256, 160), 3 if quick else 7)
+    fz = [("in process", fuzz_figures(secs, seed)), ("child process", fuzz_boundscheck(secs, seed))]
+    return write_report(Path(out), cat, fz, cost)
+
+
+def main(argv=None) -> int:
+    import json
+    import sys
+
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.reliability", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default="docs", type=Path)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--fuzz-seconds", type=float, default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--fuzz-json", type=float, default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    os.environ.setdefault("ISPLAT_PROGRESS", "0")
+    if a.fuzz_json is not None:
+        print(json.dumps(fuzz_figures(a.fuzz_json, a.seed)))
+        return 0
+    print(run(a.out, a.quick, a.fuzz_seconds, a.seed), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

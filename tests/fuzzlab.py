@@ -1,0 +1,322 @@
+"""The fuzzer and the corruptions shared by tests/test_fuzz.py, tests/test_integrity.py and the reliability
+benchmark (benchmarks/reliability.py, which writes docs/reliability.md).
+
+The fuzzer mutates the bytes of a small head's augmented and index files (bit flips, random bytes, zeroed runs,
+truncation) and renders each mutant through the CLI, in process, and runs ``isplat stats --json`` on it: every run
+must end in one ``isplat: error:`` line with a non-zero exit, or in images and figures equal to the unmutated
+ones. ``make fuzz-boundscheck`` runs the fuzz test with numba bounds checking on (a fresh NUMBA_CACHE_DIR).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import signal
+import statistics
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+SHAPE_IJK = (20, 18, 16)
+IMAGE = 40
+
+
+# ------------------------------------------------------------------------------------------------- fixture
+
+def scene_toml(aug: Path, idx: Path, method: str = "indexed") -> str:
+    """Three views (one per principal axis), every density visible, shading and gradient-modulated opacity:
+    a render reads every index axis, every block, and the normal and gradient-magnitude channels."""
+    return f"""version = 1
+[data]
+augmented = "{aug}"
+index = "{idx}"
+[image]
+width = {IMAGE}
+height = {IMAGE}
+[transfer]
+opacity = [[0, 0.02], [255, 0.6]]
+gradient_opacity = [[0, 0.5], [255, 1.0]]
+[shading]
+ambient = 0.3
+diffuse = 0.7
+[render]
+method = "{method}"
+[views]
+list = [{{azimuth = 0, elevation = 0}}, {{azimuth = 90, elevation = 0}}, {{azimuth = 0, elevation = 90}}]
+"""
+
+
+def make_fixture(folder: Path, aug: Path | None = None, idx: Path | None = None) -> dict:
+    """A small head (or given files): augmented and index files, an indexed and a full scene, and their
+    reference images."""
+    from isplat.augfile import write_augmented
+    from isplat.augment import augment_array
+    from isplat.index import build_index_file
+    from isplat.samples import make_sample
+
+    folder.mkdir(parents=True, exist_ok=True)
+    if aug is None:
+        arr, spacing = make_sample("head", SHAPE_IJK, 0)
+        a = augment_array(arr, spacing)
+        aug = folder / "head.aug.h5"
+        write_augmented(aug, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
+                        a["density_window"], a["gradient_magnitude_scale"])
+    if idx is None:
+        idx = folder / "head.idx.h5"
+        build_index_file(aug, idx, force=True)
+    fx = {"aug": aug, "idx": idx, "folder": folder}
+    for method in ("indexed", "full"):
+        sc = folder / f"{method}.toml"
+        sc.write_text(scene_toml(aug, idx, method))
+        fx[method] = sc
+        code, err, images = run_render(sc, folder / f"ref_{method}")
+        if code != 0:
+            raise RuntimeError(f"reference render failed: {err}")
+        fx[f"ref_{method}"] = images
+    code, out, err = run_cli(["stats", str(aug), str(idx), "--json"])
+    if code != 0:
+        raise RuntimeError(f"reference stats failed: {err}")
+    fx["ref_stats"] = out
+    return fx
+
+
+def run_cli(argv) -> tuple[int, str, str]:
+    """Run ``isplat ARGV`` in this process; return (exit code, stdout, stderr)."""
+    from isplat.cli.main import main
+
+    out, err = io.StringIO(), io.StringIO()
+    code = 0
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main(list(argv))
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else 1
+    return code, out.getvalue(), err.getvalue()
+
+
+def run_render(scene: Path, out_stem: Path) -> tuple[int, str, list[bytes]]:
+    """Render the scene's views to numbered PNGs; return (exit code, stderr, the PNG files' bytes)."""
+    for old in out_stem.parent.glob(out_stem.name + "_*.png"):
+        old.unlink()
+    code, _, err = run_cli(["render", str(scene), "-o", f"{out_stem}.png", "-q", "--force"])
+    images = [p.read_bytes() for p in sorted(out_stem.parent.glob(out_stem.name + "_*.png"))]
+    return code, err, images
+
+
+# ------------------------------------------------------------------------------------------------- mutator
+
+def mutate(data: bytes, rng: np.random.Generator) -> tuple[bytes, str]:
+    """One random mutation of a file's bytes, and its description."""
+    b = bytearray(data)
+    kind = rng.choice(["flip", "byte", "zero", "truncate"], p=[0.5, 0.25, 0.15, 0.1])
+    pos = int(rng.integers(0, len(b)))
+    if kind == "flip":
+        bit = int(rng.integers(0, 8))
+        b[pos] ^= 1 << bit
+        return bytes(b), f"flip bit {bit} of byte {pos}"
+    if kind == "byte":
+        val = int(rng.integers(0, 256))
+        b[pos] = val
+        return bytes(b), f"byte {pos} = {val:#04x}"
+    if kind == "zero":
+        n = int(rng.integers(1, 65))
+        b[pos:pos + n] = bytes(len(b[pos:pos + n]))
+        return bytes(b), f"zero bytes {pos}..{pos + n - 1}"
+    return bytes(b[:pos]), f"truncate to {pos} bytes"
+
+
+@dataclass
+class Outcome:
+    target: str
+    mutation: str
+    result: str           # "error", "equal", "unchanged" (mutation left the bytes as they were) or a failure
+    message: str = ""
+
+
+class _Timeout(BaseException):
+    pass
+
+
+def _alarm(signum, frame):
+    raise _Timeout()
+
+
+def check_mutant(fx: dict, target: str, data: bytes, mutation: str, limit: float = 20.0) -> Outcome:
+    """Write the mutant over the fixture's ``target`` file, render both scenes and run ``stats --json``, restore
+    the file. Each must end in one error line and a non-zero exit, or give the unmutated images and figures."""
+    path = fx[target]
+    original = path.read_bytes()
+    if data == original:
+        return Outcome(target, mutation, "unchanged")
+    path.write_bytes(data)
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.setitimer(signal.ITIMER_REAL, limit)
+    try:
+        for method in ("indexed", "full"):
+            code, err, images = run_render(fx[method], fx["folder"] / f"mut_{method}")
+            lines = err.strip().splitlines()
+            if code == 0 and images == fx[f"ref_{method}"]:
+                continue
+            if code != 0 and len(lines) == 1 and lines[0].startswith("isplat: error: ") and not images:
+                return Outcome(target, mutation, "error", lines[0])
+            what = "different image" if code == 0 else f"exit {code}, {len(lines)} stderr lines"
+            return Outcome(target, mutation, f"FAIL ({method}: {what})", err[-2000:])
+        code, out, err = run_cli(["stats", str(fx["aug"]), str(fx["idx"]), "--json"])
+        lines = err.strip().splitlines()
+        if code != 0 and len(lines) == 1 and lines[0].startswith("isplat: error: ") and not out:
+            return Outcome(target, mutation, "error", lines[0])
+        if code != 0 or out != fx["ref_stats"]:
+            return Outcome(target, mutation, "FAIL (stats: " + ("other figures)" if code == 0 else f"exit {code})"),
+                           err[-2000:] or out[-2000:])
+        return Outcome(target, mutation, "equal")
+    except _Timeout:
+        return Outcome(target, mutation, "FAIL (hang)", f"no answer in {limit:g} s")
+    except Exception as exc:      # a crash of the fuzzed code is a finding, not a crash of the fuzzer
+        return Outcome(target, mutation, f"FAIL ({exc.__class__.__name__})", str(exc)[:2000])
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+        path.write_bytes(original)
+
+
+@dataclass
+class FuzzReport:
+    seconds: float
+    outcomes: list = field(default_factory=list)
+
+    def count(self, pred) -> int:
+        return sum(1 for o in self.outcomes if pred(o))
+
+    @property
+    def failures(self) -> list:
+        return [o for o in self.outcomes if o.result.startswith("FAIL")]
+
+
+def fuzz(fx: dict, seconds: float, seed: int = 0, max_runs: int | None = None) -> FuzzReport:
+    """Mutate the index and augmented files alternately for ``seconds`` (or ``max_runs`` mutants)."""
+    rng = np.random.default_rng(seed)
+    originals = {t: fx[t].read_bytes() for t in ("idx", "aug")}
+    rep = FuzzReport(0.0)
+    t0 = time.perf_counter()
+    n = 0
+    while time.perf_counter() - t0 < seconds and (max_runs is None or n < max_runs):
+        target = ("idx", "aug")[n % 2]
+        data, what = mutate(originals[target], rng)
+        rep.outcomes.append(check_mutant(fx, target, data, what))
+        n += 1
+    rep.seconds = time.perf_counter() - t0
+    return rep
+
+
+# ------------------------------------------------------------------------------ named corruptions (the walk)
+
+REQUIRED = {"aug": {"format", "format_version", "shape", "spacing_ijk", "density_window", "gradient_magnitude_scale",
+                    "density_sha256", "created_by", "density", "gradient_magnitude", "normal"},
+            "idx": {"format", "format_version", "shape", "density_sha256", "density_ranges", "created_by", "axis",
+                    "n_slices",
+                    "in_slice_axes", "n_a", "n_b", "escape_width", "density_entry_ptr", "entry_slice",
+                    "entry_voxel_count", "entry_byte_offset", "bytes"}}
+DATASET_OPS = ("flip_chunk", "flip_header", "delete", "dtype", "shape", "contiguous", "gzip", "dataspace")
+ATTRIBUTE_OPS = ("delete", "as_string", "as_float", "as_int32", "as_array", "nan", "flip_header")
+
+
+def objects(path: Path) -> list[tuple[str, str]]:
+    """Every (kind, HDF5 path) of a file: attributes as 'group@name', datasets as their path."""
+    import h5py
+
+    out = []
+    with h5py.File(path, "r") as f:
+        def visit(g):
+            out.extend(("attribute", f"{g.name}@{k}") for k in g.attrs)
+            for name, obj in g.items():
+                if isinstance(obj, h5py.Group):
+                    visit(obj)
+                else:
+                    out.append(("dataset", obj.name))
+        visit(f)
+    return out
+
+
+def _flip_at(path: Path, offset: int) -> None:
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x10
+    path.write_bytes(bytes(data))
+
+
+def corrupt(path: Path, obj: str, op: str) -> None:
+    """Apply the named corruption ``op`` to attribute ``group@name`` or dataset ``obj`` of ``path``, in place."""
+    import h5py
+
+    if "@" in obj:
+        gname, name = obj.split("@")
+        with h5py.File(path, "r+") as f:
+            attrs = f[gname or "/"].attrs
+            v = attrs[name]
+            if op == "delete":
+                del attrs[name]
+            elif op == "as_string":
+                attrs[name] = str(v.tolist() if isinstance(v, np.ndarray) else v)
+            elif op == "as_float":
+                kind = np.asarray(v).dtype.kind        # floats become float32: another type than the spec's
+                attrs[name] = np.asarray(v, dtype=np.float32 if kind == "f" else np.float64) if kind in "iuf" else 1.5
+            elif op == "as_int32":
+                attrs[name] = np.asarray(v).astype(np.int32) if np.asarray(v).dtype.kind in "iuf" else np.int32(7)
+            elif op == "as_array":
+                attrs[name] = np.stack([np.asarray(v)] * 2)
+            elif op == "nan":
+                attrs[name] = np.full(np.shape(v), np.nan) if np.asarray(v).dtype.kind in "iuf" else "nan"
+            elif op == "flip_header":
+                addr = h5py.h5o.get_info(f[gname or "/"].id).addr
+        if op == "flip_header":         # a byte of the attribute's value, inside the checksummed object header
+            data = path.read_bytes()
+            at = data.find(name.encode() + b"\0", addr)
+            _flip_at(path, at + len(name) + 8 if at >= 0 else addr + 16)
+        return
+    with h5py.File(path, "r+") as f:
+        ds = f[obj]
+        if op in ("flip_chunk", "flip_header", "dataspace"):
+            at = (ds.id.get_chunk_info(0).byte_offset if op == "flip_chunk" and ds.id.get_num_chunks()
+                  else h5py.h5o.get_info(ds.id).addr + (16 if op == "flip_header" else 40))
+        else:
+            data, parent, name = ds[()], ds.parent, ds.name.rsplit("/", 1)[1]
+            del parent[name]
+            if op == "dtype":
+                parent.create_dataset(name, data=data.astype(np.float32), chunks=True, fletcher32=True)
+            elif op == "shape":
+                parent.create_dataset(name, data=data.reshape(-1)[:-1] if data.size else np.zeros(1, data.dtype),
+                                      chunks=True, fletcher32=True)
+            elif op == "contiguous":
+                parent.create_dataset(name, data=data)
+            elif op == "gzip" and data.size:
+                parent.create_dataset(name, data=data, chunks=True, compression="gzip", fletcher32=True)
+            elif op == "gzip":
+                parent.create_dataset(name, data=data, chunks=(1,), maxshape=(None,), compression="gzip")
+            return
+    _flip_at(path, at)
+
+
+# ---------------------------------------------------------------------------------------------- checksums
+
+def _rewrite_unchecked(src: Path, dst: Path) -> None:
+    """A copy of an isplat file with every dataset contiguous and unfiltered: metadata checksums only."""
+    import h5py
+
+    from isplat.fileio import create_hdf5
+
+    with h5py.File(src, "r") as a, create_hdf5(dst) as b:
+        def copy(ga, gb):
+            for k, v in ga.attrs.items():
+                gb.attrs[k] = v
+            for name, obj in ga.items():
+                if isinstance(obj, h5py.Group):
+                    copy(obj, gb.create_group(name))
+                else:
+                    gb.create_dataset(name, data=obj[()])
+        copy(a, b)
+
+

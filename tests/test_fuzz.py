@@ -1,0 +1,26 @@
+"""Seeded fuzzing of the index and augmented files (issue #13): every mutant ends in one error line and a
+non-zero exit, or renders the unmutated images. Budget: ISPLAT_FUZZ_SECONDS (default 45 s); the seed is
+ISPLAT_FUZZ_SEED (default: a new one per day, printed on failure). `make fuzz-boundscheck` runs it with numba
+bounds checking on. A mutant that fails belongs, as a named corruption, in tests/corpus/mutations.json."""
+
+import datetime
+import os
+
+import pytest
+
+import fuzzlab as R
+
+SECONDS = float(os.environ.get("ISPLAT_FUZZ_SECONDS", "45"))
+SEED = int(os.environ.get("ISPLAT_FUZZ_SEED", datetime.date.today().toordinal()))
+
+
+@pytest.mark.slow
+def test_fuzz_index_and_augmented(tmp_path):
+    fx = R.make_fixture(tmp_path)
+    rep = R.fuzz(fx, SECONDS, seed=SEED)
+    runs = len(rep.outcomes)
+    assert runs >= 20, f"only {runs} mutants in {SECONDS} s"
+    bad = [f"{o.target}: {o.mutation}: {o.result}: {o.message[:300]}" for o in rep.failures]
+    assert not bad, f"seed {SEED}: {len(bad)} of {runs} mutants failed:\n" + "\n".join(bad[:20])
+    # the fuzzer must reach the checks: most mutants of these small files are detected, some change nothing
+    assert rep.count(lambda o: o.result == "error") > runs // 2

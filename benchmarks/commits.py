@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -276,6 +277,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     rev = subprocess.run(["git", "rev-parse", "--short", args.old], cwd=ROOT, capture_output=True, text=True,
                          check=True).stdout.strip()
+    shutil.rmtree(WORK / "data-new", ignore_errors=True)      # the working tree's formats may have changed
     with tempfile.TemporaryDirectory() as tmp:
         tree = Path(tmp) / "old"
         subprocess.run(["git", "worktree", "add", "--detach", "-q", str(tree), rev], cwd=ROOT, check=True)

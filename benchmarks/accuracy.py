@@ -55,9 +55,9 @@ def _log(msg):
 # ---- data ---------------------------------------------------------------------------------------------------
 def _readable(aug: Path, idx: Path) -> bool:
     """False for cached files this isplat refuses (an older format version, a corrupted file): rebuild them."""
-    from ..augfile import open_augmented
-    from ..errors import IsplatError
-    from ..index import open_index
+    from isplat.augfile import open_augmented
+    from isplat.errors import IsplatError
+    from isplat.index import open_index
 
     try:
         open_augmented(aug)

@@ -78,13 +78,9 @@ def _volume_array(volume, spacing):
 
         vol = read_volume(volume, spacing=spacing)
         return np.asarray(vol.array), tuple(float(s) for s in vol.spacing_ijk)
-    arr = np.asarray(volume)
-    if arr.ndim != 3 or min(arr.shape) < 1:
-        raise IsplatError(f"isplat.render: expected a 3-D volume [k, j, i], got shape {arr.shape}")
-    sp = tuple(float(s) for s in (spacing or (1.0, 1.0, 1.0)))
-    if len(sp) != 3 or not all(np.isfinite(sp)) or min(sp) <= 0:
-        raise IsplatError(f"isplat.render: spacing {sp} invalid; expected three positive numbers (i, j, k)")
-    return arr, sp
+    from .memory import check_volume
+
+    return check_volume(volume, spacing, "isplat.render")
 
 
 def _augment(arr, spacing, window) -> dict:

@@ -7,6 +7,21 @@ import numpy as np
 from .errors import IsplatError
 
 
+def check_volume(volume, spacing, who: str = "array") -> tuple[np.ndarray, tuple[float, float, float]]:
+    """``volume`` as a non-empty 3-D array ``[k, j, i]`` and ``spacing`` (i, j, k; None: 1) as three positive
+    floats; anything else is one :class:`IsplatError` line starting with ``who``."""
+    arr = np.asarray(volume)
+    if arr.ndim != 3 or min(arr.shape) < 1:
+        raise IsplatError(f"{who}: expected a non-empty 3-D volume [k, j, i], got shape {arr.shape}")
+    try:
+        sp = tuple(float(s) for s in (spacing or (1.0, 1.0, 1.0)))
+    except (TypeError, ValueError):
+        sp = (float("nan"),)
+    if len(sp) != 3 or not all(np.isfinite(sp)) or min(sp) <= 0:
+        raise IsplatError(f"{who}: spacing {spacing!r} invalid; expected three positive numbers (i, j, k)")
+    return arr, sp
+
+
 def channels_in_memory(density, scene, normal=None, gradient_magnitude=None, gradient_magnitude_scale=None,
                        spacing=None, window=None):
     """``({channel: array [k, j, i]}, gradient_magnitude_scale, spacing_ijk)`` for :meth:`Selection.from_arrays`.
@@ -15,13 +30,7 @@ def channels_in_memory(density, scene, normal=None, gradient_magnitude=None, gra
     or wider volume, or missing channels) is augmented first, with ``window`` (see
     :func:`isplat.augment.augment_array`). Spacing: ``spacing``, else the scene's ``volume.spacing``, else 1.
     """
-    arr = np.asarray(density)
-    if arr.ndim != 3 or min(arr.shape) < 1:
-        raise IsplatError(f"array: expected a non-empty 3-D volume [k, j, i], got shape {arr.shape}")
-    sp = spacing or scene.volume.spacing or (1.0, 1.0, 1.0)
-    sp = tuple(float(s) for s in sp)
-    if len(sp) != 3 or not all(np.isfinite(sp)) or min(sp) <= 0:
-        raise IsplatError(f"array: spacing {sp} invalid; expected three positive numbers (i, j, k)")
+    arr, sp = check_volume(density, spacing or scene.volume.spacing)
     needs_normal = bool(scene.shading.enabled)
     needs_gm = len(scene.transfer.gradient_opacity) > 0
     missing = [name for name, value, need in (("normal", normal, needs_normal),

@@ -112,7 +112,7 @@ class Selection:
     def voxels(self, axis: str):
         """The kernel's view of the voxels of ``axis``: IndexedVoxels or WholeVolume."""
         if self.method == "full":
-            n_slices, n_a, n_b = grid.slice_shape(self.shape, axis)
+            _, n_a, n_b = grid.slice_shape(self.shape, axis)
             w = self.whole
             return WholeVolume(w.density, w.gradient_magnitude, w.normal, grid.flat_strides(self.shape, axis), n_a, n_b)
         if axis not in self.axes:

@@ -369,3 +369,38 @@ def test_slices_in_chunks_give_the_same_image(tmp_path, make_scene, monkeypatch)
     monkeypatch.setattr(isplat.progress, "enabled", lambda: True)
     chunked, s2 = render(sc)
     assert np.array_equal(one, chunked) and s1.voxels_splatted == s2.voxels_splatted
+
+
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_hidden_regions_blocks_and_cells_skipped_exactly_for_any_bands_and_threads(tmp_path, make_scene, monkeypatch,
+                                                                                    proj):
+    """A volume wider than a region (64 voxels), an opaque wall in front of random material, early termination
+    on: the regions, blocks and cells behind the wall are skipped with one test each, and the image is that of
+    the slow reference (which splats every voxel), bit for bit the same for 1, 2 or 3 threads and for bands
+    of one tile or of the whole image; hiding the material costs far fewer per-voxel tests than it has voxels."""
+    from isplat import frame as F
+    shape = (24, 10, 70)                                   # (k, j, i): slices of j are 70 x 24, 2 regions
+    dens = rng_volume(5, shape)
+    dens[:, :2, :] = 250                                   # the wall: the first j-slices, seen from -y
+    aug, idx = write_volume(tmp_path, dens)
+    sc = make_scene(aug, idx, image="width = 100\nheight = 72",
+                    camera=f'projection = "{proj}"\nazimuth = 4\nelevation = 3\nzoom = 1.0',
+                    transfer="opacity = [[55, 0.0], [60, 0.6], [249, 0.6], [250, 1.0]]", shading="enabled = false",
+                    render=BIG_TABLE + "early_termination = 0.9")
+    ref = reference_render(sc, et=0.9)
+    images = []
+    for threads, per, least in [(1, 1, 1000), (1, 1, 1), (2, 2, 1), (3, 2, 4), (3, 5, 1)]:
+        monkeypatch.setattr(F, "BANDS_PER_THREAD", per)
+        monkeypatch.setattr(F, "MIN_BAND_TILES", least)
+        sc_t = make_scene(aug, idx, image="width = 100\nheight = 72",
+                          camera=f'projection = "{proj}"\nazimuth = 4\nelevation = 3\nzoom = 1.0',
+                          transfer="opacity = [[55, 0.0], [60, 0.6], [249, 0.6], [250, 1.0]]",
+                          shading="enabled = false", render=BIG_TABLE + f"early_termination = 0.9\nthreads = {threads}")
+        img, st_ = render(sc_t)
+        images.append(img)
+        assert st_.axis == "j"
+        if least == 1000:       # one band: each voxel tested at most once
+            behind = (dens[:, 2:] >= 55).sum()
+            assert st_.voxels_tested - dens[:, :2].size < 0.3 * behind     # most material behind the wall is skipped
+    assert all(np.array_equal(images[0], im) for im in images[1:])
+    assert np.abs(images[0] - ref).max() <= 2e-4

@@ -202,7 +202,8 @@ def _select(sel: Selection, loaded: dict, read, source: str) -> None:
                               f"{MAX_IN_SLICE} voxels per in-slice axis")
         try:
             picked[ax] = select_voxels(la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions,
-                                       ivs, la.n_a, la.n_b)
+                                       ivs, la.n_a, la.n_b,
+                                       _index_like(la.positions.shape[0]) if sel.report.channels else None)
         except ValueError as exc:
             raise IsplatError(f"{source}: axis {ax}: {exc}") from None
     gathered = gather_channels(read, loaded, sel.report.channels, sel.shape)
@@ -216,6 +217,11 @@ def _select(sel: Selection, loaded: dict, read, source: str) -> None:
     sel.report.index_decoded_bytes = int(sum(
         la.slice_block_ptr.nbytes + la.block_density.nbytes + la.block_voxel_ptr.nbytes + la.positions.nbytes
         for la in loaded.values()))
+
+
+def _index_like(n: int) -> np.ndarray:
+    """An empty array of the smallest integer type that indexes ``n`` items (int32 or int64)."""
+    return np.empty(0, np.int32 if n < 2 ** 31 else np.int64)
 
 
 def gather_channels(read, loaded: dict, channels, shape) -> dict:

@@ -311,7 +311,8 @@ def test_select_voxels_refuses_a_slice_with_more_voxels_than_positions():
     from isplat.splat.select import select_voxels
     with pytest.raises(ValueError, match="more voxels than it has positions"):
         select_voxels(np.array([0, 2]), np.array([1, 2], np.uint8), np.array([0, 4, 8]),
-                      np.array([0, 1, 2, 3, 0, 1, 2, 3], np.int32), np.array([[0, 255]]), 2, 2)
+                      np.array([0, 1, 2, 3, 0, 1, 2, 3], np.int32), np.array([[0, 255]]), 2, 2,
+                      np.empty(0, np.int32))
 
 
 def _walk_hierarchy(sel, n_a):
@@ -348,7 +349,7 @@ def test_select_voxels_keeps_every_voxel_once_in_its_region_block_and_cell(shape
     dens = np.random.default_rng(seed).integers(0, 256, shape).astype(np.uint8)
     la = load_axis_in_memory(dens, "k", [(lo, 255)])
     sel = select_voxels(la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions,
-                        np.array([[lo, 255]]), la.n_a, la.n_b)
+                        np.array([[lo, 255]]), la.n_a, la.n_b, np.empty(0, np.int64))
     got = _walk_hierarchy(sel, la.n_a)
     want = sorted((c, int(i), int(j)) for c, j, i in zip(*np.nonzero(dens >= lo)))
     assert sorted((c, a, b) for c, a, b, *_ in got) == want

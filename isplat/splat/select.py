@@ -147,12 +147,13 @@ def _emit_slice(m, nra, ta, tb, td, tsrc, count, n, hier, sel, tops):
         count[k] += 1
         s_off[p] = (b % CELL) * CELL + a % CELL
         s_d[p] = td[t]
-        s_src[p] = tsrc[t]
+        if s_src.shape[0] > 0:
+            s_src[p] = tsrc[t]
     tops[0], tops[1], tops[2] = ng, nb, nq
 
 
 @jit
-def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, intervals, n_a, n_b):
+def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, intervals, n_a, n_b, src_like):
     """The voxels of each slice whose density lies in ``intervals`` (§2.2), in the hierarchy of the module
     docstring.
 
@@ -160,13 +161,19 @@ def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, in
     interval and the blocks up to its upper bound are decoded into (a, b). This runs once per load (the
     selection depends on the transfer function, not on the view); every frame then streams the result.
     Returns ``(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
-    offset, density, source)``; ``source`` is each voxel's index in ``positions``.
+    offset, density, source)``; ``source`` is each voxel's index in ``positions``, of the integer type of
+    ``src_like`` (an empty array: int32 halves the largest array of a load when ``positions`` allows it), and
+    empty when ``src_like`` is None (no channel values to gather).
     """
     n_slices = slice_block_ptr.shape[0] - 1
     nra = (n_a + REGION - 1) // REGION
     nregions = nra * ((n_b + REGION - 1) // REGION)
     total = _count_selected(slice_block_ptr, block_density, block_voxel_ptr, intervals, n_a * n_b)
-    sel = (np.empty(total, dtype=np.uint8), np.empty(total, dtype=np.uint8), np.empty(total, dtype=np.int64))
+    if src_like is None:
+        src = np.empty(0, dtype=np.int32)
+    else:
+        src = np.empty(total, dtype=src_like.dtype)
+    sel = (np.empty(total, dtype=np.uint8), np.empty(total, dtype=np.uint8), src)
     ng = min(total, n_slices * nregions)
     nb = min(total, ng * 16)
     nq = min(total, nb * 16)

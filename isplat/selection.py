@@ -203,7 +203,7 @@ def _select(sel: Selection, loaded: dict, read, source: str) -> None:
         try:
             picked[ax] = select_voxels(la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions,
                                        ivs, la.n_a, la.n_b,
-                                       _index_like(la.positions.shape[0]) if sel.report.channels else None)
+                                       _index_like(la.positions.shape[0], bool(sel.report.channels)))
         except ValueError as exc:
             raise IsplatError(f"{source}: axis {ax}: {exc}") from None
     gathered = gather_channels(read, loaded, sel.report.channels, sel.shape)
@@ -219,9 +219,10 @@ def _select(sel: Selection, loaded: dict, read, source: str) -> None:
         for la in loaded.values()))
 
 
-def _index_like(n: int) -> np.ndarray:
-    """An empty array of the smallest integer type that indexes ``n`` items (int32 or int64)."""
-    return np.empty(0, np.int32 if n < 2 ** 31 else np.int64)
+def _index_like(n: int, wanted: bool) -> np.ndarray:
+    """select_voxels' ``src_like``: the smallest integer type that indexes ``n`` items (int32 or int64), and
+    whether the voxels' source rows are wanted (empty array) or not (one item)."""
+    return np.zeros(0 if wanted else 1, np.int32 if n < 2 ** 31 else np.int64)
 
 
 def gather_channels(read, loaded: dict, channels, shape) -> dict:

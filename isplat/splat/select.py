@@ -162,17 +162,14 @@ def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, in
     selection depends on the transfer function, not on the view); every frame then streams the result.
     Returns ``(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
     offset, density, source)``; ``source`` is each voxel's index in ``positions``, of the integer type of
-    ``src_like`` (an empty array: int32 halves the largest array of a load when ``positions`` allows it), and
-    empty when ``src_like`` is None (no channel values to gather).
+    ``src_like`` (int32 halves the largest array of a load when ``positions`` allows it); pass an empty array
+    for it, or one of length 1 to skip ``source`` (returned empty: no channel values to gather).
     """
     n_slices = slice_block_ptr.shape[0] - 1
     nra = (n_a + REGION - 1) // REGION
     nregions = nra * ((n_b + REGION - 1) // REGION)
     total = _count_selected(slice_block_ptr, block_density, block_voxel_ptr, intervals, n_a * n_b)
-    if src_like is None:
-        src = np.empty(0, dtype=np.int32)
-    else:
-        src = np.empty(total, dtype=src_like.dtype)
+    src = np.empty(total if src_like.shape[0] == 0 else 0, dtype=src_like.dtype)
     sel = (np.empty(total, dtype=np.uint8), np.empty(total, dtype=np.uint8), src)
     ng = min(total, n_slices * nregions)
     nb = min(total, ng * 16)

@@ -4,30 +4,40 @@ Arrays in, arrays out, no I/O. A frame is cut into named stages, each a small co
 
 1. per slice, the traversal: which voxels reach the pipeline. :func:`render_indexed` streams the voxels the
    index selected (:func:`isplat.splat.select.select_voxels`); :func:`render_full` visits every voxel
-   (:func:`_full_cells`). Both hand the slice's voxels on grouped in cells of CELL x CELL voxels;
-2. per cell, the occlusion test (:func:`_cell_box`, :func:`_saturated`): a cell whose footprints can reach only saturated
-   pixels, or none of this thread's band, is skipped with one test;
-3. per voxel, classify, cut, project (§3) and shade (:func:`_classify`, :func:`_project`, :func:`_shade`);
+   (:func:`_full_slice`). Both hand the slice's voxels on as a hierarchy of squares of the slice: regions of
+   64 x 64 voxels, blocks of 16 x 16, cells of 4 x 4;
+2. the occlusion test (:func:`_visible_cells`, :func:`_hidden`): a region, block or cell whose footprints can
+   reach no pixel of the band, or (early termination) only saturated ones, is skipped with one test, so
+   hidden material costs one test per square rather than one per voxel;
+3. per voxel, classify, cut, project (§3) and shade (:func:`_splat_cells`: :func:`_cut_away`,
+   :func:`_project`, :func:`_path_alpha`, :func:`_shade`);
 4. the splat into the slice's sheet (:func:`_splat`), and the sheet composited into the image
    (:func:`isplat.splat.composite.composite_sheet`).
 
-Within a slice contributions are summed into a sheet buffer (order-independent), so both traversals give
-the same image up to float rounding, and the speed-up measures indexing alone.
+Within a slice contributions are summed into a sheet buffer, so both traversals give the same image up to
+float rounding (the order of the sums), and the speed-up measures indexing alone.
+
+Threads: the image is cut into bands of rows (:func:`isplat.frame.image_bands`); each band walks the slices on
+its own, visiting only the regions that :func:`bin_regions` found to reach its rows (once per frame), and a
+thread renders its bands one after the other. The image does not depend on the bands: a pixel is written by
+one band, which sums the same voxels in the same order whatever the bands are.
 
 The kernels take a few grouped arguments, named tuples built by :mod:`isplat.frame`:
 
 - ``vox``: the voxels, :data:`IndexedVoxels` (one axis of a selection) or :data:`WholeVolume` (full method);
+- ``bins``: :data:`Bins`, the regions of each slice that reach each band (indexed method);
 - ``cls``: :data:`Classify`, the transfer function's and shading's tables for this frame;
 - ``geo``: :data:`SliceGeometry`, the §3 coefficients and what perspective and cutting planes need;
 - ``fp``: :data:`FootprintTable`, the splat kernel as a 1-D table (:mod:`isplat.splat.footprint`);
-- ``buf``: :data:`Buffers`, the image and its saturation state (shared by the threads' bands), the sheet,
-  this band's list of touched pixels and counters;
-- ``band``: :data:`Band`, the image rows this call writes and the early-termination opacity.
+- ``buf``: :data:`Buffers`, the image and its saturation state (shared by the bands), the sheet, this
+  thread's scratch lists and the counters per band;
+- ``bands``: :data:`Bands`, every band's rows, the bands this call renders and the early-termination opacity.
 
-Early termination: a voxel whose footprint covers only saturated pixels (opacity at the threshold) is
-skipped before shading; TILE x TILE tiles whose pixels are all saturated answer that test at once. A band
-stops when all its tiles are saturated; that is checked before each slice, so rendering the slices in several
-calls (a progress bar, slabs) counts and draws exactly what one call does.
+Early termination: a square or voxel whose footprints cover only saturated pixels (opacity at the threshold)
+is skipped; TILE x TILE tiles whose pixels are all saturated answer that test at once, through a summed-area
+table of the band's whole tiles (one look-up for any box), made again after a slice saturates new pixels. A
+band stops when all its tiles are whole; that is checked before each slice, so rendering the slices in
+several calls (a progress bar, slabs) counts and draws exactly what one call does.
 """
 
 from __future__ import annotations

@@ -131,12 +131,15 @@ def doc(rows, quick: bool, seconds: float) -> str:
             rep = st.voxels_tested / max(base, 1) - 1.0
             L.append(f"| {name} | {t} | {nb} | {st.voxels_tested:,} | {100 * rep:.1f}% | "
                      f"{predicted(serial, rep, t, nb):.2f} |")
-    L += ["", "| scene | 1 thread (ms) | 2 threads (ms) | speed-up | set-up per frame (ms) | serial share |",
-          "|---|---:|---:|---:|---:|---:|"]
+    L += ["", "| scene | 1 thread (ms) | ns per voxel of interest | ns per voxel splatted | 2 threads (ms) | "
+          "speed-up | set-up per frame (ms) | serial share |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
-        L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
-                 f"{1e3 * tm['prepare']:.2f} | {100 * tm['prepare'] / tm['1']:.1f}% |")
-    L += ["", "Repeated work: the voxels tested by all bands together over those tested with one band, minus "
+        L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e9 * tm['1'] / max(n_vox, 1):.1f} | "
+                 f"{1e9 * tm['1'] / max(per[1][1].voxels_splatted, 1):.0f} | {1e3 * tm['2']:.1f} | "
+                 f"{tm['1'] / tm['2']:.2f} | {1e3 * tm['prepare']:.2f} | {100 * tm['prepare'] / tm['1']:.1f}% |")
+    L += ["", "If the frame's cost follows what is visible, the time per voxel splatted stays about the same from "
+          "scene to scene however much lies hidden, while the time per voxel of interest falls as more of them "
+          "are hidden.", "", "Repeated work: the voxels tested by all bands together over those tested with one band, minus "
           "one (a voxel whose footprint crosses a band's edge is tested, and partly splatted, by both). "
           "Serial share: the frame's set-up (``isplat.frame.prepare``: opacity and shading tables, footprint, "
           "binning the regions to the bands) over the one-thread frame; the shading table is itself shared "

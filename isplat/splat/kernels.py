@@ -535,15 +535,19 @@ def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty
     x0, x1, y0, y1 = box
     Qa, Qb2, Qc, R2v, tscale = fpc
     img_w = sheet.shape[1]
-    inv_s2 = 1.0 / (s * s)
+    # the quadratic form in table units (q * tscale), with this voxel's perspective scale folded in
+    k = tscale / (s * s)
+    A = Qa * k
+    B = Qb2 * k
+    C = Qc * k
+    T = R2v * tscale
     for y in range(y0, y1 + 1):
         dy = y - py
-        qy = Qc * dy * dy
-        qxy = Qb2 * dy
+        ty = C * dy * dy
+        txy = B * dy
         for x in range(x0, x1 + 1):
             dx = x - px
-            q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
-            wgt = table[int(min(q, R2v) * tscale)]
+            wgt = table[int(min((A * dx + txy) * dx + ty, T))]
             dirty[nd] = y * img_w + x
             nd += 1 - dirty_px[y, x]
             dirty_px[y, x] = 1

@@ -118,13 +118,22 @@ def render_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
             np.empty(ng * KEYS, np.uint8), np.empty(m, np.uint8), np.empty(m, np.uint8))
     index = np.empty(m, np.int64)
     all_regions = np.arange(ng)
+    wanted = np.empty(ng, np.bool_)
+    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
     for bi in bands.mine:
         band = _band(bi, bands, buf)
         for oi in range(order.shape[0]):
             if _band_saturated(band):
                 break
             c = order[oi]
-            n_regions = _full_slice(c, vox, cls, hier, index)
+            # a band classifies only the regions whose footprints can reach its rows
+            base = _slice_bases(c, geo, cs)
+            box_args = (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1],
+                        band[1], band[2], band[5], False)
+            for rid in range(ng):
+                wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4],
+                                          buf.sat, False)
+            n_regions = _full_slice(c, vox, cls, hier, index, wanted)
             buf.stats[bi, 0] += m
             _render_slice(c, all_regions, 0, n_regions, hier, (vox.gm, vox.nrm, index, False), n_a, n_b, cls,
                           geo, fp, buf, band)
@@ -175,10 +184,10 @@ def _band_saturated(band):
 
 
 @jit
-def _full_slice(c, vox, cls, hier, index):
-    """Traversal of the full method: every voxel of slice ``c`` that is not transparent, in the hierarchy
-    (regions, blocks, cells) of the index's selection, into ``hier`` and ``index`` (flat positions); returns
-    the number of regions."""
+def _full_slice(c, vox, cls, hier, index, wanted):
+    """Traversal of the full method: every voxel of slice ``c`` that is not transparent, in the regions
+    ``wanted``, in the hierarchy (regions, blocks, cells) of the index's selection, into ``hier`` and
+    ``index`` (flat positions); returns the number of regions."""
     region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count, offset, dens = hier
     density, gm, strides, n_a, n_b = vox.density, vox.gm, vox.strides, vox.n_a, vox.n_b
     alpha, use_gm = cls.alpha, cls.use_gm
@@ -189,6 +198,8 @@ def _full_slice(c, vox, cls, hier, index):
     nb = 0
     nq = 0
     for rid in range(nra * ((n_b + REGION - 1) // REGION)):
+        if not wanted[rid]:
+            continue
         ra0, rb0 = (rid % nra) * REGION, (rid // nra) * REGION
         region_id[ng] = rid
         region_ptr[ng] = nb

@@ -90,9 +90,9 @@ def _augment(arr, spacing, window) -> dict:
 
 
 def _scene(overrides, density_window):
-    from .scene import parse_scene
+    from .scene import SCENE_VERSION, parse_scene
 
-    return parse_scene("version = 2\n", ".", "isplat.render", overrides, data_required=False,
+    return parse_scene(f"version = {SCENE_VERSION}\n", ".", "isplat.render", overrides, data_required=False,
                        density_window=tuple(density_window))
 
 

@@ -61,14 +61,17 @@ SheetVoxels.__doc__ = """The frame's voxels bucketed by first slab: bucket ``k``
 ``slab_ptr[k]:slab_ptr[k+1]`` of ``a, b, c`` (slice coordinates), ``row`` (where the voxel's ``gm``/``nrm``
 values are) and ``d`` (density); ``culled``: voxels examined but dropped when bucketing (transparent, cut
 away, behind the near plane)."""
-SheetGeometry = namedtuple("SheetGeometry", "coef zc qe steps persp inv_unit cuts z_lo thick span cond")
+SheetGeometry = namedtuple("SheetGeometry", "coef zc qe steps persp inv_unit cuts z_lo thick span cond cdf")
 SheetGeometry.__doc__ = """``coef`` 16 floats (camera.Projection.coef); ``zc`` (Z0, ZA, ZB, ZC): depth along
 the view direction ``Z0 + a ZA + b ZB + c ZC`` (world units; in perspective the distance in front of the
 eye); ``qe`` volume origin minus eye and ``steps`` the world steps along a, b, c (9 floats, perspective);
 ``inv_unit`` slab thickness / unit distance; ``cuts`` rows (g0, ga, gb,
 gc); ``z_lo`` depth of slab 0's front; ``thick`` slab thickness; ``span``: a voxel of first slab ``f`` reaches
 no slab after ``f + span``; ``cond`` (gx, gy, s_c, ext, flat): depth given the pixel offset (module
-docstring), ``ext`` the kernel's reach in depth, ``flat`` True when ``g`` is negligible."""
+docstring), ``ext`` the kernel's reach in depth, ``flat`` True when ``g`` is negligible; ``cdf``: the cut
+normal CDF ``F`` tabulated (:func:`cdf_table`)."""
+# entries of the tabulated depth CDF; linear interpolation keeps its error below 1e-7
+CDF_TABLE = 4096
 
 
 # ---- bucketing ---------------------------------------------------------------------------------------------
@@ -190,8 +193,9 @@ def render_image(order, vox, cls, geo, fp, buf, band):
     coef, zc, persp, thick, span = geo.coef, geo.zc, geo.persp, geo.thick, geo.span
     gx, gy, s_c, ext, flat = geo.cond
     rcut = math.sqrt(fp.params[R2])
-    erf_r = math.erf(rcut / math.sqrt(2.0))
-    depth = (1.0 / (math.sqrt(2.0) * s_c), rcut / (math.sqrt(2.0)), 0.5 / erf_r)
+    cdf = geo.cdf
+    # t (standard deviations) -> table position: (t + rcut) * depth[1]; depth[0] = 1 / s_c
+    depth = (1.0 / s_c, (cdf.shape[0] - 2) / (2.0 * rcut), rcut)
     for oi in range(order.shape[0]):
         if _band_saturated(tile_sat, tile_npix, band):
             break
@@ -219,12 +223,12 @@ def render_image(order, vox, cls, geo, fp, buf, band):
                 cr, cg, cb = _shade(d, vox.nrm[row] if use_shade else 0, alpha, color, shade, use_shade)
                 zrel = z - z0
                 if flat:
-                    f = _slab_mass(zrel, thick, depth)
+                    f = _slab_mass(zrel, thick, depth, cdf)
                     nd = _splat(px, py, s, box, cr * f, cg * f, cb * f, alpha * f, fpc, table, sheet, dirty_px,
                                 dirty, nd)
                 else:
                     nd = _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, (zrel, thick, gx, gy),
-                                       depth, sheet, dirty_px, dirty, nd)
+                                       depth, cdf, sheet, dirty_px, dirty, nd)
                 # counted once: in its first slab, by the band holding its first image row
                 if kk == k and max(int(math.ceil(py - ey * s)), 0) >= y0b:
                     stats[1] += 1
@@ -328,19 +332,29 @@ def _shade(d, code, alpha, color, shade, use_shade):
     return cr * alpha, cg * alpha, cb * alpha
 
 
-@leaf
-def _cdf(t, depth):
-    """The normal CDF cut at +-radius and rescaled to 0..1, at ``t * sqrt(2)`` standard deviations
-    (``depth = (1 / (sqrt 2 s_c), radius / sqrt 2, 0.5 / erf(radius / sqrt 2))``)."""
-    u = min(max(t, -depth[1]), depth[1])
-    return (math.erf(u) + 1.0 / (2.0 * depth[2])) * depth[2]
+def cdf_table(radius: float, n: int = CDF_TABLE) -> np.ndarray:
+    """The normal CDF cut at +-``radius`` standard deviations and rescaled to 0..1, at ``n + 1`` equally
+    spaced points of [-radius, radius], plus a trailing 1 (read when t is at the top end)."""
+    t = np.linspace(-radius, radius, n + 1)
+    e = np.array([math.erf(x / math.sqrt(2.0)) for x in t])
+    er = math.erf(radius / math.sqrt(2.0))
+    return np.append((e + er) / (2.0 * er), 1.0)
 
 
 @leaf
-def _slab_mass(zrel, thick, depth):
+def _cdf(t, depth, cdf):
+    """The cut normal CDF at ``t`` standard deviations, linearly interpolated in the table ``cdf``."""
+    x = (min(max(t, -depth[2]), depth[2]) + depth[2]) * depth[1]
+    i = int(x)
+    fr = x - i
+    return cdf[i] + fr * (cdf[i + 1] - cdf[i])
+
+
+@leaf
+def _slab_mass(zrel, thick, depth, cdf):
     """Share of a voxel's kernel (centred ``zrel`` behind the slab's front) inside the slab: the depth
     factor of an untilted kernel."""
-    return _cdf((thick - zrel) * depth[0], depth) - _cdf(-zrel * depth[0], depth)
+    return _cdf((thick - zrel) * depth[0], depth, cdf) - _cdf(-zrel * depth[0], depth, cdf)
 
 
 @leaf
@@ -369,7 +383,7 @@ def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty
 
 
 @leaf
-def _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, slab, depth, sheet, dirty_px, dirty, nd):
+def _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, slab, depth, cdf, sheet, dirty_px, dirty, nd):
     """``_splat`` with the depth factor per pixel: the kernel's depth given the pixel offset moves by
     ``g.d`` (``slab = (zrel, thick, gx, gy)``, offsets in pixels at ``t0 = 1``)."""
     x0, x1, y0, y1 = box
@@ -386,7 +400,7 @@ def _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, slab, depth, sh
         for x in range(x0, x1 + 1):
             dx = x - px
             q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
-            wgt = table[int(min(q, R2v) * tscale)] * _slab_mass(zy + gx * dx * inv_s, thick, depth)
+            wgt = table[int(min(q, R2v) * tscale)] * _slab_mass(zy + gx * dx * inv_s, thick, depth, cdf)
             dirty[nd] = y * img_w + x
             nd += 1 - dirty_px[y, x]
             dirty_px[y, x] = 1
@@ -466,7 +480,8 @@ def image_frame(sel, view, dtype, shade, cuts):
     qe = tuple(float(x) for x in (geom.q - frame.e)) if persp else (0.0, 0.0, 0.0)
     geo = SheetGeometry(coef, zc, qe, tuple(float(x) for x in S.ravel()), persp, thick / unit,
                         np.ascontiguousarray(cuts, dtype=np.float64), float(z_lo), float(thick), span,
-                        (float(g[0]), float(g[1]), float(s_c), float(ext), bool(tilt <= 1e-9 * s_c)))
+                        (float(g[0]), float(g[1]), float(s_c), float(ext), bool(tilt <= 1e-9 * s_c)),
+                        cdf_table(float(ro.footprint_radius)))
     atab = alpha_table(sel.luts, None if persp else thick / unit)
     cls = SheetClassify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
     vox = sel.voxels(axis)

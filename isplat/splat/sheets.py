@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from collections import namedtuple
+from functools import lru_cache
 
 import numpy as np
 
@@ -150,29 +151,35 @@ def bucket_indexed(cell_ptr, cell_start, a, b, density, gm, alpha, use_gm, geo, 
 @jit
 def bucket_full(density, gm, strides, n_a, n_b, n_c, alpha, use_gm, geo, n_slabs):
     """Bucket every voxel of whole channels (flat ``[k, j, i]``, kernels.WholeVolume) by first slab; returns
-    (slab_ptr, a, b, c, row, d, culled) with ``row`` the flat index."""
-    m = n_a * n_b * n_c
-    cand_a = np.empty(m, dtype=np.uint16)
-    cand_b = np.empty(m, dtype=np.uint16)
-    cand_c = np.empty(m, dtype=np.int32)
-    cand_fi = np.empty(m, dtype=np.int64)
-    cand_d = np.empty(m, dtype=np.uint8)
-    first = np.full(m, -1, dtype=np.int32)
-    nkeep = 0
-    t = 0
-    for c in range(n_c):
-        for b in range(n_b):
-            for a in range(n_a):
-                fi = c * strides[2] + a * strides[0] + b * strides[1]
-                d = density[fi]
-                cand_a[t], cand_b[t], cand_c[t], cand_fi[t], cand_d[t] = a, b, c, fi, d
-                z = _keep(a, b, c, alpha[d, gm[fi] if use_gm else 0], geo)
-                if z > -math.inf:
-                    first[t] = _first_slab(z, geo, n_slabs)
-                    nkeep += 1
-                t += 1
-    ptr, sa, sb, sc, srow, sd = _place(first, n_slabs, cand_a, cand_b, cand_c, cand_fi, cand_d, nkeep)
-    return ptr, sa, sb, sc, srow, sd, m - nkeep
+    (slab_ptr, a, b, c, row, d, culled) with ``row`` the flat index. Two passes over the volume (count, then
+    place), so nothing per voxel of the whole volume is held."""
+    counts = np.zeros(n_slabs + 1, dtype=np.int64)
+    for rep in range(2):
+        if rep == 1:
+            for k in range(n_slabs):
+                counts[k + 1] += counts[k]
+            ptr = counts.copy()
+            nkeep = counts[n_slabs]
+            sa = np.empty(nkeep, dtype=np.uint16)
+            sb = np.empty(nkeep, dtype=np.uint16)
+            sc = np.empty(nkeep, dtype=np.int32)
+            srow = np.empty(nkeep, dtype=np.int64)
+            sd = np.empty(nkeep, dtype=np.uint8)
+        for c in range(n_c):
+            for b in range(n_b):
+                for a in range(n_a):
+                    fi = c * strides[2] + a * strides[0] + b * strides[1]
+                    d = density[fi]
+                    z = _keep(a, b, c, alpha[d, gm[fi] if use_gm else 0], geo)
+                    if z > -math.inf:
+                        f = _first_slab(z, geo, n_slabs)
+                        if rep == 0:
+                            counts[f + 1] += 1
+                        else:
+                            p = counts[f]
+                            counts[f] += 1
+                            sa[p], sb[p], sc[p], srow[p], sd[p] = a, b, c, fi, d
+    return ptr, sa, sb, sc, srow, sd, n_a * n_b * n_c - nkeep
 
 
 # ---- the frame kernel --------------------------------------------------------------------------------------
@@ -332,13 +339,16 @@ def _shade(d, code, alpha, color, shade, use_shade):
     return cr * alpha, cg * alpha, cb * alpha
 
 
+@lru_cache(maxsize=8)
 def cdf_table(radius: float, n: int = CDF_TABLE) -> np.ndarray:
     """The normal CDF cut at +-``radius`` standard deviations and rescaled to 0..1, at ``n + 1`` equally
     spaced points of [-radius, radius], plus a trailing 1 (read when t is at the top end)."""
     t = np.linspace(-radius, radius, n + 1)
     e = np.array([math.erf(x / math.sqrt(2.0)) for x in t])
     er = math.erf(radius / math.sqrt(2.0))
-    return np.append((e + er) / (2.0 * er), 1.0)
+    out = np.append((e + er) / (2.0 * er), 1.0)
+    out.flags.writeable = False
+    return out
 
 
 @leaf
@@ -437,6 +447,20 @@ def depth_kernel(jac, zrow, sigma, radius):
     return g, s_c, float(radius) * (s_c + tilt), V, tilt
 
 
+def slab_range(z0, zrow, n_abc, thick, ext, near=None):
+    """``(z_lo, n_slabs)``: the slabs covering every kernel of a grid of ``n_abc`` voxels whose centres have
+    depth ``z0 + (a, b, c) . zrow`` (in perspective not nearer than ``near``), slab boundaries anchored to
+    the middle depth of the grid's corners (so they move with the volume, not with the near plane)."""
+    n = np.asarray(n_abc) - 1
+    corners = np.array([[x, y, w] for x in (0, n[0]) for y in (0, n[1]) for w in (0, n[2])], dtype=np.float64)
+    zs = z0 + corners @ np.asarray(zrow, dtype=np.float64)
+    zmid = 0.5 * (float(zs.min()) + float(zs.max()))
+    zmin = float(zs.min()) if near is None else max(float(zs.min()), near)
+    zmax = max(float(zs.max()), zmin)
+    z_lo = zmid + thick * math.floor((zmin - ext - zmid) / thick)
+    return z_lo, max(1, int(math.floor((zmax + ext - z_lo) / thick)) + 1)
+
+
 def image_frame(sel, view, dtype, shade, cuts):
     """The tables of an image-aligned frame: ``(kernel, vox, cls, geo, fp, order)`` for
     :func:`isplat.frame.render_slab` (``shade`` the frame's shading table, ``cuts`` the planes' rows in slice
@@ -460,16 +484,7 @@ def image_frame(sel, view, dtype, shade, cuts):
     if not s_c > 0.0 or not math.isfinite(ext):
         raise IsplatError("render.sheets = 'image': the kernel has no depth in this view; use sheets = 'axis'")
     thick = max(float(geom.spacing.min()), 2.0 * ext / MAX_SLABS_PER_KERNEL)
-    # depth range of the voxel centres, from the grid's corners
-    n = geom.n_ijk[[ia, ib, ic]] - 1
-    corners = np.array([[x, y, w] for x in (0, n[0]) for y in (0, n[1]) for w in (0, n[2])], dtype=np.float64)
-    zs = z0 + corners @ zrow
-    zmin, zmax = float(zs.min()), float(zs.max())
-    if persp:
-        zmin = max(zmin, frame.near)
-    zmid = 0.5 * (float(zs.min()) + float(zs.max()))            # slab boundaries anchored to the volume
-    z_lo = zmid + thick * math.floor((zmin - ext - zmid) / thick)
-    n_slabs = max(1, int(math.floor((max(zmax, zmin) + ext - z_lo) / thick)) + 1)
+    z_lo, n_slabs = slab_range(z0, zrow, geom.n_ijk[[ia, ib, ic]], thick, ext, frame.near if persp else None)
     span = int(math.ceil(2.0 * ext / thick)) + 1
     fp = make_footprint(proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, dtype)
     a_cell = abs(float(np.linalg.det(proj.jac[:, :2])))

@@ -35,8 +35,12 @@ The traversal: the selected voxels are bucketed once per frame by the first slab
 ``k - span .. k`` and keeps the voxels whose kernel reaches it. A voxel is projected, classified and shaded
 again in each slab it reaches (a few table reads) rather than held in a per-frame list.
 
-The per-voxel helpers ``_project``-like stages below are copies of :mod:`isplat.splat.kernels` stages
-(that module's signatures are being reworked); they are compiled without reference counting (``leaf``).
+Slab thickness: the smallest spacing, or more when a kernel would otherwise reach more than
+MAX_SLABS_PER_KERNEL slabs (a spacing far below the others, e.g. 1 x 1 x 100).
+
+``_band_saturated``, ``_saturated``, ``_project`` (with the slice's terms per voxel), ``_shade`` and ``_splat``
+are copies of :mod:`isplat.splat.kernels` stages (that module's signatures are being reworked); like them
+they are compiled without reference counting (``leaf``).
 """
 
 from __future__ import annotations

@@ -154,10 +154,13 @@ THICK_TF = ("opacity = [[90, 0.0], [160, 0.6], [255, 0.6]]\ncolor = [[90, 0.9, 0
             "unit_distance = 1.0")
 
 
-def smooth_object(spacing, extent, z_step=None):
-    """A solid ellipsoid with a soft edge (9 mm at a 72 mm extent) and a soft bump, sampled at ``spacing``
-    (mm) over ``extent`` mm (tests/test_resample.py's object, scaled); ``z_step``: sample z at that step
-    instead, from the same first slice (the thick slices' positions are then every spacing/z_step-th)."""
+OBJECTS = {"smooth": "a solid ellipsoid with a 9 mm soft edge and a soft bump (smooth at the scale of a slice)",
+           "shell": "an ellipsoidal shell 6 mm thick with 2 mm soft edges (like a skull: thinner than a slice)"}
+
+
+def thick_object(kind, spacing, extent, z_step=None):
+    """Object ``kind`` (OBJECTS) sampled at ``spacing`` (mm) over ``extent`` mm, centred; ``z_step``: sample z
+    at that step instead, from the same first slice (the thick slices are then every spacing/z_step-th)."""
     n = [max(2, int(round(extent / s))) for s in spacing]
     x, y = (((np.arange(m) - (m - 1) / 2) * s)[sl] for m, s, sl in
             zip(n, spacing, [np.s_[None, None, :], np.s_[None, :, None]]))
@@ -167,57 +170,70 @@ def smooth_object(spacing, extent, z_step=None):
     z = z[:, None, None]
     c = extent / 72.0
     r = np.sqrt((x / (37.5 * c)) ** 2 + (y / (30.0 * c)) ** 2 + (z / (33.75 * c)) ** 2)
-    f = (np.clip(0.5 - (r - 0.8) * 33.75 / 9.0, 0, 1) * 200.0
-         + 20.0 * np.exp(-((x - 11 * c) ** 2 + z ** 2) / (110.0 * c * c)))
+    if kind == "smooth":        # tests/test_resample.py's object, scaled
+        f = np.clip(0.5 - (r - 0.8) * 33.75 / 9.0, 0, 1)
+    else:
+        f = np.clip(0.5 - (np.abs(r - 0.8) * 33.75 * c - 3.0) / 2.0, 0, 1)
+    f = f * 200.0 + 20.0 * np.exp(-((x - 11 * c) ** 2 + z ** 2) / (110.0 * c * c))
     return f.astype(np.float32)
 
 
-def _thick_render(vol, spacing, cam, size, reps, shading=True, channels=None):
-    from isplat.frame import render_frame, views_for
+def _thick_view(vol, spacing, cam, size, channels=None):
+    """(selection, view) of ``vol`` (or of augmented ``channels``: density, normal, gradient magnitude, its
+    scale) for the thick-slice renders."""
+    from isplat.frame import views_for
     from isplat.scene import parse_scene
     from isplat.selection import Selection
 
     text = (f'[image]\nwidth = {size}\nheight = {size}\n[camera]\nprojection = "orthographic"\n{cam}\nzoom = 1.1\n'
-            f'[transfer]\n{THICK_TF}\n[shading]\nenabled = {"true" if shading else "false"}\n'
-            '[render]\nearly_termination = 1.0\n')
+            f'[transfer]\n{THICK_TF}\n[render]\nearly_termination = 1.0\n')
     sc = parse_scene(text, ".", "thick", data_required=False)
     if channels is None:
         sel = Selection.from_arrays(vol, sc, spacing=spacing, window=(0.0, 255.0))
-    else:            # augmented codes given: (density, normal, gradient magnitude, its scale)
+    else:
         sel = Selection.from_arrays(channels[0], sc, normal=channels[1], gradient_magnitude=channels[2],
                                     gradient_magnitude_scale=channels[3], spacing=spacing)
-    view = views_for(sc, sel)[0]
-    ts = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        img, st = render_frame(sel, view)
-        ts.append(time.perf_counter() - t0)
-    return img.astype(np.float64), 1000 * statistics.median(ts), st.voxels_splatted
+    return sel, views_for(sc, sel)[0]
+
+
+def _frame(sv) -> np.ndarray:
+    from isplat.frame import render_frame
+
+    return render_frame(*sv)[0].astype(np.float64)
 
 
 def thick_slices(size: int, quick: bool, img_path: Path) -> list[dict]:
     from isplat.resample import thin_slices
 
     extent = 48.0 if quick else 96.0
-    reps = 1 if quick else 5
+    reps = 1 if quick else 7
     rows, strip = [], []
-    fine_vol = smooth_object((1.0, 1.0, 1.0), extent)
-    for sp in THICK_SPACINGS:
-        thick = smooth_object(sp, extent)
-        thin, sp_thin = thin_slices(thick, sp)
-        tri, sp_tri = thin_slices(thick, sp, max_ratio=1.0)
-        for view, cam in (list(THICK_VIEWS.items())[:1] if quick else THICK_VIEWS.items()):
-            _log(f"thick slices {sp} {view}")
-            fine = _thick_render(fine_vol, (1.0, 1.0, 1.0), cam, size, 1)[0]
-            ref = _thick_render(tri, sp_tri, cam, size, 1)[0]
-            a, ta, na = _thick_render(thick, sp, cam, size, reps)
-            b, tb, nb = _thick_render(thin, sp_thin, cam, size, reps)
-            rows.append(dict(spacing=sp, view=view, shape=thick.shape[::-1], thin_shape=thin.shape[::-1],
-                             thin_spacing=sp_thin, as_is=(rmse(a, ref), rmse(a, fine), ta, na),
-                             thinned=(rmse(b, ref), rmse(b, fine), tb, nb)))
-            if view == "side":
-                strip.append(np.concatenate([a, b, ref, fine], 1))
-                rows[-1]["ablation"] = ablation(thick, sp, extent, cam, size, ref)
+    views = list(THICK_VIEWS.items())[:1] if quick else list(THICK_VIEWS.items())
+    for kind in OBJECTS:
+        fine_vol = thick_object(kind, (1.0, 1.0, 1.0), extent)
+        for sp in THICK_SPACINGS:
+            thick = thick_object(kind, sp, extent)
+            thin, sp_thin = thin_slices(thick, sp)
+            tri, sp_tri = thin_slices(thick, sp, max_ratio=1.0)
+            for view, cam in views:
+                _log(f"thick slices {kind} {sp} {view}")
+                fine = _frame(_thick_view(fine_vol, (1.0, 1.0, 1.0), cam, size))
+                ref = _frame(_thick_view(tri, sp_tri, cam, size))
+                sv = {"as_is": _thick_view(thick, sp, cam, size), "thinned": _thick_view(thin, sp_thin, cam, size)}
+                ts = {k: [] for k in sv}
+                for _ in range(reps):                        # interleaved
+                    for k, v in sv.items():
+                        t0 = time.perf_counter()
+                        img = _frame(v)
+                        ts[k].append(time.perf_counter() - t0)
+                imgs = {k: _frame(v) for k, v in sv.items()}
+                row = dict(object=kind, spacing=sp, view=view, shape=thick.shape[::-1], thin_shape=thin.shape[::-1])
+                for k in sv:
+                    row[k] = (rmse(imgs[k], ref), rmse(imgs[k], fine), 1000 * statistics.median(ts[k]))
+                if view == "side":
+                    strip.append(np.concatenate([imgs["as_is"], imgs["thinned"], ref, fine], 1))
+                    row["ablation"] = ablation(kind, thick, sp, extent, cam, size, ref)
+                rows.append(row)
     import imageio.v3 as iio
 
     img_path.parent.mkdir(parents=True, exist_ok=True)
@@ -225,49 +241,51 @@ def thick_slices(size: int, quick: bool, img_path: Path) -> list[dict]:
     return rows
 
 
-def ablation(thick, sp, extent, cam, size, ref) -> dict:
+def ablation(kind, thick, sp, extent, cam, size, ref) -> dict:
     """The side view as it is, with each thick voxel's normal replaced by the object's own (from the object
     sampled every 0.5 mm along z through the same slices): are the normals the cause?"""
     from isplat.augment import augment_array
 
     f = int(round(sp[2] / 0.5))
-    dense = smooth_object(sp, extent, z_step=0.5)
+    dense = thick_object(kind, sp, extent, z_step=0.5)
     own = augment_array(thick, sp, (0.0, 255.0))
     true_normals = np.ascontiguousarray(augment_array(dense, (sp[0], sp[1], 0.5), (0.0, 255.0))["normal"][::f])
     chans = (own["density"], true_normals, own["gradient_magnitude"], own["gradient_magnitude_scale"])
-    img = _thick_render(None, sp, cam, size, 1, channels=chans)[0]
+    img = _frame(_thick_view(None, sp, cam, size, channels=chans))
     return dict(object_normals=rmse(img, ref), changed=float(np.mean(true_normals != own["normal"])))
 
 
 def thick_doc(rows, size, quick) -> list[str]:
     L = ["## Thick slices", "",
-         f"A smooth object (a solid ellipsoid with a soft edge and a soft bump, {48 if quick else 96} mm across) "
-         "sampled with thick slices, rendered as it is and after `isplat augment --thin-slices` "
+         f"Two objects {48 if quick else 96} mm across, *smooth*: " + OBJECTS["smooth"] + "; *shell*: " +
+         OBJECTS["shell"] + "; sampled with thick slices, rendered as they are and after `isplat augment --thin-slices` "
          "(`isplat.resample.thin_slices`: linear interpolation along the thick axis to at most twice the in-plane "
          f"spacing), {size} x {size}, orthographic, ET off, opacity ramp 90..160. RMSE over RGB against two truths: "
          "*trilinear*, the same thick data refined to the in-plane spacing (the trilinear field a ray caster "
          "reconstructs from these slices) and *object*, the object sampled on a 1 mm grid (what the slices miss of "
-         "it stays in this column). Frame times: median of repeated frames, all cores.", "",
-         "| spacing (mm) | view | voxels (NI,NJ,NK) | RMSE vs trilinear: as is | thinned | RMSE vs object: as is | "
-         "thinned | ms as is | ms thinned |", "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+         "it stays in this column). Frame times: medians of frames as it is and thinned rendered in turn, all cores.",
+         "", "| object | spacing (mm) | view | voxels (NI,NJ,NK) | RMSE vs trilinear: as is | thinned | "
+         "RMSE vs object: as is | thinned | ms as is | ms thinned |", "|---|---|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         sp = " x ".join(f"{s:g}" for s in r["spacing"])
-        L.append(f"| {sp} | {r['view']} | {'x'.join(map(str, r['shape']))} -> {'x'.join(map(str, r['thin_shape']))} | "
-                 f"{r['as_is'][0]:.4f} | **{r['thinned'][0]:.4f}** | {r['as_is'][1]:.4f} | **{r['thinned'][1]:.4f}** | "
-                 f"{r['as_is'][2]:.1f} | {r['thinned'][2]:.1f} |")
+        L.append(f"| {r['object']} | {sp} | {r['view']} | {'x'.join(map(str, r['shape']))} -> "
+                 f"{'x'.join(map(str, r['thin_shape']))} | {r['as_is'][0]:.4f} | **{r['thinned'][0]:.4f}** | "
+                 f"{r['as_is'][1]:.4f} | **{r['thinned'][1]:.4f}** | {r['as_is'][2]:.1f} | {r['thinned'][2]:.1f} |")
     gain = [r["as_is"][0] / max(r["thinned"][0], 1e-12) for r in rows]
     abl = [r for r in rows if "ablation" in r]
-    L += ["", "Are the normals the cause? The side view as it is, with each thick voxel's normal replaced by the "
+    L += ["", "Are the normals the cause? The side views as they are, with each thick voxel's normal replaced by the "
           "object's own (central differences of the object sampled every 0.5 mm through the same slices), RMSE "
           "against the trilinear field:", "",
-          "| spacing (mm) | normals changed | as it is | with the object's normals | thinned |", "|---|---:|---:|---:|---:|"]
+          "| object | spacing (mm) | normals changed | as it is | with the object's normals | thinned |",
+          "|---|---|---:|---:|---:|---:|"]
     for r in abl:
         sp = " x ".join(f"{s:g}" for s in r["spacing"])
-        L.append(f"| {sp} | {100 * r['ablation']['changed']:.0f}% | {r['as_is'][0]:.4f} | "
+        L.append(f"| {r['object']} | {sp} | {100 * r['ablation']['changed']:.0f}% | {r['as_is'][0]:.4f} | "
                  f"{r['ablation']['object_normals']:.4f} | {r['thinned'][0]:.4f} |")
     L += ["", "![thick slices](img/thick_slices.png)", "",
-          "`img/thick_slices.png`, side view, one row per spacing: as it is, thinned, the trilinear field, the "
-          "object on a 1 mm grid.", "",
+          "`img/thick_slices.png`, side view, one row per object and spacing (" +
+          ", ".join(f"{r['object']} {' x '.join(f'{s:g}' for s in r['spacing'])}" for r in abl) +
+          "): as it is, thinned, the trilinear field, the object on a 1 mm grid.", "",
           "Why thick slices streak: isplat classifies (and shades) each voxel before reconstruction, and its kernel "
           "is a Gaussian in grid steps, so the voxel of an 8 mm slice is an 8 mm tall footprint of one opacity "
           "and colour. Between two slices the image cross-fades the two slices' classified footprints, composited "

@@ -120,3 +120,14 @@ def test_augment_thin_slices_from_the_command_line(tmp_path, capsys):
     assert code == 0 and err == ""
     aug = open_augmented(tmp_path / "thin.aug.h5")
     assert aug.shape == (33, 72, 72) and aug.spacing_ijk == (1.0, 1.0, 2.0)
+
+
+def test_isplat_render_thins_when_asked():
+    import isplat
+
+    thick = smooth_object((1.0, 1.0, 8.0))[:, 16:56, 16:56]
+    kw = dict(opacity=[[90, 0.0], [160, 0.6]], azimuth=20, size=48, window=(0.0, 255.0))
+    thinned = isplat.render(thick, spacing=(1.0, 1.0, 8.0), thin_slices=True, **kw)
+    refined, sp = thin_slices(thick, (1.0, 1.0, 8.0))
+    assert np.array_equal(thinned, isplat.render(refined, spacing=sp, **kw))
+    assert not np.array_equal(thinned, isplat.render(thick, spacing=(1.0, 1.0, 8.0), **kw))

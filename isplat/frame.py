@@ -178,7 +178,7 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
         from .splat.sheets import image_frame
 
         *tables, order = image_frame(sel, view, dtype, shade, cuts)
-        return Setup(view, *tables, bands, _tile_pixels(H, W), *scratch, et_val, threads, False, order)
+        return Setup(view, *tables, rows, mine, None, _tile_pixels(H, W), *scratch, et_val, threads, False, order)
     cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
     vox = sel.voxels(axis)
     fpt = K.FootprintTable(fp.table, fp.params)

@@ -53,6 +53,7 @@ import numpy as np
 
 from ..jit import jit, leaf
 from .composite import TILE, composite_sheet
+from .select import BLOCK, CELL, REGION
 
 # coef layout (camera.Projection.coef), as in kernels.py
 X0, XA, XB, XC, Y0, YA, YB, YC, W0, WA, WB, WC, CX, CY, WPE, NEAR = range(16)
@@ -133,22 +134,38 @@ def _place(first, n_slabs, src_a, src_b, src_c, src_row, src_d, nkeep):
 
 
 @jit
-def bucket_indexed(cell_ptr, cell_start, a, b, density, gm, alpha, use_gm, geo, n_slabs):
-    """Bucket the voxels of one axis of a selection (kernels.IndexedVoxels arrays) by first slab; returns
-    (slab_ptr, a, b, c, row, d, culled) with ``row`` the voxel's row in the selection."""
-    n = a.shape[0]
+def bucket_indexed(vox, alpha, use_gm, geo, n_slabs):
+    """Bucket the voxels of one axis of a selection (kernels.IndexedVoxels: slices, regions, blocks, cells,
+    voxels) by first slab; returns (slab_ptr, a, b, c, row, d, culled) with ``row`` the voxel's row in the
+    selection. The hierarchy is walked as :func:`isplat.splat.select.expand_coordinates` walks it (copied here:
+    that one allocates three int64 arrays per voxel)."""
+    n = vox.offset.shape[0]
     first = np.full(n, -1, dtype=np.int32)
-    cs = np.empty(n, dtype=np.int32)
+    ca = np.empty(n, dtype=np.uint16)
+    cb = np.empty(n, dtype=np.uint16)
+    cc = np.empty(n, dtype=np.int32)
+    nra = (vox.n_a + REGION - 1) // REGION
     nkeep = 0
-    for c in range(cell_ptr.shape[0] - 1):
-        for r in range(cell_start[cell_ptr[c]], cell_start[cell_ptr[c + 1]]):
-            cs[r] = c
-            d = density[r]
-            z = _keep(np.int64(a[r]), np.int64(b[r]), c, alpha[d, gm[r] if use_gm else 0], geo)
-            if z > -math.inf:
-                first[r] = _first_slab(z, geo, n_slabs)
-                nkeep += 1
-    ptr, sa, sb, sc, srow, sd = _place(first, n_slabs, a, b, cs, np.arange(n), density, nkeep)
+    for c in range(vox.slice_ptr.shape[0] - 1):
+        for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
+            ra0 = (vox.region_id[g] % nra) * REGION
+            rb0 = (vox.region_id[g] // nra) * REGION
+            for r in range(vox.region_ptr[g], vox.region_ptr[g + 1]):
+                v = vox.block_voxel[r]
+                for q in range(vox.block_ptr[r], vox.block_ptr[r + 1]):
+                    a0 = ra0 + (vox.block_pos[r] % 4) * BLOCK + (vox.cell_pos[q] % 4) * CELL
+                    b0 = rb0 + (vox.block_pos[r] // 4) * BLOCK + (vox.cell_pos[q] // 4) * CELL
+                    for _ in range(vox.cell_count[q]):
+                        a = np.int64(a0 + vox.offset[v] % CELL)
+                        b = np.int64(b0 + vox.offset[v] // CELL)
+                        ca[v], cb[v], cc[v] = a, b, c
+                        d = vox.density[v]
+                        z = _keep(a, b, c, alpha[d, vox.gm[v] if use_gm else 0], geo)
+                        if z > -math.inf:
+                            first[v] = _first_slab(z, geo, n_slabs)
+                            nkeep += 1
+                        v += 1
+    ptr, sa, sb, sc, srow, sd = _place(first, n_slabs, ca, cb, cc, np.arange(n), vox.density, nkeep)
     return ptr, sa, sb, sc, srow, sd, n - nkeep
 
 
@@ -188,13 +205,23 @@ def bucket_full(density, gm, strides, n_a, n_b, n_c, alpha, use_gm, geo, n_slabs
 
 # ---- the frame kernel --------------------------------------------------------------------------------------
 @jit
-def render_image(order, vox, cls, geo, fp, buf, band):
+def render_image(order, o0, bins, vox, cls, geo, fp, buf, bands):
     """Render slabs ``order`` (front to back: increasing) of the bucketed voxels ``vox`` (SheetVoxels) into
-    ``buf.img``; the arguments are those of :func:`isplat.splat.kernels.render_indexed` with ``vox`` and
-    ``geo`` of this module."""
+    ``buf.img``, for the image bands ``bands.mine`` one after the other; the arguments are those of
+    :func:`isplat.splat.kernels.render_indexed` with ``vox`` and ``geo`` of this module (``o0`` and ``bins``
+    unused: every band reads every bucket it needs)."""
+    for bi in bands.mine:
+        _render_band(order, bi, (bands.rows[bi, 0], bands.rows[bi, 1], bands.et), vox, cls, geo, fp, buf)
+
+
+@jit
+def _render_band(order, bi, band, vox, cls, geo, fp, buf):
+    """The slabs ``order`` for the image rows ``band = (y0, y1, et)``; counters into ``buf.stats[bi]``
+    (voxels examined, voxel visits past the depth test, voxels splatted, slabs)."""
     alpha_tab, color, shade, use_gm, use_shade = cls
-    sheet, sat, tile_sat, tile_npix, dirty_px, dirty, stats = buf.sheet, buf.sat, buf.tile_sat, buf.tile_npix, \
-        buf.dirty_px, buf.dirty, buf.stats
+    sheet, sat, tile_sat, tile_npix, dirty_px, dirty = buf.sheet, buf.sat, buf.tile_sat, buf.tile_npix, \
+        buf.dirty_px, buf.dirty
+    stats = buf.stats[bi]
     y0b, y1b, et = band
     et_on = et < 1.0
     img_w = sheet.shape[1]
@@ -224,6 +251,7 @@ def render_image(order, vox, cls, geo, fp, buf, band):
                 z = zc[0] + a * zc[1] + b * zc[2] + c * zc[3]
                 if z + ext <= z0:
                     continue            # the kernel ended in front of this slab
+                stats[1] += 1
                 ok, px, py, s, box = _project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w)
                 if not ok or (et_on and _saturated(tile_sat, tile_npix, sat, box[0], box[1], box[2], box[3])):
                     continue
@@ -242,17 +270,17 @@ def render_image(order, vox, cls, geo, fp, buf, band):
                                        depth, cdf, sheet, dirty_px, dirty, nd)
                 # counted once: in its first slab, by the band holding its first image row
                 if kk == k and max(int(math.ceil(py - ey * s)), 0) >= y0b:
-                    stats[1] += 1
+                    stats[2] += 1
         composite_sheet(buf.img, sheet, sat, tile_sat, dirty_px, dirty, nd, et)
-        stats[2] += 1
+        stats[3] += 1
 
 
 @leaf
 def _band_saturated(tile_sat, tile_npix, band):
-    """True when early termination is on and every pixel of this band is saturated (as kernels.py)."""
-    if band.et >= 1.0:
+    """True when early termination is on and every pixel of the band ``(y0, y1, et)`` is saturated."""
+    if band[2] >= 1.0:
         return False
-    for ty in range(band.y0 // TILE, (band.y1 + TILE - 1) // TILE):
+    for ty in range(band[0] // TILE, (band[1] + TILE - 1) // TILE):
         for tx in range(tile_npix.shape[1]):
             if tile_sat[ty, tx] < tile_npix[ty, tx]:
                 return False
@@ -509,7 +537,6 @@ def image_frame(sel, view, dtype, shade, cuts):
         out = bucket_full(vox.density, vox.gm, np.asarray(vox.strides, np.int64), vox.n_a, vox.n_b, n_c, atab,
                           sel.use_gm, geo, n_slabs)
     else:
-        out = bucket_indexed(vox.cell_ptr, vox.cell_start, vox.a, vox.b, vox.density, vox.gm, atab, sel.use_gm,
-                             geo, n_slabs)
+        out = bucket_indexed(vox, atab, sel.use_gm, geo, n_slabs)
     svox = SheetVoxels(*out[:6], vox.gm, vox.nrm, int(out[6]))
     return render_image, svox, cls, geo, SheetFootprint(table, fp.params), np.arange(n_slabs, dtype=np.int64)

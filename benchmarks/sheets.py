@@ -258,7 +258,8 @@ def ablation(kind, thick, sp, extent, cam, size, ref) -> dict:
 def thick_doc(rows, size, quick) -> list[str]:
     L = ["## Thick slices", "",
          f"Two objects {48 if quick else 96} mm across, *smooth*: " + OBJECTS["smooth"] + "; *shell*: " +
-         OBJECTS["shell"] + "; sampled with thick slices, rendered as they are and after `isplat augment --thin-slices` "
+         OBJECTS["shell"] + "; sampled with thick slices, rendered as they are and after "
+         "`isplat augment --thin-slices` "
          "(`isplat.resample.thin_slices`: linear interpolation along the thick axis to at most twice the in-plane "
          f"spacing), {size} x {size}, orthographic, ET off, opacity ramp 90..160. RMSE over RGB against two truths: "
          "*trilinear*, the same thick data refined to the in-plane spacing (the trilinear field a ray caster "
@@ -346,7 +347,8 @@ def render_doc(pops, times, size, frames, quick, seconds, load0, thick=None, thi
           f"Median of {frames} frames each, axis and image rendered in turn (interleaved) after 2 warm-up frames, "
           "all cores; counters of the last frame (image sheets: a voxel is counted once however many slabs it "
           "reaches; *sheets* is slices or slabs composited).", "",
-          "| case | sheets | ms/frame (median) | x axis | voxels examined | voxels splatted | sheets | RMSE image vs axis |",
+          "| case | sheets | ms/frame (median) | x axis | voxels examined | voxels splatted | sheets | "
+          "RMSE image vs axis |",
           "|---|---|---:|---:|---:|---:|---:|---:|"]
     for case, t in times.items():
         for s in ("axis", "image"):

@@ -137,7 +137,8 @@ def reference_sheets(scene, view=0, et=1.0):
             dx, dy = (xs - px) / s, (ys - py) / s
             q = Qi[0, 0] * dx * dx + 2 * Qi[0, 1] * dx * dy + Qi[1, 1] * dy * dy
             m = z + g[0] * dx + g[1] * dy                  # the kernel's depth given the pixel
-            wgt = np.where(q < R * R, norm * np.exp(-0.5 * q), 0.0) * (cdf((z0 + thick - m) / s_c) - cdf((z0 - m) / s_c))
+            slab = cdf((z0 + thick - m) / s_c) - cdf((z0 - m) / s_c)
+            wgt = np.where(q < R * R, norm * np.exp(-0.5 * q), 0.0) * slab
             sheet[..., :3] += wgt[..., None] * prgb
             sheet[..., 3] += wgt * alpha
         sa = sheet[..., 3]

@@ -48,7 +48,8 @@ def test_kernel_matches_the_slow_reference(tmp_path, make_scene, spacing, proj):
     r = np.random.default_rng(2)
     dens = rng_volume(2, shape)
     gm = r.integers(0, 256, shape).astype(np.uint8)
-    aug, idx = write_volume(tmp_path, dens, spacing=spacing, gm=gm, gscale=0.5, normal=encode(r.normal(size=shape + (3,))))
+    aug, idx = write_volume(tmp_path, dens, spacing=spacing, gm=gm, gscale=0.5,
+                            normal=encode(r.normal(size=shape + (3,))))
     sc = make_scene(aug, idx, image="width = 24\nheight = 22",
                     camera=f'projection = "{proj}"\nazimuth = 33\nelevation = 21',
                     transfer="opacity = [[55, 0.0], [60, 0.5], [130, 0.3], [200, 0.95]]\n"
@@ -100,7 +101,8 @@ def test_single_voxel_spreads_its_footprint_over_the_slabs(spacing):
 # ---------------------------------------------------------------------------------------------------------
 # the principal-axis switch
 
-SLAB_TEXT = ('[image]\nwidth = 48\nheight = 48\nbackground = [0, 0, 0, 0]\n[camera]\nprojection = "orthographic"\nelevation = 0\nzoom = 1.2\n'
+SLAB_TEXT = ('[image]\nwidth = 48\nheight = 48\nbackground = [0, 0, 0, 0]\n'
+             '[camera]\nprojection = "orthographic"\nelevation = 0\nzoom = 1.2\n'
              '[transfer]\nopacity = [[100, 0], [200, 0.08]]\n[shading]\nenabled = false\n'
              '[render]\nearly_termination = 1.0\nfootprint_radius = 4.0\nsheets = "{}"')
 # The slab (normal along i) turned by 0.2 degrees: its path through the plate, 6 / sin(azimuth), shrinks by
@@ -231,7 +233,8 @@ def test_scene_key_default_and_choices():
 @pytest.mark.parametrize("text, message", [
     (TF + '[render]\nsheets = "diagonal"', 's.toml:4: render.sheets = "diagonal": expected one of "axis", "image"'),
     (TF + '[render]\nsheets = 1', 's.toml:4: render.sheets = 1: expected one of "axis", "image"'),
-    ('version = 2\n' + TF + '[render]\nsheets = "image"', 'render.sheets = "image": this key is new in scene version 3'),
+    ('version = 2\n' + TF + '[render]\nsheets = "image"',
+     'render.sheets = "image": this key is new in scene version 3'),
 ])
 def test_scene_key_is_validated_in_one_line(text, message):
     with pytest.raises(IsplatError) as e:

@@ -132,6 +132,13 @@ class Setup:
     et: float
     threads: int
     empty: bool
+    order: np.ndarray | None = None    # the frame's sheets front to back, when not the view's slices
+
+    @property
+    def sheets(self) -> np.ndarray:
+        """What render_slab's ``start:stop`` count: the principal axis's slices (``view.order``), or the
+        depth slabs of image-aligned sheets (``render.sheets = "image"``, :mod:`isplat.splat.sheets`)."""
+        return self.view.order if self.order is None else self.order
 
 
 def prepare(sel, view: View, et: float | None = None) -> Setup:
@@ -167,6 +174,11 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
         geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts)
     shade = (shade_table(view.shading, frame, geom, threads=threads) if sel.use_shade
              else np.zeros((1, 6), np.float32))
+    if ro.sheets == "image":
+        from .splat.sheets import image_frame
+
+        *tables, order = image_frame(sel, view, dtype, shade, cuts)
+        return Setup(view, *tables, rows, mine, None, _tile_pixels(H, W), *scratch, et_val, threads, False, order)
     cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
     vox = sel.voxels(axis)
     fpt = K.FootprintTable(fp.table, fp.params)
@@ -190,7 +202,7 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
     """Render the slices ``order[start:stop]`` of the frame (front to back) over ``state`` (the partial image
     of the slices in front, updated in place; a blank one when None) and return it."""
     part = blank(setup) if state is None else state
-    slices = setup.view.order[start:stop]
+    slices = setup.sheets[start:stop]
     if setup.empty or slices.size == 0:
         return part
     et = part.img.dtype.type(setup.et)
@@ -239,7 +251,7 @@ def render_frame(sel, view: View, et: float | None = None):
     """
     t0 = time.perf_counter()
     setup = prepare(sel, view, et)
-    n = len(view.order)
+    n = len(setup.sheets)
     slabs = slab_bounds(n, 20) if progress.enabled() and n >= 40 and not setup.empty else [(0, n)]
     part = blank(setup)
     for start, stop in progress.bar(slabs, desc=f"slices ({n})", unit="slab", disable=len(slabs) == 1):

@@ -561,7 +561,7 @@ def open_index(path) -> IndexFile:
         ranges = _stored_ranges(p, a)
         if "axes" not in f or not isinstance(f["axes"], h5py.Group):
             raise IsplatError(f"{p}: group '/axes' is missing")
-        values = _check_values_group(p, f, ranges, version)
+        values = _check_values_group(p, f, ranges, version, shape)
         names = list(f["axes"].keys())
         if not names:
             raise IsplatError(f"{p}: group '/axes' holds no axis")
@@ -574,7 +574,7 @@ def open_index(path) -> IndexFile:
     return IndexFile(p, shape, sha, ranges, meta, attrs, version, values, counter)
 
 
-def _check_values_group(p, f, ranges, version) -> _ValuesMeta | None:
+def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
     """``/values`` as §5 says (version 3; ignored in a version-2 file, which has none)."""
     if version < 3:
         return None
@@ -602,6 +602,9 @@ def _check_values_group(p, f, ranges, version) -> _ValuesMeta | None:
     if g["gradient_magnitude"].shape[0] != n:
         raise IsplatError(f"{where}/gradient_magnitude: length {g['gradient_magnitude'].shape[0]}, expected "
                           f"{n} (the length of /values/normal)")
+    if n > int(np.prod(shape, dtype=np.int64)):
+        raise IsplatError(f"{where}/normal: {n} rows, more than the {int(np.prod(shape, dtype=np.int64))} voxels of "
+                          f"shape {shape}")
     return _ValuesMeta(n, spacing, gscale)
 
 

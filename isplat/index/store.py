@@ -155,9 +155,11 @@ def copy_values(f: h5py.File, aug, density: np.ndarray, ranges, budget: int | No
             del gm, nrm
 
 
-def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False) -> Path:
+def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False,
+                     values: bool = True) -> Path:
     """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), one axis at a time,
-    with the indexed voxels' channel values in density order (formats/index.md §9)."""
+    with the indexed voxels' channel values in density order (formats/index.md §9); ``values=False`` writes
+    format version 2 (no values), as isplat did before version 3."""
     from ..augfile import open_augmented
 
     axes = parse_axes(axes)
@@ -168,8 +170,9 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
     with atomic_output(out_path, force) as tmp:
         density = aug.read("density")
         with create_hdf5(tmp) as f:
-            _write_root(f, aug.shape, aug.density_sha256, ranges)
-            copy_values(f, aug, density, ranges)
+            _write_root(f, aug.shape, aug.density_sha256, ranges, FORMAT_VERSION if values else 2)
+            if values:
+                copy_values(f, aug, density, ranges)
             for a in axes:
                 ax = build_axis(density, a, ranges)
                 _write_axis(f, ax)

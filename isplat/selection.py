@@ -67,34 +67,47 @@ class LoadReport:
 
 @dataclass(frozen=True)
 class AxisSelection:
-    """The selected voxels of one index axis, in traversal order (see :func:`select_voxels`), and their
-    gathered channel values (empty arrays for channels the scene does not use)."""
+    """The selected voxels of one index axis, in traversal order: slices, regions, blocks, cells (see
+    :mod:`isplat.splat.select`), and their gathered channel values (empty arrays for channels the scene does
+    not use). A voxel costs 2 bytes (its square in its cell, its density) plus its channel values, and
+    2 bytes per cell and 17 per block of 16 x 16 voxels."""
 
     axis: str
     n_slices: int
     n_a: int
     n_b: int
-    cell_ptr: np.ndarray            # int64[n_slices + 1]
-    cell_start: np.ndarray          # int64[Q + 1]
-    cell_id: np.ndarray             # int32[Q]
-    a: np.ndarray                   # uint16[N]
-    b: np.ndarray                   # uint16[N]
+    slice_ptr: np.ndarray           # int64[n_slices + 1]: regions of each slice
+    region_id: np.ndarray           # int32[G]
+    region_ptr: np.ndarray          # int64[G + 1]: blocks of each region
+    block_pos: np.ndarray           # uint8[R]
+    block_ptr: np.ndarray           # int64[R + 1]: cells of each block
+    block_voxel: np.ndarray         # int64[R + 1]: first voxel of each block
+    cell_pos: np.ndarray            # uint8[Q]
+    cell_count: np.ndarray          # uint8[Q]
+    offset: np.ndarray              # uint8[N]: the voxel's square in its cell
     density: np.ndarray             # uint8[N]
     gradient_magnitude: np.ndarray  # uint8[N] or empty
     normal: np.ndarray              # uint16[N] or empty
 
     @property
     def n_voxels(self) -> int:
-        return int(self.a.shape[0])
+        return int(self.offset.shape[0])
 
     def voxels(self) -> IndexedVoxels:
         """The arrays as the frame kernel takes them."""
-        return IndexedVoxels(self.cell_ptr, self.cell_start, self.cell_id, self.a, self.b, self.density,
-                             self.gradient_magnitude, self.normal, self.n_a, self.n_b)
+        return IndexedVoxels(*self.arrays(), self.n_a, self.n_b)
 
     def arrays(self) -> list[np.ndarray]:
-        return [self.cell_ptr, self.cell_start, self.cell_id, self.a, self.b, self.density,
-                self.gradient_magnitude, self.normal]
+        return [self.slice_ptr, self.region_id, self.region_ptr, self.block_pos, self.block_ptr, self.block_voxel,
+                self.cell_pos, self.cell_count, self.offset, self.density, self.gradient_magnitude, self.normal]
+
+    def coordinates(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every voxel's slice and in-slice coordinates ``(c, a, b)`` (int64, in traversal order): for tests and
+        tools, not for frames."""
+        from .splat.select import expand_coordinates
+
+        return expand_coordinates(self.slice_ptr, self.region_id, self.region_ptr, self.block_pos, self.block_ptr,
+                                  self.block_voxel, self.cell_pos, self.cell_count, self.offset, self.n_a)
 
 
 @dataclass(frozen=True)
@@ -211,20 +224,27 @@ def _select(sel: Selection, loaded: dict, gather, source: str) -> None:
                               f"{MAX_IN_SLICE} voxels per in-slice axis")
         try:
             picked[ax] = select_voxels(la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions,
-                                       ivs, la.n_a, la.n_b)
+                                       ivs, la.n_a, la.n_b,
+                                       _index_like(la.positions.shape[0], bool(sel.report.channels)))
         except ValueError as exc:
             raise IsplatError(f"{source}: axis {ax}: {exc}") from None
     gathered = gather(loaded, sel.report.channels, sel.shape)
-    for ax, (cell_ptr, cell_start, cell_id, a, b, d, src) in picked.items():
+    for ax, (*hier, src) in picked.items():
         g = gathered[ax]            # in the order of the decoded positions; the selection's order is ``src``
         gm = g["gradient_magnitude"][src] if "gradient_magnitude" in g else _EMPTY_U8
         nrm = g["normal"][src] if "normal" in g else _EMPTY_U16
         la = loaded[ax]
-        sel.axes[ax] = AxisSelection(ax, la.n_slices, la.n_a, la.n_b, cell_ptr, cell_start, cell_id, a, b, d, gm, nrm)
+        sel.axes[ax] = AxisSelection(ax, la.n_slices, la.n_a, la.n_b, *hier, gm, nrm)
     # the decoded blocks have served: frames need only the selection and the gathered values
     sel.report.index_decoded_bytes = int(sum(
         la.slice_block_ptr.nbytes + la.block_density.nbytes + la.block_voxel_ptr.nbytes + la.positions.nbytes
         for la in loaded.values()))
+
+
+def _index_like(n: int, wanted: bool) -> np.ndarray:
+    """select_voxels' ``src_like``: the smallest integer type that indexes ``n`` items (int32 or int64), and
+    whether the voxels' source rows are wanted (empty array) or not (one item)."""
+    return np.zeros(0 if wanted else 1, np.int32 if n < 2 ** 31 else np.int64)
 
 
 def gather_channels(read, loaded: dict, channels, shape) -> dict:

@@ -114,15 +114,11 @@ def _scene(make_scene, aug, idx, shading=True):
 
 
 def _selected_flat(s, shape):
-    """Flat index of every selected voxel of AxisSelection ``s``, from its slice, a and b."""
+    """Flat index of every selected voxel of AxisSelection ``s``, from its slice and in-slice coordinates."""
     n_k, n_j, n_i = shape
-    out = np.empty(s.n_voxels, np.int64)
-    for c in range(s.n_slices):
-        v0, v1 = s.cell_start[s.cell_ptr[c]], s.cell_start[s.cell_ptr[c + 1]]
-        a, b = s.a[v0:v1].astype(np.int64), s.b[v0:v1].astype(np.int64)
-        k, j, i = {"k": (c, b, a), "j": (b, c, a), "i": (b, a, c)}[s.axis]
-        out[v0:v1] = (np.asarray(k) * n_j + j) * n_i + i
-    return out
+    c, a, b = s.coordinates()
+    k, j, i = {"k": (c, b, a), "j": (b, c, a), "i": (b, a, c)}[s.axis]
+    return (np.asarray(k) * n_j + j) * n_i + i
 
 
 def test_selection_reads_only_the_values_and_they_are_right(tmp_path, make_scene):

@@ -65,10 +65,11 @@ def volumes(draw):
 
 
 @SETTINGS
-@given(volumes(), st.integers(1, 40))
-def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget):
-    """The writer (in windows of ``budget`` bytes), the reader and the per-axis reordering against lexsort and
-    plain indexing of the position-ordered channels; the slab gathering of version 2 agrees."""
+@given(volumes(), st.integers(1, 40), st.integers(1, 60))
+def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget, slab_voxels):
+    """The writer (in windows of ``budget`` bytes, k-slabs of about ``slab_voxels``), the reader and the
+    per-axis reordering against lexsort and plain indexing of the position-ordered channels; the slab gathering
+    of version 2 agrees."""
     dens, gm, nrm, ranges, ivs = v
     with tempfile.TemporaryDirectory() as t:
         t = Path(t)
@@ -79,7 +80,7 @@ def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget):
         a = open_augmented(aug)
         with fileio.create_hdf5(idx_path) as f:
             store._write_root(f, dens.shape, a.density_sha256, ranges)
-            store.copy_values(f, a, dens, ranges, budget=budget)
+            store.copy_values(f, a, dens, ranges, budget=budget, slab_voxels=slab_voxels)
             for ax, ai in build_index(dens, "ijk", ranges).items():
                 store._write_axis(f, ai)
         idx = open_index(idx_path)

@@ -76,8 +76,20 @@ def _write_axis(f: h5py.File, ax: AxisIndex) -> None:
         # chunked with the Fletcher-32 checksum filter, little-endian (formats/index.md §1)
         data = np.ascontiguousarray(getattr(ax, name), dtype=dt)
         # small chunks: a load reads single rows of entry_byte_offset and row ranges, each rounded out to chunks
-        create_checked_dataset(g, name, data.shape, dt, data, target=BYTES_CHUNK if name == "bytes" else
-                               PTR_CHUNK if name == "density_entry_ptr" else TABLE_CHUNK)
+        ds = create_checked_dataset(g, name, data.shape, dt, target=BYTES_CHUNK if name == "bytes" else
+                                    PTR_CHUNK if name == "density_entry_ptr" else TABLE_CHUNK)
+        write_in_pieces(ds, data)
+
+
+WRITE_CHUNKS = 1024     # chunks per write call: HDF5 keeps a selection per chunk a write touches (~3 KiB each)
+
+
+def write_in_pieces(ds, data: np.ndarray, start: int = 0) -> None:
+    """``ds[start:start + len(data)] = data`` for a 1-D chunked dataset, at most WRITE_CHUNKS chunks per call,
+    so that writing many small chunks does not hold HDF5's per-chunk bookkeeping for all of them at once."""
+    step = WRITE_CHUNKS * ds.chunks[0]
+    for r0 in range(0, data.shape[0], step):
+        ds[start + r0:start + min(r0 + step, data.shape[0])] = data[r0:r0 + step]
 
 
 def _values_group(f: h5py.File, ptr, spacing_ijk, gradient_magnitude_scale):
@@ -118,14 +130,17 @@ def _slabs_of(shape, voxels: int = VALUE_SLAB_VOXELS):
     return [(k0, min(int(shape[0]), k0 + step)) for k0 in range(0, int(shape[0]), step)]
 
 
-def copy_values(f: h5py.File, aug, density: np.ndarray, ranges, budget: int | None = None) -> None:
+def copy_values(f: h5py.File, aug, density: np.ndarray, ranges, budget: int | None = None,
+                slab_voxels: int = VALUE_SLAB_VOXELS) -> None:
     """Write ``/values`` of open index ``f`` from augmented volume ``aug`` (its ``density`` in memory).
 
     The rows (density-major, then by position) are filled in windows of at most ``budget`` bytes of values
     (default: the size of the density channel, so this holds no more than the density already in memory);
-    each window is one pass over the k-slabs that hold some of its rows, reading their channel slabs."""
+    each window is one pass over the k-slabs (of about ``slab_voxels``) that hold some of its rows, reading
+    their channel slabs; a compiled counting scatter puts each slab's values in place. Written in pieces of
+    WRITE_CHUNKS chunks, so the peak stays that of the axes' build (docs/selective-read.md measures it)."""
     indexed = ranges_mask(ranges)
-    slabs = _slabs_of(density.shape)
+    slabs = _slabs_of(density.shape, slab_voxels)
     per_slab = np.zeros((len(slabs), 256), dtype=np.int64)
     for n, (k0, k1) in enumerate(slabs):
         per_slab[n] = np.bincount(density[k0:k1].reshape(-1), minlength=256)
@@ -146,11 +161,12 @@ def copy_values(f: h5py.File, aug, density: np.ndarray, ranges, budget: int | No
             for n, (k0, k1) in enumerate(slabs):
                 hit = (per_slab[n] > 0) & (first[n] < r1) & (first[n] + per_slab[n] > r0)
                 if hit.any():
-                    codec.scatter_values(density[k0:k1].reshape(-1), aug.read("gradient_magnitude", k0, k1).reshape(-1),
+                    codec.scatter_values(density[k0:k1].reshape(-1),
+                                         aug.read("gradient_magnitude", k0, k1).reshape(-1),
                                          aug.read("normal", k0, k1).reshape(-1), indexed, first[n].copy(), r0, r1,
                                          gm, nrm)
-            ds_gm[r0:r1] = gm
-            ds_nrm[r0:r1] = nrm
+            write_in_pieces(ds_gm, gm, r0)
+            write_in_pieces(ds_nrm, nrm, r0)
             pb.update(r1 - r0)
             del gm, nrm
 

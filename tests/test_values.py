@@ -302,3 +302,23 @@ def test_index_cli_on_a_sample_volume(tmp_path, capsys):
     _, vals = idx.read_values(["normal"], [(0, 255)])
     assert np.array_equal(vals["normal"], nrm.ravel()[reference_order(dens, [(0, 255)])])
     assert idx.axes == "ijk" and idx.version == 3
+
+
+def test_stats_of_a_version_2_index_say_where_values_come_from(tmp_path, make_scene):
+    """`isplat stats` on a format-2 index: the values come from the augmented file, and the rebuild is named."""
+    from isplat.stats import collect, format_table
+
+    dens = np.random.default_rng(7).choice(np.array([0, 120, 200], np.uint8), size=(6, 7, 8))
+    aug, _ = write_volume(tmp_path, dens, index=False)
+    v2 = tmp_path / "v2.idx.h5"
+    write_index(v2, build_index(dens), dens.shape, density_sha256(dens))
+    scene = tmp_path / "s.toml"
+    scene.write_text(f'version = 1\n[data]\naugmented = "{aug}"\nindex = "{v2}"\n[image]\nwidth = 8\nheight = 8\n'
+                     '[transfer]\nopacity = [[100, 0], [110, 1], [255, 1]]\n')
+    s = collect(aug, v2, scene=scene)
+    assert s["index"]["format_version"] == 2 and s["index"]["values"] is None
+    ld = s["scene"]["loaded"]
+    assert ld["values_from"] == "augmented slabs" and ld["augmented_bytes"] == 2 * dens.size
+    assert ld["bytes_needed"] == 2 * int((dens >= 101).sum()) + ld["index_bytes"]
+    table = format_table(s)
+    assert "rebuild with isplat index" in table and "in slabs of 8 k-slices" in table

@@ -4,30 +4,40 @@ Arrays in, arrays out, no I/O. A frame is cut into named stages, each a small co
 
 1. per slice, the traversal: which voxels reach the pipeline. :func:`render_indexed` streams the voxels the
    index selected (:func:`isplat.splat.select.select_voxels`); :func:`render_full` visits every voxel
-   (:func:`_full_cells`). Both hand the slice's voxels on grouped in cells of CELL x CELL voxels;
-2. per cell, the occlusion test (:func:`_cell_box`, :func:`_saturated`): a cell whose footprints can reach only saturated
-   pixels, or none of this thread's band, is skipped with one test;
-3. per voxel, classify, cut, project (§3) and shade (:func:`_classify`, :func:`_project`, :func:`_shade`);
+   (:func:`_full_slice`). Both hand the slice's voxels on as a hierarchy of squares of the slice: regions of
+   64 x 64 voxels, blocks of 16 x 16, cells of 4 x 4;
+2. the occlusion test (:func:`_visible_cells`, :func:`_hidden`): a region, block or cell whose footprints can
+   reach no pixel of the band, or (early termination) only saturated ones, is skipped with one test, so
+   hidden material costs one test per square rather than one per voxel;
+3. per voxel, classify, cut, project (§3) and shade (:func:`_splat_cells`: :func:`_cut_away`,
+   :func:`_project`, :func:`_path_alpha`, :func:`_shade`);
 4. the splat into the slice's sheet (:func:`_splat`), and the sheet composited into the image
    (:func:`isplat.splat.composite.composite_sheet`).
 
-Within a slice contributions are summed into a sheet buffer (order-independent), so both traversals give
-the same image up to float rounding, and the speed-up measures indexing alone.
+Within a slice contributions are summed into a sheet buffer, so both traversals give the same image up to
+float rounding (the order of the sums), and the speed-up measures indexing alone.
+
+Threads: the image is cut into bands of rows (:func:`isplat.frame.image_bands`); each band walks the slices on
+its own, visiting only the regions that :func:`bin_regions` found to reach its rows (once per frame), and a
+thread renders its bands one after the other. The image does not depend on the bands: a pixel is written by
+one band, which sums the same voxels in the same order whatever the bands are.
 
 The kernels take a few grouped arguments, named tuples built by :mod:`isplat.frame`:
 
 - ``vox``: the voxels, :data:`IndexedVoxels` (one axis of a selection) or :data:`WholeVolume` (full method);
+- ``bins``: :data:`Bins`, the regions of each slice that reach each band (indexed method);
 - ``cls``: :data:`Classify`, the transfer function's and shading's tables for this frame;
 - ``geo``: :data:`SliceGeometry`, the §3 coefficients and what perspective and cutting planes need;
 - ``fp``: :data:`FootprintTable`, the splat kernel as a 1-D table (:mod:`isplat.splat.footprint`);
-- ``buf``: :data:`Buffers`, the image and its saturation state (shared by the threads' bands), the sheet,
-  this band's list of touched pixels and counters;
-- ``band``: :data:`Band`, the image rows this call writes and the early-termination opacity.
+- ``buf``: :data:`Buffers`, the image and its saturation state (shared by the bands), the sheet, this
+  thread's scratch lists and the counters per band;
+- ``bands``: :data:`Bands`, every band's rows, the bands this call renders and the early-termination opacity.
 
-Early termination: a voxel whose footprint covers only saturated pixels (opacity at the threshold) is
-skipped before shading; TILE x TILE tiles whose pixels are all saturated answer that test at once. A band
-stops when all its tiles are saturated; that is checked before each slice, so rendering the slices in several
-calls (a progress bar, slabs) counts and draws exactly what one call does.
+Early termination: a square or voxel whose footprints cover only saturated pixels (opacity at the threshold)
+is skipped; TILE x TILE tiles whose pixels are all saturated answer that test at once, through a summed-area
+table of the band's whole tiles (one look-up for any box), made again after a slice saturates new pixels. A
+band stops when all its tiles are whole; that is checked before each slice, so rendering the slices in
+several calls (a progress bar, slabs) counts and draws exactly what one call does.
 """
 
 from __future__ import annotations
@@ -108,13 +118,22 @@ def render_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
             np.empty(ng * KEYS, np.uint8), np.empty(m, np.uint8), np.empty(m, np.uint8))
     index = np.empty(m, np.int64)
     all_regions = np.arange(ng)
+    wanted = np.empty(ng, np.bool_)
+    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
     for bi in bands.mine:
         band = _band(bi, bands, buf)
         for oi in range(order.shape[0]):
             if _band_saturated(band):
                 break
             c = order[oi]
-            n_regions = _full_slice(c, vox, cls, hier, index)
+            # a band classifies only the regions whose footprints can reach its rows
+            base = _slice_bases(c, geo, cs)
+            box_args = (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1],
+                        band[1], band[2], band[5], False)
+            for rid in range(ng):
+                wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4],
+                                          buf.sat, False)
+            n_regions = _full_slice(c, vox, cls, hier, index, wanted)
             buf.stats[bi, 0] += m
             _render_slice(c, all_regions, 0, n_regions, hier, (vox.gm, vox.nrm, index, False), n_a, n_b, cls,
                           geo, fp, buf, band)
@@ -165,10 +184,10 @@ def _band_saturated(band):
 
 
 @jit
-def _full_slice(c, vox, cls, hier, index):
-    """Traversal of the full method: every voxel of slice ``c`` that is not transparent, in the hierarchy
-    (regions, blocks, cells) of the index's selection, into ``hier`` and ``index`` (flat positions); returns
-    the number of regions."""
+def _full_slice(c, vox, cls, hier, index, wanted):
+    """Traversal of the full method: every voxel of slice ``c`` that is not transparent, in the regions
+    ``wanted``, in the hierarchy (regions, blocks, cells) of the index's selection, into ``hier`` and
+    ``index`` (flat positions); returns the number of regions."""
     region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count, offset, dens = hier
     density, gm, strides, n_a, n_b = vox.density, vox.gm, vox.strides, vox.n_a, vox.n_b
     alpha, use_gm = cls.alpha, cls.use_gm
@@ -179,6 +198,8 @@ def _full_slice(c, vox, cls, hier, index):
     nb = 0
     nq = 0
     for rid in range(nra * ((n_b + REGION - 1) // REGION)):
+        if not wanted[rid]:
+            continue
         ra0, rb0 = (rid % nra) * REGION, (rid // nra) * REGION
         region_id[ng] = rid
         region_ptr[ng] = nb
@@ -525,15 +546,19 @@ def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty
     x0, x1, y0, y1 = box
     Qa, Qb2, Qc, R2v, tscale = fpc
     img_w = sheet.shape[1]
-    inv_s2 = 1.0 / (s * s)
+    # the quadratic form in table units (q * tscale), with this voxel's perspective scale folded in
+    k = tscale / (s * s)
+    A = Qa * k
+    B = Qb2 * k
+    C = Qc * k
+    T = R2v * tscale
     for y in range(y0, y1 + 1):
         dy = y - py
-        qy = Qc * dy * dy
-        qxy = Qb2 * dy
+        ty = C * dy * dy
+        txy = B * dy
         for x in range(x0, x1 + 1):
             dx = x - px
-            q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
-            wgt = table[int(min(q, R2v) * tscale)]
+            wgt = table[int(min((A * dx + txy) * dx + ty, T))]
             dirty[nd] = y * img_w + x
             nd += 1 - dirty_px[y, x]
             dirty_px[y, x] = 1

@@ -274,8 +274,13 @@ def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
     r = Renderer(make_scene(aug, idx, shading="enabled = false", **base))
     assert r.report.channels == [] and r.report.axes == ["j"]
     assert r.report.augmented_bytes == 0 and r.report.index_bytes > 0
+    blocks, voi = r.report.index_bytes, r.report.voxels_of_interest
+    assert r.report.bytes_needed == blocks and r.report.values_from == "none"
     r = Renderer(make_scene(aug, idx, shading="enabled = true", **base))
-    assert r.report.channels == ["normal"] and r.report.augmented_bytes == 2 * np.prod(shape)
+    # the normals of just the voxels of interest, from the index (format 3): one pointer table and 2 B each
+    assert r.report.channels == ["normal"] and r.report.augmented_bytes == 0
+    assert r.report.index_bytes == blocks + 257 * 8 + 2 * voi and r.report.values_from == "index"
+    assert r.report.bytes_needed == r.report.index_bytes
     r = Renderer(make_scene(aug, idx, overrides=["render.method=full", "shading.enabled=false"], **base))
     assert r.report.channels == ["density"] and r.report.index_bytes == 0
     r = Renderer(make_scene(aug, idx, views="list = [{azimuth = 0}, {azimuth = 90}]", **base))

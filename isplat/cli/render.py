@@ -93,12 +93,17 @@ def render(scene_file, out, overrides, view, as_json, force):
     report = {"scene": str(scene_file), "method": renderer.method, "output": out,
               "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
               "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
+              "file_bytes_read": rep.file_bytes, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
               "views": per_view}
     if as_json:
         json.dump(report, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     log.debug(f"read: {rep.augmented_bytes} bytes of augmented channels {rep.channels or '(none)'}; "
-              f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}")
+              f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}; "
+              f"{rep.file_bytes} bytes read from the files (HDF5 chunks and metadata) for {rep.bytes_needed} needed "
+              f"({rep.read_ratio:.2f}x); channel values from {rep.values_from}; held "
+              f"{renderer.held_bytes()} bytes, "
+              f"{renderer.held_bytes() / max(1, rep.voxels_of_interest):.2f} per voxel of interest")
     for v in per_view:
         log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, "
                   f"{v['voxels_splatted']} splatted, {v['seconds'] * 1000:.1f} ms")

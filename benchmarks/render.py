@@ -64,9 +64,13 @@ def _readable(path: Path, kind: str) -> bool:
 
     if not path.exists():
         return False
+    from isplat.index.store import FORMAT_VERSION
+
     try:
-        (open_augmented if kind == "augmented" else open_index)(path)
-        return True
+        if kind == "augmented":
+            open_augmented(path)
+            return True
+        return open_index(path).version == FORMAT_VERSION     # an older index is read, but slower: remake it
     except IsplatError:
         return False
 

@@ -33,8 +33,17 @@ import numpy as np
 from . import _doc
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
-import ray_reference as RR  # noqa: E402  (the integrator lives in tests/, shared with its tests)
+TESTS = REPO / "tests"       # the integrator lives in tests/ray_reference.py, shared with its tests
+
+
+def _rr():
+    """tests/ray_reference.py (imported on first use: it compiles with numba, which a VTK-only child process of
+    the peers benchmark must not load)."""
+    if str(TESTS) not in sys.path:
+        sys.path.insert(0, str(TESTS))
+    import ray_reference
+
+    return ray_reference
 
 STEP = 0.05                          # voxels of the smallest spacing
 CACHE = REPO / "out" / "references"
@@ -150,7 +159,7 @@ def ml_parameters(aug) -> tuple[float, float, float, float]:
 # ---- the references, cached --------------------------------------------------------------------------------------
 def _key(kind, aug, view, transfer, shading, step) -> str:
     f, g = view.frame, view.geom
-    src = Path(RR.__file__).read_bytes()
+    src = (TESTS / "ray_reference.py").read_bytes()
     parts = {
         "kind": kind, "data": aug.density_sha256 if kind == "grid" else ml_parameters(aug),
         "shape": list(g.shape), "spacing": g.spacing.tolist(), "q": g.q.tolist(), "axes": g.unit_axes.tolist(),
@@ -180,10 +189,10 @@ def reference(scene, view_index: int = 0, kind: str = "grid", step: float = STEP
     t0 = time.perf_counter()
     unit = scene.transfer.unit_distance or float(view.geom.spacing.min())
     if kind == "grid":
-        img = RR.render(view, scene.transfer, scene.shading, density=aug.read("density"), unit=unit, step=step,
+        img = _rr().render(view, scene.transfer, scene.shading, density=aug.read("density"), unit=unit, step=step,
                         threads=threads)
     elif kind == "analytic":
-        img = RR.render(view, scene.transfer, scene.shading, ml=ml_parameters(aug), unit=unit, step=step,
+        img = _rr().render(view, scene.transfer, scene.shading, ml=ml_parameters(aug), unit=unit, step=step,
                         threads=threads)
     else:
         raise ValueError(f"reference kind {kind!r}: expected grid or analytic")

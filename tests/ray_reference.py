@@ -325,7 +325,8 @@ def render(view, transfer, shading, *, density=None, ml=None, unit=None, step=0.
     use_shade = bool(shading.enabled and len(shading.lights))
     if density is not None:
         kind, mlp = GRID, np.zeros(7)
-        vol = np.ascontiguousarray(density, dtype=np.float32)
+        vol = np.asarray(density)
+        vol = np.ascontiguousarray(vol, dtype=vol.dtype if vol.dtype in (np.uint8, np.float32) else np.float32)
         if vol.shape != tuple(g.shape):
             raise ValueError(f"density shape {vol.shape} is not the view's {g.shape}")
         grad = central_gradient(vol, sp) if use_shade else np.zeros((3, 2, 2, 2), np.float32)

@@ -130,7 +130,11 @@ def measure_case(case, size, frames, shape, sheets, with_vtk):
 
 # ---- Pareto front and plot ---------------------------------------------------------------------------------------
 def pareto(points):
-    """Indices of the points (time, error) no other point beats in both (ties kept)."""
+    """Indices of the points (time, error) no other point beats in both (ties kept), fastest first.
+
+    >>> pareto([(1, 3), (2, 2), (3, 3), (2, 1)])
+    [0, 3]
+    """
     front = []
     for i, (t, e) in enumerate(points):
         if not any((t2 <= t and e2 <= e) and (t2 < t or e2 < e) for j, (t2, e2) in enumerate(points) if j != i):

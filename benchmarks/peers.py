@@ -359,14 +359,17 @@ def peer_scene(name: str, size: int, quick: bool, render: dict | None = None, ex
 
 # ---- one case: frames interleaved, errors against the reference ----------------------------------------------
 def measure(name: str, size: int, frames: int, quick: bool) -> dict:
+    from isplat.frame import render_frame, views_for
     from isplat.renderer import Renderer
 
     from . import reference as REF
 
     scene = peer_scene(name, size, quick)
     ref, ref_s, cached = REF.reference(scene)
-    isos = [Renderer(peer_scene(name, size, quick, knobs)) for _, knobs in ISPLAT_POINTS]
-    vtkv = VTKView(isos[0], 0, SAMPLE_DISTANCE)
+    r0 = Renderer(scene)
+    # the knobs act per frame (View.render): one selection serves every isplat point
+    views = [views_for(peer_scene(name, size, quick, knobs), r0.selection)[0] for _, knobs in ISPLAT_POINTS]
+    vtkv = VTKView(r0, 0, SAMPLE_DISTANCE)
     labels = [f"isplat {lab}" for lab, _ in ISPLAT_POINTS] + [f"VTK {s:g}" for s in VTK_STEPS]
     extra = None
     if name == "hidden material":
@@ -382,9 +385,11 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
             if keep:
                 imgs[lab] = vtkv.image_float()
             return dt
-        r = extra if lab.startswith("isplat defaults, bone") else isos[[f"isplat {x}" for x, _ in ISPLAT_POINTS].index(lab)]
         t0 = time.perf_counter()
-        img, st = r.render_view(0)
+        if lab.startswith("isplat defaults, bone"):
+            img, st = extra.render_view(0)
+        else:
+            img, st = render_frame(r0.selection, views[[f"isplat {x}" for x, _ in ISPLAT_POINTS].index(lab)])
         dt = time.perf_counter() - t0
         imgs[lab], stats[lab] = img, st
         return dt
@@ -405,7 +410,7 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
     st = stats[iso]
     return dict(case=name, size=size, points=pts, paired=paired, ref_seconds=ref_s, ref_cached=cached,
                 between=REF.errors(imgs[iso], imgs[v1]), between05=REF.errors(imgs[iso], imgs[v05]),
-                examined=st.voxels_examined, splatted=st.voxels_splatted, threads=(isos[0].threads, vtkv.threads),
+                examined=st.voxels_examined, splatted=st.voxels_splatted, threads=(r0.threads, vtkv.threads),
                 no_bone_ms=_doc.median_ms(times[labels[-1]]) if extra is not None else None,
                 no_bone_examined=stats[labels[-1]].voxels_examined if extra is not None else None)
 
@@ -727,7 +732,8 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
     return "\n".join(L)
 
 
-def run(out_dir: Path, quick: bool, required: bool = False, command: str | None = None) -> Path:
+def run(out_dir: Path, quick: bool, required: bool = False, command: str | None = None,
+        report_only: bool = False) -> Path:
     """Bench entry point (``python -m benchmarks peers``); without VTK or an OpenGL context it skips with a
     note, unless ``required``."""
     out_dir = Path(out_dir)
@@ -742,6 +748,14 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
         return doc
     os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = cls
     out_dir.mkdir(parents=True, exist_ok=True)
+    command = command or ("python -m benchmarks peers" + (" --quick" if quick else ""))
+    raw = REPO / "out" / "bench-peers" / f"results{'-quick' if quick else ''}.json"
+    if report_only:                     # rewrite the page from the last run's measurements (no new numbers)
+        d = json.loads(raw.read_text())
+        mem = {tuple(k.split("|")): v for k, v in d["mem"].items()}
+        mem = {(k[0], int(k[1])): v for k, v in mem.items()}
+        return _doc.update_section(doc, SECTION, body(d["results"], mem, d["proc"], command, cls, ver, d["frames"],
+                                                      out_dir, quick), title="Performance")
     t0 = time.time()
     frames = 2 if quick else 7
     results = []
@@ -759,9 +773,11 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
         mem[(name, size)] = measure_memory(name, size, quick)
     print("[peers] one frame as a process", file=sys.stderr, flush=True)
     proc = measure_process("head opaque", 48 if quick else 512, quick, 1 if quick else 5)
+    raw.parent.mkdir(parents=True, exist_ok=True)
+    raw.write_text(json.dumps(dict(results=results, mem={f"{k[0]}|{k[1]}": v for k, v in mem.items()}, proc=proc,
+                                   frames=frames), default=float))
     write_csv(results, out_dir / "peers.csv")
     plot(results, out_dir / "img" / "peers_pareto.png")
-    command = command or ("python -m benchmarks peers" + (" --quick" if quick else ""))
     print(f"[peers] done in {time.time() - t0:.0f} s", file=sys.stderr)
     return _doc.update_section(doc, SECTION, body(results, mem, proc, command, cls, ver, frames, out_dir, quick),
                                title="Performance")
@@ -771,6 +787,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.peers", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="docs", type=Path, help="folder of performance.md (images under OUT/img)")
     ap.add_argument("--quick", action="store_true", help="tiny volumes and images, 2 frames (a smoke test)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="rewrite the section from the last run's measurements (out/bench-peers/results.json)")
     ap.add_argument("--memory-child", nargs=3, metavar=("WHO", "CASE", "SIZE"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.memory_child:
@@ -781,7 +799,7 @@ def main(argv=None) -> int:
         return 0
     cmd = "make bench-peers   # = pip install vtk; python -m benchmarks.peers" + (" --quick" if a.quick else "")
     try:
-        path = run(a.out, a.quick, required=True, command=cmd)
+        path = run(a.out, a.quick, required=True, command=cmd, report_only=a.report_only)
     except PeerUnavailable as exc:
         print(f"benchmarks.peers: error: {exc}", file=sys.stderr)
         return 3

@@ -578,11 +578,17 @@ def plot(results, path: Path):
     except ImportError:
         print("[peers] matplotlib missing (pip install 'isplat[plot]'): no plot", file=sys.stderr)
         return None
-    sel = [r for r in results if r["size"] == max(x["size"] for x in results if x["case"] == r["case"]) or
-           r["size"] == 512]
-    sel = list({(r["case"]): r for r in sel}.values())
-    fig, axes = plt.subplots(1, len(sel), figsize=(4.2 * len(sel), 4.0), squeeze=False)
-    for ax, r in zip(axes[0], sel):
+    sel = {}
+    for r in results:                    # per case: its 512-pixel run (else its first)
+        if r["case"] not in sel or r["size"] == 512:
+            sel[r["case"]] = r
+    sel = list(sel.values())
+    ncol = 3
+    nrow = -(-len(sel) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(5.0 * ncol, 4.2 * nrow), squeeze=False)
+    for ax in axes.ravel()[len(sel):]:
+        ax.set_visible(False)
+    for ax, r in zip(axes.ravel(), sel):
         for who, colour, marker in (("isplat", "tab:blue", "o"), ("VTK", "tab:green", "s")):
             pts = [p for p in r["points"] if p["who"].startswith(who) and p["err"] is not None]
             ax.plot([p["ms"] for p in pts], [p["err"]["rmse"] for p in pts], marker, color=colour, label=who, ms=5)
@@ -750,6 +756,8 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
     raw = REPO / "out" / "bench-peers" / f"results{'-quick' if quick else ''}.json"
     if report_only:                     # rewrite the page from the last run's measurements (no new numbers)
         d = json.loads(raw.read_text())
+        write_csv(d["results"], out_dir / "peers.csv")
+        plot(d["results"], out_dir / "img" / "peers_pareto.png")
         mem = {tuple(k.split("|")): v for k, v in d["mem"].items()}
         mem = {(k[0], int(k[1])): v for k, v in mem.items()}
         return _doc.update_section(doc, SECTION, body(d["results"], mem, d["proc"], command, cls, ver, d["frames"],

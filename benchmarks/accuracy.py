@@ -398,7 +398,7 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
         L += case_table(rows, REF.kinds_for(c), conv, c)
         L.append("")
     L.append("## How converged the references are\n")
-    L.append("Halving the reference's step (0.05 -> 0.025 voxel) changes these images by (docs/reference.md has "
+    L.append("Halving the reference's step (from the step in the table) changes these images by (docs/reference.md has "
              "every case):\n")
     L.append("| case | reference | step (voxel) | max abs | RMSE | smallest RMSE in the case's table | ratio |\n"
              "|---|---|---:|---:|---:|---:|---:|")

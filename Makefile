@@ -6,7 +6,7 @@ ISPLAT := $(BIN)/isplat
 OUT    ?= out
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench bench-check wheel-check data paper-table bench-peers clean venv readme-images presets-doc reliability fuzz-boundscheck
+.PHONY: demo test bench bench-check wheel-check data paper-table bench-peers accuracy reference stability clean venv readme-images presets-doc reliability fuzz-boundscheck
 
 venv: $(STAMP)
 
@@ -44,6 +44,19 @@ data: $(STAMP)
 
 paper-table: $(STAMP)
 	$(BIN)/python -m benchmarks paper --out docs
+
+# docs/reference.md: the references independent of splatting (cached under out/references) and their convergence.
+reference: $(STAMP)
+	$(BIN)/python -m benchmarks reference --out docs
+
+# docs/accuracy.md, accuracy.csv, img/accuracy_pareto.png: error against the references (a) and (b) against
+# frame time for every speed knob, VTK's sample distances when VTK can render here, the Pareto front, popping.
+accuracy: $(STAMP)
+	$(BIN)/python -m benchmarks accuracy --out docs
+
+# docs/stability.md: stiff and extreme cases against their analytic values.
+stability: $(STAMP)
+	$(BIN)/python -m benchmarks stability --out docs
 
 # Optional, not in CI: isplat against VTK's CPU ray caster (installs vtk; needs Mesa EGL or OSMesa).
 bench-peers: $(STAMP)

@@ -1,50 +1,49 @@
-"""Side by side with what users would pick instead: isplat against VTK's CPU ray caster.
+"""Side by side with what users would pick instead: isplat against VTK's CPU ray caster, both against the truth.
 
-``python -m benchmarks.peers [--out docs] [--quick] [--data DIR]`` (``make bench-peers``, which first runs
-``pip install vtk``) renders the same volumes, transfer functions, lights, views and image size with
-``vtkFixedPointVolumeRayCastMapper`` (offscreen) and with isplat, timing both in one process, interleaved,
-and writes the section ``peers`` of ``performance.md`` plus ``img/peers_<case>.png`` (isplat left, VTK right).
+``python -m benchmarks.peers [--out docs] [--quick]`` (``make bench-peers``, which first runs ``pip install vtk``)
+writes the section ``peers`` of ``performance.md``, ``peers.csv`` and ``img/peers_pareto.png``:
+
+* frame time: ``vtkFixedPointVolumeRayCastMapper`` (offscreen, the same thread count) at sample distances 2, 1
+  (its default), 0.5 and 0.25 voxel, and isplat at its defaults and its speed knobs, all rendered in turn, round
+  after round, in one process (interleaved), on the head sample at 256, 512 and 1024 pixels with an opaque and a
+  translucent transfer function, an oblique view, the engine, and the hidden-material case (the head sampled at
+  512^3, opacity 0 up to 99, 0.1 at 130, 0.5 at 200, 0.7 at 255: skin and soft tissue semi-opaque in front of
+  bone); medians and the median of the per-round ratios;
+* image error of BOTH renderers against reference (a) of :mod:`benchmarks.reference` (the converged float64 ray
+  integral, trilinear, post-classified, step 0.05 voxel), and between the two;
+* peak memory of each renderer drawing one frame in a process of its own (``ru_maxrss``);
+* one frame as a process: ``isplat render`` to a PNG against a minimal VTK script doing the same, interleaved, and
+  the first ``isplat render`` on a machine (an empty numba cache).
 
 Not part of ``make test`` or CI: VTK is a large optional download and needs an OpenGL context even for its
 CPU mapper (Mesa's EGL or OSMesa; see :func:`offscreen_window_class`). Under ``python -m benchmarks all``
 the benchmark is skipped with a note when VTK is not installed or no context can be made; run on its own it
 fails with a message naming the Debian packages.
 
-How the semantics are matched (the point of the comparison is the same picture, not a similar one):
-
-* data: VTK gets the augmented file's 8-bit ``density`` channel (what isplat classifies), the same spacing,
-  and the voxel positions of :func:`isplat.camera.volume_geometry` (origin ``q``; rotated axes via the
-  volume's user matrix);
-* opacity: the same points, with explicit zero points just outside the first and last (isplat's opacity is
-  zero there, VTK clamps to the end values), ``SetScalarOpacityUnitDistance(unit_distance)`` so both apply
-  ``1 - (1 - a) ** (ds / unit_distance)``; colour: the same points (both clamp beyond the ends);
-* shading: isplat's two-sided Phong is ``ambient + diffuse |n.l| + specular |n.h|^shininess`` with lights
-  in camera space. VTK's shader (vtkEncodedGradientShader) flips n towards the viewer and lights only
-  ``n.l > 0``; so each isplat light becomes a VTK scene light in the same world direction plus a mirror light
-  (``-l``, diffuse only), which makes the diffuse term exactly ``|n.l|``; the specular term then equals
-  ``|n.h|^s`` wherever it is not below ~1e-8. The ambient term is carried by the first light only (VTK adds
-  ``ambient * intensity * ambient colour`` once per light);
-* camera: parallel projection, parallel scale = half the image height in world units (the bounding-sphere
-  radius / zoom for a square image, :func:`isplat.camera.view_frame`), focal point ``p``, position
-  ``p + 3 R w``, view-up ``v``; black background;
-* VTK samples at 0.5 voxel (``SAMPLE_DISTANCE`` x the smallest spacing), trilinear interpolation, one ray per
-  pixel, automatic sample-distance adjustment off.
-
-What cannot be matched (it is what makes the two methods differ): VTK interpolates the density and then
-classifies and shades (post-classification, gradients from its own central differences of the 8-bit
-density); isplat classifies each voxel and spreads it with a Gaussian footprint (pre-classification, the
-augmented file's normals). The images are compared over RGB in [0, 1] after both are rounded to 8 bits (VTK's
-image comes from an 8-bit framebuffer).
+How the semantics are matched (the point is the same picture, not a similar one): VTK gets the augmented file's
+8-bit ``density`` channel (what isplat classifies), the same spacing and voxel positions (origin ``q``, axes via
+the volume's user matrix); the same opacity points, with explicit zeros just outside the first and last (isplat's
+opacity is zero there, VTK clamps), ``SetScalarOpacityUnitDistance(unit_distance)`` so both apply
+``1 - (1 - a) ** (ds / unit_distance)``; the same colour points; a parallel camera with parallel scale = half the
+image height in world units, focal point ``p``, view-up ``v``; black background; trilinear interpolation; one ray
+per pixel; automatic sample-distance adjustment off. Shading (off in this benchmark's cases, as in the issue's
+measurements; the mapping is kept for shaded scenes): each isplat light becomes a VTK scene light plus a mirror
+light, see :class:`VTKView`.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import os
 import re
+import resource
+import shlex
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -60,23 +59,12 @@ def _unit(renderer) -> float:
     """The opacity unit distance the renderer uses: the scene's, else the smallest spacing."""
     return float(renderer.selection.unit_distance or renderer.geom.spacing.min())
 
+
 SECTION = "peers"
 REPO = Path(__file__).resolve().parents[1]
-SAMPLE_DISTANCE = 0.5        # VTK's ray step, in units of the smallest voxel spacing
-SIZE = 256
-REPEATS = 21                 # timed frames per renderer (after the warm-up), interleaved
+SAMPLE_DISTANCE = 1.0        # VTK's default ray step, in units of the smallest voxel spacing
+VTK_STEPS = [2.0, 1.0, 0.5, 0.25]
 WARMUP = 2
-
-# case -> (example scene, overrides making it a 256x256 orthographic view on black)
-CASES = {
-    "head": ("examples/head.toml", []),
-    "engine": ("examples/engine.toml", ["camera.projection=orthographic", "image.background=[0.0, 0.0, 0.0]"]),
-}
-CASE_NOTES = {
-    "head": "bone, opaque (examples/head.toml)",
-    "engine": "semi-transparent aluminium, liners, bolts (examples/engine.toml, orthographic, black background)",
-}
-
 DEBIAN_EGL = "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1"
 DEBIAN_OSMESA = "libosmesa6"
 WINDOW_CLASSES = ("vtkEGLRenderWindow", "vtkOSOpenGLRenderWindow")
@@ -144,9 +132,27 @@ def _opacity_points(points):
 
 
 class VTKView:
-    """vtkFixedPointVolumeRayCastMapper set up to draw view ``view_index`` of an isplat Renderer."""
+    """vtkFixedPointVolumeRayCastMapper set up to draw view ``view_index`` of an isplat Renderer (or of a scene:
+    ``VTKView.for_scene``), at ``sample_distance`` voxels of the smallest spacing, with ``threads`` threads
+    (default: isplat's thread count)."""
 
-    def __init__(self, renderer, view_index: int = 0):
+    @classmethod
+    def for_scene(cls, scene, view_index: int = 0, sample_distance: float = 1.0, threads: int | None = None,
+                  density=None):
+        """Without an isplat Renderer (no selection loaded: for measuring VTK's own memory)."""
+        from isplat.frame import views_for
+
+        aug = open_augmented(scene.data.augmented)
+        view = views_for(scene, aug)[view_index]
+        shim = type("Shim", (), {})()
+        shim.scene, shim.geom, shim.frames = scene, view.geom, [view.frame]
+        shim.use_shade = bool(scene.shading.enabled and len(scene.shading.lights))
+        shim.unit = float(scene.transfer.unit_distance or view.geom.spacing.min())
+        shim.threads = scene.render.threads or default_threads()
+        return cls(shim, 0, sample_distance, threads, density)
+
+    def __init__(self, renderer, view_index: int = 0, sample_distance: float = SAMPLE_DISTANCE,
+                 threads: int | None = None, density=None):
         import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL render window factory)
         import vtkmodules.vtkRenderingVolumeOpenGL2  # noqa: F401  (ray-cast image display helper)
         from vtkmodules.util.numpy_support import numpy_to_vtk
@@ -158,10 +164,13 @@ class VTKView:
 
         scene, geom = renderer.scene, renderer.geom
         frame = renderer.frames[view_index]
+        self.geom_frame = (geom, frame)
         if frame.projection != "orthographic":
             raise ValueError("peers bench: only orthographic views are matched")
         # data: the same 8-bit density codes, spacing and voxel positions
-        dens = np.ascontiguousarray(open_augmented(scene.data.augmented).read("density"), dtype=np.uint8)
+        if density is None:
+            density = open_augmented(scene.data.augmented).read("density")
+        dens = np.ascontiguousarray(density, dtype=np.uint8)
         nk, nj, ni = dens.shape
         img = vtkImageData()
         img.SetDimensions(ni, nj, nk)
@@ -190,10 +199,11 @@ class VTKView:
         prop = vtkVolumeProperty()
         prop.SetScalarOpacity(otf)
         prop.SetColor(ctf)
-        prop.SetScalarOpacityUnitDistance(_unit(renderer))
+        prop.SetScalarOpacityUnitDistance(getattr(renderer, "unit", None) or _unit(renderer))
         prop.SetInterpolationTypeToLinear()
         sh = scene.shading
-        if renderer.selection.use_shade:
+        use_shade = renderer.use_shade if hasattr(renderer, "use_shade") else renderer.selection.use_shade
+        if use_shade:
             prop.ShadeOn()
             prop.SetAmbient(float(sh.ambient))
             prop.SetDiffuse(float(sh.diffuse))
@@ -209,9 +219,11 @@ class VTKView:
         mapper.SetInputData(img)
         mapper.AutoAdjustSampleDistancesOff()
         mapper.LockSampleDistanceToInputSpacingOff()
-        self.sample_distance = SAMPLE_DISTANCE * float(geom.spacing.min())
+        self.voxel = float(geom.spacing.min())
+        self.sample_distance = sample_distance * self.voxel
         mapper.SetSampleDistance(self.sample_distance)
         mapper.SetInteractiveSampleDistance(self.sample_distance)
+        mapper.SetNumberOfThreads(int(threads or renderer.threads))
         mapper.SetImageSampleDistance(1.0)
         mapper.SetMinimumImageSampleDistance(1.0)
         mapper.SetMaximumImageSampleDistance(1.0)
@@ -250,7 +262,7 @@ class VTKView:
                 if sign < 0:
                     self.mirror_lights.append(L)
                 ren.AddLight(L)
-        if renderer.selection.use_shade and not ambient_done:     # no lit light: ambient only, through a dark light
+        if use_shade and not ambient_done:     # no lit light: ambient only, through a dark light
             L = vtkLight()
             L.SetIntensity(1.0)
             L.SetDiffuseColor(0.0, 0.0, 0.0)
@@ -283,6 +295,16 @@ class VTKView:
         self.window.Render()
         return time.perf_counter() - t
 
+    def set_step(self, voxels: float):
+        """Ray step in voxels of the smallest spacing."""
+        self.sample_distance = voxels * self.voxel
+        self.mapper.SetSampleDistance(self.sample_distance)
+        self.mapper.SetInteractiveSampleDistance(self.sample_distance)
+
+    def image_float(self) -> np.ndarray:
+        """The last frame as float RGB in [0, 1] (H, W, 3)."""
+        return self.image().astype(np.float64) / 255.0
+
     def image(self) -> np.ndarray:
         """The last frame as uint8 RGB (H, W, 3), row 0 at the top."""
         from vtkmodules.util.numpy_support import vtk_to_numpy
@@ -299,201 +321,430 @@ class VTKView:
         return int(self.mapper.GetNumberOfThreads())
 
 
-# ---- data ---------------------------------------------------------------------------------------------------
-def ensure_data(data_dir: Path, names) -> dict:
-    """``isplat sample NAME``, ``augment``, ``index`` into ``data_dir``, reusing files already there."""
-    data_dir.mkdir(parents=True, exist_ok=True)
+
+# ---- the cases ----------------------------------------------------------------------------------------------
+UNSHADED = ["shading.enabled=false", "image.background=[0.0, 0.0, 0.0]"]
+HEAD_TRANSLUCENT = ["transfer.opacity=[[95, 0.0], [110, 0.03], [160, 0.03], [175, 0.0], [185, 0.0], [215, 0.25], "
+                    "[255, 0.25]]",
+                    "transfer.color=[[95, 0.9, 0.65, 0.55], [160, 0.9, 0.7, 0.6], [200, 1.0, 0.98, 0.9], "
+                    "[255, 1.0, 1.0, 1.0]]"]
+HIDDEN_TF = ["transfer.opacity=[[99, 0.0], [130, 0.1], [200, 0.5], [255, 0.7]]",
+             "transfer.color=[[99, 0.9, 0.6, 0.5], [130, 0.9, 0.7, 0.6], [200, 1.0, 0.97, 0.9], [255, 1.0, 1.0, 1.0]]"]
+# name -> (sample, shape (quick shape), overrides, sizes (quick sizes), note)
+CASES = {
+    "head opaque": ("head", None, (64, 64, 56), [], [256, 512, 1024], [48],
+                    "head sample 256x256x225, bone opaque (examples/head.toml's transfer function), front view"),
+    "head translucent": ("head", None, (64, 64, 56), HEAD_TRANSLUCENT, [256, 512, 1024], [48],
+                         "head sample, skin and soft tissue at 0.03, bone at 0.25 per voxel, front view"),
+    "head oblique": ("head", None, (64, 64, 56), ["camera.azimuth=40", "camera.elevation=35"], [512], [48],
+                     "head sample, bone opaque, azimuth 40, elevation 35"),
+    "engine": ("engine", None, (64, 64, 28), [], [512], [48],
+               "engine sample 256x256x110, examples/engine.toml's three translucent materials, orthographic"),
+    "hidden material": ("head", (512, 512, 512), (96, 96, 96), HIDDEN_TF, [512], [64],
+                        "head sample at 512^3, opacity 0 up to 99, 0.1 at 130, 0.5 at 200, 0.7 at 255: skin and "
+                        "soft tissue semi-opaque in front of bone"),
+}
+ISPLAT_POINTS = [("defaults", {}), ("radius 2", {"footprint_radius": 2.0}),
+                 ("radius 2, ET 0.95", {"footprint_radius": 2.0, "early_termination": 0.95})]
+
+
+def peer_scene(name: str, size: int, quick: bool, render: dict | None = None, extra=()):
+    from . import reference as REF
+
+    sample, shape, qshape, ov, *_ = CASES[name]
+    return REF.make_scene(sample, size, render, [*UNSHADED, *ov, *extra], shape=qshape if quick else shape)
+
+
+# ---- one case: frames interleaved, errors against the reference ----------------------------------------------
+def measure(name: str, size: int, frames: int, quick: bool) -> dict:
+    from isplat.frame import render_frame, views_for
+    from isplat.renderer import Renderer
+
+    from . import reference as REF
+
+    scene = peer_scene(name, size, quick)
+    ref, ref_s, cached = REF.reference(scene)
+    r0 = Renderer(scene)
+    # the knobs act per frame (View.render): one selection serves every isplat point
+    views = [views_for(peer_scene(name, size, quick, knobs), r0.selection)[0] for _, knobs in ISPLAT_POINTS]
+    vtkv = VTKView(r0, 0, SAMPLE_DISTANCE)
+    labels = [f"isplat {lab}" for lab, _ in ISPLAT_POINTS] + [f"VTK {s:g}" for s in VTK_STEPS]
+    times = {lab: [] for lab in labels}
+    imgs, stats = {}, {}
+
+    def job(lab, keep):
+        if lab.startswith("VTK"):
+            vtkv.set_step(float(lab.split()[1]))
+            dt = vtkv.render()
+            if keep:
+                imgs[lab] = vtkv.image_float()
+            return dt
+        t0 = time.perf_counter()
+        img, st = render_frame(r0.selection, views[[f"isplat {x}" for x, _ in ISPLAT_POINTS].index(lab)])
+        dt = time.perf_counter() - t0
+        imgs[lab], stats[lab] = img, st
+        return dt
+
+    for _ in range(WARMUP):
+        for lab in labels:
+            job(lab, False)
+    for rnd in range(frames):
+        order = labels[rnd % len(labels):] + labels[:rnd % len(labels)]
+        for lab in order:
+            times[lab].append(job(lab, rnd == frames - 1))
+    pts = []
+    for lab in labels:
+        pts.append(dict(case=name, size=size, who=lab, ms=_doc.median_ms(times[lab]), err=REF.errors(imgs[lab], ref)))
+    iso, v1, v05 = "isplat defaults", "VTK 1", "VTK 0.5"
+    paired = {s: statistics.median(a / b for a, b in zip(times[iso], times[s])) for s in (v1, v05)}
+    st = stats[iso]
+    return dict(case=name, size=size, points=pts, paired=paired, ref_seconds=ref_s, ref_cached=cached,
+                between=REF.errors(imgs[iso], imgs[v1]), between05=REF.errors(imgs[iso], imgs[v05]),
+                examined=st.voxels_examined, splatted=st.voxels_splatted, threads=(r0.threads, vtkv.threads))
+
+
+# ---- peak memory: one frame in a process of its own -----------------------------------------------------------
+def memory_child(who: str, name: str, size: int, quick: bool) -> dict:
+    """Render one frame with ``who`` ("isplat" or "vtk") and report the process's peak resident set."""
+    t0 = time.perf_counter()
+    scene = peer_scene(name, size, quick)
+    if who == "isplat":
+        from isplat.renderer import Renderer
+
+        Renderer(scene).render_view(0)
+    else:
+        v = VTKView.for_scene(scene, 0, SAMPLE_DISTANCE)
+        v.render()
+    return {"maxrss_mb": peak_rss_mb(), "seconds": time.perf_counter() - t0}
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident set: VmHWM (Linux; ``ru_maxrss`` is not used because it carries the parent's
+    peak over fork and exec), else ``ru_maxrss``."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def measure_memory(name: str, size: int, quick: bool) -> dict:
     out = {}
-    for name in names:
-        npy, aug, idx = (data_dir / f"{name}{ext}" for ext in (".npy", ".aug.h5", ".idx.h5"))
-        steps = []
-        if not aug.exists():
-            steps += [["sample", name, "-o", str(npy), "--force"], ["augment", str(npy), "-o", str(aug), "--force"]]
-        if not aug.exists() or not idx.exists():
-            steps += [["index", str(aug), "-o", str(idx), "--force"]]
-        for s in steps:
-            print(f"[peers] isplat {' '.join(s)}", file=sys.stderr)
-            subprocess.run([sys.executable, "-m", "isplat", *s, "-q"], check=True, stdout=subprocess.DEVNULL)
-        if npy.exists() and aug.exists():
-            npy.unlink()
-        out[name] = (aug, idx)
+    for who in ("isplat", "vtk"):
+        cmd = [sys.executable, "-m", "benchmarks.peers", "--memory-child", who, name, str(size)] + \
+              (["--quick"] if quick else [])
+        r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+        if r.returncode != 0:
+            raise RuntimeError(f"memory child {who} failed: {r.stderr.strip().splitlines()[-1:]}")
+        out[who] = json.loads(r.stdout.strip().splitlines()[-1])
     return out
 
 
-def scene_for(case: str, aug: Path, idx: Path, size: int):
-    from isplat.scene import load_scene
+# ---- one frame as a process ------------------------------------------------------------------------------------
+VTK_SCRIPT = '''"""One frame with VTK's CPU ray caster to a PNG: the minimal script isplat's process time is compared with."""
+import json, sys
+import numpy as np
+import vtkmodules.vtkRenderingOpenGL2  # noqa: F401
+import vtkmodules.vtkRenderingVolumeOpenGL2  # noqa: F401
+from vtkmodules.util.numpy_support import numpy_to_vtk
+from vtkmodules.vtkCommonDataModel import vtkImageData, vtkPiecewiseFunction
+from vtkmodules.vtkIOImage import vtkPNGWriter
+from vtkmodules.vtkRenderingCore import (vtkColorTransferFunction, vtkRenderer, vtkRenderWindow, vtkVolume,
+                                         vtkVolumeProperty, vtkWindowToImageFilter)
+from vtkmodules.vtkRenderingVolume import vtkFixedPointVolumeRayCastMapper
 
-    path, extra = CASES[case]
-    ov = [f'data.augmented="{aug.resolve()}"', f'data.index="{idx.resolve()}"',
-          f"image.width={size}", f"image.height={size}", *extra]
-    return load_scene(REPO / path, ov), ov
-
-
-# ---- measuring ----------------------------------------------------------------------------------------------
-def to8(rgb_float) -> np.ndarray:
-    return np.round(np.clip(rgb_float, 0.0, 1.0) * 255.0).astype(np.uint8)
-
-
-def compare(a8: np.ndarray, b8: np.ndarray) -> tuple[float, float, float]:
-    """RMSE and PSNR (dB, peak 1) over RGB in [0, 1], and the largest channel difference."""
-    d = a8.astype(np.float64) / 255.0 - b8.astype(np.float64) / 255.0
-    rmse = float(np.sqrt(np.mean(d * d)))
-    psnr = float("inf") if rmse == 0 else 20.0 * np.log10(1.0 / rmse)
-    return rmse, psnr, float(np.abs(d).max())
-
-
-def _dilate(m: np.ndarray, n: int) -> np.ndarray:
-    """Grow a mask by ``n`` pixels (4-neighbourhood), not wrapping around the edges."""
-    m = m.copy()
-    for _ in range(n):
-        g = m.copy()
-        g[1:] |= m[:-1]
-        g[:-1] |= m[1:]
-        g[:, 1:] |= m[:, :-1]
-        g[:, :-1] |= m[:, 1:]
-        m = g
-    return m
-
-
-def measure_case(case: str, aug: Path, idx: Path, repeats: int, size: int, img_dir: Path | None):
-    from isplat.renderer import Renderer
-
-    scene, overrides = scene_for(case, aug, idx, size)
-    r_idx = Renderer(scene)                      # the scene's defaults: method indexed, threads = all cores
-    r_full = Renderer(scene, method="full")
-    vtkv = VTKView(r_idx, 0)
-
-    def isplat_frame(r):
-        t = time.perf_counter()
-        rgba, stats = r.render_view(0)
-        return time.perf_counter() - t, rgba, stats
-
-    for _ in range(WARMUP):                      # JIT, caches, VTK's gradient computation
-        isplat_frame(r_idx)
-        isplat_frame(r_full)
-        vtkv.render()
-    times = {"indexed": [], "full": [], "vtk": []}
-    order = ["indexed", "full", "vtk"]
-    for rep in range(repeats):
-        for who in order[rep % 3:] + order[:rep % 3]:    # interleaved, rotating who goes first
-            if who == "vtk":
-                times["vtk"].append(vtkv.render())
-            else:
-                dt, rgba, stats = isplat_frame(r_idx if who == "indexed" else r_full)
-                times[who].append(dt)
-                if who == "indexed":
-                    ours, ours_stats = rgba, stats
-    theirs = vtkv.image()
-    ours8 = to8(ours[..., :3])
-    rmse, psnr, maxd = compare(ours8, theirs)
-    # a camera mismatch shows as a much better fit one pixel off: report the best neighbour shift too
-    best = min(((compare(ours8[1:-1, 1:-1], theirs[1 + dy:size - 1 + dy, 1 + dx:size - 1 + dx])[0], (dx, dy))
-                for dy in (-1, 0, 1) for dx in (-1, 0, 1)))
-    m_ours, m_theirs = ours8.max(axis=2) > 2, theirs.max(axis=2) > 2
-    cov_ours, cov_theirs = float(m_ours.mean()), float(m_theirs.mean())
-    # where the error is: a band 2 pixels either side of either image's silhouette, against the rest
-    band = (_dilate(m_ours, 2) & _dilate(~m_ours, 2)) | (_dilate(m_theirs, 2) & _dilate(~m_theirs, 2))
-    se = ((ours8.astype(np.float64) - theirs) / 255.0) ** 2
-    se = se.sum(axis=2)
-    band_share = float(se[band].sum() / max(se.sum(), 1e-300))
-    rmse_rest = float(np.sqrt(se[~band].sum() / (3 * max(1, int((~band).sum())))))
-    # sensitivity: how much of the difference the VTK ray step and the mirror lights account for
-    sens = {}
-    for step in (0.25, 1.0):
-        vtkv.mapper.SetSampleDistance(step * float(r_idx.geom.spacing.min()))
-        vtkv.render()
-        sens[f"VTK step {step:g} voxel"] = compare(ours8, vtkv.image())[0]
-    vtkv.mapper.SetSampleDistance(vtkv.sample_distance)
-    if vtkv.mirror_lights:
-        for light in vtkv.mirror_lights:
-            light.SwitchOff()
-        vtkv.render()
-        sens["VTK without the mirror lights (plain two-sided lighting)"] = compare(ours8, vtkv.image())[0]
-        for light in vtkv.mirror_lights:
-            light.SwitchOn()
-    png = None
-    if img_dir is not None:
-        import imageio.v3 as iio
-
-        img_dir.mkdir(parents=True, exist_ok=True)
-        png = img_dir / f"peers_{case}.png"
-        iio.imwrite(png, np.concatenate([ours8, theirs], axis=1))
-    # paired: the ratio within each round, whose frames ran back to back, then the median over rounds
-    paired = statistics.median(a / b for a, b in zip(times["indexed"], times["vtk"]))
-    return dict(case=case, overrides=overrides, ms={k: _doc.median_ms(v) for k, v in times.items()},
-                paired=paired, sensitivity=sens,
-                spread={k: (1000 * min(v), 1000 * max(v)) for k, v in times.items()},
-                rmse=rmse, psnr=psnr, maxd=maxd, best_shift=best,
-                band=(float(band.mean()), band_share, rmse_rest), coverage=(cov_ours, cov_theirs), png=png,
-                threads=(r_idx.scene.render.threads or default_threads(), vtkv.threads), sample_distance=vtkv.sample_distance,
-                splatted=ours_stats.voxels_splatted, axis=ours_stats.axis, unit=_unit(r_idx))
+P = json.loads(%r)
+d = np.load(P["density"])
+img = vtkImageData()
+img.SetDimensions(d.shape[2], d.shape[1], d.shape[0])
+img.SetSpacing(*P["spacing"])
+img.SetOrigin(*P["origin"])
+img.GetPointData().SetScalars(numpy_to_vtk(d.ravel(), deep=1))
+otf, ctf = vtkPiecewiseFunction(), vtkColorTransferFunction()
+for x, a in P["opacity"]:
+    otf.AddPoint(x, a)
+for x, r, g, b in P["color"]:
+    ctf.AddRGBPoint(x, r, g, b)
+prop = vtkVolumeProperty()
+prop.SetScalarOpacity(otf)
+prop.SetColor(ctf)
+prop.SetScalarOpacityUnitDistance(P["unit"])
+prop.SetInterpolationTypeToLinear()
+mapper = vtkFixedPointVolumeRayCastMapper()
+mapper.SetInputData(img)
+mapper.SetNumberOfThreads(P["threads"])
+mapper.AutoAdjustSampleDistancesOff()
+mapper.SetSampleDistance(P["step"])
+vol = vtkVolume()
+vol.SetMapper(mapper)
+vol.SetProperty(prop)
+ren = vtkRenderer()
+ren.AddVolume(vol)
+cam = ren.GetActiveCamera()
+cam.ParallelProjectionOn()
+cam.SetFocalPoint(*P["focal"])
+cam.SetPosition(*P["position"])
+cam.SetViewUp(*P["up"])
+cam.SetParallelScale(P["scale"])
+ren.ResetCameraClippingRange()
+win = vtkRenderWindow()
+win.SetOffScreenRendering(1)
+win.AddRenderer(ren)
+win.SetSize(P["size"], P["size"])
+win.Render()
+grab = vtkWindowToImageFilter()
+grab.SetInput(win)
+writer = vtkPNGWriter()
+writer.SetFileName(sys.argv[1])
+writer.SetInputConnection(grab.GetOutputPort())
+writer.Write()
+'''
 
 
-# ---- the report ---------------------------------------------------------------------------------------------
-def _body(results, command, window_cls, vtk_ver, repeats, out_dir: Path) -> str:
-    L = [f"### Side by side with VTK's CPU ray caster", "", "```", command, "```", "",
+def _isplat_cli() -> list[str]:
+    exe = Path(sys.executable).parent / "isplat"
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "isplat"]
+
+
+def process_commands(name: str, size: int, quick: bool, tmp: Path):
+    """(isplat render command, VTK script command) drawing the same frame to a PNG."""
+    from . import reference as REF
+
+    sample, shape, qshape, ov, *_ = CASES[name]
+    aug, idx = REF.sample_data(sample, qshape if quick else shape)
+    path = REF.CASES[sample][0]
+    sets = [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={size}", f"image.height={size}",
+            *REF.CASES[sample][1], *UNSHADED, *ov]
+    iso = _isplat_cli() + ["render", str(REPO / path), "-o", str(tmp / "isplat.png"), "--force", "-q"] + \
+        [x for s in sets for x in ("--set", s)]
+    scene = peer_scene(name, size, quick)
+    v = VTKView.for_scene(scene, 0, SAMPLE_DISTANCE)
+    dens = open_augmented(aug).read("density")
+    np.save(tmp / "density.npy", dens)
+    geom, frame = v.geom_frame
+    if not np.allclose(geom.unit_axes, np.eye(3)):
+        raise RuntimeError("the minimal VTK script places axis-aligned volumes only")
+    P = dict(density=str(tmp / "density.npy"), spacing=list(map(float, geom.spacing)), origin=list(map(float, geom.q)),
+             opacity=_opacity_points(scene.transfer.opacity), color=[list(map(float, c)) for c in scene.transfer.color],
+             unit=float(scene.transfer.unit_distance or geom.spacing.min()), threads=v.threads,
+             step=v.sample_distance, focal=list(map(float, frame.p)),
+             position=list(map(float, frame.p + 3.0 * geom.radius * frame.w)), up=list(map(float, frame.v)),
+             scale=0.5 * frame.height * frame.pixel_size, size=size)
+    script = tmp / "vtk_one_frame.py"
+    script.write_text(VTK_SCRIPT % json.dumps(P))
+    return iso, [sys.executable, str(script), str(tmp / "vtk.png")]
+
+
+def _timed(cmd, env=None) -> float:
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO)
+    dt = time.perf_counter() - t0
+    if r.returncode != 0:
+        raise RuntimeError(f"{shlex.join(cmd[:3])} ... failed: {r.stderr.strip()[-300:]}")
+    return dt
+
+
+def measure_process(name: str, size: int, quick: bool, repeats: int) -> dict:
+    with tempfile.TemporaryDirectory(prefix="isplat-peers-") as tmp:
+        tmp = Path(tmp)
+        iso, vtk = process_commands(name, size, quick, tmp)
+        _timed(iso)
+        _timed(vtk)                                     # warm: numba's cache, the OS's file cache
+        t = {"isplat": [], "vtk": []}
+        for rep in range(repeats):
+            for who in (("isplat", "vtk") if rep % 2 == 0 else ("vtk", "isplat")):
+                t[who].append(_timed(iso if who == "isplat" else vtk))
+        cold = None
+        if not quick:
+            cache = Path(tempfile.mkdtemp(prefix="numba-empty-"))
+            try:
+                cold = _timed(iso, dict(os.environ, NUMBA_CACHE_DIR=str(cache)))
+            finally:
+                subprocess.run(["rm", "-rf", str(cache)])
+        return dict(isplat=statistics.median(t["isplat"]), vtk=statistics.median(t["vtk"]), cold=cold,
+                    spread={k: (min(v), max(v)) for k, v in t.items()}, repeats=repeats,
+                    command=shlex.join([Path(iso[0]).name] + iso[1:2] + ["examples/head.toml", "-o", "frame.png",
+                                                                          "--set", "..."]))
+
+
+# ---- plot --------------------------------------------------------------------------------------------------------
+def plot(results, path: Path):
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("[peers] matplotlib missing (pip install 'isplat[plot]'): no plot", file=sys.stderr)
+        return None
+    sel = {}
+    for r in results:                    # per case: its 512-pixel run (else its first)
+        if r["case"] not in sel or r["size"] == 512:
+            sel[r["case"]] = r
+    sel = list(sel.values())
+    ncol = 3
+    nrow = -(-len(sel) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(5.0 * ncol, 4.2 * nrow), squeeze=False)
+    for ax in axes.ravel()[len(sel):]:
+        ax.set_visible(False)
+    for ax, r in zip(axes.ravel(), sel):
+        for who, colour, marker in (("isplat", "tab:blue", "o"), ("VTK", "tab:green", "s")):
+            pts = [p for p in r["points"] if p["who"].startswith(who) and p["err"] is not None]
+            ax.plot([p["ms"] for p in pts], [p["err"]["rmse"] for p in pts], marker, color=colour, label=who, ms=5)
+            for p in pts:
+                ax.annotate(p["who"].split(" ", 1)[1], (p["ms"], p["err"]["rmse"]), fontsize=6, xytext=(3, 2),
+                            textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("median frame time (ms)")
+        ax.set_ylabel("RMSE against reference (a)")
+        ax.set_title(f"{r['case']}, {r['size']} px", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ---- the report -------------------------------------------------------------------------------------------------
+def _pt(r, who):
+    return next(p for p in r["points"] if p["who"] == who)
+
+
+def _psnr(e):
+    return "exact" if e["psnr"] == float("inf") else f"{e['psnr']:.1f}"
+
+
+def write_csv(results, path: Path):
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["case", "size", "renderer", "median_ms", "rmse_vs_reference_a", "psnr_db", "max_abs",
+                    "share_8bit_pixels_changed"])
+        for r in results:
+            for p in r["points"]:
+                e = p["err"] or {}
+                w.writerow([r["case"], r["size"], p["who"], f"{p['ms']:.3f}", e.get("rmse", ""), e.get("psnr", ""),
+                            e.get("max", ""), e.get("px8", "")])
+
+
+def slower_text(results, mem, proc) -> list[str]:
+    """Where isplat is slower than VTK at VTK's default step, and the measured reasons; follows the numbers."""
+    L = []
+    slow = [r for r in results if r["paired"]["VTK 1"] > 1.0]
+    fast = [r for r in results if r["paired"]["VTK 1"] <= 1.0]
+    L.append(f"- Against VTK at its default step (1 voxel), isplat's defaults are slower in {len(slow)} of "
+             f"{len(results)} cases" + (": " + "; ".join(f"{r['case']} {r['size']} px {r['paired']['VTK 1']:.2f}x"
+                                                      for r in slow) if slow else "") +
+             (". Not slower in: " + "; ".join(f"{r['case']} {r['size']} px {r['paired']['VTK 1']:.2f}x"
+                                             for r in fast) if fast else "") + ".")
+    by_case = {}
+    for r in results:
+        by_case.setdefault(r["case"], {})[r["size"]] = r
+    for case, rs in by_case.items():
+        if 256 in rs and 1024 in rs:
+            gi = _pt(rs[1024], "isplat defaults")["ms"] / _pt(rs[256], "isplat defaults")["ms"]
+            gv = _pt(rs[1024], "VTK 1")["ms"] / _pt(rs[256], "VTK 1")["ms"]
+            L.append(f"- {case}: from 256 to 1024 pixels (16x the pixels) isplat's frame time grows {gi:.1f}x, "
+                     f"VTK's {gv:.1f}x: a ray caster's cost follows pixels times samples, isplat's the voxels it "
+                     f"visits plus the footprints it draws, so isplat's ratio to VTK is "
+                     f"{'worst' if rs[256]['paired']['VTK 1'] >= rs[1024]['paired']['VTK 1'] else 'best'} at 256 "
+                     f"pixels ({rs[256]['paired']['VTK 1']:.2f}x against {rs[1024]['paired']['VTK 1']:.2f}x at 1024).")
+    hid = [r for r in results if r["case"] == "hidden material"]
+    for r in hid:
+        L.append(f"- Hidden material ({r['size']} px): isplat visited {r['examined']:,} voxels of interest and splatted "
+                 f"{r['splatted']:,} ({100 * r['splatted'] / max(1, r['examined']):.0f}%); each visited voxel costs an "
+                 f"occlusion test whether or not it reaches a pixel, so the frame cost follows the voxels of interest, "
+                 f"while a ray caster stops each ray once it saturates. (The issue's check against the same view with "
+                 f"the hidden voxels removed is not measured here: which voxels are hidden depends on the view, and "
+                 f"no scene setting removes exactly those.)")
+    for (case, size), m in mem.items():
+        ratio = m["isplat"]["maxrss_mb"] / m["vtk"]["maxrss_mb"]
+        L.append(f"- Peak memory ({case}, {size} px, one frame in a process of its own, peak resident set (VmHWM), interpreter and "
+                 f"libraries included): isplat {m['isplat']['maxrss_mb']:.0f} MB, VTK {m['vtk']['maxrss_mb']:.0f} MB "
+                 f"({ratio:.2f}x).")
+    if proc:
+        L.append(f"- One frame as a process (`isplat render` to a PNG against a minimal VTK script, median of "
+                 f"{proc['repeats']} each, interleaved): isplat {proc['isplat']:.2f} s, VTK {proc['vtk']:.2f} s "
+                 f"({proc['isplat'] / proc['vtk']:.2f}x)" +
+                 (f"; the first isplat run with an empty numba cache (a new machine: everything compiles) "
+                  f"{proc['cold']:.1f} s." if proc["cold"] is not None else "."))
+    better = [r for r in results if _pt(r, "isplat defaults")["err"]["rmse"] < _pt(r, "VTK 1")["err"]["rmse"]]
+    L.append(f"- Image error against reference (a): isplat's defaults are closer than VTK at step 1 in {len(better)} "
+             f"of {len(results)} cases (" + "; ".join(
+                 f"{r['case']} {r['size']} px: PSNR {_psnr(_pt(r, 'isplat defaults')['err'])} against "
+                 f"{_psnr(_pt(r, 'VTK 1')['err'])} dB" for r in results) + ").")
+    spread_i = max(max(p["err"]["rmse"] for p in r["points"] if p["who"].startswith("isplat")) /
+                   min(p["err"]["rmse"] for p in r["points"] if p["who"].startswith("isplat")) for r in results)
+    spread_v = max(_pt(r, "VTK 1")["err"]["rmse"] / _pt(r, "VTK 0.25")["err"]["rmse"] for r in results)
+    L.append(f"- Where the error comes from: isplat's speed knobs change its RMSE by at most {spread_i:.2f}x in any "
+             f"case, and VTK's RMSE at step 1 is at most {spread_v:.2f}x its RMSE at step 0.25; neither renderer's "
+             "error is mostly its speed setting. isplat's remaining error is its model (each voxel classified "
+             "before reconstruction and spread by a Gaussian footprint, see docs/accuracy.md). Of VTK's, rounding to "
+             "an 8-bit image accounts for about 0.0011 (1 / (255 sqrt 12), uniform rounding); the rest is its "
+             "fixed-point pipeline (classification looked up at an integer code, fixed-point compositing, its "
+             "gradient table when shaded), which this benchmark does not separate.")
+    return L
+
+
+def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quick) -> str:
+    L = ["### Side by side with VTK's CPU ray caster, both against the truth", "", "```", command, "```", "",
          f"Machine: {_doc.machine_line()}; isplat {_doc.git_rev()}; VTK {vtk_ver} "
-         f"(`vtkFixedPointVolumeRayCastMapper`, offscreen through `{window_cls}`).", "",
-         f"One {SIZE}x{SIZE} orthographic frame per renderer, both in one process, interleaved (rotating order); "
-         f"median of {repeats} frames after {WARMUP} warm-up frames each, min-max in brackets. isplat: "
-         "`Renderer.render_view` with the scene's defaults (method `indexed`, all cores), loading not timed; "
-         "`full` visits every voxel, for context. VTK: `renderWindow.Render()`. Image difference: RMSE and PSNR "
-         "over RGB in [0, 1], both images rounded to 8 bits. The time ratio is isplat indexed over VTK "
-         "(above 1: isplat is slower): of the medians, and in brackets the median of the per-round ratios "
-         "(frames of one round run back to back, so this one is less sensitive to other load on the machine: "
-         "on a shared machine the absolute times of two runs can differ by up to 2x, the ratios much less).", "",
-         "| case | isplat indexed ms | isplat full ms | VTK ms | time isplat / VTK (paired) | RMSE | PSNR dB "
-         "| max diff |",
-         "|---|---:|---:|---:|---:|---:|---:|---:|"]
+         f"(`vtkFixedPointVolumeRayCastMapper`, offscreen through `{window_cls}`). Generated: every number and "
+         "sentence below comes from this run; rerun the command after changing the renderer.", "",
+         f"Orthographic, unshaded emission-absorption, black background, square images. Per case and size every "
+         f"renderer draws {frames} frames after {WARMUP} warm-up frames, all in turn, round after round, in one "
+         "process (interleaved); times are medians, and *isplat / VTK* is the median of the per-round ratios "
+         "(frames of a round run back to back, so the ratio is less sensitive to other load on this shared machine "
+         "than the absolute times). isplat: `Renderer.render_view` (loading not timed), threads = all cores; "
+         "VTK: `renderWindow.Render()` with the same thread count. Error: RMSE and PSNR over RGB in [0, 1] against "
+         "reference (a) (docs/reference.md: the converged float64 ray integral of the same 8-bit densities, "
+         "trilinear, transfer function after interpolation, step 0.05 voxel), which is neither renderer; VTK's "
+         "image is read back as 8 bits.", "",
+         "| case | pixels | isplat ms | VTK step 1 ms | isplat / VTK 1 | VTK step 0.5 ms | isplat / VTK 0.5 | "
+         "PSNR (a) isplat | PSNR (a) VTK 1 | PSNR (a) VTK 0.5 | PSNR isplat vs VTK 1 |",
+         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results:
-        ms, sp = r["ms"], r["spread"]
-        L.append(f"| {r['case']} | {ms['indexed']:.1f} [{sp['indexed'][0]:.1f}-{sp['indexed'][1]:.1f}] "
-                 f"| {ms['full']:.1f} [{sp['full'][0]:.1f}-{sp['full'][1]:.1f}] "
-                 f"| {ms['vtk']:.1f} [{sp['vtk'][0]:.1f}-{sp['vtk'][1]:.1f}] "
-                 f"| {ms['indexed'] / ms['vtk']:.2f} ({r['paired']:.2f}) "
-                 f"| {r['rmse']:.4f} | {r['psnr']:.1f} | {r['maxd']:.3f} |")
-    L.append("")
+        i, v1, v05 = _pt(r, "isplat defaults"), _pt(r, "VTK 1"), _pt(r, "VTK 0.5")
+        L.append(f"| {r['case']} | {r['size']} | {i['ms']:.1f} | {v1['ms']:.1f} | {r['paired']['VTK 1']:.2f} | "
+                 f"{v05['ms']:.1f} | {r['paired']['VTK 0.5']:.2f} | {_psnr(i['err'])} | {_psnr(v1['err'])} | "
+                 f"{_psnr(v05['err'])} | {_psnr(r['between'])} |")
+    L += ["", "#### Where isplat is slower, and why", ""] + slower_text(results, mem, proc) + [""]
+    L += ["#### Every point", "",
+          "isplat at its defaults and speed knobs (`footprint_radius = 2`; with `early_termination = 0.95`), VTK at "
+          "sample distances " + ", ".join(f"{s:g}" for s in VTK_STEPS) + " voxel. `peers.csv` has the same "
+          "rows with max error and the share of changed 8-bit pixels.", "",
+          "| case | pixels | renderer | ms | RMSE (a) | PSNR (a) dB |", "|---|---:|---|---:|---:|---:|"]
     for r in results:
-        rel = os.path.relpath(r["png"], out_dir) if r["png"] else None
-        sh = r["best_shift"]
-        L += [f"**{r['case']}**: {CASE_NOTES[r['case']]}; overrides `" + "`, `".join(
-                  o for o in r["overrides"] if not o.startswith("data.")) + "`. "
-              f"Threads: isplat {r['threads'][0]}, VTK {r['threads'][1]}. isplat splatted "
-              f"{r['splatted']:,} voxels (slices along {r['axis']}). Pixels not black: isplat "
-              f"{100 * r['coverage'][0]:.1f} %, VTK {100 * r['coverage'][1]:.1f} %. "
-              f"{100 * r['band'][1]:.0f} % of the squared error lies within 2 pixels of a silhouette "
-              f"({100 * r['band'][0]:.1f} % of the pixels); elsewhere the RMSE is {r['band'][2]:.4f}. "
-              f"The best one-pixel shift is (dx, dy) = {sh[1]}, RMSE {sh[0]:.4f} "
-              "(a camera mismatch would show as a shift that fits better). RMSE with one setting changed: "
-              + "; ".join(f"{k} {v:.4f}" for k, v in r["sensitivity"].items()) + ".", ""]
-        if rel:
-            L += [f"![{r['case']}: isplat left, VTK right]({rel})", ""]
-    sd = results[0]["sample_distance"] if results else SAMPLE_DISTANCE
-    L += ["How the two are made to draw the same picture: VTK is given the augmented file's 8-bit density "
-          "channel (the codes isplat classifies), the same spacing and voxel positions, the same colour points, the "
-          "same opacity points with explicit zeros just outside the first and last (isplat's opacity is zero "
-          "there; VTK would clamp), `SetScalarOpacityUnitDistance` = isplat's `unit_distance` (both correct "
-          "opacity as `1 - (1 - a)^(ds / unit_distance)`), trilinear interpolation, a ray step of "
-          f"{sd:g} world units ({SAMPLE_DISTANCE:g} voxel), one ray per pixel, a parallel camera with parallel "
-          "scale = half the image height in world units (the bounding-sphere radius / zoom), focal point `p`, "
-          "view-up `v`, and a black background. Shading: each isplat light becomes a VTK scene light in the same "
-          "world direction plus a mirror light (diffuse only), because VTK's two-sided lighting flips the normal "
-          "towards the viewer and lights only `n.l > 0`; the pair gives isplat's `diffuse |n.l|` exactly and "
-          "`specular |n.h|^shininess` wherever that term exceeds ~1e-8. The ambient term rides on the first light "
-          "only (VTK adds it once per light).", "",
-          "What is not matched, and is what the RMSE measures: VTK interpolates the density, then classifies "
-          "(post-classification) and shades with normals from its own central differences of the 8-bit "
-          "density, quantised to its direction table, and looks the interpolated density up truncated to an "
-          "integer code; isplat classifies each voxel and spreads it with a Gaussian footprint "
-          "(sigma 0.7 voxel: pre-classification, slightly softer edges) with the augmented file's normals. Both "
-          "stop a ray near full opacity (isplat at the scene's `early_termination`, VTK at its fixed-point "
-          "limit). The differences concentrate on silhouettes and thin features, where one method's edge falls "
-          "half a voxel from the other's."]
+        for p in r["points"]:
+            e = p["err"]
+            rmse = "" if e is None else f"{e['rmse']:.4f}"
+            psnr = "" if e is None else _psnr(e)
+            L.append(f"| {r['case']} | {r['size']} | {p['who']} | {p['ms']:.1f} | {rmse} | {psnr} |")
+    L += ["", "![error against time](img/peers_pareto.png)", "",
+          "`img/peers_pareto.png`: RMSE against reference (a) over median frame time, both renderers' points, one "
+          "panel per case at 512 pixels.", "", "Cases:", ""]
+    for name, c in CASES.items():
+        L.append(f"- **{name}**: {c[6]}" + (" (quick run: a smaller sample)" if quick else "") + ".")
+    L += ["", "Threads: isplat " + ", ".join(sorted({str(r['threads'][0]) for r in results})) + ", VTK " +
+          ", ".join(sorted({str(r['threads'][1]) for r in results})) + ".", "",
+          "How the two are made to draw the same picture: VTK is given the augmented file's 8-bit density channel, "
+          "the same spacing and voxel positions, the same colour points, the same opacity points with explicit "
+          "zeros just outside the first and last (isplat's opacity is zero there; VTK would clamp), "
+          "`SetScalarOpacityUnitDistance` = isplat's `unit_distance`, trilinear interpolation, one ray per pixel, a "
+          "parallel camera with parallel scale = half the image height in world units, focal point `p`, view-up "
+          "`v`. What is not matched is what the errors measure: VTK interpolates the density, then classifies it "
+          "(truncated to an integer code); isplat classifies each voxel and spreads it with a Gaussian footprint. "
+          "The minimal VTK script of the process-time row is generated by `benchmarks/peers.py` (`VTK_SCRIPT`): it "
+          "loads the density from a .npy file, sets up the same mapper, camera and transfer function at step 1, "
+          "renders once and writes a PNG."]
     return "\n".join(L)
 
 
-def run(out_dir: Path, quick: bool, required: bool = False, data_dir: Path | None = None,
-        command: str | None = None) -> Path:
+def run(out_dir: Path, quick: bool, required: bool = False, command: str | None = None,
+        report_only: bool = False, reuse_frames: bool = False) -> Path:
     """Bench entry point (``python -m benchmarks peers``); without VTK or an OpenGL context it skips with a
     note, unless ``required``."""
     out_dir = Path(out_dir)
@@ -507,31 +758,69 @@ def run(out_dir: Path, quick: bool, required: bool = False, data_dir: Path | Non
         print(f"[peers] skipped: {exc}", file=sys.stderr)
         return doc
     os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = cls
-    repeats = 3 if quick else REPEATS
-    data_dir = Path(data_dir) if data_dir else REPO / "out" / "bench-peers"
-    files = ensure_data(data_dir, CASES)
-    results = []
-    for case in CASES:
-        aug, idx = files[case]
-        print(f"[peers] {case}: {repeats} interleaved frames each", file=sys.stderr)
-        results.append(measure_case(case, aug, idx, repeats, SIZE, out_dir / "img"))
-        r = results[-1]
-        print(f"[peers] {case}: isplat {r['ms']['indexed']:.1f} ms (full {r['ms']['full']:.1f}), "
-              f"VTK {r['ms']['vtk']:.1f} ms; RMSE {r['rmse']:.4f}, PSNR {r['psnr']:.1f} dB", file=sys.stderr)
+    out_dir.mkdir(parents=True, exist_ok=True)
     command = command or ("python -m benchmarks peers" + (" --quick" if quick else ""))
-    return _doc.update_section(doc, SECTION, _body(results, command, cls, ver, repeats, out_dir),
+    raw = REPO / "out" / "bench-peers" / f"results{'-quick' if quick else ''}.json"
+    if report_only:                     # rewrite the page from the last run's measurements (no new numbers)
+        d = json.loads(raw.read_text())
+        write_csv(d["results"], out_dir / "peers.csv")
+        plot(d["results"], out_dir / "img" / "peers_pareto.png")
+        mem = {tuple(k.split("|")): v for k, v in d["mem"].items()}
+        mem = {(k[0], int(k[1])): v for k, v in mem.items()}
+        return _doc.update_section(doc, SECTION, body(d["results"], mem, d["proc"], command, cls, ver, d["frames"],
+                                                      out_dir, quick), title="Performance")
+    t0 = time.time()
+    frames = 2 if quick else 7
+    results = []
+    if reuse_frames:                     # keep the last run's frame measurements, measure memory and processes again
+        d = json.loads(raw.read_text())
+        results, frames = d["results"], d["frames"]
+        for r in results:
+            r["points"] = [p for p in r["points"] if p["err"] is not None]
+    for name, c in ({} if reuse_frames else CASES).items():
+        for size in (c[5] if quick else c[4]):
+            print(f"[peers] {name} at {size} px", file=sys.stderr, flush=True)
+            r = measure(name, size, frames, quick)
+            results.append(r)
+            took = "cached" if r["ref_cached"] else f"{r['ref_seconds']:.0f} s"
+            print(f"[peers]   isplat {_pt(r, 'isplat defaults')['ms']:.1f} ms, VTK 1: {_pt(r, 'VTK 1')['ms']:.1f} ms "
+                  f"(x{r['paired']['VTK 1']:.2f}); reference {took}", file=sys.stderr, flush=True)
+    mem = {}
+    for name, size in ([("head opaque", 48)] if quick else [("head opaque", 512), ("hidden material", 512)]):
+        print(f"[peers] peak memory: {name} {size} px", file=sys.stderr, flush=True)
+        mem[(name, size)] = measure_memory(name, size, quick)
+    print("[peers] one frame as a process", file=sys.stderr, flush=True)
+    proc = measure_process("head opaque", 48 if quick else 512, quick, 1 if quick else 5)
+    raw.parent.mkdir(parents=True, exist_ok=True)
+    raw.write_text(json.dumps(dict(results=results, mem={f"{k[0]}|{k[1]}": v for k, v in mem.items()}, proc=proc,
+                                   frames=frames), default=float))
+    write_csv(results, out_dir / "peers.csv")
+    plot(results, out_dir / "img" / "peers_pareto.png")
+    print(f"[peers] done in {time.time() - t0:.0f} s", file=sys.stderr)
+    return _doc.update_section(doc, SECTION, body(results, mem, proc, command, cls, ver, frames, out_dir, quick),
                                title="Performance")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.peers", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="docs", type=Path, help="folder of performance.md (images under OUT/img)")
-    ap.add_argument("--quick", action="store_true", help="3 frames instead of 21 (a smoke test)")
-    ap.add_argument("--data", type=Path, help="folder for the sample volumes (default out/bench-peers; reused)")
+    ap.add_argument("--quick", action="store_true", help="tiny volumes and images, 2 frames (a smoke test)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="rewrite the section from the last run's measurements (out/bench-peers/results.json)")
+    ap.add_argument("--reuse-frames", action="store_true",
+                    help="keep the last run's frame times and errors; measure memory and process times again")
+    ap.add_argument("--memory-child", nargs=3, metavar=("WHO", "CASE", "SIZE"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.memory_child:
+        who, name, size = a.memory_child
+        if who == "vtk":
+            os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", offscreen_window_class())
+        print(json.dumps(memory_child(who, name, int(size), a.quick)))
+        return 0
     cmd = "make bench-peers   # = pip install vtk; python -m benchmarks.peers" + (" --quick" if a.quick else "")
     try:
-        path = run(a.out, a.quick, required=True, data_dir=a.data, command=cmd)
+        path = run(a.out, a.quick, required=True, command=cmd, report_only=a.report_only,
+                   reuse_frames=a.reuse_frames)
     except PeerUnavailable as exc:
         print(f"benchmarks.peers: error: {exc}", file=sys.stderr)
         return 3

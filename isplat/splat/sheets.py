@@ -38,9 +38,9 @@ again in each slab it reaches (a few table reads) rather than held in a per-fram
 Slab thickness: the smallest spacing, or more when a kernel would otherwise reach more than
 MAX_SLABS_PER_KERNEL slabs (a spacing far below the others, e.g. 1 x 1 x 100).
 
-``_band_saturated``, ``_saturated``, ``_project`` (with the slice's terms per voxel), ``_shade`` and ``_splat``
-are copies of :mod:`isplat.splat.kernels` stages (that module's signatures are being reworked); like them
-they are compiled without reference counting (``leaf``).
+``_shade`` and ``_splat`` are :mod:`isplat.splat.kernels`' stages; ``_project`` (with the slice's terms per
+voxel) and the saturation tests (per tile, without the axis kernel's summed-area table) are this module's own;
+like them they are compiled without reference counting (``leaf``).
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ import numpy as np
 
 from ..jit import jit, leaf
 from .composite import TILE, composite_sheet
+from .kernels import _shade, _splat
 from .select import BLOCK, CELL, REGION
 
 # coef layout (camera.Projection.coef), as in kernels.py
@@ -351,26 +352,6 @@ def _path_alpha(L, a, b, c, z, geo):
     return -math.expm1(geo.inv_unit / cosang * L)
 
 
-@leaf
-def _shade(d, code, alpha, color, shade, use_shade):
-    """Premultiplied colour of density ``d`` (copy of kernels.py's ``_shade``)."""
-    cr = color[d, 0]
-    cg = color[d, 1]
-    cb = color[d, 2]
-    if use_shade:
-        if shade.shape[1] == 2:
-            dif = shade[code, 0]
-            spe = shade[code, 1]
-            cr = cr * dif + spe
-            cg = cg * dif + spe
-            cb = cb * dif + spe
-        else:
-            cr = cr * shade[code, 0] + shade[code, 3]
-            cg = cg * shade[code, 1] + shade[code, 4]
-            cb = cb * shade[code, 2] + shade[code, 5]
-    return cr * alpha, cg * alpha, cb * alpha
-
-
 @lru_cache(maxsize=8)
 def cdf_table(radius: float, n: int = CDF_TABLE) -> np.ndarray:
     """The normal CDF cut at +-``radius`` standard deviations and rescaled to 0..1, at ``n + 1`` equally
@@ -397,31 +378,6 @@ def _slab_mass(zrel, thick, depth, cdf):
     """Share of a voxel's kernel (centred ``zrel`` behind the slab's front) inside the slab: the depth
     factor of an untilted kernel."""
     return _cdf((thick - zrel) * depth[0], depth, cdf) - _cdf(-zrel * depth[0], depth, cdf)
-
-
-@leaf
-def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty, nd):
-    """Add the footprint into the sheet over ``box`` (copy of kernels.py's branch-free ``_splat``)."""
-    x0, x1, y0, y1 = box
-    Qa, Qb2, Qc, R2v, tscale = fpc
-    img_w = sheet.shape[1]
-    inv_s2 = 1.0 / (s * s)
-    for y in range(y0, y1 + 1):
-        dy = y - py
-        qy = Qc * dy * dy
-        qxy = Qb2 * dy
-        for x in range(x0, x1 + 1):
-            dx = x - px
-            q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
-            wgt = table[int(min(q, R2v) * tscale)]
-            dirty[nd] = y * img_w + x
-            nd += 1 - dirty_px[y, x]
-            dirty_px[y, x] = 1
-            sheet[y, x, 0] += wgt * cr
-            sheet[y, x, 1] += wgt * cg
-            sheet[y, x, 2] += wgt * cb
-            sheet[y, x, 3] += wgt * alpha
-    return nd
 
 
 @leaf

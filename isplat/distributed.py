@@ -55,10 +55,12 @@ def require_dask():
 
 
 def local_cluster(n_workers: int, threads_per_worker: int = 1):
-    """A LocalCluster of ``n_workers`` processes bound to 127.0.0.1, no dashboard."""
+    """A LocalCluster of ``n_workers`` processes bound to 127.0.0.1, no dashboard (the scheduler's small HTTP
+    server of health routes takes a free port on 127.0.0.1, not 8787)."""
     distributed = require_dask()
     return distributed.LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker, processes=True,
-                                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
+                                    host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
+                                    scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
 
 
 @contextlib.contextmanager

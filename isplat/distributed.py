@@ -119,15 +119,16 @@ def _cached(key, make, size):
         return value
 
 
-def _select_here(scene, key: tuple, axes: str):
-    """Read the selection from the files this worker sees, after checking they are the client's."""
+def _select_here(scene, key: tuple, axes: str, slices=None):
+    """Read the selection (of ``slices`` only, if given) from the files this worker sees, after checking they
+    are the client's."""
     from .selection import select_from_files
 
     if selection_key(scene, axes, key[4])[:2] != key[:2]:
         raise IsplatError(f"{scene.data.augmented}: the worker's files differ from the client's (path, size or "
                           f"modification time); put them on storage every worker shares")
     log.debug(f"worker {os.getpid()}: selecting for {scene.data.augmented}")
-    return select_from_files(scene, axes, key[4])
+    return select_from_files(scene, axes, key[4], slices=slices)
 
 
 def worker_selection(scene, key: tuple, axes: str):
@@ -136,14 +137,17 @@ def worker_selection(scene, key: tuple, axes: str):
 
 
 def slab_selection(scene, key: tuple, axes: str, axis: str, slices: np.ndarray):
-    """The part of the selection that renders ``slices`` of ``axis`` on this worker (cached). Made from the
-    whole selection (the cached one if this worker has it, else read for the purpose and dropped), so the
-    worker holds only its slabs' voxels (see docs/scale.md)."""
+    """The part of the selection that renders ``slices`` of ``axis`` on this worker (cached): cut from the
+    whole selection if this worker holds it, else read from the files for those slices alone (the index
+    blocks of the transfer function's densities along ``axis`` are decoded, then only the slab's are kept and
+    only their channel values gathered), so the worker holds only its slabs' voxels (docs/scale.md)."""
     from .slabs import restrict, slice_runs
 
     def make():
         whole = _cache.get(("sel", key))
-        return restrict(whole if whole is not None else _select_here(scene, key, axes), axis, slices)
+        if whole is not None:
+            return restrict(whole, axis, slices)
+        return _select_here(scene, key, axis, slices)
     runs = tuple(slice_runs(slices, 1 << 30))
     return _cached(("slab", key, axis, runs), make, _SLAB_CACHE_SIZE)
 

@@ -239,10 +239,11 @@ def gather_channels(read, loaded: dict, channels, shape) -> dict:
     return out
 
 
-def select_from_files(scene, axes: str, method: str | None = None, aug=None) -> Selection:
+def select_from_files(scene, axes: str, method: str | None = None, aug=None, slices=None) -> Selection:
     """Read what ``scene`` needs for frames along ``axes`` from its files: only the index blocks of the
     transfer function's intervals (indexed method) and the channels the scene uses (module docstring).
-    ``aug``: the scene's augmented file, if already open."""
+    ``aug``: the scene's augmented file, if already open. ``slices``: keep only these slices of the axes
+    (a slab, :func:`isplat.slabs.restrict_loaded`), gathering channel values for their voxels alone."""
     from .augfile import open_augmented
 
     aug = aug or open_augmented(scene.data.augmented)
@@ -256,6 +257,9 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None) -> 
         if not sel.empty:
             ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
             loaded = {ax: idx.load_axis(ax, ivs) for ax in sorted(axes)}
+            if slices is not None:
+                from .slabs import restrict_loaded
+                loaded = {ax: restrict_loaded(la, slices) for ax, la in loaded.items()}
             _select(sel, loaded, aug.read, str(scene.data.index))
         sel.report.index_bytes = int(idx.bytes_read)
     sel.report.augmented_bytes = int(aug.bytes_read)

@@ -41,32 +41,49 @@ def slice_runs(slices, n_slices: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(starts, stops)]
 
 
-def restrict_axis(ax: AxisSelection, slices) -> AxisSelection:
-    """``ax`` with only the voxels (and cells) of ``slices``; other slices keep their index and hold nothing."""
-    runs = slice_runs(slices, ax.n_slices)
-    counts = np.zeros(ax.n_slices, dtype=np.int64)
-    cells, voxels, starts = [], [], []
+def _take_runs(outer_ptr, inner_ptr, runs, n):
+    """Of a two-level CSR layout (``outer_ptr[s]:outer_ptr[s+1]`` rows of slice s, ``inner_ptr[r]:inner_ptr[r+1]``
+    leaves of row r), keep the slices in ``runs``: (new outer_ptr, row ranges, new inner_ptr, leaf ranges)."""
+    counts = np.zeros(n, dtype=np.int64)
+    rows, leaves, ptrs = [], [], []
     offset = 0
     for s0, s1 in runs:
-        c0, c1 = int(ax.cell_ptr[s0]), int(ax.cell_ptr[s1])
-        v0, v1 = int(ax.cell_start[c0]), int(ax.cell_start[c1])
-        counts[s0:s1] = np.diff(ax.cell_ptr[s0:s1 + 1])
-        cells.append((c0, c1))
-        voxels.append((v0, v1))
-        starts.append(ax.cell_start[c0:c1] - v0 + offset)
+        r0, r1 = int(outer_ptr[s0]), int(outer_ptr[s1])
+        v0, v1 = int(inner_ptr[r0]), int(inner_ptr[r1])
+        counts[s0:s1] = np.diff(outer_ptr[s0:s1 + 1])
+        rows.append((r0, r1))
+        leaves.append((v0, v1))
+        ptrs.append(inner_ptr[r0:r1] - v0 + offset)
         offset += v1 - v0
-    cell_ptr = np.zeros(ax.n_slices + 1, dtype=ax.cell_ptr.dtype)
-    np.cumsum(counts, out=cell_ptr[1:])
-    cell_start = np.concatenate(starts + [np.asarray([offset], dtype=ax.cell_start.dtype)]).astype(
-        ax.cell_start.dtype, copy=False)
+    new_outer = np.zeros(n + 1, dtype=outer_ptr.dtype)
+    np.cumsum(counts, out=new_outer[1:])
+    new_inner = np.concatenate(ptrs + [np.asarray([offset], dtype=inner_ptr.dtype)]).astype(inner_ptr.dtype,
+                                                                                           copy=False)
+    return new_outer, rows, new_inner, leaves
 
-    def take(arr, ranges):
-        if arr.shape[0] == 0:            # a channel the scene does not use
-            return arr
-        return np.concatenate([arr[a:b] for a, b in ranges] or [arr[:0]])
 
-    return AxisSelection(ax.axis, ax.n_slices, ax.n_a, ax.n_b, cell_ptr, cell_start, take(ax.cell_id, cells),
-                         *(take(x, voxels) for x in (ax.a, ax.b, ax.density, ax.gradient_magnitude, ax.normal)))
+def _take(arr, ranges):
+    if arr.shape[0] == 0:            # a channel the scene does not use
+        return arr
+    return np.concatenate([arr[a:b] for a, b in ranges] or [arr[:0]])
+
+
+def restrict_axis(ax: AxisSelection, slices) -> AxisSelection:
+    """``ax`` with only the voxels (and cells) of ``slices``; other slices keep their index and hold nothing."""
+    cell_ptr, cells, cell_start, voxels = _take_runs(ax.cell_ptr, ax.cell_start, slice_runs(slices, ax.n_slices),
+                                                     ax.n_slices)
+    return AxisSelection(ax.axis, ax.n_slices, ax.n_a, ax.n_b, cell_ptr, cell_start, _take(ax.cell_id, cells),
+                         *(_take(x, voxels) for x in (ax.a, ax.b, ax.density, ax.gradient_magnitude, ax.normal)))
+
+
+def restrict_loaded(la, slices):
+    """A decoded index axis (:class:`isplat.index.store.LoadedAxis`) with only the blocks of ``slices``: what
+    :func:`isplat.selection.select_from_files` selects from and gathers channel values for, when a worker
+    makes just its slab's selection."""
+    ptr, rows, vptr, voxels = _take_runs(la.slice_block_ptr, la.block_voxel_ptr, slice_runs(slices, la.n_slices),
+                                         la.n_slices)
+    return dataclasses.replace(la, slice_block_ptr=ptr, block_density=_take(la.block_density, rows),
+                               block_voxel_ptr=vptr, positions=_take(la.positions, voxels))
 
 
 def restrict(sel: Selection, axis: str, slices) -> Selection:

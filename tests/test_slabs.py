@@ -86,6 +86,20 @@ def test_restrict_keeps_every_array_in_order(make_scene, volume):
     assert empty.axes["k"].n_voxels == 0 and empty.axes["k"].cell_start.tolist() == [0]
 
 
+@pytest.mark.parametrize("axis,slices", [("k", range(3, 8)), ("i", [0, 1, 7, 8, 9]), ("j", []), ("j", range(9))])
+def test_a_slab_selected_from_files_is_the_restricted_whole(make_scene, volume, axis, slices):
+    """select_from_files(..., slices=) keeps the decoded index blocks of the slab only and gathers only their
+    channel values: the same arrays as restricting the whole selection, and fewer channel bytes read."""
+    sc = scene(make_scene, volume, "orthographic", "azimuth = 0")
+    whole = select_from_files(sc, axis)
+    slab = select_from_files(sc, axis, slices=slices)
+    want = restrict(whole, axis, slices).axes[axis]
+    for got, exp in zip(slab.axes[axis].arrays(), want.arrays()):
+        assert got.dtype == exp.dtype and np.array_equal(got, exp)
+    if axis == "k" and len(slices) < 12:
+        assert slab.report.augmented_bytes < whole.report.augmented_bytes
+
+
 def test_restrict_of_the_full_method_shares_the_channels(make_scene, volume):
     sc = scene(make_scene, volume, "orthographic", "azimuth = 0", method="full")
     sel = select_from_files(sc, "k")

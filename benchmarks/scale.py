@@ -1,0 +1,258 @@
+"""Dask: a batch of views on workers, and the sort-last model of one frame split into slabs.
+``python -m benchmarks scale [--quick]`` (part of ``make bench``; needs the ``dask`` extra).
+
+Measures, warm (numba cache present, selections made), the `head` sample with examples/head.toml (bone, lit):
+
+* a 36-view orbit at 512 x 512: one process with 2 threads against a LocalCluster of 2 single-threaded worker
+  processes (wall time of the batch, frames back in the client), interleaved, medians;
+* the model of a frame split into K slabs (isplat.distributed.submit_slabs): per-slab time (the per-frame
+  tables of ``prepare`` plus the slab's slices), the composite ('over') time, the bytes of a partial image
+  and of a frame, and the cluster's per-task latency and transfer rate; from them the frame time on K workers;
+* that prediction against the measured frame time on 1 and 2 workers, and the predictions for 8, 64 and 512
+  workers with the assumptions stated.
+
+Writes the section "scale" of docs/scale.md.
+"""
+
+from __future__ import annotations
+
+import math
+import pickle
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import _doc
+from .render import ROOT, ensure_head
+
+SCENE = ROOT / "examples" / "head.toml"
+
+
+def _log(msg):
+    print(f"[scale] {msg}", file=sys.stderr, flush=True)
+
+
+def _scene(aug, idx, size, *extra):
+    from isplat.scene import load_scene
+
+    return load_scene(SCENE, [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={size}",
+                              f"image.height={size}", *extra])
+
+
+def _timed(fn):
+    t0 = time.perf_counter()
+    out = fn()
+    return time.perf_counter() - t0, out
+
+
+def _med(xs):
+    return statistics.median(xs)
+
+
+def batch(client, aug, idx, size, n_views, repeats):
+    """Wall time of the orbit: one process (2 threads) and the cluster (workers 1 thread each), interleaved."""
+    from isplat import distributed as D
+    from isplat.renderer import Renderer
+
+    one = Renderer(_scene(aug, idx, size, f"views.orbit_steps={n_views}", "render.threads=2"))
+    dask_scene = _scene(aug, idx, size, f"views.orbit_steps={n_views}", "render.threads=0")
+    views = one.views
+    for n in range(len(views)):                       # warm: kernels, the selection on every worker
+        one.render_view(n)
+    list(D.render_views(client, dask_scene, views))
+    t_one, t_dask = [], []
+    for _ in range(repeats):
+        t, frames = _timed(lambda: [one.render_view(n)[0] for n in range(len(views))])
+        t_one.append(t)
+        t, got = _timed(lambda: list(D.render_views(client, dask_scene, views)))
+        t_dask.append(t)
+    same = all(np.array_equal(g[1], f) for g, f in zip(got, frames))
+    return _med(t_one), _med(t_dask), same, one.selection
+
+
+def slab_model(sel, view, ks, repeats):
+    """In one process, one thread (as a worker): per-slab prepare and render times for K slabs, 'over' time."""
+    from isplat import frame as F
+    from isplat.slabs import restrict
+
+    axis = view.axis_sign[0]
+    n = len(view.order)
+    out = {}
+    for k in ks:
+        prep, rend = [], []
+        parts = []
+        for a, b in F.slab_bounds(n, k):
+            s = restrict(sel, axis, view.order[a:b])
+            tp, tr = [], []
+            for _ in range(repeats):
+                t, setup = _timed(lambda: F.prepare(s, view))
+                tp.append(t)
+                t, part = _timed(lambda: F.render_slab(setup, a, b))
+                tr.append(t)
+            prep.append(_med(tp))
+            rend.append(_med(tr))
+            parts.append(part)
+        out[k] = dict(prep=prep, render=rend, parts=parts)
+    p = out[ks[-1]]["parts"]
+    t_over = _med([_timed(lambda: F.composite(p[0], p[1], 0.99))[0] for _ in range(max(3, repeats))])
+    t_finish = _med([_timed(lambda: F.finish_image(p[0].img, view.background))[0] for _ in range(max(3, repeats))])
+    bytes_partial = len(pickle.dumps(p[0], protocol=5))
+    bytes_frame = F.finish_image(p[0].img, view.background).nbytes
+    return out, t_over, t_finish, bytes_partial, bytes_frame
+
+
+def _noop(x=None):
+    return 0 if x is None else int(x.nbytes)
+
+
+def _pass(x):
+    return x
+
+
+def cluster_costs(client, nbytes, repeats):
+    """The cluster's costs, measured with tasks that do nothing: the round trip of one task (submit, run,
+    result back), each further task of a chain whose steps alternate between the two workers, and the rate of
+    moving ``nbytes`` to a worker."""
+    from isplat.distributed import _workers
+
+    w = _workers(client)
+    n = max(10, 3 * repeats)
+    first = _med([_timed(lambda: client.submit(_noop, pure=False).result())[0] for _ in range(n)])
+
+    def chain(steps):
+        f = client.submit(_noop, pure=False, workers=[w[0]])
+        for i in range(steps):
+            f = client.submit(_pass, f, pure=False, workers=[w[(i + 1) % len(w)]])
+        return f.result()
+    per_hop = max(0.0, (_med([_timed(lambda: chain(4))[0] for _ in range(n)]) - first) / 4)
+    arr = np.ones(nbytes // 4, np.float32)
+    rt = _med([_timed(lambda: client.submit(_noop, arr, pure=False).result())[0] for _ in range(max(5, repeats))])
+    return first, per_hop, nbytes / max(1e-6, rt - first)
+
+
+def predict(k, m, t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slices):
+    """Frame time on k workers (one slab each): a chain slab -> L = ceil(log2 k) rounds of 'over' -> finish
+    -> client: the first task's round trip, one hop per further task, the work and the bytes moved."""
+    k = min(k, n_slices)
+    levels = math.ceil(math.log2(k)) if k > 1 else 0
+    slab = max(p + r for p, r in zip(m["prep"], m["render"]))
+    return first + (1 + levels) * per_hop + slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
+
+
+def measured_split(client, scene, view, k, workers, repeats):
+    from isplat import distributed as D
+    from isplat.frame import axes_of
+
+    axes = axes_of([view])
+    key = D.selection_key(scene, axes)
+
+    def one(i):
+        part = D.submit_slabs(client, scene, key, axes, view, k, None, f"bench-{k}-{i}-{time.time_ns()}",
+                              workers[:k])
+        return client.submit(D.finish_task, part, view, pure=False).result()
+    one(-1)                                                           # warm: slab selections on their workers
+    return _med([_timed(lambda: one(i))[0] for i in range(repeats)])
+
+
+def extrapolate(m8, n_slices, k):
+    """Per-slab time on k workers from the K=8 measurement: the render work divided by k with the measured
+    imbalance (max / mean), the per-frame tables (prepare) in full on every worker."""
+    mean_r = statistics.mean(m8["render"]) * 8
+    imb = max(m8["render"]) / max(1e-12, statistics.mean(m8["render"]))
+    kk = min(k, n_slices)
+    return dict(prep=[max(m8["prep"])], render=[mean_r / kk * imb])
+
+
+def run(out_dir: Path, quick: bool) -> Path:
+    from distributed import Client
+
+    from isplat import distributed as D
+    from isplat.frame import views_for
+    from isplat.augfile import open_augmented
+
+    shape = (64, 64, 56) if quick else None
+    size, n_views, repeats = (64, 4, 2) if quick else (512, 36, 5)
+    aug, idx = ensure_head(shape)
+    ks = (1, 2, 4, 8)
+    with D.local_cluster(2) as cluster, Client(cluster) as client:
+        _log("batch")
+        t_one, t_dask, same, sel = batch(client, aug, idx, size, n_views, repeats)
+        scene1 = _scene(aug, idx, size, "render.threads=1")
+        view = views_for(scene1, open_augmented(aug))[0]
+        _log("slab model")
+        model, t_over, t_finish, b_part, b_frame = slab_model(sel, view, ks, repeats)
+        first, per_hop, bw = cluster_costs(client, b_part, repeats)
+        workers = D._workers(client)
+        _log("split frames on 1 and 2 workers")
+        meas = {}
+        for _ in range(2):                                             # interleaved
+            for k in (1, 2):
+                meas.setdefault(k, []).append(measured_split(client, scene1, view, k, workers, repeats))
+    n_slices = len(view.order)
+    meas = {k: _med(v) for k, v in meas.items()}
+    pred = {k: predict(k, model[k], t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slices)
+            for k in (1, 2)}
+    BW_NET, HOP_NET = 1.25e9, 1e-3                                    # assumptions for a real cluster
+    big = {k: predict(k, extrapolate(model[8], n_slices, k), t_over, t_finish, b_part, b_frame, 2 * HOP_NET,
+                      HOP_NET, BW_NET, n_slices) for k in (8, 64, 512)}
+    ms = lambda s: f"{s * 1000:.1f} ms"                               # noqa: E731
+    mib = lambda b: f"{b / 2**20:.2f} MiB"                            # noqa: E731
+    sel_mib = sel.held_bytes() / 2**20
+    rows = "\n".join(
+        f"| {k} | {ms(max(model[k]['prep']))} | {ms(max(model[k]['render']))} | {ms(statistics.mean(model[k]['render']))} "
+        f"| {max(model[k]['render']) / max(1e-12, statistics.mean(model[k]['render'])):.2f} |" for k in ks)
+    t1 = sum(model[1]["render"])
+    body = f"""```
+python -m benchmarks scale{' --quick' if quick else ''}
+```
+Machine: {_doc.machine_line()}; isplat {_doc.git_rev()}. Shared with other work while measured: read ratios
+and medians, not single numbers. Scene: examples/head.toml (bone, lit, early termination 0.99), the `head`
+sample {'x'.join(map(str, shape)) if shape else '256x256x225'}, {size} x {size}.
+
+### A batch of views: {n_views}-view orbit, warm
+| run | wall time ({n_views} views, median of {repeats}) | per view |
+|---|---|---|
+| one process, 2 threads | {t_one:.2f} s | {ms(t_one / n_views)} |
+| LocalCluster, 2 workers x 1 thread (`--scheduler local:2`) | {t_dask:.2f} s | {ms(t_dask / n_views)} |
+
+Ratio cluster / one process: **{t_dask / t_one:.2f}**. Frames bit for bit equal to the one-process frames:
+**{'yes' if same else 'NO'}**. Each worker holds the scene's selection ({sel_mib:.1f} MiB); each frame comes back to
+the client as float32 RGBA ({mib(b_frame)}).
+
+### The model of one frame split into K slabs (one thread per slab, as a worker)
+Principal axis {view.axis_sign[0]}, {n_slices} slices. Per slab: `prepare` (the frame's tables: opacity, shading of
+the 65,536 normal codes, footprint) is paid in full by every worker; the render is the slab's slices.
+
+| K | prepare (max) | slab render (max) | slab render (mean) | imbalance max/mean |
+|---|---|---|---|---|
+{rows}
+
+One 'over' of two partials: {ms(t_over)}; finishing a frame: {ms(t_finish)}. A partial image is {mib(b_part)}
+pickled (premultiplied RGBA float32 + saturation bytes), a frame {mib(b_frame)}. Cluster here (loopback):
+{ms(first)} for one task's round trip (submit, run, result back), {ms(per_hop)} for each further task of a chain
+alternating between the workers, {bw / 1e6:.0f} MB/s moving a partial to a worker.
+
+Frame time on K workers = round trip + (1 + L) hops + max slab (prepare + render) + L x (over + partial / rate)
++ finish + frame / rate, with L = ceil(log2 K) rounds of the pairwise tree (K - 1 'over' tasks in all; the
+bytes moved per frame are (K - 1) partials between workers plus one frame to the client:
+{mib(b_part)} x (K - 1) + {mib(b_frame)}).
+
+| workers (slabs) | predicted | measured (median) |
+|---|---|---|
+| 1 | {ms(pred[1])} | {ms(meas[1])} |
+| 2 | {ms(pred[2])} | {ms(meas[2])} |
+
+Predictions for a real cluster (assumed: 10 GbE, {BW_NET / 1e9:.2f} GB/s per link, {HOP_NET * 1000:.0f} ms per task hop
+and twice that for the first round trip,
+one core per worker, the same volume and image, the render work {ms(t1)} divided evenly up to the imbalance
+measured at K = 8, at most one slab per slice ({n_slices} slices), `prepare` in full on every worker):
+
+| workers | predicted frame time | of which slab | composite rounds |
+|---|---|---|---|
+""" + "\n".join(
+        f"| {k} | {ms(big[k])} | {ms(max(p + r for p, r in zip(extrapolate(model[8], n_slices, k)['prep'], extrapolate(model[8], n_slices, k)['render'])))} "
+        f"| {math.ceil(math.log2(min(k, n_slices)))} |" for k in (8, 64, 512)) + "\n"
+    return _doc.update_section(Path(out_dir) / "scale.md", "scale", body, title="isplat at scale: Dask")

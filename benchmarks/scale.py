@@ -128,9 +128,10 @@ def cluster_costs(client, nbytes, repeats):
             f = client.submit(_pass, f, pure=False, workers=[w[(i + 1) % len(w)]])
         return f.result()
     per_hop = max(0.0, (_med([_timed(lambda: chain(4))[0] for _ in range(n)]) - first) / 4)
-    arr = np.ones(nbytes // 4, np.float32)
+    size = max(nbytes, 32 << 20)                                     # large enough to time above the noise
+    arr = np.ones(size // 4, np.float32)
     rt = _med([_timed(lambda: client.submit(_noop, arr, pure=False).result())[0] for _ in range(max(5, repeats))])
-    return first, per_hop, nbytes / max(1e-6, rt - first)
+    return first, per_hop, size / max(1e-3, rt - first)
 
 
 def predict(k, m, t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slices):
@@ -142,19 +143,32 @@ def predict(k, m, t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slice
     return first + (1 + levels) * per_hop + slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
 
 
-def measured_split(client, scene, view, k, workers, repeats):
+def measured_split(client, scene, view, k, workers, first, per_hop, bw, b_part, b_frame):
+    """One frame split into k slabs on the cluster: the model's terms as the workers measure them (the k slabs
+    rendered at once, each on its worker, then one 'over' on a worker), and right after, the frame end to end.
+    Returns (predicted, measured) seconds."""
     from isplat import distributed as D
-    from isplat.frame import axes_of
+    from isplat.frame import axes_of, slab_bounds
 
     axes = axes_of([view])
     key = D.selection_key(scene, axes)
-
-    def one(i):
-        part = D.submit_slabs(client, scene, key, axes, view, k, None, f"bench-{k}-{i}-{time.time_ns()}",
-                              workers[:k])
-        return client.submit(D.finish_task, part, view, pure=False).result()
-    one(-1)                                                           # warm: slab selections on their workers
-    return _med([_timed(lambda: one(i))[0] for i in range(repeats)])
+    tag = f"{k}-{time.time_ns()}"
+    slabs = [client.submit(D.slab_task, scene, key, axes, view, a, b, None, workers=[workers[s % len(workers)]],
+                           key=f"bench-slab-{tag}-{s}") for s, (a, b) in enumerate(slab_bounds(len(view.order), k))]
+    res = client.gather(slabs)
+    t_slab = max(r[2] for r in res)
+    t_over = 0.0
+    if k > 1:
+        joined = client.submit(D.composite_task, slabs[0], slabs[1], 0.99, key=f"bench-over-{tag}").result()
+        t_over = joined[2] - res[0][2] - res[1][2]
+    t_finish = _timed(lambda: client.submit(D.finish_task, slabs[0], view, key=f"bench-fin-{tag}").result())[0]
+    t_finish = max(0.0, t_finish - first)
+    levels = math.ceil(math.log2(k)) if k > 1 else 0
+    predicted = first + (1 + levels) * per_hop + t_slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
+    del slabs, res
+    part = D.submit_slabs(client, scene, key, axes, view, k, None, f"bench-{tag}", workers[:k])
+    measured = _timed(lambda: client.submit(D.finish_task, part, view, key=f"bench-frame-{tag}").result())[0]
+    return predicted, measured
 
 
 def extrapolate(m8, n_slices, k):
@@ -187,14 +201,16 @@ def run(out_dir: Path, quick: bool) -> Path:
         first, per_hop, bw = cluster_costs(client, b_part, repeats)
         workers = D._workers(client)
         _log("split frames on 1 and 2 workers")
-        meas = {}
-        for _ in range(2):                                             # interleaved
+        pm = {1: [], 2: []}
+        for _ in range(2):                                             # warm: slab selections on their workers
             for k in (1, 2):
-                meas.setdefault(k, []).append(measured_split(client, scene1, view, k, workers, repeats))
+                measured_split(client, scene1, view, k, workers, first, per_hop, bw, b_part, b_frame)
+        for _ in range(repeats):                                       # interleaved
+            for k in (1, 2):
+                pm[k].append(measured_split(client, scene1, view, k, workers, first, per_hop, bw, b_part, b_frame))
     n_slices = len(view.order)
-    meas = {k: _med(v) for k, v in meas.items()}
-    pred = {k: predict(k, model[k], t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slices)
-            for k in (1, 2)}
+    pred = {k: _med([p for p, _ in v]) for k, v in pm.items()}
+    meas = {k: _med([m for _, m in v]) for k, v in pm.items()}
     BW_NET, HOP_NET = 1.25e9, 1e-3                                    # assumptions for a real cluster
     big = {k: predict(k, extrapolate(model[8], n_slices, k), t_over, t_finish, b_part, b_frame, 2 * HOP_NET,
                       HOP_NET, BW_NET, n_slices) for k in (8, 64, 512)}
@@ -203,7 +219,8 @@ def run(out_dir: Path, quick: bool) -> Path:
     sel_mib = sel.held_bytes() / 2**20
     rows = "\n".join(
         f"| {k} | {ms(max(model[k]['prep']))} | {ms(max(model[k]['render']))} | {ms(statistics.mean(model[k]['render']))} "
-        f"| {max(model[k]['render']) / max(1e-12, statistics.mean(model[k]['render'])):.2f} |" for k in ks)
+        f"| {max(model[k]['render']) / max(1e-12, statistics.mean(model[k]['render'])):.2f} "
+        f"| {sum(model[k]['render']) / max(1e-12, sum(model[1]['render'])):.2f} |" for k in ks)
     t1 = sum(model[1]["render"])
     body = f"""```
 python -m benchmarks scale{' --quick' if quick else ''}
@@ -224,23 +241,30 @@ the client as float32 RGBA ({mib(b_frame)}).
 
 ### The model of one frame split into K slabs (one thread per slab, as a worker)
 Principal axis {view.axis_sign[0]}, {n_slices} slices. Per slab: `prepare` (the frame's tables: opacity, shading of
-the 65,536 normal codes, footprint) is paid in full by every worker; the render is the slab's slices.
+the 65,536 normal codes, footprint) is paid in full by every worker; the render is the slab's slices. Measured
+in this process, one thread, slabs one after another (medians of {repeats}); these are the inputs of the
+predictions for larger clusters below. The last column is the work lost to early termination: a slab rendered
+apart does not know what the slabs in front cover, so it splats voxels one pass would skip.
 
-| K | prepare (max) | slab render (max) | slab render (mean) | imbalance max/mean |
-|---|---|---|---|---|
+| K | prepare (max) | slab render (max) | slab render (mean) | imbalance max/mean | work: sum of slabs / one pass |
+|---|---|---|---|---|---|
 {rows}
 
 One 'over' of two partials: {ms(t_over)}; finishing a frame: {ms(t_finish)}. A partial image is {mib(b_part)}
 pickled (premultiplied RGBA float32 + saturation bytes), a frame {mib(b_frame)}. Cluster here (loopback):
 {ms(first)} for one task's round trip (submit, run, result back), {ms(per_hop)} for each further task of a chain
-alternating between the workers, {bw / 1e6:.0f} MB/s moving a partial to a worker.
+alternating between the workers, {bw / 1e6:.0f} MB/s moving 32 MiB (or a partial, if larger) to a worker.
 
 Frame time on K workers = round trip + (1 + L) hops + max slab (prepare + render) + L x (over + partial / rate)
 + finish + frame / rate, with L = ceil(log2 K) rounds of the pairwise tree (K - 1 'over' tasks in all; the
 bytes moved per frame are (K - 1) partials between workers plus one frame to the client:
 {mib(b_part)} x (K - 1) + {mib(b_frame)}).
 
-| workers (slabs) | predicted | measured (median) |
+Checked on this machine's cluster, with the terms measured on the workers in the same run (the slabs of a
+frame rendered at once, each on its worker; one 'over' and one finish on a worker), then the frame end to end;
+medians of {repeats} interleaved frames:
+
+| workers (slabs) | predicted | measured |
 |---|---|---|
 | 1 | {ms(pred[1])} | {ms(meas[1])} |
 | 2 | {ms(pred[2])} | {ms(meas[2])} |

@@ -130,8 +130,12 @@ def cluster_costs(client, nbytes, repeats):
     per_hop = max(0.0, (_med([_timed(lambda: chain(4))[0] for _ in range(n)]) - first) / 4)
     size = max(nbytes, 32 << 20)                                     # large enough to time above the noise
     arr = np.ones(size // 4, np.float32)
-    rt = _med([_timed(lambda: client.submit(_noop, arr, pure=False).result())[0] for _ in range(max(5, repeats))])
-    return first, per_hop, size / max(1e-3, rt - first)
+    moved = []
+    for _ in range(max(5, repeats)):
+        t, fut = _timed(lambda: client.scatter(arr, direct=False, hash=False))
+        moved.append(t)
+        del fut
+    return first, per_hop, size / max(1e-3, _med(moved))
 
 
 def predict(k, m, t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slices):
@@ -143,10 +147,10 @@ def predict(k, m, t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slice
     return first + (1 + levels) * per_hop + slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
 
 
-def measured_split(client, scene, view, k, workers, first, per_hop, bw, b_part, b_frame):
+def measured_split(client, scene, view, k, workers, first, per_hop, bw, b_part, b_frame, t_finish):
     """One frame split into k slabs on the cluster: the model's terms as the workers measure them (the k slabs
     rendered at once, each on its worker, then one 'over' on a worker), and right after, the frame end to end.
-    Returns (predicted, measured) seconds."""
+    ``t_finish``: the finishing work, measured in this process. Returns (predicted, measured) seconds."""
     from isplat import distributed as D
     from isplat.frame import axes_of, slab_bounds
 
@@ -161,8 +165,6 @@ def measured_split(client, scene, view, k, workers, first, per_hop, bw, b_part, 
     if k > 1:
         joined = client.submit(D.composite_task, slabs[0], slabs[1], 0.99, key=f"bench-over-{tag}").result()
         t_over = joined[2] - res[0][2] - res[1][2]
-    t_finish = _timed(lambda: client.submit(D.finish_task, slabs[0], view, key=f"bench-fin-{tag}").result())[0]
-    t_finish = max(0.0, t_finish - first)
     levels = math.ceil(math.log2(k)) if k > 1 else 0
     predicted = first + (1 + levels) * per_hop + t_slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
     del slabs, res
@@ -204,10 +206,11 @@ def run(out_dir: Path, quick: bool) -> Path:
         pm = {1: [], 2: []}
         for _ in range(2):                                             # warm: slab selections on their workers
             for k in (1, 2):
-                measured_split(client, scene1, view, k, workers, first, per_hop, bw, b_part, b_frame)
+                measured_split(client, scene1, view, k, workers, first, per_hop, bw, b_part, b_frame, t_finish)
         for _ in range(repeats):                                       # interleaved
             for k in (1, 2):
-                pm[k].append(measured_split(client, scene1, view, k, workers, first, per_hop, bw, b_part, b_frame))
+                pm[k].append(measured_split(client, scene1, view, k, workers, first, per_hop, bw, b_part, b_frame,
+                                            t_finish))
     n_slices = len(view.order)
     pred = {k: _med([p for p, _ in v]) for k, v in pm.items()}
     meas = {k: _med([m for _, m in v]) for k, v in pm.items()}
@@ -253,7 +256,7 @@ apart does not know what the slabs in front cover, so it splats voxels one pass 
 One 'over' of two partials: {ms(t_over)}; finishing a frame: {ms(t_finish)}. A partial image is {mib(b_part)}
 pickled (premultiplied RGBA float32 + saturation bytes), a frame {mib(b_frame)}. Cluster here (loopback):
 {ms(first)} for one task's round trip (submit, run, result back), {ms(per_hop)} for each further task of a chain
-alternating between the workers, {bw / 1e6:.0f} MB/s moving 32 MiB (or a partial, if larger) to a worker.
+alternating between the workers, {bw / 1e6:.0f} MB/s moving 32 MiB (or a partial, if larger) to a worker (`client.scatter`).
 
 Frame time on K workers = round trip + (1 + L) hops + max slab (prepare + render) + L x (over + partial / rate)
 + finish + frame / rate, with L = ceil(log2 K) rounds of the pairwise tree (K - 1 'over' tasks in all; the
@@ -261,7 +264,7 @@ bytes moved per frame are (K - 1) partials between workers plus one frame to the
 {mib(b_part)} x (K - 1) + {mib(b_frame)}).
 
 Checked on this machine's cluster, with the terms measured on the workers in the same run (the slabs of a
-frame rendered at once, each on its worker; one 'over' and one finish on a worker), then the frame end to end;
+frame rendered at once, each on its worker; one 'over' on a worker), then the frame end to end;
 medians of {repeats} interleaved frames:
 
 | workers (slabs) | predicted | measured |

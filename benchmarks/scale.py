@@ -112,14 +112,14 @@ def _pass(x):
     return x
 
 
-def cluster_costs(client, nbytes, repeats):
+def cluster_costs(client, nbytes, repeats, floor=32 << 20):
     """The cluster's costs, measured with tasks that do nothing: the round trip of one task (submit, run,
     result back), each further task of a chain whose steps alternate between the two workers, and the rate of
     moving ``nbytes`` to a worker."""
     from isplat.distributed import _workers
 
     w = _workers(client)
-    n = max(10, 3 * repeats)
+    n = repeats
     first = _med([_timed(lambda: client.submit(_noop, pure=False).result())[0] for _ in range(n)])
 
     def chain(steps):
@@ -127,11 +127,11 @@ def cluster_costs(client, nbytes, repeats):
         for i in range(steps):
             f = client.submit(_pass, f, pure=False, workers=[w[(i + 1) % len(w)]])
         return f.result()
-    per_hop = max(0.0, (_med([_timed(lambda: chain(4))[0] for _ in range(n)]) - first) / 4)
-    size = max(nbytes, 32 << 20)                                     # large enough to time above the noise
+    per_hop = max(0.0, (_med([_timed(lambda: chain(2))[0] for _ in range(n)]) - first) / 2)
+    size = max(nbytes, floor)                                        # large enough to time above the noise
     arr = np.ones(size // 4, np.float32)
     moved = []
-    for _ in range(max(5, repeats)):
+    for _ in range(n):
         t, fut = _timed(lambda: client.scatter(arr, direct=False, hash=False))
         moved.append(t)
         del fut
@@ -147,9 +147,10 @@ def predict(k, m, t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slice
     return first + (1 + levels) * per_hop + slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
 
 
-def measured_split(client, scene, view, k, workers, first, per_hop, bw, b_part, b_frame, t_finish):
+def measured_split(client, scene, view, k, workers, b_part, b_frame, t_finish):
     """One frame split into k slabs on the cluster: the model's terms as the workers measure them (the k slabs
-    rendered at once, each on its worker, then one 'over' on a worker), and right after, the frame end to end.
+    rendered at once, each on its worker, then one 'over' on a worker; the cluster's latencies and transfer
+    rate), and right after, the frame end to end.
     ``t_finish``: the finishing work, measured in this process. Returns (predicted, measured) seconds."""
     from isplat import distributed as D
     from isplat.frame import axes_of, slab_bounds
@@ -165,6 +166,7 @@ def measured_split(client, scene, view, k, workers, first, per_hop, bw, b_part, 
     if k > 1:
         joined = client.submit(D.composite_task, slabs[0], slabs[1], 0.99, key=f"bench-over-{tag}").result()
         t_over = joined[2] - res[0][2] - res[1][2]
+    first, per_hop, bw = cluster_costs(client, b_part, 3, floor=0)
     levels = math.ceil(math.log2(k)) if k > 1 else 0
     predicted = first + (1 + levels) * per_hop + t_slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
     del slabs, res
@@ -200,17 +202,16 @@ def run(out_dir: Path, quick: bool) -> Path:
         view = views_for(scene1, open_augmented(aug))[0]
         _log("slab model")
         model, t_over, t_finish, b_part, b_frame = slab_model(sel, view, ks, repeats)
-        first, per_hop, bw = cluster_costs(client, b_part, repeats)
+        first, per_hop, bw = cluster_costs(client, b_part, max(10, 3 * repeats))
         workers = D._workers(client)
         _log("split frames on 1 and 2 workers")
         pm = {1: [], 2: []}
         for _ in range(2):                                             # warm: slab selections on their workers
             for k in (1, 2):
-                measured_split(client, scene1, view, k, workers, first, per_hop, bw, b_part, b_frame, t_finish)
+                measured_split(client, scene1, view, k, workers, b_part, b_frame, t_finish)
         for _ in range(repeats):                                       # interleaved
             for k in (1, 2):
-                pm[k].append(measured_split(client, scene1, view, k, workers, first, per_hop, bw, b_part, b_frame,
-                                            t_finish))
+                pm[k].append(measured_split(client, scene1, view, k, workers, b_part, b_frame, t_finish))
     n_slices = len(view.order)
     pred = {k: _med([p for p, _ in v]) for k, v in pm.items()}
     meas = {k: _med([m for _, m in v]) for k, v in pm.items()}
@@ -263,8 +264,9 @@ Frame time on K workers = round trip + (1 + L) hops + max slab (prepare + render
 bytes moved per frame are (K - 1) partials between workers plus one frame to the client:
 {mib(b_part)} x (K - 1) + {mib(b_frame)}).
 
-Checked on this machine's cluster, with the terms measured on the workers in the same run (the slabs of a
-frame rendered at once, each on its worker; one 'over' on a worker), then the frame end to end;
+Checked on this machine's cluster, with the terms measured just before each frame (the slabs of a frame
+rendered at once, each on its worker; one 'over' on a worker; the round trip, hop and rate for one partial),
+then the frame end to end;
 medians of {repeats} interleaved frames:
 
 | workers (slabs) | predicted | measured |

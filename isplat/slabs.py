@@ -96,3 +96,38 @@ def restrict(sel: Selection, axis: str, slices) -> Selection:
         raise IsplatError(f"axis {axis} was not selected (selected: {sorted(sel.axes) or 'none'})")
     return dataclasses.replace(sel, axes={axis: restrict_axis(sel.axes[axis], slices)},
                                report=dataclasses.replace(sel.report))
+
+
+def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None):
+    """Render ``view`` of ``scene`` from its files in ``n_slabs`` slabs front to back, each slab's selection made
+    (:func:`isplat.selection.select_from_files` with ``slices=``), rendered over the partial image of the slabs in
+    front and dropped: the one-pass frame exactly (same image and counters, early termination included), holding
+    one slab's selection at a time. Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs:
+    bytes read added up).
+
+    What is still whole: the index blocks of the transfer function's densities along the frame's axis are
+    decoded for each slab before its slices are kept, and for the i and j axes each slab's channel values are
+    gathered from every k-plane (docs/scale.md).
+    """
+    import time
+
+    from .augfile import open_augmented
+    from .frame import blank, finish_image, frame_stats, prepare, render_slab, slab_bounds
+    from .selection import select_from_files
+
+    t0 = time.perf_counter()
+    aug = aug or open_augmented(scene.data.augmented)
+    axis = view.axis_sign[0]
+    part = report = None
+    for a, b in slab_bounds(len(view.order), n_slabs):
+        start = aug.bytes_read
+        sel = select_from_files(scene, axis, aug=aug, slices=view.order[a:b])
+        if report is None:
+            report = dataclasses.replace(sel.report, augmented_bytes=0, index_bytes=0)
+        report.augmented_bytes += int(aug.bytes_read - start)
+        report.index_bytes += sel.report.index_bytes
+        setup = prepare(sel, view, et)
+        part = blank(setup) if part is None else part
+        render_slab(setup, a, b, part)
+        del sel, setup
+    return finish_image(part.img, view.background), frame_stats(view, part, time.perf_counter() - t0), report

@@ -31,8 +31,9 @@ log = logging.getLogger(__name__)
                    "tcp://HOST:PORT uses a running cluster whose workers see the scene's files. Frames are the "
                    "same as without it. See docs/scale.md.")
 @click.option("--slabs", type=click.IntRange(1, 4096), default=1, metavar="K",
-              help="With --scheduler: split each frame's slices into K slabs rendered on different workers and "
-                   "composited in order (for volumes whose selection is large; default 1: one worker per view).")
+              help="Split each frame's slices into K slabs: with --scheduler rendered on different workers and "
+                   "composited in order; without it rendered front to back here, one slab's selection in memory at "
+                   "a time (for selections larger than memory; the same image). Default 1.")
 @verbose_option("Report on stderr what was read (bytes, channels, axes) and per-view timing and voxel "
                 "counts (same as isplat -v).")
 @click.option("--json", "as_json", is_flag=True, help="Print that report as one JSON object on stdout "
@@ -60,8 +61,6 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
     from ..threads import default_threads
     from ..scene import load_scene
 
-    if slabs > 1 and scheduler is None:
-        raise IsplatError(f"--slabs {slabs}: needs --scheduler (the slabs are rendered on Dask workers)")
     scene = load_scene(scene_file, list(overrides))
     views = scene.views
     if view is not None:
@@ -118,6 +117,9 @@ def _frames(scene, views, scheduler, slabs):
 
     bar = progress.bar(total=len(views), desc="views", unit="view")
     with bar:
+        if scheduler is None and slabs > 1:
+            yield scene.render.method, _streamed(scene, views, slabs, bar)
+            return
         if scheduler is None:
             renderer = Renderer(scene, views)
 
@@ -135,3 +137,16 @@ def _frames(scene, views, scheduler, slabs):
         with distributed.connect(scheduler) as client:
             vs = views_for(scene, open_augmented(scene.data.augmented), views)
             yield scene.render.method, distributed.render_views(client, scene, vs, slabs=slabs, bar=bar)
+
+
+def _streamed(scene, views, slabs, bar):
+    """Each view front to back in ``slabs`` slabs, one slab's selection at a time (isplat.slabs.render_streamed)."""
+    from ..augfile import open_augmented
+    from ..frame import views_for
+    from ..slabs import render_streamed
+
+    aug = open_augmented(scene.data.augmented)
+    for n, view in enumerate(views_for(scene, aug, views)):
+        rgba, st, report = render_streamed(scene, view, slabs, aug)
+        bar.update(1)
+        yield n, rgba, st, report

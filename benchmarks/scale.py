@@ -22,6 +22,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -143,7 +144,7 @@ def predict(k, m, t_over, t_finish, b_part, b_frame, first, per_hop, bw, n_slice
     -> client: the first task's round trip, one hop per further task, the work and the bytes moved."""
     k = min(k, n_slices)
     levels = math.ceil(math.log2(k)) if k > 1 else 0
-    slab = max(p + r for p, r in zip(m["prep"], m["render"]))
+    slab = _slab_time(m)
     return first + (1 + levels) * per_hop + slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
 
 
@@ -212,6 +213,21 @@ def run(out_dir: Path, quick: bool) -> Path:
         for _ in range(repeats):                                       # interleaved
             for k in (1, 2):
                 pm[k].append(measured_split(client, scene1, view, k, workers, b_part, b_frame, t_finish))
+    measured = dict(locals())
+    return _page(out_dir, SimpleNamespace(**measured))
+
+
+def _slab_time(m):
+    return max(p + r for p, r in zip(m["prep"], m["render"]))
+
+
+def _page(out_dir, r) -> Path:
+    """Write the section from the measurements ``r`` (the locals of :func:`run`)."""
+    quick, shape, size, n_views, repeats, sel, view, model, ks = (r.quick, r.shape, r.size, r.n_views, r.repeats,
+                                                                   r.sel, r.view, r.model, r.ks)
+    t_one, t_dask, same, t_over, t_finish, b_part, b_frame = (r.t_one, r.t_dask, r.same, r.t_over, r.t_finish,
+                                                              r.b_part, r.b_frame)
+    first, per_hop, bw, pm = r.first, r.per_hop, r.bw, r.pm
     n_slices = len(view.order)
     pred = {k: _med([p for p, _ in v]) for k, v in pm.items()}
     meas = {k: _med([m for _, m in v]) for k, v in pm.items()}
@@ -221,10 +237,12 @@ def run(out_dir: Path, quick: bool) -> Path:
     ms = lambda s: f"{s * 1000:.1f} ms"                               # noqa: E731
     mib = lambda b: f"{b / 2**20:.2f} MiB"                            # noqa: E731
     sel_mib = sel.held_bytes() / 2**20
-    rows = "\n".join(
-        f"| {k} | {ms(max(model[k]['prep']))} | {ms(max(model[k]['render']))} | {ms(statistics.mean(model[k]['render']))} "
-        f"| {max(model[k]['render']) / max(1e-12, statistics.mean(model[k]['render'])):.2f} "
-        f"| {sum(model[k]['render']) / max(1e-12, sum(model[1]['render'])):.2f} |" for k in ks)
+    def row(k):
+        rend = model[k]["render"]
+        mean = statistics.mean(rend)
+        return (f"| {k} | {ms(max(model[k]['prep']))} | {ms(max(rend))} | {ms(mean)} "
+                f"| {max(rend) / max(1e-12, mean):.2f} | {sum(rend) / max(1e-12, sum(model[1]['render'])):.2f} |")
+    rows = "\n".join(row(k) for k in ks)
     t1 = sum(model[1]["render"])
     body = f"""```
 python -m benchmarks scale{' --quick' if quick else ''}
@@ -257,7 +275,8 @@ apart does not know what the slabs in front cover, so it splats voxels one pass 
 One 'over' of two partials: {ms(t_over)}; finishing a frame: {ms(t_finish)}. A partial image is {mib(b_part)}
 pickled (premultiplied RGBA float32 + saturation bytes), a frame {mib(b_frame)}. Cluster here (loopback):
 {ms(first)} for one task's round trip (submit, run, result back), {ms(per_hop)} for each further task of a chain
-alternating between the workers, {bw / 1e6:.0f} MB/s moving 32 MiB (or a partial, if larger) to a worker (`client.scatter`).
+alternating between the workers, {bw / 1e6:.0f} MB/s moving 32 MiB (or a partial, if larger) to a worker
+(`client.scatter`).
 
 Frame time on K workers = round trip + (1 + L) hops + max slab (prepare + render) + L x (over + partial / rate)
 + finish + frame / rate, with L = ceil(log2 K) rounds of the pairwise tree (K - 1 'over' tasks in all; the
@@ -282,6 +301,6 @@ measured at K = 8, at most one slab per slice ({n_slices} slices), `prepare` in 
 | workers | predicted frame time | of which slab | composite rounds |
 |---|---|---|---|
 """ + "\n".join(
-        f"| {k} | {ms(big[k])} | {ms(max(p + r for p, r in zip(extrapolate(model[8], n_slices, k)['prep'], extrapolate(model[8], n_slices, k)['render'])))} "
+        f"| {k} | {ms(big[k])} | {ms(_slab_time(extrapolate(model[8], n_slices, k)))} "
         f"| {math.ceil(math.log2(min(k, n_slices)))} |" for k in (8, 64, 512)) + "\n"
     return _doc.update_section(Path(out_dir) / "scale.md", "scale", body, title="isplat at scale: Dask")

@@ -116,9 +116,11 @@ def test_restrict_refuses_an_axis_not_selected():
         restrict(sel, "i", [0])
 
 
+INSIDE = "mode = \"look_at\"\nposition = [0.5, 0.3, 0.2]\nlook_at = [3, -5, 2]"      # the eye inside the volume
+
+
 @pytest.mark.parametrize("proj,cam", [("orthographic", "azimuth = 30\nelevation = 20"),
-                                      ("orthographic", "azimuth = 100\nelevation = -50"),
-                                      ("perspective", "mode = \"look_at\"\nposition = [0.5, 0.3, 0.2]\nlook_at = [3, -5, 2]")])
+                                      ("orthographic", "azimuth = 100\nelevation = -50"), ("perspective", INSIDE)])
 @pytest.mark.parametrize("et", [0.9, 1.0])
 def test_a_frame_streamed_slab_by_slab_is_the_one_pass_frame(make_scene, volume, proj, cam, et):
     """render_streamed: each slab's selection made from the files, rendered over the slabs in front, dropped:

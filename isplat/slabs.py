@@ -105,7 +105,7 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
     one slab's selection at a time. Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs:
     bytes read added up).
 
-    What is still whole: the index blocks of the transfer function's densities along the frame's axis are
+    What is still whole: the full method's channels (read once, kept for every slab); the index blocks of the transfer function's densities along the frame's axis are
     decoded for each slab before its slices are kept, and for the i and j axes each slab's channel values are
     gathered from every k-plane (docs/scale.md).
     """
@@ -118,10 +118,14 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
     t0 = time.perf_counter()
     aug = aug or open_augmented(scene.data.augmented)
     axis = view.axis_sign[0]
-    part = report = None
+    part = report = whole = None
     for a, b in slab_bounds(len(view.order), n_slabs):
         start = aug.bytes_read
-        sel = select_from_files(scene, axis, aug=aug, slices=view.order[a:b])
+        if whole is not None:          # the full method reads whole channels: once, for every slab
+            sel = whole
+        else:
+            sel = select_from_files(scene, axis, aug=aug, slices=view.order[a:b])
+            whole = sel if sel.method == "full" else None
         if report is None:
             report = dataclasses.replace(sel.report, augmented_bytes=0, index_bytes=0)
         report.augmented_bytes += int(aug.bytes_read - start)

@@ -121,14 +121,14 @@ INSIDE = "mode = \"look_at\"\nposition = [0.5, 0.3, 0.2]\nlook_at = [3, -5, 2]" 
 
 @pytest.mark.parametrize("proj,cam", [("orthographic", "azimuth = 30\nelevation = 20"),
                                       ("orthographic", "azimuth = 100\nelevation = -50"), ("perspective", INSIDE)])
-@pytest.mark.parametrize("et", [0.9, 1.0])
-def test_a_frame_streamed_slab_by_slab_is_the_one_pass_frame(make_scene, volume, proj, cam, et):
+@pytest.mark.parametrize("et,method", [(0.9, "indexed"), (1.0, "indexed"), (0.9, "full")])
+def test_a_frame_streamed_slab_by_slab_is_the_one_pass_frame(make_scene, volume, proj, cam, et, method):
     """render_streamed: each slab's selection made from the files, rendered over the slabs in front, dropped:
     the same image and counters as one pass (early termination included), whatever the number of slabs."""
     from isplat.renderer import Renderer
     from isplat.slabs import render_streamed
 
-    sc = scene(make_scene, volume, proj, cam, et=et)
+    sc = scene(make_scene, volume, proj, cam, et=et, method=method)
     r = Renderer(sc)
     want, st = r.render_view(0)
     for k in (1, 2, 3, 7):
@@ -137,6 +137,8 @@ def test_a_frame_streamed_slab_by_slab_is_the_one_pass_frame(make_scene, volume,
         assert (st_k.voxels_examined, st_k.voxels_splatted, st_k.slices) == (st.voxels_examined, st.voxels_splatted,
                                                                              st.slices)
         assert report.index_bytes >= r.report.index_bytes and report.axes == r.report.axes
+        if method == "full":
+            assert report.augmented_bytes == r.report.augmented_bytes          # whole channels read once
 
 
 def test_cli_slabs_without_a_scheduler_stream_the_same_image(volume, tmp_path):

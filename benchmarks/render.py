@@ -40,19 +40,39 @@ def _isplat(*args):
     subprocess.run([sys.executable, "-m", "isplat", *map(str, args), "-q"], check=True, stdout=subprocess.DEVNULL)
 
 
-def ensure_head(shape=None) -> tuple[Path, Path]:
-    """The head sample (default shape, or n_i,n_j,n_k) augmented and indexed under out/bench, reused."""
+def ensure_head(shape=None, sample: str = "head") -> tuple[Path, Path]:
+    """The head sample (or another: ``sample``), default shape or n_i,n_j,n_k, augmented and indexed under
+    out/bench, reused while this version of isplat reads it (a file of an older format is made again)."""
     WORK.mkdir(parents=True, exist_ok=True)
-    tag = "head" if shape is None else "head-" + "x".join(map(str, shape))
+    tag = sample if shape is None else f"{sample}-" + "x".join(map(str, shape))
     npy, aug, idx = (WORK / f"{tag}{e}" for e in (".npy", ".aug.h5", ".idx.h5"))
-    if not aug.exists():
+    if not _readable(aug, "augmented"):
         _log(f"making {tag}")
-        _isplat("sample", "head", "-o", npy, "--force", *([] if shape is None else ["--shape", ",".join(map(str, shape))]))
+        _isplat("sample", sample, "-o", npy, "--force", *([] if shape is None else ["--shape", ",".join(map(str, shape))]))
         _isplat("augment", npy, "-o", aug, "--force")
         npy.unlink()
-    if not idx.exists():
+        idx.unlink(missing_ok=True)
+    if not _readable(idx, "index"):
         _isplat("index", aug, "-o", idx, "--force")
     return aug, idx
+
+
+def _readable(path: Path, kind: str) -> bool:
+    from isplat.augfile import open_augmented
+    from isplat.errors import IsplatError
+    from isplat.index import open_index
+
+    if not path.exists():
+        return False
+    from isplat.index.store import FORMAT_VERSION
+
+    try:
+        if kind == "augmented":
+            open_augmented(path)
+            return True
+        return open_index(path).version == FORMAT_VERSION     # an older index is read, but slower: remake it
+    except IsplatError:
+        return False
 
 
 def overrides(aug, idx, *extra):

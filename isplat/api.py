@@ -30,19 +30,25 @@ _CACHE_SIZE = 4
 
 def render(volume, *, preset: str | None = None, opacity=None, color=None, azimuth: float = 0.0,
            elevation: float = 0.0, zoom: float = 1.0, size=256, spacing=None, window=None, shading: bool = True,
-           background=None, projection: str = "orthographic", set=()) -> np.ndarray:  # noqa: A002
+           background=None, projection: str = "orthographic", thin_slices: bool = False,
+           set=()) -> np.ndarray:  # noqa: A002
     """Render ``volume`` and return straight RGBA floats ``(H, W, 4)`` in [0, 1] over the background.
 
     ``volume``: a 3-D array ``[k, j, i]`` of the scan's values (Hounsfield units for CT), or the path of a
     scan any ``isplat augment`` reader takes. ``preset`` (``isplat presets``) or ``opacity`` (and ``color``)
     points ``[[value, opacity], ...]`` in the scan's own values give the transfer function; ``size`` is
     ``N`` or ``(width, height)``; ``spacing`` (i, j, k) defaults to the file's or 1; ``window`` as for
-    ``isplat augment --window``; ``set`` takes further ``KEY=VALUE`` scene overrides.
+    ``isplat augment --window``; ``thin_slices``: interpolate thick slices first, as ``isplat augment
+    --thin-slices`` (:mod:`isplat.resample`); ``set`` takes further ``KEY=VALUE`` scene overrides.
     """
     if preset is None and opacity is None:
         from .presets import PRESETS
         raise IsplatError(f"isplat.render: give preset= (one of {', '.join(PRESETS)}) or opacity= points")
     arr, spacing = _volume_array(volume, spacing)
+    if thin_slices:
+        from .resample import thin_slices as thin
+
+        arr, spacing = thin(arr, spacing, who="isplat.render")
     aug = _cached(("augment", _digest(arr), spacing, str(window)), lambda: _augment(arr, spacing, window))
     width, height = (size, size) if np.ndim(size) == 0 else size
     keys = [f"image.width={int(width)}", f"image.height={int(height)}", f"camera.azimuth={float(azimuth)}",
@@ -90,9 +96,9 @@ def _augment(arr, spacing, window) -> dict:
 
 
 def _scene(overrides, density_window):
-    from .scene import parse_scene
+    from .scene import SCENE_VERSION, parse_scene
 
-    return parse_scene("version = 2\n", ".", "isplat.render", overrides, data_required=False,
+    return parse_scene(f"version = {SCENE_VERSION}\n", ".", "isplat.render", overrides, data_required=False,
                        density_window=tuple(density_window))
 
 

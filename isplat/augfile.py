@@ -21,8 +21,8 @@ import h5py
 import numpy as np
 
 from .errors import IsplatError
-from .fileio import (attr_array, attr_string, check_checked_dataset, check_string_attrs, create_checked_dataset,
-                     create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
+from .fileio import (ReadCounter, attr_array, attr_string, check_checked_dataset, check_string_attrs,
+                     create_checked_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
 
 FORMAT_NAME = "isplat-augmented"
 FORMAT_VERSION = 2
@@ -53,7 +53,8 @@ class AugmentedVolume:
     gradient_magnitude_scale: float
     density_sha256: str
     attrs: dict = field(default_factory=dict)
-    bytes_read: int = 0
+    bytes_read: int = 0                          # bytes of the channel slabs requested
+    io: ReadCounter = field(default_factory=ReadCounter)   # what HDF5 read from the file (opening included)
 
     @property
     def n_voxels(self) -> int:
@@ -64,7 +65,7 @@ class AugmentedVolume:
         if channel not in CHANNELS:
             raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
         with hdf5_errors(self.path, f"dataset {channel!r}"):
-            with h5py.File(self.path, "r") as f:
+            with open_counted(self.path, self.io) as f:
                 ds = f[channel]
                 k1 = ds.shape[0] if k1 is None else k1
                 arr = ds[k0:k1]
@@ -80,7 +81,8 @@ def _rebuild_hint(p, f) -> str:
 
 def open_augmented(path) -> AugmentedVolume:
     """Open and validate an augmented file; raise :class:`IsplatError` naming any problem."""
-    p, f = open_hdf5(path, "augmented volume", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint)
+    counter = ReadCounter()
+    p, f = open_hdf5(path, "augmented volume", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint, counter=counter)
     with f, hdf5_errors(p, "attributes and datasets"):
         a = f.attrs
         shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
@@ -110,7 +112,7 @@ def open_augmented(path) -> AugmentedVolume:
                 raise IsplatError(f"{p}: dataset {name!r} has dtype {ds.dtype}, expected {np.dtype(dt)}")
             check_checked_dataset(f"{p}: dataset {name!r}", ds)
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
-    return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs)
+    return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs, io=counter)
 
 
 def write_augmented(path, density, gradient_magnitude, normal, spacing_ijk, density_window,

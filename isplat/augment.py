@@ -394,15 +394,21 @@ def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None) -> dict:
 
 
 def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, dtype=None,
-                 byte_order="little", header_bytes=0, level=None, series=None) -> dict:
+                 byte_order="little", header_bytes=0, level=None, series=None, thin_slices=None) -> dict:
     """Augment the volume at ``inp`` (see :func:`isplat.volume_io.read_volume`) into ``out`` atomically.
 
-    Returns a summary dict (shape, window, gradient scale, sha256).
+    ``thin_slices``: a ratio (e.g. :data:`isplat.resample.THICK_RATIO`): axes whose spacing exceeds it times
+    the smallest are first refined by linear interpolation (:func:`isplat.resample.thin_slices`; the volume
+    is then held in memory). Returns a summary dict (shape, window, gradient scale, sha256).
     """
     check_output(out, force)  # fail before any work
     vol = read_volume(inp, shape=shape, dtype=dtype, byte_order=byte_order, header_bytes=header_bytes,
                       spacing=spacing, level=level, series=series, stream=True)
     name = str(inp)
+    if thin_slices:
+        from .resample import thin_volume
+
+        vol = thin_volume(vol, thin_slices, name)
     sl = _prepare(vol, window, name)
     extra = {"source": name, "source_format": vol.meta.get("format", "unknown"),
              "source_dtype": str(vol.meta.get("source_dtype", vol.array.dtype.name)),

@@ -183,9 +183,9 @@ def view_task(scene, key, axes, view, et):
 
 def slab_task(scene, key, axes, view, start, stop, et):
     """Render slab ``order[start:stop]`` of a view from that slab's selection: (Partial, LoadReport,
-    seconds). The
-    counters are summed over the worker's bands into one row (examined, splatted, slices), so partials of
-    workers with different thread counts composite."""
+    seconds). The counters are reduced over the worker's bands to one row as :func:`isplat.frame.frame_stats`
+    reads them (the deepest band's examined voxels and slices; the others summed), so partials of workers with
+    different thread counts composite, and the rows add up over the slabs."""
     from .frame import prepare, render_slab
 
     view = _worker_threads(view)
@@ -194,7 +194,7 @@ def slab_task(scene, key, axes, view, start, stop, et):
     t0 = time.perf_counter()
     part = render_slab(prepare(sel, view, et), start, stop)
     bs = part.band_stats
-    part.band_stats = np.array([[bs[0, 0], bs[:, 1].sum(), bs[:, 2].max()]], dtype=np.int64)
+    part.band_stats = np.array([[bs[:, 0].max(), bs[:, 1].sum(), bs[:, 2].sum(), bs[:, 3].max()]], dtype=np.int64)
     return part, sel.report, time.perf_counter() - t0
 
 

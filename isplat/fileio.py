@@ -6,6 +6,7 @@ A failed run leaves nothing behind, and nothing the user had is overwritten with
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import tempfile
 from pathlib import Path
@@ -66,16 +67,17 @@ def atomic_output(path: str | os.PathLike, force: bool = False):
         raise
 
 
-def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None):
+def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None, older=(), counter=None):
     """Open an isplat HDF5 container read-only after checking its ``format`` and ``format_version``
     attributes (an int64 scalar) and that it carries HDF5 metadata checksums; return ``(path, h5py.File)``.
     Every problem is one :class:`IsplatError` line; ``rebuild(path, file)`` gives the command that remakes
-    an old file."""
+    an old file. Versions in ``older`` are read too (the caller checks what differs). ``counter``: a
+    :class:`ReadCounter` that counts what HDF5 reads from the file (see :func:`open_counted`)."""
     import h5py
 
     p = check_input(path, what)
     try:
-        f = h5py.File(p, "r")
+        f = h5py.File(_CountingRaw(p, counter), "r") if counter is not None else h5py.File(p, "r")
     except (OSError, KeyError, ValueError, RuntimeError) as exc:
         why = str(exc).strip().splitlines()[0] if str(exc).strip() else exc.__class__.__name__
         raise IsplatError(f"{p}: not a readable HDF5 file: truncated, corrupted or not HDF5 ({why[:160]})") from None
@@ -92,18 +94,77 @@ def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None):
             raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}"
                               f"{'' if ver_arr is None else f' ({ver_arr.dtype})'}, expected the int64 scalar "
                               f"{version}")
-        if int(ver_arr) != version:
+        if int(ver_arr) != version and int(ver_arr) not in older:
             old = f"; files of version {int(ver_arr)} have no checksums, rebuild it: {rebuild(p, f)}" \
                 if 0 < int(ver_arr) < version and rebuild else ""
             raise IsplatError(f"{p}: attribute 'format_version' is {int(ver_arr)}, this isplat reads version "
                               f"{version}{old}")
         if superblock < 2:
             raise IsplatError(f"{p}: HDF5 superblock version {superblock} has no checksums; format version "
-                              f"{version} requires the HDF5 1.10 file format (superblock 2 or later)")
+                              f"{int(ver_arr)} requires the HDF5 1.10 file format (superblock 2 or later)")
     except BaseException:
         f.close()
         raise
     return p, f
+
+
+# ------------------------------------------------------------------------------- counting what HDF5 reads
+
+class ReadCounter:
+    """What the HDF5 library read from one file: bytes (chunks with their 4-byte checksums, and the metadata
+    that finds them) and read calls. Counted below h5py, at the file object, so nothing is estimated."""
+
+    def __init__(self):
+        self.bytes = 0
+        self.reads = 0
+
+    def __repr__(self):
+        return f"ReadCounter(bytes={self.bytes}, reads={self.reads})"
+
+
+class _CountingRaw(io.RawIOBase):
+    """A read-only file object for h5py's ``fileobj`` driver that adds every read to a :class:`ReadCounter`."""
+
+    def __init__(self, path, counter: ReadCounter):
+        super().__init__()
+        self._f = open(path, "rb", buffering=0)
+        self._counter = counter
+
+    def readable(self):
+        return True
+
+    def seekable(self):
+        return True
+
+    def seek(self, offset, whence=io.SEEK_SET):
+        return self._f.seek(offset, whence)
+
+    def tell(self):
+        return self._f.tell()
+
+    def readinto(self, buf):
+        n = self._f.readinto(buf)
+        self._counter.bytes += n or 0
+        self._counter.reads += 1
+        return n
+
+    def close(self):
+        if not self.closed:
+            self._f.close()
+        super().close()
+
+
+@contextlib.contextmanager
+def open_counted(path, counter: ReadCounter):
+    """``h5py.File(path, "r")`` whose reads are added to ``counter`` (HDF5's own I/O, through a file object)."""
+    import h5py
+
+    raw = _CountingRaw(path, counter)
+    try:
+        with h5py.File(raw, "r") as f:
+            yield f
+    finally:
+        raw.close()
 
 
 # ------------------------------------------------------------------------------- HDF5 with checksums

@@ -47,6 +47,9 @@ class FrameStats:
     voxels_splatted: int
     slices: int
     seconds: float
+    voxels_tested: int = 0      # voxels that reached the per-voxel stages (not skipped with their region,
+                                # block or cell), summed over the image bands (a voxel near a band's edge
+                                # is tested by both bands)
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,7 @@ class Partial:
     img: np.ndarray
     sat: np.ndarray
     tile_sat: np.ndarray
-    band_stats: np.ndarray       # int64[bands, 3]
+    band_stats: np.ndarray       # int64[bands, 4], see kernels.Buffers
 
 
 @dataclass
@@ -118,14 +121,24 @@ class Setup:
     cls: K.Classify
     geo: K.SliceGeometry
     fp: K.FootprintTable
-    bands: list
+    rows: np.ndarray            # int64[bands, 2]: each image band's rows [y0, y1)
+    mine: list                  # per thread, the bands it renders
+    bins: K.Bins | None
     tile_npix: np.ndarray
     sheet: np.ndarray
     dirty_px: np.ndarray
-    dirty: list
+    dirty: list                 # per thread, its touched-pixel list
+    cells: list                 # per thread, its list of a slice's visible cells
     et: float
     threads: int
     empty: bool
+    order: np.ndarray | None = None    # the frame's sheets front to back, when not the view's slices
+
+    @property
+    def sheets(self) -> np.ndarray:
+        """What render_slab's ``start:stop`` count: the principal axis's slices (``view.order``), or the
+        depth slabs of image-aligned sheets (``render.sheets = "image"``, :mod:`isplat.splat.sheets`)."""
+        return self.view.order if self.order is None else self.order
 
 
 def prepare(sel, view: View, et: float | None = None) -> Setup:
@@ -137,10 +150,15 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     threads = ro.threads or default_threads()
     axis = view.axis_sign[0]
     et_val = float(ro.early_termination if et is None else et)
-    bands = _bands(-(-H // TILE), threads)
-    scratch = (np.zeros((H, W, 4), dtype), np.zeros((H, W), np.uint8), [np.empty(H * W + 1, np.int64) for _ in bands])
+    rows = image_bands(H, threads)
+    mine = [np.arange(t, len(rows), threads, dtype=np.int64) for t in range(min(threads, len(rows)))]
+    band_px = int((rows[:, 1] - rows[:, 0]).max()) * W
+    n_cells = _max_cells(sel, axis)
+    scratch = (np.zeros((H, W, 4), dtype), np.zeros((H, W), np.uint8), [np.empty(band_px + 1, np.int64) for _ in mine],
+               [np.empty((n_cells, 4), np.int64) for _ in mine])
     if sel.empty:
-        return Setup(view, None, (), None, None, None, bands, _tile_pixels(H, W), *scratch, et_val, threads, True)
+        return Setup(view, None, (), None, None, None, rows, mine, None, _tile_pixels(H, W), *scratch, et_val,
+                     threads, True)
     proj = cam_mod.projection(frame, geom, axis)
     fp = make_footprint(proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, dtype)
     unit = sel.unit_distance or float(geom.spacing.min())
@@ -156,36 +174,46 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
         geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts)
     shade = (shade_table(view.shading, frame, geom, threads=threads) if sel.use_shade
              else np.zeros((1, 6), np.float32))
+    if ro.sheets == "image":
+        from .splat.sheets import image_frame
+
+        *tables, order = image_frame(sel, view, dtype, shade, cuts)
+        return Setup(view, *tables, rows, mine, None, _tile_pixels(H, W), *scratch, et_val, threads, False, order)
     cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
-    kernel = K.render_full if sel.method == "full" else K.render_indexed
-    return Setup(view, kernel, sel.voxels(axis), cls, geo, K.FootprintTable(fp.table, fp.params), bands,
-                 _tile_pixels(H, W), *scratch, et_val, threads, False)
+    vox = sel.voxels(axis)
+    fpt = K.FootprintTable(fp.table, fp.params)
+    if sel.method == "full":
+        kernel, bins = K.render_full, None
+    else:
+        kernel = K.render_indexed
+        bins = K.Bins(*K.bin_regions(view.order, vox, geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
+    return Setup(view, kernel, vox, cls, geo, fpt, rows, mine, bins, _tile_pixels(H, W), *scratch, et_val,
+                 threads, False)
 
 
 def blank(setup: Setup) -> Partial:
     """An empty partial image (nothing in front): the state a frame starts from."""
     H, W = setup.view.frame.height, setup.view.frame.width
     return Partial(np.zeros((H, W, 4), setup.sheet.dtype), np.zeros((H, W), np.uint8),
-                   np.zeros(setup.tile_npix.shape, np.int32), np.zeros((len(setup.bands), 3), np.int64))
+                   np.zeros(setup.tile_npix.shape, np.int32), np.zeros((len(setup.rows), 4), np.int64))
 
 
 def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Partial | None = None) -> Partial:
     """Render the slices ``order[start:stop]`` of the frame (front to back) over ``state`` (the partial image
     of the slices in front, updated in place; a blank one when None) and return it."""
     part = blank(setup) if state is None else state
-    slices = setup.view.order[start:stop]
+    slices = setup.sheets[start:stop]
     if setup.empty or slices.size == 0:
         return part
-    H = setup.view.frame.height
+    et = part.img.dtype.type(setup.et)
 
-    def run(bi):
-        y0, y1 = setup.bands[bi]
+    def run(t):
         buf = K.Buffers(part.img, setup.sheet, part.sat, part.tile_sat, setup.tile_npix, setup.dirty_px,
-                        setup.dirty[bi], part.band_stats[bi])
-        setup.kernel(slices, setup.vox, setup.cls, setup.geo, setup.fp, buf,
-                     K.Band(y0 * TILE, min(H, y1 * TILE), part.img.dtype.type(setup.et)))
+                        setup.dirty[t], setup.cells[t], part.band_stats)
+        setup.kernel(slices, start, setup.bins or _NO_BINS, setup.vox, setup.cls, setup.geo, setup.fp, buf,
+                     K.Bands(setup.rows, setup.mine[t], et))
 
-    run_parallel(run, range(len(setup.bands)), setup.threads)
+    run_parallel(run, range(len(setup.mine)), setup.threads)
     return part
 
 
@@ -206,11 +234,13 @@ def slab_bounds(n_slices: int, n_slabs: int) -> list[tuple[int, int]]:
 
 
 def frame_stats(view: View, part: Partial, seconds: float) -> FrameStats:
-    """The frame's counters: every band examines every voxel (count them once), one band counts each
-    splatted voxel, and the slices are those of the band that went deepest."""
+    """The frame's counters: the voxels examined are those of the slices of the band that went deepest (each
+    band goes front to back until its pixels saturate), one band counts each splatted voxel, and the slices
+    are those of the deepest band."""
     axis, sign = view.axis_sign
     bs = part.band_stats
-    return FrameStats(axis, sign, int(bs[0, 0]), int(bs[:, 1].sum()), int(bs[:, 2].max()), seconds)
+    return FrameStats(axis, sign, int(bs[:, 0].max()), int(bs[:, 2].sum()), int(bs[:, 3].max()), seconds,
+                      int(bs[:, 1].sum()))
 
 
 def render_frame(sel, view: View, et: float | None = None):
@@ -221,7 +251,7 @@ def render_frame(sel, view: View, et: float | None = None):
     """
     t0 = time.perf_counter()
     setup = prepare(sel, view, et)
-    n = len(view.order)
+    n = len(setup.sheets)
     slabs = slab_bounds(n, 20) if progress.enabled() and n >= 40 and not setup.empty else [(0, n)]
     part = blank(setup)
     for start, stop in progress.bar(slabs, desc=f"slices ({n})", unit="slab", disable=len(slabs) == 1):
@@ -248,6 +278,23 @@ def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:
     return np.asarray(rows, dtype=dtype).reshape(-1, 4)
 
 
+BANDS_PER_THREAD = 2    # image bands per thread (see image_bands)
+MIN_BAND_TILES = 4
+_NO_BINS = K.Bins(np.zeros((1, 1), np.int64), np.zeros(0, np.int64))
+
+
+def _max_cells(sel, axis: str) -> int:
+    """The most cells one slice of ``axis`` can have (the size of a thread's list of visible cells)."""
+    if sel.empty or (sel.method != "full" and axis not in sel.axes):
+        return 0            # (an axis not selected is refused by sel.voxels)
+    if sel.method == "full":
+        _, n_a, n_b = grid.slice_shape(sel.shape, axis)
+        return -(-n_a // K.CELL) * -(-n_b // K.CELL)
+    a = sel.axes[axis]
+    per_slice = np.diff(a.block_ptr[a.region_ptr[a.slice_ptr]]) if a.n_slices else np.zeros(1, np.int64)
+    return int(per_slice.max(initial=0))
+
+
 def _floats(values) -> tuple:
     return tuple(float(x) for x in values)
 
@@ -262,9 +309,14 @@ def _tile_pixels(h: int, w: int, tile: int = TILE) -> np.ndarray:
     return out
 
 
-def _bands(n_tile_rows: int, threads: int):
-    """Split the tile rows into one band per thread (each band traverses every slice, so more bands
-    would repeat the traversal; the splatting is what the bands share out)."""
-    nb = 1 if threads <= 1 else min(n_tile_rows, threads)
-    edges = np.linspace(0, n_tile_rows, nb + 1).round().astype(int)
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+def image_bands(height: int, threads: int, tile: int = TILE) -> np.ndarray:
+    """The image's bands of rows, ``int64[bands, 2]`` of ``[y0, y1)``: whole tiles, all of one height but the
+    last, BANDS_PER_THREAD per thread (one for one thread), at least MIN_BAND_TILES tiles high. Each band walks
+    the slices on its own and tests only the regions that reach it (:func:`isplat.splat.kernels.bin_regions`);
+    a voxel whose footprint crosses a band's edge is tested by both bands, so more bands repeat more work,
+    and threads take every n-th band, so that the middle of the image, where the work is, is shared. The image
+    depends neither on the bands nor on which thread renders which."""
+    n_tiles = -(-height // tile)
+    per = max(MIN_BAND_TILES, -(-n_tiles // (1 if threads <= 1 else threads * BANDS_PER_THREAD)))
+    y0 = np.arange(0, n_tiles, per) * tile
+    return np.stack([y0, np.minimum(y0 + per * tile, height)], axis=1).astype(np.int64)

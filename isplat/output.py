@@ -73,17 +73,17 @@ def png_bytes(pixels: np.ndarray) -> bytes:
 
 def write_still(out: str, rgba: np.ndarray, bit_depth: int, force: bool) -> None:
     """Write one image atomically, or PNG bytes to stdout for ``-o -``."""
-    import imageio.v3 as iio
-
     if out == "-":
         sys.stdout.buffer.write(png_bytes(to_pixels(rgba, ".png", bit_depth)))
         sys.stdout.buffer.flush()
         return
     ext = Path(out).suffix.lower()
     with atomic_output(out, force) as tmp:
-        if ext == ".png":
+        if ext == ".png":            # pypng: imageio takes a quarter second to import, a PNG does not need it
             Path(tmp).write_bytes(png_bytes(to_pixels(rgba, ext, bit_depth)))
         else:
+            import imageio.v3 as iio
+
             iio.imwrite(tmp, to_pixels(rgba, ext, bit_depth), extension=ext)
 
 

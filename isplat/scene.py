@@ -29,10 +29,10 @@ __all__ = [
     "RenderOptions", "load_scene", "parse_scene", "locate_keys", "scene_to_dict",
 ]
 
-SCENE_VERSION = 2
+SCENE_VERSION = 3
 # keys added by each version after 1: a file that says an older version must not use them
 KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
-              ("views", "fps"): 2}
+              ("views", "fps"): 2, ("render", "sheets"): 3}
 
 Vec3 = tuple[float, float, float]
 
@@ -134,6 +134,7 @@ class RenderOptions:
     footprint_table: int
     precision: str
     threads: int
+    sheets: str = "axis"         # "axis": a sheet per slice; "image": slabs parallel to the image plane
 
 
 @dataclass(frozen=True)
@@ -170,7 +171,7 @@ SHADING_KEYS = ("enabled", "ambient", "diffuse", "specular", "shininess", "two_s
 LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
-               "precision", "threads")
+               "precision", "threads", "sheets")
 VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
 DEFAULT_PATH_FRAMES = 60
 
@@ -1002,7 +1003,8 @@ def _render(ctx: _Ctx, tree: dict) -> RenderOptions:
                         f"expected an integer number of table entries in 16..{1 << 20}", 16, 1 << 20)
     precision = ctx.choice(p + ("precision",), t.get("precision", "float32"), ("float32", "float64"))
     threads = ctx.integer(p + ("threads",), t.get("threads", 0), "expected an integer >= 0 (0 = all cores)", lo=0)
-    return RenderOptions(method, early, radius, sigma, table, precision, threads)
+    sheets = ctx.choice(p + ("sheets",), t.get("sheets", "axis"), ("axis", "image"))
+    return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets)
 
 
 def _cameras(ctx: _Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:

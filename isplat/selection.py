@@ -36,44 +36,78 @@ MAX_IN_SLICE = 65535  # in-slice coordinates are uint16
 
 @dataclass
 class LoadReport:
-    augmented_bytes: int = 0          # bytes read from the augmented file's channels
-    index_bytes: int = 0              # bytes read from the index file
+    """What a selection read. ``*_bytes``: the arrays requested; ``*_file_bytes``: what the HDF5 library read
+    from each file for them (whole chunks with their checksums, and the metadata that locates them; for the
+    index its opening too), counted at the file object (:class:`isplat.fileio.ReadCounter`)."""
+
+    augmented_bytes: int = 0          # bytes requested from the augmented file's channels
+    index_bytes: int = 0              # bytes requested from the index file (blocks, tables, values)
+    augmented_file_bytes: int = 0     # bytes HDF5 read from the augmented file while selecting
+    index_file_bytes: int = 0         # bytes HDF5 read from the index file (opened for this selection)
     index_decoded_bytes: int = 0      # the decoded blocks (LoadedAxis arrays), before selection
+    index_block_bytes: int = 0        # requested index blocks and table rows of the intervals, all axes
+    index_format_version: int = 0     # 0: no index read
+    voxels_of_interest: int = 0       # voxels whose density lies in the intervals
+    bytes_needed: int = 0             # see selection._needed
+    values_from: str = "none"         # "index", "augmented slabs", "whole channels" or "none"
     channels: list = field(default_factory=list)
     axes: list = field(default_factory=list)
     intervals: list = field(default_factory=list)
 
+    @property
+    def file_bytes(self) -> int:
+        """Bytes read from both files at the HDF5 layer."""
+        return self.augmented_file_bytes + self.index_file_bytes
+
+    @property
+    def read_ratio(self) -> float:
+        """Bytes read from the files over bytes needed (0 when nothing is needed)."""
+        return self.file_bytes / self.bytes_needed if self.bytes_needed else 0.0
+
 
 @dataclass(frozen=True)
 class AxisSelection:
-    """The selected voxels of one index axis, in traversal order (see :func:`select_voxels`), and their
-    gathered channel values (empty arrays for channels the scene does not use)."""
+    """The selected voxels of one index axis, in traversal order: slices, regions, blocks, cells (see
+    :mod:`isplat.splat.select`), and their gathered channel values (empty arrays for channels the scene does
+    not use). A voxel costs 2 bytes (its square in its cell, its density) plus its channel values, and
+    2 bytes per cell and 17 per block of 16 x 16 voxels."""
 
     axis: str
     n_slices: int
     n_a: int
     n_b: int
-    cell_ptr: np.ndarray            # int64[n_slices + 1]
-    cell_start: np.ndarray          # int64[Q + 1]
-    cell_id: np.ndarray             # int32[Q]
-    a: np.ndarray                   # uint16[N]
-    b: np.ndarray                   # uint16[N]
+    slice_ptr: np.ndarray           # int64[n_slices + 1]: regions of each slice
+    region_id: np.ndarray           # int32[G]
+    region_ptr: np.ndarray          # int64[G + 1]: blocks of each region
+    block_pos: np.ndarray           # uint8[R]
+    block_ptr: np.ndarray           # int64[R + 1]: cells of each block
+    block_voxel: np.ndarray         # int64[R + 1]: first voxel of each block
+    cell_pos: np.ndarray            # uint8[Q]
+    cell_count: np.ndarray          # uint8[Q]
+    offset: np.ndarray              # uint8[N]: the voxel's square in its cell
     density: np.ndarray             # uint8[N]
     gradient_magnitude: np.ndarray  # uint8[N] or empty
     normal: np.ndarray              # uint16[N] or empty
 
     @property
     def n_voxels(self) -> int:
-        return int(self.a.shape[0])
+        return int(self.offset.shape[0])
 
     def voxels(self) -> IndexedVoxels:
         """The arrays as the frame kernel takes them."""
-        return IndexedVoxels(self.cell_ptr, self.cell_start, self.cell_id, self.a, self.b, self.density,
-                             self.gradient_magnitude, self.normal, self.n_a, self.n_b)
+        return IndexedVoxels(*self.arrays(), self.n_a, self.n_b)
 
     def arrays(self) -> list[np.ndarray]:
-        return [self.cell_ptr, self.cell_start, self.cell_id, self.a, self.b, self.density,
-                self.gradient_magnitude, self.normal]
+        return [self.slice_ptr, self.region_id, self.region_ptr, self.block_pos, self.block_ptr, self.block_voxel,
+                self.cell_pos, self.cell_count, self.offset, self.density, self.gradient_magnitude, self.normal]
+
+    def coordinates(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every voxel's slice and in-slice coordinates ``(c, a, b)`` (int64, in traversal order): for tests and
+        tools, not for frames."""
+        from .splat.select import expand_coordinates
+
+        return expand_coordinates(self.slice_ptr, self.region_id, self.region_ptr, self.block_pos, self.block_ptr,
+                                  self.block_voxel, self.cell_pos, self.cell_count, self.offset, self.n_a)
 
 
 @dataclass(frozen=True)
@@ -150,7 +184,7 @@ class Selection:
 
             loaded = {ax: load_axis_in_memory(chans["density"], ax, sel.luts.intervals) for ax in grid.AXES
                       if ax in axes}
-            _select(sel, loaded, read, "array")
+            _select(sel, loaded, lambda lo, ch, sh: gather_channels(read, lo, ch, sh), "array")
         return sel
 
 
@@ -177,8 +211,9 @@ def _whole(sel: Selection, read) -> WholeChannels:
     return WholeChannels(whole["density"], whole.get("gradient_magnitude", _EMPTY_U8), whole.get("normal", _EMPTY_U16))
 
 
-def _select(sel: Selection, loaded: dict, read, source: str) -> None:
-    """Select the voxels of every loaded axis (``{axis: LoadedAxis}``) and gather their channel values."""
+def _select(sel: Selection, loaded: dict, gather, source: str) -> None:
+    """Select the voxels of every loaded axis (``{axis: LoadedAxis}``) and gather their channel values with
+    ``gather(loaded, channels, shape)`` (:func:`gather_channels` or :func:`gather_from_index`)."""
     from .splat.select import select_voxels
 
     ivs = sel.luts.intervals.astype(np.int64)
@@ -189,20 +224,27 @@ def _select(sel: Selection, loaded: dict, read, source: str) -> None:
                               f"{MAX_IN_SLICE} voxels per in-slice axis")
         try:
             picked[ax] = select_voxels(la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions,
-                                       ivs, la.n_a, la.n_b)
+                                       ivs, la.n_a, la.n_b,
+                                       _index_like(la.positions.shape[0], bool(sel.report.channels)))
         except ValueError as exc:
             raise IsplatError(f"{source}: axis {ax}: {exc}") from None
-    gathered = gather_channels(read, loaded, sel.report.channels, sel.shape)
-    for ax, (cell_ptr, cell_start, cell_id, a, b, d, src) in picked.items():
+    gathered = gather(loaded, sel.report.channels, sel.shape)
+    for ax, (*hier, src) in picked.items():
         g = gathered[ax]            # in the order of the decoded positions; the selection's order is ``src``
         gm = g["gradient_magnitude"][src] if "gradient_magnitude" in g else _EMPTY_U8
         nrm = g["normal"][src] if "normal" in g else _EMPTY_U16
         la = loaded[ax]
-        sel.axes[ax] = AxisSelection(ax, la.n_slices, la.n_a, la.n_b, cell_ptr, cell_start, cell_id, a, b, d, gm, nrm)
+        sel.axes[ax] = AxisSelection(ax, la.n_slices, la.n_a, la.n_b, *hier, gm, nrm)
     # the decoded blocks have served: frames need only the selection and the gathered values
     sel.report.index_decoded_bytes = int(sum(
         la.slice_block_ptr.nbytes + la.block_density.nbytes + la.block_voxel_ptr.nbytes + la.positions.nbytes
         for la in loaded.values()))
+
+
+def _index_like(n: int, wanted: bool) -> np.ndarray:
+    """select_voxels' ``src_like``: the smallest integer type that indexes ``n`` items (int32 or int64), and
+    whether the voxels' source rows are wanted (empty array) or not (one item)."""
+    return np.zeros(0 if wanted else 1, np.int32 if n < 2 ** 31 else np.int64)
 
 
 def gather_channels(read, loaded: dict, channels, shape) -> dict:
@@ -239,31 +281,123 @@ def gather_channels(read, loaded: dict, channels, shape) -> dict:
     return out
 
 
+def value_order(la, shape) -> np.ndarray:
+    """The permutation that puts the voxels of loaded axis ``la`` (in the order of its ``positions``) in the
+    order of the index's ``/values``: by density, then by flat position ``i + n_i * (j + n_j * k)``.
+
+    Loaded voxels run slice by slice, by density within a slice, by position within a block (Figure 1), so
+    a stable sort by the fields that rank above the slice in (density, k, j, i) is enough: the density for
+    axis k; density and k for axis j; density, k and j for axis i (a radix sort when the key fits 16 bits).
+    """
+    dens = np.repeat(la.block_density, np.diff(la.block_voxel_ptr))
+    if la.axis == "k":
+        key = dens
+    else:
+        pos = la.positions.astype(np.int64)
+        key = dens.astype(np.int64) * int(shape[0]) + pos // la.n_a          # b is k for axes j and i
+        if la.axis == "i":
+            key = key * int(shape[1]) + pos % la.n_a                          # a is j for axis i
+        if key.size and key.max() < 65536:
+            key = key.astype(np.uint16)
+    return np.argsort(key, kind="stable")
+
+
+def gather_from_index(values, loaded: dict, channels, shape, source="index") -> dict:
+    """For every loaded index axis, the channel values of just its voxels, in the order of its ``positions``,
+    from ``values = IndexFile.read_values(channels, intervals)`` (format version 3: the values of the
+    transfer function's intervals are one contiguous row range per interval and channel, read once for all
+    axes), put in each axis's order in memory (:func:`value_order`)."""
+    out = {ax: {} for ax in loaded}
+    if not channels or not loaded:
+        return out
+    ivs = next(iter(loaded.values())).intervals
+    ptr, vals = values
+    want = np.diff(ptr)
+    for ax, la in loaded.items():
+        have = np.bincount(la.block_density, weights=np.diff(la.block_voxel_ptr), minlength=256).astype(np.int64)
+        bad = np.flatnonzero((have != want) & _in_intervals(ivs))
+        if bad.size:
+            d = int(bad[0])
+            raise IsplatError(f"{source}: /values holds {int(want[d]):,} voxels of density {d}, the blocks of "
+                              f"axis {ax} {int(have[d]):,}: corrupt index; rebuild it with isplat index")
+        perm = value_order(la, shape)
+        for ch in channels:
+            v = np.empty(perm.size, dtype=vals[ch].dtype)
+            v[perm] = vals[ch]
+            out[ax][ch] = v
+    return out
+
+
+def _in_intervals(ivs) -> np.ndarray:
+    m = np.zeros(256, dtype=bool)
+    for lo, hi in ivs:
+        m[lo:hi + 1] = True
+    return m
+
+
 def select_from_files(scene, axes: str, method: str | None = None, aug=None, slices=None) -> Selection:
     """Read what ``scene`` needs for frames along ``axes`` from its files: only the index blocks of the
     transfer function's intervals (indexed method) and the channels the scene uses (module docstring).
-    ``aug``: the scene's augmented file, if already open. ``slices``: keep only these slices of the axes
-    (a slab, :func:`isplat.slabs.restrict_loaded`), gathering channel values for their voxels alone."""
+    ``aug``: the scene's augmented file, if already open. ``slices``: keep only these slices of the axes (a
+    slab, :mod:`isplat.slabs`): from an index with values (format 3) the selection is cut after gathering;
+    from one without, the decoded blocks are cut first and values gathered for the slab's voxels alone."""
     from .augfile import open_augmented
 
     aug = aug or open_augmented(scene.data.augmented)
     sp = scene.volume.spacing or aug.spacing_ijk
     sel = _empty_selection(method or scene.render.method, aug.shape, sp, scene, aug.gradient_magnitude_scale)
     sel.report.axes = sorted(axes)
+    rep = sel.report
     if sel.method == "full":
         sel.whole = _whole(sel, aug.read)
+        rep.values_from = "whole channels" if sel.report.channels else "none"
     else:
         idx = _open_matching_index(scene, aug)
+        rep.index_format_version = idx.version
+        rep.values_from = "none" if not rep.channels or sel.empty else \
+            "index" if idx.has_values else "augmented slabs"
         if not sel.empty:
             ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
-            loaded = {ax: idx.load_axis(ax, ivs) for ax in sorted(axes)}
-            if slices is not None:
+            values = None
+            with idx.session():
+                loaded = {ax: idx.load_axis(ax, ivs) for ax in sorted(axes)}
+                if idx.has_values and rep.channels:
+                    values = idx.read_values(rep.channels, ivs)
+            rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
+            if idx.has_values:
+                gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, idx.path)  # noqa: E731
+            else:                        # format version 2: the position-ordered channels, in k-slabs
+                gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
+            if slices is not None and not idx.has_values:
                 from .slabs import restrict_loaded
                 loaded = {ax: restrict_loaded(la, slices) for ax, la in loaded.items()}
-            _select(sel, loaded, aug.read, str(scene.data.index))
-        sel.report.index_bytes = int(idx.bytes_read)
-    sel.report.augmented_bytes = int(aug.bytes_read)
+            _select(sel, loaded, gather, str(scene.data.index))
+            if slices is not None and idx.has_values:
+                from .slabs import restrict_axis
+                sel.axes = {ax: restrict_axis(a, slices) for ax, a in sel.axes.items()}
+            rep.voxels_of_interest = next(iter(loaded.values())).n_voxels if loaded else 0
+        rep.index_bytes = int(idx.bytes_read)
+        rep.index_file_bytes = int(idx.io.bytes)
+    rep.augmented_bytes = int(aug.bytes_read)
+    rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
+    _needed(sel)
     return sel
+
+
+def _needed(sel: Selection) -> None:
+    """``report.bytes_needed``: the voxels of interest times the bytes per voxel of each channel read, plus
+    (indexed) the index blocks and table rows of the intervals and the 257-row table of ``/values``; (full)
+    the density of each voxel of interest, since without an index it has to be read too."""
+    rep = sel.report
+    per_voxel = sum(2 if ch == "normal" else 1 for ch in rep.channels)
+    if sel.method == "full":
+        if sel.whole is not None and sel.whole.density.size:
+            hist = np.bincount(sel.whole.density, minlength=256)
+            rep.voxels_of_interest = int(sum(int(hist[lo:hi + 1].sum()) for lo, hi in rep.intervals))
+        rep.bytes_needed = rep.voxels_of_interest * per_voxel       # channels here include the density
+    else:
+        tables = 257 * 8 if rep.values_from == "index" else 0
+        rep.bytes_needed = rep.voxels_of_interest * per_voxel + rep.index_block_bytes + tables
 
 
 def _open_matching_index(scene, aug):
@@ -276,4 +410,11 @@ def _open_matching_index(scene, aug):
         raise IsplatError(f"{scene.data.index}: index was built from another volume "
                           f"(density_sha256 {idx.density_sha256[:12]}..., {aug.path.name} has "
                           f"{aug.density_sha256[:12]}...); rebuild it with isplat index")
+    v = idx.values
+    if v is not None and (v.spacing_ijk != tuple(aug.spacing_ijk)
+                          or v.gradient_magnitude_scale != aug.gradient_magnitude_scale):
+        raise IsplatError(f"{scene.data.index}: its channel values were copied from an augmented file with "
+                          f"spacing_ijk {v.spacing_ijk} and gradient_magnitude_scale {v.gradient_magnitude_scale}, "
+                          f"{aug.path.name} has {tuple(aug.spacing_ijk)} and {aug.gradient_magnitude_scale}; "
+                          f"rebuild it: isplat index {aug.path} -o {scene.data.index} --force")
     return idx

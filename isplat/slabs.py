@@ -41,25 +41,29 @@ def slice_runs(slices, n_slices: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(starts, stops)]
 
 
-def _take_runs(outer_ptr, inner_ptr, runs, n):
-    """Of a two-level CSR layout (``outer_ptr[s]:outer_ptr[s+1]`` rows of slice s, ``inner_ptr[r]:inner_ptr[r+1]``
-    leaves of row r), keep the slices in ``runs``: (new outer_ptr, row ranges, new inner_ptr, leaf ranges)."""
+def _ranges(ptr, ranges):
+    """The rows that ``ptr`` points to from each range of ``ranges``."""
+    return [(int(ptr[a]), int(ptr[b])) for a, b in ranges]
+
+
+def _rebase(ptr, ranges):
+    """``ptr`` (a CSR pointer) for the rows in ``ranges`` only, counted from 0: its entries ``a:b`` of each
+    range shifted to follow the rows kept before, and the total at the end."""
+    parts, off = [], 0
+    for a, b in ranges:
+        parts.append(ptr[a:b] - ptr[a] + off)
+        off += int(ptr[b] - ptr[a])
+    return np.concatenate(parts + [np.asarray([off], dtype=ptr.dtype)]).astype(ptr.dtype, copy=False)
+
+
+def _slice_ptr(ptr, runs, n):
+    """The per-slice pointer keeping the rows of the slices in ``runs`` (other slices hold none)."""
     counts = np.zeros(n, dtype=np.int64)
-    rows, leaves, ptrs = [], [], []
-    offset = 0
     for s0, s1 in runs:
-        r0, r1 = int(outer_ptr[s0]), int(outer_ptr[s1])
-        v0, v1 = int(inner_ptr[r0]), int(inner_ptr[r1])
-        counts[s0:s1] = np.diff(outer_ptr[s0:s1 + 1])
-        rows.append((r0, r1))
-        leaves.append((v0, v1))
-        ptrs.append(inner_ptr[r0:r1] - v0 + offset)
-        offset += v1 - v0
-    new_outer = np.zeros(n + 1, dtype=outer_ptr.dtype)
-    np.cumsum(counts, out=new_outer[1:])
-    new_inner = np.concatenate(ptrs + [np.asarray([offset], dtype=inner_ptr.dtype)]).astype(inner_ptr.dtype,
-                                                                                           copy=False)
-    return new_outer, rows, new_inner, leaves
+        counts[s0:s1] = np.diff(ptr[s0:s1 + 1])
+    out = np.zeros(n + 1, dtype=ptr.dtype)
+    np.cumsum(counts, out=out[1:])
+    return out
 
 
 def _take(arr, ranges):
@@ -69,21 +73,30 @@ def _take(arr, ranges):
 
 
 def restrict_axis(ax: AxisSelection, slices) -> AxisSelection:
-    """``ax`` with only the voxels (and cells) of ``slices``; other slices keep their index and hold nothing."""
-    cell_ptr, cells, cell_start, voxels = _take_runs(ax.cell_ptr, ax.cell_start, slice_runs(slices, ax.n_slices),
-                                                     ax.n_slices)
-    return AxisSelection(ax.axis, ax.n_slices, ax.n_a, ax.n_b, cell_ptr, cell_start, _take(ax.cell_id, cells),
-                         *(_take(x, voxels) for x in (ax.a, ax.b, ax.density, ax.gradient_magnitude, ax.normal)))
+    """``ax`` with only the voxels (regions, blocks, cells) of ``slices``; other slices keep their index and
+    hold nothing."""
+    runs = slice_runs(slices, ax.n_slices)
+    g = _ranges(ax.slice_ptr, runs)                  # regions
+    r = _ranges(ax.region_ptr, g)                    # blocks
+    q = _ranges(ax.block_ptr, r)                     # cells
+    v = _ranges(ax.block_voxel, r)                   # voxels
+    return dataclasses.replace(
+        ax, slice_ptr=_slice_ptr(ax.slice_ptr, runs, ax.n_slices), region_id=_take(ax.region_id, g),
+        region_ptr=_rebase(ax.region_ptr, g), block_pos=_take(ax.block_pos, r), block_ptr=_rebase(ax.block_ptr, r),
+        block_voxel=_rebase(ax.block_voxel, r), cell_pos=_take(ax.cell_pos, q), cell_count=_take(ax.cell_count, q),
+        **{name: _take(getattr(ax, name), v) for name in ("offset", "density", "gradient_magnitude", "normal")})
 
 
 def restrict_loaded(la, slices):
     """A decoded index axis (:class:`isplat.index.store.LoadedAxis`) with only the blocks of ``slices``: what
     :func:`isplat.selection.select_from_files` selects from and gathers channel values for, when a worker
-    makes just its slab's selection."""
-    ptr, rows, vptr, voxels = _take_runs(la.slice_block_ptr, la.block_voxel_ptr, slice_runs(slices, la.n_slices),
-                                         la.n_slices)
-    return dataclasses.replace(la, slice_block_ptr=ptr, block_density=_take(la.block_density, rows),
-                               block_voxel_ptr=vptr, positions=_take(la.positions, voxels))
+    makes just its slab's selection (an index without values, format 2)."""
+    runs = slice_runs(slices, la.n_slices)
+    rows = _ranges(la.slice_block_ptr, runs)
+    return dataclasses.replace(la, slice_block_ptr=_slice_ptr(la.slice_block_ptr, runs, la.n_slices),
+                               block_density=_take(la.block_density, rows),
+                               block_voxel_ptr=_rebase(la.block_voxel_ptr, rows),
+                               positions=_take(la.positions, _ranges(la.block_voxel_ptr, rows)))
 
 
 def restrict(sel: Selection, axis: str, slices) -> Selection:

@@ -110,6 +110,15 @@ def index_section(idx, aug) -> dict:
     for a in idx.axes:
         counts[a] = idx.voxel_counts(a)
     check_counts(idx, counts, aug.n_voxels)
+    if idx.has_values:
+        per_density = np.diff(idx.value_ptr())
+        a = idx.axes[0]
+        bad = np.flatnonzero(per_density != counts[a])
+        if bad.size:
+            d = int(bad[0])
+            raise IsplatError(f"{idx.path}: /values holds {int(per_density[d]):,} voxels of density {d}, axis {a} "
+                              f"{int(counts[a][d]):,}: the tables disagree (corrupt index); rebuild it with "
+                              f"isplat index")
     for a in idx.axes:
         info = idx.axis_info(a)
         c = counts[a]
@@ -143,6 +152,9 @@ def index_section(idx, aug) -> dict:
         "decoded_bytes": int(sum(v["decoded_bytes"] for v in per_axis.values())),
         "per_axis": per_axis,
         "per_density_range": ranges,
+        "format_version": idx.version,
+        "values": None if not idx.has_values else {"voxels": idx.values.n_voxels,
+                                                   "bytes": 257 * 8 + 3 * idx.values.n_voxels},
     }
 
 
@@ -227,11 +239,18 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | N
         "loaded": {
             "channels": list(rep.channels),
             "axes": list(rep.axes),
+            "values_from": rep.values_from,
             "augmented_bytes": int(rep.augmented_bytes),
             "index_bytes": int(rep.index_bytes),
             "bytes": int(rep.augmented_bytes + rep.index_bytes),
+            "augmented_file_bytes_read": int(rep.augmented_file_bytes),
+            "index_file_bytes_read": int(rep.index_file_bytes),
+            "file_bytes_read": int(rep.file_bytes),
+            "bytes_needed": int(rep.bytes_needed),
+            "read_ratio": rep.read_ratio,
             "index_decoded_bytes": decoded,
             "held_bytes": int(held),
+            "held_bytes_per_voxel_of_interest": _ratio(held, voi),
         },
     }, scene
 
@@ -335,6 +354,13 @@ def format_table(s: dict) -> str:
             row(f"densities {lo}..{hi}", f"{rg['voxels']:,} voxels ({_pct(rg['fraction'])}), "
                                         f"{_b(rg['bytes'])} over all axes")
         row("decoded, all axes", _b(ix["decoded_bytes"]))
+        if ix["values"]:
+            row("channel values", f"{_b(ix['values']['bytes'])}: normal and gradient magnitude of the "
+                                  f"{ix['values']['voxels']:,} indexed voxels, by density (format "
+                                  f"{ix['format_version']})")
+        else:
+            row("channel values", f"none (format {ix['format_version']}: scenes read them from the augmented "
+                                  f"file; rebuild with isplat index to read only the voxels of interest)")
         row("file size", _b(ix["file_bytes"]))
     sc = s.get("scene")
     if sc:
@@ -356,8 +382,19 @@ def format_table(s: dict) -> str:
             row("loaded: index", f"{_b(ld['index_bytes'])} = {_pct(ld['index_fraction'])} of the index, axes "
                                  f"{''.join(ld['axes'])}, decoded {_b(ld['index_decoded_bytes'])}")
         row("loaded: total", f"{_b(ld['bytes'])} = {_pct(ld['files_fraction'])} of {_b(ld['files_bytes'])} on disk")
+        row("channel values from", {"index": "the index (only the voxels of interest)",
+                                    "augmented slabs": "the augmented file, in slabs of 8 k-slices (index format "
+                                                       "2; rebuild it with isplat index to read only theirs)",
+                                    "whole channels": "the augmented file, whole channels (full method)",
+                                    "none": "nowhere (no channel needed)"}[ld["values_from"]])
+        row("bytes read from the files", f"{_b(ld['file_bytes_read'])} (HDF5's reads: whole chunks with checksums, "
+                                         f"and metadata)")
+        row("bytes needed", f"{_b(ld['bytes_needed'])} (voxels of interest x bytes per voxel of the channels, "
+                            f"+ the index blocks and tables of the intervals)")
+        row("read / needed", f"{ld['read_ratio']:.3f}")
         row("held for rendering", f"{_b(ld['held_bytes'])} (selected voxels and their channel values, or "
-                                  "whole channels for the full method)")
+                                  f"whole channels for the full method), {ld['held_bytes_per_voxel_of_interest']:.2f} "
+                                  f"B per voxel of interest")
     width = max(len(k) for k, v in rows if v is not None) + 2
     lines = []
     for k, v in rows:

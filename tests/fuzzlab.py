@@ -220,7 +220,9 @@ REQUIRED = {"aug": {"format", "format_version", "shape", "spacing_ijk", "density
             "idx": {"format", "format_version", "shape", "density_sha256", "density_ranges", "created_by", "axis",
                     "n_slices",
                     "in_slice_axes", "n_a", "n_b", "escape_width", "density_entry_ptr", "entry_slice",
-                    "entry_voxel_count", "entry_byte_offset", "bytes"}}
+                    "entry_voxel_count", "entry_byte_offset", "bytes",
+                    # /values (format version 3)
+                    "spacing_ijk", "gradient_magnitude_scale", "density_voxel_ptr", "gradient_magnitude", "normal"}}
 DATASET_OPS = ("flip_chunk", "flip_header", "delete", "dtype", "shape", "contiguous", "gzip", "dataspace")
 ATTRIBUTE_OPS = ("delete", "as_string", "as_float", "as_int32", "as_array", "nan", "flip_header")
 

@@ -210,7 +210,7 @@ def test_corrupt_escape_coordinates(tmp_path):
 @pytest.mark.parametrize("case", ["version", "format", "shape", "escape_width", "dtype", "truncated", "no_axes"])
 def test_bad_index_header(index_file, case):
     if case == "version":
-        _set_attr(index_file, "format_version", np.int64(3))
+        _set_attr(index_file, "format_version", np.int64(4))
     elif case == "format":
         _set_attr(index_file, "format", "isplat-augmented")
     elif case == "shape":

@@ -74,7 +74,7 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
     assert np.array_equal(np.load(EXAMPLES / f"{name}.npy"), vol)
     path = EXAMPLES / f"{name}.idx.h5"
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(2)
+        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(3)
         assert f.attrs["format_version"].dtype == np.dtype("<i8")
         assert f.attrs["density_sha256"].decode() == density_sha256(vol)
         assert f.id.get_create_plist().get_version()[0] >= 2       # superblock with checksums
@@ -98,6 +98,7 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
             for r in range(r0, r1):
                 got = loaded.positions[loaded.block_voxel_ptr[r]:loaded.block_voxel_ptr[r + 1]]
                 assert np.array_equal(got, np.flatnonzero(sl == loaded.block_density[r]))
+    check_values(ex, vol, path)
     # regenerating gives the same file content
     out = tmp_path / "x.idx.h5"
     write_index(out, build_index(vol, "".join(ex["axes"]), [tuple(r) for r in ex["density_ranges"]]),
@@ -106,3 +107,56 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
         for axis in ex["axes"]:
             for key in expected_tables(ex["axes"][axis]):
                 assert np.array_equal(a["axes"][axis][key][()], b["axes"][axis][key][()])
+
+
+def augmented_channels(vol):
+    """The example volume augmented as generate.py does (spacing 1, window 0..255: densities = values)."""
+    from isplat.augment import augment_array
+
+    return augment_array(vol, (1.0, 1.0, 1.0), (0.0, 255.0))
+
+
+def check_values(ex, vol, path):
+    """/values (formats/index.md §9): rows by density then flat position, exactly the JSON's hand-derived order,
+    the values of the augmented channels at those positions, and a pointer table counting each density."""
+    aug = augmented_channels(vol)
+    inside = np.zeros(256, bool)
+    for lo, hi in ex["density_ranges"]:
+        inside[lo:hi + 1] = True
+    d = vol.ravel()
+    flat = np.flatnonzero(inside[d])
+    reference = flat[np.lexsort((flat, d[flat]))]                 # by density, then position
+    assert reference.tolist() == ex["values_flat_order"]
+    want_ptr = np.r_[0, np.cumsum(np.where(inside, np.bincount(d, minlength=256), 0))]
+    with h5py.File(path, "r") as f:
+        g = f["values"]
+        for name in ("density_voxel_ptr", "gradient_magnitude", "normal"):
+            ds = g[name]
+            assert ds.chunks is not None and ds.fletcher32 and ds.compression is None
+        assert g["density_voxel_ptr"].dtype.str == "<i8" and np.array_equal(g["density_voxel_ptr"][()], want_ptr)
+        assert g["normal"].dtype.str == "<u2" and g["gradient_magnitude"].dtype.str == "|u1"
+        assert np.array_equal(g["normal"][()], aug["normal"].ravel()[reference])
+        assert np.array_equal(g["gradient_magnitude"][()], aug["gradient_magnitude"].ravel()[reference])
+        assert tuple(g.attrs["spacing_ijk"]) == (1.0, 1.0, 1.0)
+        assert g.attrs["gradient_magnitude_scale"] == aug["gradient_magnitude_scale"]
+    idx = open_index(path)
+    assert idx.version == 3 and idx.has_values and idx.values.n_voxels == reference.size
+    ptr, vals = idx.read_values(["normal", "gradient_magnitude"], ex["density_ranges"])
+    assert np.array_equal(vals["normal"], aug["normal"].ravel()[reference])
+
+
+def test_version_2_file_is_read_without_values():
+    """gaps.v2.idx.h5: the same index in format version 2 (no /values): its blocks load as version 3's do, and
+    asking it for values names the command that rebuilds it."""
+    from isplat.errors import IsplatError
+
+    ex, vol = load("gaps")
+    old, new = open_index(EXAMPLES / "gaps.v2.idx.h5"), open_index(EXAMPLES / "gaps.idx.h5")
+    assert old.version == 2 and not old.has_values and new.version == 3
+    for axis in ex["axes"]:
+        a, b = old.load_axis(axis, ex["density_ranges"]), new.load_axis(axis, ex["density_ranges"])
+        assert np.array_equal(a.positions, b.positions) and np.array_equal(a.block_density, b.block_density)
+    with pytest.raises(IsplatError, match=r"format version 2 holds no channel values; rebuild it: isplat index "):
+        old.read_values(["normal"], [(1, 255)])
+    with h5py.File(EXAMPLES / "gaps.v2.idx.h5", "r") as f:
+        assert f.attrs["format_version"] == 2 and "values" not in f

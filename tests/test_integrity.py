@@ -91,16 +91,19 @@ def test_corpus_of_bugs(examples, case):
     assert out.result == "error", out
 
 
-def test_message_names_file_and_dataset(examples):
+@pytest.mark.parametrize("target,obj,method,name", [("aug", "/normal", "full", "'normal'"),
+                                                    ("idx", "/values/normal", "indexed", "/values/normal")])
+def test_message_names_file_and_dataset(examples, target, obj, method, name):
+    """The full method reads the augmented file's normals; the indexed one the index's (format 3)."""
     fx = examples["aug"]
-    original = fx["aug"].read_bytes()
+    original = fx[target].read_bytes()
     try:
-        R.corrupt(fx["aug"], "/normal", "flip_chunk")
-        code, _, err = R.run_cli(["render", str(fx["indexed"]), "-o", str(fx["folder"] / "x.png"), "-q"])
+        R.corrupt(fx[target], obj, "flip_chunk")
+        code, _, err = R.run_cli(["render", str(fx[method]), "-o", str(fx["folder"] / "x.png"), "-q"])
     finally:
-        fx["aug"].write_bytes(original)
+        fx[target].write_bytes(original)
     assert code == 2 and err.count("\n") == 1
-    assert str(fx["aug"]) in err and "'normal'" in err and "Fletcher-32" in err
+    assert str(fx[target]) in err and name in err and "Fletcher-32" in err
 
 
 # ---------------------------------------------------------------------------------------------- stats

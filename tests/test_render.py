@@ -274,8 +274,13 @@ def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
     r = Renderer(make_scene(aug, idx, shading="enabled = false", **base))
     assert r.report.channels == [] and r.report.axes == ["j"]
     assert r.report.augmented_bytes == 0 and r.report.index_bytes > 0
+    blocks, voi = r.report.index_bytes, r.report.voxels_of_interest
+    assert r.report.bytes_needed == blocks and r.report.values_from == "none"
     r = Renderer(make_scene(aug, idx, shading="enabled = true", **base))
-    assert r.report.channels == ["normal"] and r.report.augmented_bytes == 2 * np.prod(shape)
+    # the normals of just the voxels of interest, from the index (format 3): one pointer table and 2 B each
+    assert r.report.channels == ["normal"] and r.report.augmented_bytes == 0
+    assert r.report.index_bytes == blocks + 257 * 8 + 2 * voi and r.report.values_from == "index"
+    assert r.report.bytes_needed == r.report.index_bytes
     r = Renderer(make_scene(aug, idx, overrides=["render.method=full", "shading.enabled=false"], **base))
     assert r.report.channels == ["density"] and r.report.index_bytes == 0
     r = Renderer(make_scene(aug, idx, views="list = [{azimuth = 0}, {azimuth = 90}]", **base))
@@ -311,34 +316,53 @@ def test_select_voxels_refuses_a_slice_with_more_voxels_than_positions():
     from isplat.splat.select import select_voxels
     with pytest.raises(ValueError, match="more voxels than it has positions"):
         select_voxels(np.array([0, 2]), np.array([1, 2], np.uint8), np.array([0, 4, 8]),
-                      np.array([0, 1, 2, 3, 0, 1, 2, 3], np.int32), np.array([[0, 255]]), 2, 2)
+                      np.array([0, 1, 2, 3, 0, 1, 2, 3], np.int32), np.array([[0, 255]]), 2, 2,
+                      np.empty(0, np.int32))
 
 
-@pytest.mark.parametrize("shape", [(3, 5, 17), (2, 19, 9), (20, 3, 3)])
-def test_select_voxels_groups_by_cell_and_keeps_every_voxel(shape):
-    """Every selected voxel appears once, in its slice, in the cell its coordinates give."""
-    from isplat.augfile import write_augmented
-    from isplat.index import build_index_file, open_index
-    from isplat.splat.select import CELL, select_voxels
-    dens = rng_volume(11, shape)
-    n_k, n_j, n_i = shape
-    with tempfile.TemporaryDirectory() as t:
-        t = pathlib.Path(t)
-        write_augmented(t / "a.h5", dens, np.zeros_like(dens), np.zeros(shape, np.uint16), (1, 1, 1), (0, 255), 1.0)
-        build_index_file(t / "a.h5", t / "i.h5", axes="k")
-        la = open_index(t / "i.h5").load_axis("k", [(50, 255)])
+def _walk_hierarchy(sel, n_a):
+    """Slow, obvious reading of select_voxels' output: per voxel (slice, a, b, density, source, key), where the
+    key is the (region, block, cell) path a frame walks; the module docstring of isplat.splat.select in Python."""
+    from isplat.splat.select import BLOCK, CELL, REGION
+    slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count, off, d, src = sel
+    nra = -(-n_a // REGION)
+    out = []
+    for c in range(len(slice_ptr) - 1):
+        for g in range(slice_ptr[c], slice_ptr[c + 1]):
+            for r in range(region_ptr[g], region_ptr[g + 1]):
+                v = block_voxel[r]
+                for q in range(block_ptr[r], block_ptr[r + 1]):
+                    assert 1 <= cell_count[q] <= 16
+                    for _ in range(cell_count[q]):
+                        a = (region_id[g] % nra) * REGION + (block_pos[r] % 4) * BLOCK + (cell_pos[q] % 4) * CELL + off[v] % CELL
+                        b = (region_id[g] // nra) * REGION + (block_pos[r] // 4) * BLOCK + (cell_pos[q] // 4) * CELL + off[v] // CELL
+                        out.append((c, a, b, int(d[v]), int(src[v]), (int(region_id[g]), int(block_pos[r]), int(cell_pos[q]))))
+                        v += 1
+                assert v == block_voxel[r + 1]
+    return out
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.tuples(st.integers(1, 4), st.integers(1, 140), st.integers(1, 90)), st.integers(0, 2 ** 32 - 1),
+       st.integers(1, 255))
+def test_select_voxels_keeps_every_voxel_once_in_its_region_block_and_cell(shape, seed, lo):
+    """Every selected voxel appears once, in its slice, at the coordinates its region, block, cell and offset
+    give, with its density; slices, regions, blocks and cells come in increasing order, and within a cell
+    the voxels keep the index's density order (the order the blocks list them)."""
+    from isplat.index.memory import load_axis_in_memory
+    from isplat.splat.select import select_voxels
+    dens = np.random.default_rng(seed).integers(0, 256, shape).astype(np.uint8)
+    la = load_axis_in_memory(dens, "k", [(lo, 255)])
     sel = select_voxels(la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions,
-                        np.array([[50, 255]]), la.n_a, la.n_b)
-    cell_ptr, cell_start, cell_id, a, b, d, src = sel
-    nca = -(-n_i // CELL)
-    for c in range(n_k):
-        got = []
-        for q in range(cell_ptr[c], cell_ptr[c + 1]):
-            for v in range(cell_start[q], cell_start[q + 1]):
-                assert (b[v] // CELL) * nca + a[v] // CELL == cell_id[q]
-                assert dens[c, b[v], a[v]] == d[v]
-                got.append(int(b[v]) * n_i + int(a[v]))
-        assert sorted(got) == np.flatnonzero(dens[c].ravel() >= 50).tolist()
+                        np.array([[lo, 255]]), la.n_a, la.n_b, np.empty(0, np.int64))
+    got = _walk_hierarchy(sel, la.n_a)
+    want = sorted((c, int(i), int(j)) for c, j, i in zip(*np.nonzero(dens >= lo)))
+    assert sorted((c, a, b) for c, a, b, *_ in got) == want
+    assert all(dens[c, b, a] == dv for c, a, b, dv, *_ in got)
+    assert all(la.positions[s] == a + b * la.n_a for c, a, b, _, s, _ in got)
+    keys = [(c, key) for c, a, b, dv, s, key in got]
+    assert keys == sorted(keys)
+    assert all(s0 < s1 for (c0, *_, s0, k0), (c1, *_, s1, k1) in zip(got, got[1:]) if (c0, k0) == (c1, k1))
 
 
 def test_slices_in_chunks_give_the_same_image(tmp_path, make_scene, monkeypatch):
@@ -351,3 +375,38 @@ def test_slices_in_chunks_give_the_same_image(tmp_path, make_scene, monkeypatch)
     monkeypatch.setattr(isplat.progress, "enabled", lambda: True)
     chunked, s2 = render(sc)
     assert np.array_equal(one, chunked) and s1.voxels_splatted == s2.voxels_splatted
+
+
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_hidden_regions_blocks_and_cells_skipped_exactly_for_any_bands_and_threads(tmp_path, make_scene, monkeypatch,
+                                                                                    proj):
+    """A volume wider than a region (64 voxels), an opaque wall in front of random material, early termination
+    on: the regions, blocks and cells behind the wall are skipped with one test each, and the image is that of
+    the slow reference (which splats every voxel), bit for bit the same for 1, 2 or 3 threads and for bands
+    of one tile or of the whole image; hiding the material costs far fewer per-voxel tests than it has voxels."""
+    from isplat import frame as F
+    shape = (24, 10, 70)                                   # (k, j, i): slices of j are 70 x 24, 2 regions
+    dens = rng_volume(5, shape)
+    dens[:, :2, :] = 250                                   # the wall: the first j-slices, seen from -y
+    aug, idx = write_volume(tmp_path, dens)
+    sc = make_scene(aug, idx, image="width = 100\nheight = 72",
+                    camera=f'projection = "{proj}"\nazimuth = 4\nelevation = 3\nzoom = 1.0',
+                    transfer="opacity = [[55, 0.0], [60, 0.6], [249, 0.6], [250, 1.0]]", shading="enabled = false",
+                    render=BIG_TABLE + "early_termination = 0.9")
+    ref = reference_render(sc, et=0.9)
+    images = []
+    for threads, per, least in [(1, 1, 1000), (1, 1, 1), (2, 2, 1), (3, 2, 4), (3, 5, 1)]:
+        monkeypatch.setattr(F, "BANDS_PER_THREAD", per)
+        monkeypatch.setattr(F, "MIN_BAND_TILES", least)
+        sc_t = make_scene(aug, idx, image="width = 100\nheight = 72",
+                          camera=f'projection = "{proj}"\nazimuth = 4\nelevation = 3\nzoom = 1.0',
+                          transfer="opacity = [[55, 0.0], [60, 0.6], [249, 0.6], [250, 1.0]]",
+                          shading="enabled = false", render=BIG_TABLE + f"early_termination = 0.9\nthreads = {threads}")
+        img, st_ = render(sc_t)
+        images.append(img)
+        assert st_.axis == "j"
+        if least == 1000:       # one band: each voxel tested at most once
+            behind = (dens[:, 2:] >= 55).sum()
+            assert st_.voxels_tested - dens[:, :2].size < 0.3 * behind     # most material behind the wall is skipped
+    assert all(np.array_equal(images[0], im) for im in images[1:])
+    assert np.abs(images[0] - ref).max() <= 2e-4

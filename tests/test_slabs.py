@@ -79,25 +79,36 @@ def test_restrict_keeps_every_array_in_order(make_scene, volume):
     sel = select_from_files(sc, "k")
     whole = sel.axes["k"]
     parts = [restrict(sel, "k", range(a, b)).axes["k"] for a, b in [(0, 5), (5, 12)]]
-    for name in ("a", "b", "density", "gradient_magnitude", "normal", "cell_id"):
+    for name in ("region_id", "block_pos", "cell_pos", "cell_count", "offset", "density", "gradient_magnitude",
+                 "normal"):
         assert np.array_equal(np.concatenate([getattr(p, name) for p in parts]), getattr(whole, name)), name
-    assert all(p.normal.size == p.a.size > 0 for p in parts)
+    assert all(p.normal.size == p.density.size > 0 for p in parts)
     empty = restrict(sel, "k", [])
-    assert empty.axes["k"].n_voxels == 0 and empty.axes["k"].cell_start.tolist() == [0]
+    assert empty.axes["k"].n_voxels == 0 and empty.axes["k"].block_voxel.tolist() == [0]
 
 
 @pytest.mark.parametrize("axis,slices", [("k", range(3, 8)), ("i", [0, 1, 7, 8, 9]), ("j", []), ("j", range(9))])
 def test_a_slab_selected_from_files_is_the_restricted_whole(make_scene, volume, axis, slices):
-    """select_from_files(..., slices=) keeps the decoded index blocks of the slab only and gathers only their
-    channel values: the same arrays as restricting the whole selection, and fewer channel bytes read."""
-    sc = scene(make_scene, volume, "orthographic", "azimuth = 0")
-    whole = select_from_files(sc, axis)
-    slab = select_from_files(sc, axis, slices=slices)
-    want = restrict(whole, axis, slices).axes[axis]
-    for got, exp in zip(slab.axes[axis].arrays(), want.arrays()):
-        assert got.dtype == exp.dtype and np.array_equal(got, exp)
-    if axis == "k" and len(slices) < 12:
-        assert slab.report.augmented_bytes < whole.report.augmented_bytes
+    """select_from_files(..., slices=): the same arrays as restricting the whole selection, from an index with
+    values (cut after gathering) and from one without (decoded blocks cut first: fewer channel bytes read)."""
+    from isplat.index import build_index_file
+
+    aug, idx = volume
+    v2 = idx.with_name("novalues.idx.h5")
+    if not v2.exists():
+        build_index_file(aug, v2, values=False)
+    for index, values_from in ((idx, "index"), (v2, "augmented slabs")):
+        sc = make_scene(aug, index,
+                        transfer="opacity = [[50, 0.0], [200, 0.9]]\ngradient_opacity = [[0, 0.3], [100, 1]]",
+                        shading="enabled = true")
+        whole = select_from_files(sc, axis)
+        slab = select_from_files(sc, axis, slices=slices)
+        assert slab.report.values_from == values_from
+        want = restrict(whole, axis, slices).axes[axis]
+        for got, exp in zip(slab.axes[axis].arrays(), want.arrays()):
+            assert got.dtype == exp.dtype and np.array_equal(got, exp)
+        if axis == "k" and len(slices) < 12 and values_from == "augmented slabs":
+            assert slab.report.augmented_bytes < whole.report.augmented_bytes
 
 
 def test_restrict_of_the_full_method_shares_the_channels(make_scene, volume):

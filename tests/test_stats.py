@@ -106,14 +106,20 @@ def test_spatial_ratio_equals_numpy(vol, with_index):
     ld = sc["loaded"]
     if with_index:
         assert sc["voxels_examined"] == want           # the indexed method visits exactly those voxels
-        assert ld["channels"] == ["normal"] and ld["augmented_bytes"] == 2 * d.size
-        assert ld["index_bytes"] > 0 and ld["index_decoded_bytes"] > 4 * want
+        assert ld["channels"] == ["normal"] and ld["augmented_bytes"] == 0 and ld["values_from"] == "index"
+        assert ld["index_bytes"] > 2 * want and ld["index_decoded_bytes"] > 4 * want
+        assert ld["bytes_needed"] == ld["index_bytes"]        # the blocks, their tables and 2 B per normal
+        assert ld["file_bytes_read"] == ld["augmented_file_bytes_read"] + ld["index_file_bytes_read"]
+        assert ld["read_ratio"] == pytest.approx(ld["file_bytes_read"] / ld["bytes_needed"])
     else:
         assert sc["voxels_examined"] == d.size         # the full method visits every voxel
         assert ld["augmented_bytes"] == 3 * d.size and ld["index_bytes"] == 0
+        assert ld["bytes_needed"] == 3 * want and ld["values_from"] == "whole channels"
+        assert ld["file_bytes_read"] > ld["augmented_bytes"]          # chunk checksums and metadata
     assert 0 < sc["voxels_splatted"] <= want
     assert ld["bytes"] == ld["augmented_bytes"] + ld["index_bytes"]
     assert ld["augmented_fraction"] == pytest.approx(ld["augmented_bytes"] / (4 * d.size))
+    assert ld["held_bytes_per_voxel_of_interest"] == pytest.approx(ld["held_bytes"] / want)
 
 
 def test_ratio_counts_density_without_index(tmp_path):
@@ -149,14 +155,19 @@ def test_json_keys(vol, capsys):
             "gradient_magnitude_scale", "density_sha256", "source", "source_format", "channel_bytes", "bytes",
             "bytes_per_voxel"} == set(s["augmented"])
     assert {"path", "file_bytes", "axes", "density_ranges", "voxels_indexed", "bytes", "bytes_per_voxel",
-            "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range"} == set(s["index"])
+            "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range", "format_version",
+            "values"} == set(s["index"])
+    assert s["index"]["format_version"] == 3
+    assert s["index"]["values"] == {"voxels": d.size, "bytes": 257 * 8 + 3 * d.size}
     assert {"bytes", "block_bytes", "entries", "voxels", "escape_width", "bytes_per_voxel",
             "block_bytes_per_voxel", "decoded_bytes"} == set(s["index"]["per_axis"]["k"])
     assert {"path", "view", "method", "projection", "image", "intervals", "intervals_input_units", "ratio_source",
             "voxels_of_interest", "spatial_ratio", "axis", "slices", "voxels_examined", "voxels_splatted",
             "splatted_ratio", "render_seconds", "loaded"} == set(s["scene"])
     assert {"channels", "axes", "augmented_bytes", "index_bytes", "bytes", "index_decoded_bytes", "held_bytes",
-            "augmented_fraction", "index_fraction", "files_bytes", "files_fraction"} == set(s["scene"]["loaded"])
+            "augmented_fraction", "index_fraction", "files_bytes", "files_fraction", "values_from",
+            "augmented_file_bytes_read", "index_file_bytes_read", "file_bytes_read", "bytes_needed", "read_ratio",
+            "held_bytes_per_voxel_of_interest"} == set(s["scene"]["loaded"])
     # the table carries the same figures
     code, table, _ = run(capsys, aug, idx, "--scene", scene, "-q")
     assert code == 0 and f"{s['scene']['voxels_of_interest']:,}" in table and "spatial ratio" in table

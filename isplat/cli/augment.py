@@ -36,8 +36,12 @@ log = logging.getLogger(__name__)
               help="DICOM folder with several series: the SeriesInstanceUID to read (an error lists them).")
 @click.option("--index", "with_index", is_flag=True,
               help="Also build the index beside OUT (NAME.aug.h5 -> NAME.idx.h5), as `isplat index` would.")
+@click.option("--thin-slices", "thin", is_flag=True,
+              help="Interpolate (linearly) along an axis whose spacing is more than twice the smallest, before "
+                   "augmenting: thick CT/MR slices then render without streaks (the volume is held in memory).")
 @quiet_option
-def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, with_index):
+def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, with_index,
+            thin):
     """Augment INPUT into 4-byte voxels: density, gradient magnitude, octahedral normal (formats/augmented.md).
 
     INPUT is a .npy array [k,j,i], a .nrrd/.nhdr, a .nii/.nii.gz, a multi-page .tif/.tiff, a folder of
@@ -55,6 +59,7 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     """
     from ..augment import augment_file  # numba import only when the command runs
     from ..fileio import check_output
+    from ..resample import THICK_RATIO
 
     idx = index_path(out) if with_index else None
     if idx is not None:
@@ -63,7 +68,13 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     sp = parse_triple(spacing, "--spacing") if spacing else None
     shp = parse_triple(shape, "--shape", int) if shape else None
     info = augment_file(input, out, force=force, window=win, spacing=sp, shape=shp, dtype=dtype,
-                        byte_order=byte_order, header_bytes=header_bytes, level=level, series=series)
+                        byte_order=byte_order, header_bytes=header_bytes, level=level, series=series,
+                        thin_slices=THICK_RATIO if thin else None)
+    sp_out = info["spacing_ijk"]
+    if not thin and max(sp_out) > THICK_RATIO * min(sp_out):
+        log.info(f"isplat augment: spacing {','.join(f'{s:g}' for s in sp_out)}: slices "
+                    f"{max(sp_out) / min(sp_out):.1f} times thicker than the smallest spacing render with streaks; "
+                    "--thin-slices interpolates them first")
     lo, hi = info["density_window"]
     below, above = info["clipped"]
     log.info(f"isplat augment: window {lo:g},{hi:g} ({info['density_window_method']}); clipped "

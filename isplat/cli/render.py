@@ -85,7 +85,7 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
     check_outputs(paths, force)
 
     frames, per_view, rep = [], [], None
-    with _frames(scene, views, scheduler, slabs) as (method, results):
+    with _frames(scene, views, scheduler, slabs) as (method, results, held):
         for n, rgba, st, rep in results:
             per_view.append({"view": n if view is None else view, "axis": ("+" if st.sign > 0 else "-") + st.axis,
                              "voxels_examined": st.voxels_examined, "voxels_splatted": st.voxels_splatted,
@@ -99,12 +99,17 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
     report = {"scene": str(scene_file), "method": method, "output": out,
               "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
               "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
+              "file_bytes_read": rep.file_bytes, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
               "views": per_view}
     if as_json:
         json.dump(report, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     log.debug(f"read: {rep.augmented_bytes} bytes of augmented channels {rep.channels or '(none)'}; "
-              f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}")
+              f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}; "
+              f"{rep.file_bytes} bytes read from the files (HDF5 chunks and metadata) for {rep.bytes_needed} needed "
+              f"({rep.read_ratio:.2f}x); channel values from {rep.values_from}" + (
+                  f"; held {held()} bytes, {held() / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
+                  if held else " (selections held by the workers or one slab at a time)"))
     for v in per_view:
         log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, "
                   f"{v['voxels_splatted']} splatted, {v['seconds'] * 1000:.1f} ms")
@@ -112,13 +117,14 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
 
 @contextlib.contextmanager
 def _frames(scene, views, scheduler, slabs):
-    """(method, iterator of (n, rgba, FrameStats, LoadReport) in view order): in this process, or on Dask."""
+    """(method, iterator of (n, rgba, FrameStats, LoadReport) in view order, the held bytes' function or None):
+    in this process, in slabs here, or on Dask."""
     from ..renderer import Renderer
 
     bar = progress.bar(total=len(views), desc="views", unit="view")
     with bar:
         if scheduler is None and slabs > 1:
-            yield scene.render.method, _streamed(scene, views, slabs, bar)
+            yield scene.render.method, _streamed(scene, views, slabs, bar), None
             return
         if scheduler is None:
             renderer = Renderer(scene, views)
@@ -128,7 +134,7 @@ def _frames(scene, views, scheduler, slabs):
                     rgba, st = renderer.render_view(n)
                     bar.update(1)
                     yield n, rgba, st, renderer.report
-            yield renderer.method, local()
+            yield renderer.method, local(), renderer.held_bytes
             return
         from .. import distributed
         from ..augfile import open_augmented
@@ -136,7 +142,7 @@ def _frames(scene, views, scheduler, slabs):
 
         with distributed.connect(scheduler) as client:
             vs = views_for(scene, open_augmented(scene.data.augmented), views)
-            yield scene.render.method, distributed.render_views(client, scene, vs, slabs=slabs, bar=bar)
+            yield scene.render.method, distributed.render_views(client, scene, vs, slabs=slabs, bar=bar), None
 
 
 def _streamed(scene, views, slabs, bar):

@@ -188,6 +188,59 @@ def build_axis(density: np.ndarray, axis: str, ranges=None) -> AxisIndex:
                      counts[present].astype(np.uint32), offsets, out)
 
 
+@dataclass
+class ChannelValues:
+    """The channel values of the indexed voxels, stored once under ``/values`` (formats/index.md §9): voxels
+    ordered by density, then by flat position ``i + n_i * (j + n_j * k)``; the values of density ``d`` are rows
+    ``density_voxel_ptr[d] .. density_voxel_ptr[d + 1] - 1``. ``spacing_ijk`` and ``gradient_magnitude_scale``
+    are those of the augmented file the values were copied from."""
+
+    density_voxel_ptr: np.ndarray    # int64[257]
+    gradient_magnitude: np.ndarray   # uint8[V]
+    normal: np.ndarray               # uint16[V]
+    spacing_ijk: tuple
+    gradient_magnitude_scale: float
+
+
+def value_rows(density_flat: np.ndarray, indexed: np.ndarray, cursor: np.ndarray):
+    """For one run of voxels in position order (a k-slab, flattened): the offsets of those whose density is
+    ``indexed`` (bool[256]) and their rows in the values arrays, density-major then by position, where
+    ``cursor[d]`` (int64[256]) is the next row of density ``d``; advances ``cursor``.
+
+    >>> cur = np.array([0] * 5 + [3] + [0] * 250, np.int64)     # density 5 starts at row 3
+    >>> off, rows = value_rows(np.array([5, 0, 3, 5, 3], np.uint8), np.arange(256) > 0, cur)
+    >>> off.tolist(), rows.tolist(), int(cur[3]), int(cur[5])
+    ([2, 4, 0, 3], [0, 1, 3, 4], 2, 5)
+    """
+    off = np.flatnonzero(indexed[density_flat])
+    d = density_flat[off]
+    order = np.argsort(d, kind="stable")           # radix sort of uint8: O(n), keeps position order per density
+    off, d = off[order], d[order]
+    counts = np.bincount(d, minlength=256).astype(np.int64)
+    first = np.zeros(256, dtype=np.int64)
+    np.cumsum(counts[:-1], out=first[1:])
+    rows = np.arange(d.size, dtype=np.int64) + (cursor - first)[d]
+    cursor += counts
+    return off, rows
+
+
+def order_values(density, gradient_magnitude, normal, ranges=None, spacing_ijk=(1.0, 1.0, 1.0),
+                 gradient_magnitude_scale=1.0) -> ChannelValues:
+    """The :class:`ChannelValues` of volumes held in memory (``[k, j, i]``) for the densities in ``ranges``."""
+    density = _check_density(density)
+    d = density.ravel()
+    indexed = ranges_mask(ranges)
+    counts = np.where(indexed, np.bincount(d, minlength=256), 0).astype(np.int64)
+    ptr = np.zeros(257, dtype=np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    off, rows = value_rows(d, indexed, ptr[:-1].copy())
+    gm = np.empty(int(ptr[-1]), dtype=np.uint8)
+    nrm = np.empty(int(ptr[-1]), dtype=np.uint16)
+    gm[rows] = np.asarray(gradient_magnitude, dtype=np.uint8).reshape(-1)[off]
+    nrm[rows] = np.asarray(normal, dtype=np.uint16).reshape(-1)[off]
+    return ChannelValues(ptr, gm, nrm, tuple(float(x) for x in spacing_ijk), float(gradient_magnitude_scale))
+
+
 def build_index(density: np.ndarray, axes: str = "ijk", ranges=None) -> dict[str, AxisIndex]:
     """Index ``density[k, j, i]`` (uint8) along each of ``axes`` for the densities in ``ranges``."""
     axes = parse_axes(axes)

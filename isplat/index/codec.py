@@ -192,3 +192,19 @@ def decode_stream(buf, counts, dest, n_a, n_b, escape_width, out):
     if c != end:
         return ERR_TOO_MANY, counts.shape[0] - 1
     return OK, -1
+
+
+@jit
+def scatter_values(density, gradient_magnitude, normal, indexed, cursor, r0, r1, gm_out, normal_out):
+    """Copy the channel values of a run of voxels in position order into rows ``r0 .. r1 - 1`` of the values
+    arrays (formats/index.md §9: density-major, then by position): a voxel of indexed density ``d`` takes row
+    ``cursor[d]``, which then advances; rows outside the window are skipped. The caller sized ``cursor`` from
+    the same densities, so ``cursor[d]`` stays below the next density's first row."""
+    for v in range(density.shape[0]):
+        d = density[v]
+        if indexed[d]:
+            r = cursor[d]
+            cursor[d] = r + 1
+            if r0 <= r < r1:
+                gm_out[r - r0] = gradient_magnitude[v]
+                normal_out[r - r0] = normal[v]

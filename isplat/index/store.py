@@ -14,15 +14,18 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from .. import progress
 from ..errors import IsplatError
-from ..fileio import (attr_array, attr_string, atomic_output, check_checked_dataset, check_string_attrs,
-                      create_checked_dataset, create_group, create_hdf5, hdf5_errors, open_hdf5, set_string_attr)
+from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check_checked_dataset,
+                      check_string_attrs, create_checked_dataset, create_group, create_hdf5, hdf5_errors,
+                      open_counted, open_hdf5, set_string_attr)
 from . import codec
-from .build import (AXES, IN_SLICE_AXES, AxisIndex, axis_geometry, build_axis, escape_width,
-                    normalize_ranges, parse_axes)
+from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry, build_axis, escape_width,
+                    normalize_ranges, parse_axes, ranges_mask)
 
 FORMAT_NAME = "isplat-index"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3              # version 3: + /values, the indexed voxels' channel values in density order
+OLDER_VERSIONS = (2,)           # read: the same without /values (channel values come from the augmented file)
 DATASET_DTYPES = {
     "density_entry_ptr": "<i8",
     "entry_slice": "<u4",
@@ -30,15 +33,30 @@ DATASET_DTYPES = {
     "entry_byte_offset": "<i8",
     "bytes": "|u1",
 }
+VALUE_DTYPES = {
+    "density_voxel_ptr": "<i8",
+    "gradient_magnitude": "|u1",
+    "normal": "<u2",
+}
+VALUE_CHANNELS = ("gradient_magnitude", "normal")
+# Chunk sizes (bytes). HDF5 reads whole chunks, so each range a load reads costs at most two partial chunks
+# beyond its own bytes (a single-row read: one chunk); docs/design.md weighs them against the chunk indexes.
+# The two 257-row pointer tables are one chunk each; a chunk index of more than 1,024 chunks is read in pages
+# of about 14 KiB, a cost per range that does not shrink with the chunks.
+TABLE_CHUNK = 1 << 11           # entry_slice, entry_voxel_count, entry_byte_offset
+BYTES_CHUNK = 1 << 12           # bytes (the encoded blocks)
+VALUE_CHUNK = 1 << 12           # gradient_magnitude, normal under /values
+PTR_CHUNK = 257 * 8             # density_entry_ptr, density_voxel_ptr: whole
+VALUE_SLAB_VOXELS = 1 << 20     # voxels per k-slab when copying values from the augmented file
 
 
 # ----------------------------------------------------------------------------------------------- write
 
-def _write_root(f: h5py.File, shape, sha: str, ranges) -> None:
+def _write_root(f: h5py.File, shape, sha: str, ranges, version: int = FORMAT_VERSION) -> None:
     from .. import __version__
 
     set_string_attr(f, "format", FORMAT_NAME)
-    f.attrs["format_version"] = np.int64(FORMAT_VERSION)
+    f.attrs["format_version"] = np.int64(version)
     f.attrs["shape"] = np.asarray(shape, dtype="<i8")
     set_string_attr(f, "density_sha256", str(sha))
     f.attrs["density_ranges"] = np.asarray(normalize_ranges(ranges), dtype="<i8").reshape(-1, 2)
@@ -58,23 +76,106 @@ def _write_axis(f: h5py.File, ax: AxisIndex) -> None:
         # chunked with the Fletcher-32 checksum filter, little-endian (formats/index.md §1)
         data = np.ascontiguousarray(getattr(ax, name), dtype=dt)
         # small chunks: a load reads single rows of entry_byte_offset and row ranges, each rounded out to chunks
-        create_checked_dataset(g, name, data.shape, dt, data, target=(1 << 16) if name == "bytes" else (1 << 14))
+        ds = create_checked_dataset(g, name, data.shape, dt, target=BYTES_CHUNK if name == "bytes" else
+                                    PTR_CHUNK if name == "density_entry_ptr" else TABLE_CHUNK)
+        write_in_pieces(ds, data)
+
+
+WRITE_CHUNKS = 1024     # chunks per write call: HDF5 keeps a selection per chunk a write touches (~3 KiB each)
+
+
+def write_in_pieces(ds, data: np.ndarray, start: int = 0) -> None:
+    """``ds[start:start + len(data)] = data`` for a 1-D chunked dataset, at most WRITE_CHUNKS chunks per call,
+    so that writing many small chunks does not hold HDF5's per-chunk bookkeeping for all of them at once."""
+    step = WRITE_CHUNKS * ds.chunks[0]
+    for r0 in range(0, data.shape[0], step):
+        ds[start + r0:start + min(r0 + step, data.shape[0])] = data[r0:r0 + step]
+
+
+def _values_group(f: h5py.File, ptr, spacing_ijk, gradient_magnitude_scale):
+    g = create_group(f, "values")
+    g.attrs["spacing_ijk"] = np.asarray(spacing_ijk, dtype="<f8")
+    g.attrs["gradient_magnitude_scale"] = np.float64(gradient_magnitude_scale)
+    create_checked_dataset(g, "density_voxel_ptr", (257,), "<i8", np.asarray(ptr, dtype="<i8"), target=PTR_CHUNK)
+    n = int(ptr[256])
+    return g, [create_checked_dataset(g, ch, (n,), VALUE_DTYPES[ch], target=VALUE_CHUNK) for ch in VALUE_CHANNELS]
+
+
+def _write_values(f: h5py.File, v: ChannelValues) -> None:
+    _, dsets = _values_group(f, v.density_voxel_ptr, v.spacing_ijk, v.gradient_magnitude_scale)
+    for ds, ch in zip(dsets, VALUE_CHANNELS):
+        if ds.shape[0]:
+            ds[...] = getattr(v, ch)
 
 
 def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, ranges=None,
-                force: bool = False) -> Path:
-    """Write the axes of ``index`` (from :func:`build_index`) to ``path`` atomically."""
+                force: bool = False, values: ChannelValues | None = None) -> Path:
+    """Write the axes of ``index`` (from :func:`build_index`) and the channel ``values`` (from
+    :func:`isplat.index.build.order_values`) to ``path`` atomically. Without ``values`` the file is of format
+    version 2 (density only: a renderer gathers the channel values from the augmented file)."""
     with atomic_output(path, force) as tmp:
         with create_hdf5(tmp) as f:
-            _write_root(f, shape, density_sha256, ranges)
+            _write_root(f, shape, density_sha256, ranges, FORMAT_VERSION if values is not None else 2)
+            if values is not None:
+                _write_values(f, values)
             for a in AXES:
                 if a in index:
                     _write_axis(f, index[a])
     return Path(path)
 
 
-def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False) -> Path:
-    """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), one axis at a time."""
+def _slabs_of(shape, voxels: int = VALUE_SLAB_VOXELS):
+    plane = int(shape[1]) * int(shape[2])
+    step = max(1, voxels // max(1, plane))
+    return [(k0, min(int(shape[0]), k0 + step)) for k0 in range(0, int(shape[0]), step)]
+
+
+def copy_values(f: h5py.File, aug, density: np.ndarray, ranges, budget: int | None = None,
+                slab_voxels: int = VALUE_SLAB_VOXELS) -> None:
+    """Write ``/values`` of open index ``f`` from augmented volume ``aug`` (its ``density`` in memory).
+
+    The rows (density-major, then by position) are filled in windows of at most ``budget`` bytes of values
+    (default: the size of the density channel, so this holds no more than the density already in memory);
+    each window is one pass over the k-slabs (of about ``slab_voxels``) that hold some of its rows, reading
+    their channel slabs; a compiled counting scatter puts each slab's values in place. Written in pieces of
+    WRITE_CHUNKS chunks, so the peak stays that of the axes' build (docs/selective-read.md measures it)."""
+    indexed = ranges_mask(ranges)
+    slabs = _slabs_of(density.shape, slab_voxels)
+    per_slab = np.zeros((len(slabs), 256), dtype=np.int64)
+    for n, (k0, k1) in enumerate(slabs):
+        per_slab[n] = np.bincount(density[k0:k1].reshape(-1), minlength=256)
+    per_slab[:, ~indexed] = 0
+    ptr = np.zeros(257, dtype=np.int64)
+    np.cumsum(per_slab.sum(axis=0), out=ptr[1:])
+    # first row of each (slab, density): the density's start plus the voxels of earlier slabs
+    first = ptr[:-1] + np.cumsum(per_slab, axis=0) - per_slab
+    _, (ds_gm, ds_nrm) = _values_group(f, ptr, aug.spacing_ijk, aug.gradient_magnitude_scale)
+    total = int(ptr[256])
+    budget = max(1 << 24, int(density.nbytes)) if budget is None else int(budget)
+    width = max(1, budget // 3)                     # 1 + 2 bytes of values per row
+    with progress.bar(total=total, desc="index values", unit="voxel") as pb:
+        for r0 in range(0, total, width):
+            r1 = min(total, r0 + width)
+            gm = np.empty(r1 - r0, dtype=np.uint8)
+            nrm = np.empty(r1 - r0, dtype=np.uint16)
+            for n, (k0, k1) in enumerate(slabs):
+                hit = (per_slab[n] > 0) & (first[n] < r1) & (first[n] + per_slab[n] > r0)
+                if hit.any():
+                    codec.scatter_values(density[k0:k1].reshape(-1),
+                                         aug.read("gradient_magnitude", k0, k1).reshape(-1),
+                                         aug.read("normal", k0, k1).reshape(-1), indexed, first[n].copy(), r0, r1,
+                                         gm, nrm)
+            write_in_pieces(ds_gm, gm, r0)
+            write_in_pieces(ds_nrm, nrm, r0)
+            pb.update(r1 - r0)
+            del gm, nrm
+
+
+def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False,
+                     values: bool = True) -> Path:
+    """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), one axis at a time,
+    with the indexed voxels' channel values in density order (formats/index.md §9); ``values=False`` writes
+    format version 2 (no values), as isplat did before version 3."""
     from ..augfile import open_augmented
 
     axes = parse_axes(axes)
@@ -85,7 +186,9 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
     with atomic_output(out_path, force) as tmp:
         density = aug.read("density")
         with create_hdf5(tmp) as f:
-            _write_root(f, aug.shape, aug.density_sha256, ranges)
+            _write_root(f, aug.shape, aug.density_sha256, ranges, FORMAT_VERSION if values else 2)
+            if values:
+                copy_values(f, aug, density, ranges)
             for a in axes:
                 ax = build_axis(density, a, ranges)
                 _write_axis(f, ax)
@@ -140,18 +243,31 @@ class _AxisMeta:
     n_bytes: int
 
 
+@dataclass
+class _ValuesMeta:
+    n_voxels: int
+    spacing_ijk: tuple
+    gradient_magnitude_scale: float
+
+
 class IndexFile:
-    """An open, validated index file. Arrays are read on demand; :attr:`bytes_read` counts every request."""
+    """An open, validated index file. Arrays are read on demand; :attr:`bytes_read` counts every request,
+    :attr:`io` what HDF5 read from the file for them (whole chunks with checksums, metadata, the opening)."""
 
     def __init__(self, path: Path, shape, density_sha256: str, ranges, axes_meta: dict[str, _AxisMeta],
-                 attrs: dict):
+                 attrs: dict, version: int = FORMAT_VERSION, values: _ValuesMeta | None = None,
+                 io: ReadCounter | None = None):
         self.path = path
         self.shape = shape
         self.density_sha256 = density_sha256
         self.density_ranges = ranges
         self._meta = axes_meta
         self.attrs = attrs
+        self.version = int(version)
+        self.values = values
+        self.io = io if io is not None else ReadCounter()
         self.bytes_read = 0
+        self._handle = None
         self._indexed = np.zeros(256, dtype=np.bool_)
         for lo, hi in ranges:
             self._indexed[lo:hi + 1] = True
@@ -187,17 +303,80 @@ class IndexFile:
         raise IsplatError(f"{self.path}: {where}: {msg}")
 
     @contextlib.contextmanager
-    def _open(self, axis):
-        with hdf5_errors(self.path, f"/axes/{axis}"):
-            with h5py.File(self.path, "r") as f:
-                yield f["axes"][axis]
+    def session(self):
+        """Keep the file open for the reads inside the block (HDF5 then reads each object header and chunk
+        index page once, not once per load)."""
+        if self._handle is not None:
+            yield self
+            return
+        with hdf5_errors(self.path, "open"):
+            opened = open_counted(self.path, self.io)
+            self._handle = opened.__enter__()
+        try:
+            yield self
+        finally:
+            self._handle = None
+            opened.__exit__(None, None, None)
+
+    @contextlib.contextmanager
+    def _open(self, group):
+        """Group ``/axes/<group>``, or ``/values`` for ``group="values"``, of the file opened for reading."""
+        where = "/values" if group == "values" else f"/axes/{group}"
+        with self.session(), hdf5_errors(self.path, where):
+            f = self._handle
+            yield f["values"] if group == "values" else f["axes"][group]
 
     def _read(self, g, name, lo, hi):
-        with hdf5_errors(self.path, f"dataset /axes/{g.name.rsplit('/', 1)[-1]}/{name} [{lo}:{hi}]"):
+        with hdf5_errors(self.path, f"dataset {g.name}/{name} [{lo}:{hi}]"):
             arr = g[name][lo:hi]
-        arr = np.ascontiguousarray(arr, dtype=np.dtype(DATASET_DTYPES[name]).newbyteorder("="))
+        dt = DATASET_DTYPES.get(name) or VALUE_DTYPES[name]
+        arr = np.ascontiguousarray(arr, dtype=np.dtype(dt).newbyteorder("="))
         self.bytes_read += int(arr.nbytes)
         return arr
+
+    # -- channel values (format version 3)
+    @property
+    def has_values(self) -> bool:
+        """True when the file holds the indexed voxels' channel values (``/values``, version 3)."""
+        return self.values is not None
+
+    def _need_values(self):
+        if self.values is None:
+            raise IsplatError(f"{self.path}: index format version {self.version} holds no channel values; "
+                              f"rebuild it: {_rebuild_hint(self.path, None)}")
+        return self.values
+
+    def value_ptr(self, g=None) -> np.ndarray:
+        """int64[257], checked: the values of density ``d`` are rows ``ptr[d] .. ptr[d + 1] - 1``."""
+        vm = self._need_values()
+        if g is None:
+            with self._open("values") as g:
+                return self.value_ptr(g)
+        ptr = self._read(g, "density_voxel_ptr", 0, 257)
+        if ptr[0] != 0 or np.any(np.diff(ptr) < 0) or ptr[256] != vm.n_voxels:
+            raise IsplatError(f"{self.path}: /values/density_voxel_ptr is not non-decreasing from 0 to the "
+                              f"{vm.n_voxels} rows of the value datasets")
+        stray = np.flatnonzero((np.diff(ptr) > 0) & ~self._indexed)
+        if stray.size:
+            raise IsplatError(f"{self.path}: /values/density_voxel_ptr has rows for density {int(stray[0])}, "
+                              f"outside density_ranges")
+        return ptr
+
+    def read_values(self, channels, intervals) -> tuple[np.ndarray, dict]:
+        """The values of ``channels`` for the voxels of inclusive density ``intervals``: per interval one
+        contiguous row range of each channel, concatenated (density-major, then by position). Returns
+        ``(ptr, {channel: values})``."""
+        self._need_values()
+        ivs = self._intervals(intervals)
+        out = {}
+        with self._open("values") as g:
+            ptr = self.value_ptr(g)
+            for ch in channels:
+                if ch not in VALUE_CHANNELS:
+                    raise IsplatError(f"{self.path}: no channel {ch!r} in /values (it has {VALUE_CHANNELS})")
+                parts = [self._read(g, ch, int(ptr[lo]), int(ptr[hi + 1])) for lo, hi in ivs]
+                out[ch] = np.concatenate(parts) if parts else np.zeros(0, dtype=VALUE_DTYPES[ch])
+        return ptr, out
 
     def _read_ptr(self, g, axis) -> np.ndarray:
         m = self._meta[axis]
@@ -385,8 +564,11 @@ def _stored_ranges(p, a) -> list[tuple[int, int]]:
 
 def open_index(path) -> IndexFile:
     """Open and validate an index file's attributes and dataset shapes; raise :class:`IsplatError` on any problem."""
-    p, f = open_hdf5(path, "index", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint)
+    counter = ReadCounter()
+    p, f = open_hdf5(path, "index", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint, older=OLDER_VERSIONS,
+                     counter=counter)
     with f, hdf5_errors(p, "attributes and tables"):
+        version = int(f.attrs["format_version"])
         a = f.attrs
         shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
         check_string_attrs(p, a, ("density_sha256", "created_by"))
@@ -398,6 +580,7 @@ def open_index(path) -> IndexFile:
         ranges = _stored_ranges(p, a)
         if "axes" not in f or not isinstance(f["axes"], h5py.Group):
             raise IsplatError(f"{p}: group '/axes' is missing")
+        values = _check_values_group(p, f, ranges, version, shape)
         names = list(f["axes"].keys())
         if not names:
             raise IsplatError(f"{p}: group '/axes' holds no axis")
@@ -407,7 +590,41 @@ def open_index(path) -> IndexFile:
                 raise IsplatError(f"{p}: unknown axis group '/axes/{name}'; expected i, j or k")
             meta[name] = _check_axis_group(p, f["axes"][name], name, shape)
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
-    return IndexFile(p, shape, sha, ranges, meta, attrs)
+    return IndexFile(p, shape, sha, ranges, meta, attrs, version, values, counter)
+
+
+def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
+    """``/values`` as §5 says (version 3; ignored in a version-2 file, which has none)."""
+    if version < 3:
+        return None
+    if "values" not in f or not isinstance(f["values"], h5py.Group):
+        raise IsplatError(f"{p}: group '/values' is missing (format version {version} requires it)")
+    g = f["values"]
+    where = f"{p}: /values"
+    spacing = tuple(float(x) for x in attr_array(where, g.attrs, "spacing_ijk", "f", (3,)))
+    gscale = float(attr_array(where, g.attrs, "gradient_magnitude_scale", "f"))
+    if min(spacing) <= 0 or gscale < 0:
+        raise IsplatError(f"{where}: attributes 'spacing_ijk' {spacing} and 'gradient_magnitude_scale' {gscale}: "
+                          f"expected positive spacings and a scale >= 0")
+    for name, dt in VALUE_DTYPES.items():
+        if name not in g or not isinstance(g[name], h5py.Dataset):
+            raise IsplatError(f"{where}: dataset {name!r} is missing")
+        ds = g[name]
+        if ds.ndim != 1:
+            raise IsplatError(f"{where}/{name}: expected 1-D, has shape {ds.shape}")
+        if ds.dtype != np.dtype(dt):
+            raise IsplatError(f"{where}/{name}: dtype {ds.dtype}, expected {np.dtype(dt)} ({dt})")
+        check_checked_dataset(f"{where}/{name}", ds)
+    if g["density_voxel_ptr"].shape[0] != 257:
+        raise IsplatError(f"{where}/density_voxel_ptr: length {g['density_voxel_ptr'].shape[0]}, expected 257")
+    n = int(g["normal"].shape[0])
+    if g["gradient_magnitude"].shape[0] != n:
+        raise IsplatError(f"{where}/gradient_magnitude: length {g['gradient_magnitude'].shape[0]}, expected "
+                          f"{n} (the length of /values/normal)")
+    if n > int(np.prod(shape, dtype=np.int64)):
+        raise IsplatError(f"{where}/normal: {n} rows, more than the {int(np.prod(shape, dtype=np.int64))} voxels of "
+                          f"shape {shape}")
+    return _ValuesMeta(n, spacing, gscale)
 
 
 def _check_axis_group(p, g, axis, shape) -> _AxisMeta:

@@ -16,8 +16,10 @@ TILE = 8         # pixels per side of the tiles that answer "all saturated?" at 
 @jit
 def composite_sheet(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et):
     """Composite the slice's sheet over the image front to back (premultiplied 'over') at the ``nd`` pixels
-    the slice touched (``dirty``), clear them, and count pixels that crossed the early-termination opacity."""
+    the slice touched (``dirty``), clear them, and count pixels that crossed the early-termination opacity
+    (``sat``, ``tile_sat``); returns how many did."""
     w = img.shape[1]
+    newly = 0
     for t in range(nd):
         p = dirty[t]
         y = p // w
@@ -40,10 +42,12 @@ def composite_sheet(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et):
             if ai < et and an >= et:
                 tile_sat[y // TILE, x // TILE] += 1
                 sat[y, x] = 1
+                newly += 1
         sheet[y, x, 0] = 0.0
         sheet[y, x, 1] = 0.0
         sheet[y, x, 2] = 0.0
         sheet[y, x, 3] = 0.0
+    return newly
 
 
 @jit

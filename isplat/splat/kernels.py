@@ -4,30 +4,40 @@ Arrays in, arrays out, no I/O. A frame is cut into named stages, each a small co
 
 1. per slice, the traversal: which voxels reach the pipeline. :func:`render_indexed` streams the voxels the
    index selected (:func:`isplat.splat.select.select_voxels`); :func:`render_full` visits every voxel
-   (:func:`_full_cells`). Both hand the slice's voxels on grouped in cells of CELL x CELL voxels;
-2. per cell, the occlusion test (:func:`_cell_box`, :func:`_saturated`): a cell whose footprints can reach only saturated
-   pixels, or none of this thread's band, is skipped with one test;
-3. per voxel, classify, cut, project (§3) and shade (:func:`_classify`, :func:`_project`, :func:`_shade`);
+   (:func:`_full_slice`). Both hand the slice's voxels on as a hierarchy of squares of the slice: regions of
+   64 x 64 voxels, blocks of 16 x 16, cells of 4 x 4;
+2. the occlusion test (:func:`_visible_cells`, :func:`_hidden`): a region, block or cell whose footprints can
+   reach no pixel of the band, or (early termination) only saturated ones, is skipped with one test, so
+   hidden material costs one test per square rather than one per voxel;
+3. per voxel, classify, cut, project (§3) and shade (:func:`_splat_cells`: :func:`_cut_away`,
+   :func:`_project`, :func:`_path_alpha`, :func:`_shade`);
 4. the splat into the slice's sheet (:func:`_splat`), and the sheet composited into the image
    (:func:`isplat.splat.composite.composite_sheet`).
 
-Within a slice contributions are summed into a sheet buffer (order-independent), so both traversals give
-the same image up to float rounding, and the speed-up measures indexing alone.
+Within a slice contributions are summed into a sheet buffer, so both traversals give the same image up to
+float rounding (the order of the sums), and the speed-up measures indexing alone.
+
+Threads: the image is cut into bands of rows (:func:`isplat.frame.image_bands`); each band walks the slices on
+its own, visiting only the regions that :func:`bin_regions` found to reach its rows (once per frame), and a
+thread renders its bands one after the other. The image does not depend on the bands: a pixel is written by
+one band, which sums the same voxels in the same order whatever the bands are.
 
 The kernels take a few grouped arguments, named tuples built by :mod:`isplat.frame`:
 
 - ``vox``: the voxels, :data:`IndexedVoxels` (one axis of a selection) or :data:`WholeVolume` (full method);
+- ``bins``: :data:`Bins`, the regions of each slice that reach each band (indexed method);
 - ``cls``: :data:`Classify`, the transfer function's and shading's tables for this frame;
 - ``geo``: :data:`SliceGeometry`, the §3 coefficients and what perspective and cutting planes need;
 - ``fp``: :data:`FootprintTable`, the splat kernel as a 1-D table (:mod:`isplat.splat.footprint`);
-- ``buf``: :data:`Buffers`, the image and its saturation state (shared by the threads' bands), the sheet,
-  this band's list of touched pixels and counters;
-- ``band``: :data:`Band`, the image rows this call writes and the early-termination opacity.
+- ``buf``: :data:`Buffers`, the image and its saturation state (shared by the bands), the sheet, this
+  thread's scratch lists and the counters per band;
+- ``bands``: :data:`Bands`, every band's rows, the bands this call renders and the early-termination opacity.
 
-Early termination: a voxel whose footprint covers only saturated pixels (opacity at the threshold) is
-skipped before shading; TILE x TILE tiles whose pixels are all saturated answer that test at once. A band
-stops when all its tiles are saturated; that is checked before each slice, so rendering the slices in several
-calls (a progress bar, slabs) counts and draws exactly what one call does.
+Early termination: a square or voxel whose footprints cover only saturated pixels (opacity at the threshold)
+is skipped; TILE x TILE tiles whose pixels are all saturated answer that test at once, through a summed-area
+table of the band's whole tiles (one look-up for any box), made again after a slice saturates new pixels. A
+band stops when all its tiles are whole; that is checked before each slice, so rendering the slices in
+several calls (a progress bar, slabs) counts and draws exactly what one call does.
 """
 
 from __future__ import annotations
@@ -39,17 +49,18 @@ import numpy as np
 
 from ..jit import jit, leaf
 from .composite import TILE, composite_sheet
-from .select import CELL
+from .select import BLOCK, CELL, KEYS, REGION
 
 # coef layout (camera.Projection.coef)
 X0, XA, XB, XC, Y0, YA, YB, YC, W0, WA, WB, WC, CX, CY, WPE, NEAR = range(16)
 # footprint params
 QA, QB, QC, EX, EY, R2, TSCALE = range(7)
 
-IndexedVoxels = namedtuple("IndexedVoxels", "cell_ptr cell_start cell_id a b density gm nrm n_a n_b")
-IndexedVoxels.__doc__ = """One axis of a selection: slice ``c`` holds cells ``cell_ptr[c]:cell_ptr[c+1]``, cell
-``q`` the voxels ``cell_start[q]:cell_start[q+1]`` of ``a, b, density`` and of the gathered channel values
-``gm`` (gradient magnitude codes) and ``nrm`` (normal codes), empty when unused."""
+IndexedVoxels = namedtuple("IndexedVoxels", "slice_ptr region_id region_ptr block_pos block_ptr block_voxel "
+                                            "cell_pos cell_count offset density gm nrm n_a n_b")
+IndexedVoxels.__doc__ = """One axis of a selection, in the hierarchy of :mod:`isplat.splat.select` (slices, regions,
+blocks, cells, voxels), with the gathered channel values ``gm`` (gradient magnitude codes) and ``nrm`` (normal
+codes) per voxel, empty when unused."""
 WholeVolume = namedtuple("WholeVolume", "density gm nrm strides n_a n_b")
 WholeVolume.__doc__ = """Whole channels, flat ``[k, j, i]`` (full method); ``strides``: flat steps along a, b, c."""
 Classify = namedtuple("Classify", "alpha color shade use_gm use_shade")
@@ -60,91 +71,165 @@ SliceGeometry = namedtuple("SliceGeometry", "coef steps qe persp inv_unit normal
 SliceGeometry.__doc__ = """``coef`` 16 floats (camera.Projection.coef); ``steps`` rows A, B, C (3 x 3 floats);
 ``qe`` volume origin minus eye (3 floats); tuples rather than arrays, so the per-voxel stages take no arrays; ``cuts`` rows (g0, ga, gb, gc), a voxel kept where ``g0 + a*ga + b*gb + c*gc >= 0``."""
 FootprintTable = namedtuple("FootprintTable", "table params")
-Buffers = namedtuple("Buffers", "img sheet sat tile_sat tile_npix dirty_px dirty stats")
+Buffers = namedtuple("Buffers", "img sheet sat tile_sat tile_npix dirty_px dirty cells stats")
 Buffers.__doc__ = """``img`` (H, W, 4) premultiplied; ``sat`` uint8 (H, W) saturated pixels; ``tile_sat`` their
 count per tile, ``tile_npix`` the pixels per tile; ``sheet``, ``dirty_px`` and ``dirty`` the slice's buffer and
-its touched pixels; ``stats`` int64[3]: voxels examined, voxels splatted, slices done."""
-Band = namedtuple("Band", "y0 y1 et")
+its touched pixels (``dirty``: this thread's list); ``cells`` int64[C, 4] this thread's list of a slice's
+visible cells; ``stats`` int64[bands, 4]: per band the voxels in the slices
+it traversed, the voxels it tested one by one, the voxels splatted, the slices done."""
+Bands = namedtuple("Bands", "rows mine et")
+Bands.__doc__ = """``rows`` int64[bands, 2]: each band's image rows ``[y0, y1)`` (whole tiles); ``mine``: the bands
+this call renders, one after the other; ``et`` the early-termination opacity (>= 1: off)."""
+Bins = namedtuple("Bins", "ptr regions")
+Bins.__doc__ = """The regions each band must visit (:func:`bin_regions`): band ``bi``'s regions of the slice at
+position ``oi`` of the frame's order are ``regions[ptr[bi, oi]:ptr[bi, oi + 1]]``."""
 
 
 @jit
-def render_indexed(order, vox, cls, geo, fp, buf, band):
-    """Render slices ``order`` (front to back) of the index's selection ``vox`` into ``buf.img``."""
-    no_index = np.empty(0, dtype=np.int64)
-    for oi in range(order.shape[0]):
-        if _band_saturated(buf, band):
-            break
-        c = order[oi]
-        q0 = vox.cell_ptr[c]
-        q1 = vox.cell_ptr[c + 1]
-        buf.stats[0] += vox.cell_start[q1] - vox.cell_start[q0]
-        cells = (q0, q1, vox.cell_start, vox.cell_id, vox.a, vox.b, vox.density, vox.gm, vox.nrm, no_index, True)
-        _render_slice(c, cells, vox.n_a, vox.n_b, cls, geo, fp, buf, band)
+def render_indexed(order, o0, bins, vox, cls, geo, fp, buf, bands):
+    """Render the slices ``order`` (front to back; ``o0``: the position of ``order[0]`` in the frame's
+    order) of the index's selection ``vox`` into ``buf.img``, for the bands ``bands.mine``."""
+    hier = (vox.region_id, vox.region_ptr, vox.block_pos, vox.block_ptr, vox.block_voxel, vox.cell_pos,
+            vox.cell_count, vox.offset, vox.density)
+    vals = (vox.gm, vox.nrm, np.empty(0, dtype=np.int64), True)
+    for bi in bands.mine:
+        band = _band(bi, bands, buf)
+        for oi in range(order.shape[0]):
+            if _band_saturated(band):
+                break
+            c = order[oi]
+            r0 = vox.region_ptr[vox.slice_ptr[c]]
+            r1 = vox.region_ptr[vox.slice_ptr[c + 1]]
+            buf.stats[bi, 0] += vox.block_voxel[r1] - vox.block_voxel[r0]
+            p0, p1 = bins.ptr[bi, o0 + oi], bins.ptr[bi, o0 + oi + 1]
+            _render_slice(c, bins.regions, p0, p1, hier, vals, vox.n_a, vox.n_b, cls, geo, fp, buf, band)
 
 
 @jit
-def render_full(order, vox, cls, geo, fp, buf, band):
-    """Render slices ``order`` (front to back) of the whole volume ``vox`` into ``buf.img``."""
-    m = vox.n_a * vox.n_b
-    nca = (vox.n_a + CELL - 1) // CELL
-    ncb = (vox.n_b + CELL - 1) // CELL
-    cell_start = np.empty(nca * ncb + 1, dtype=np.int64)
-    cell_id = np.empty(nca * ncb, dtype=np.int32)
-    cand = (np.empty(m, dtype=np.int64), np.empty(m, dtype=np.uint16), np.empty(m, dtype=np.uint16),
-            np.empty(m, dtype=np.uint8))
-    for oi in range(order.shape[0]):
-        if _band_saturated(buf, band):
-            break
-        c = order[oi]
-        nq = _full_cells(c, vox, cls, cand, cell_start, cell_id)
-        buf.stats[0] += m
-        cells = (0, nq, cell_start, cell_id, cand[1], cand[2], cand[3], vox.gm, vox.nrm, cand[0], False)
-        _render_slice(c, cells, vox.n_a, vox.n_b, cls, geo, fp, buf, band)
+def render_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
+    """Render the slices ``order`` (front to back) of the whole volume ``vox`` into ``buf.img``: every voxel of
+    every slice is classified (the no-index baseline), in the hierarchy the index's selection has."""
+    n_a, n_b = vox.n_a, vox.n_b
+    nra = (n_a + REGION - 1) // REGION
+    ng = nra * ((n_b + REGION - 1) // REGION)
+    m = n_a * n_b
+    hier = (np.empty(ng, np.int32), np.empty(ng + 1, np.int64), np.empty(ng * 16, np.uint8),
+            np.empty(ng * 16 + 1, np.int64), np.empty(ng * 16 + 1, np.int64), np.empty(ng * KEYS, np.uint8),
+            np.empty(ng * KEYS, np.uint8), np.empty(m, np.uint8), np.empty(m, np.uint8))
+    index = np.empty(m, np.int64)
+    all_regions = np.arange(ng)
+    wanted = np.empty(ng, np.bool_)
+    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
+    for bi in bands.mine:
+        band = _band(bi, bands, buf)
+        for oi in range(order.shape[0]):
+            if _band_saturated(band):
+                break
+            c = order[oi]
+            # a band classifies only the regions whose footprints can reach its rows
+            base = _slice_bases(c, geo, cs)
+            box_args = (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1],
+                        band[1], band[2], band[5], False)
+            for rid in range(ng):
+                wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4],
+                                          buf.sat, False)
+            n_regions = _full_slice(c, vox, cls, hier, index, wanted)
+            buf.stats[bi, 0] += m
+            _render_slice(c, all_regions, 0, n_regions, hier, (vox.gm, vox.nrm, index, False), n_a, n_b, cls,
+                          geo, fp, buf, band)
 
 
 @jit
-def _band_saturated(buf, band):
-    """True when early termination is on and every pixel of this band is saturated."""
-    if band.et >= 1.0:
+def _band(bi, bands, buf):
+    """Band ``bi``'s state: (index, first row, end row, et, summed-area table of its whole tiles, first tile row)."""
+    y0, y1 = bands.rows[bi, 0], bands.rows[bi, 1]
+    ty0 = y0 // TILE
+    ty1 = (y1 + TILE - 1) // TILE
+    satab = np.zeros((ty1 - ty0 + 1, buf.tile_sat.shape[1] + 1), dtype=np.int32)
+    band = (bi, y0, y1, bands.et, satab, ty0)
+    if bands.et < 1.0:
+        _build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
+    return band
+
+
+@leaf
+def _build_sat(tile_sat, tile_npix, ty0, satab):
+    """The summed-area table of the band's whole tiles (every pixel saturated): ``satab[y + 1, x + 1]`` counts
+    the whole tiles in tile rows ``ty0 .. ty0 + y`` and columns ``0 .. x``."""
+    for y in range(satab.shape[0] - 1):
+        row = 0
+        for x in range(satab.shape[1] - 1):
+            row += 1 if tile_sat[ty0 + y, x] >= tile_npix[ty0 + y, x] else 0
+            satab[y + 1, x + 1] = satab[y, x + 1] + row
+
+
+@leaf
+def _tiles_whole(satab, ty0, x0, x1, y0, y1):
+    """True when every tile the pixel box [x0, x1] x [y0, y1] (inside the band) touches is whole."""
+    tx0 = x0 // TILE
+    tx1 = x1 // TILE + 1
+    r0 = y0 // TILE - ty0
+    r1 = y1 // TILE - ty0 + 1
+    whole = satab[r1, tx1] - satab[r0, tx1] - satab[r1, tx0] + satab[r0, tx0]
+    return whole == (r1 - r0) * (tx1 - tx0)
+
+
+@jit
+def _band_saturated(band):
+    """True when early termination is on and every pixel of the band is saturated."""
+    satab = band[4]
+    if band[3] >= 1.0:
         return False
-    for ty in range(band.y0 // TILE, (band.y1 + TILE - 1) // TILE):
-        for tx in range(buf.tile_npix.shape[1]):
-            if buf.tile_sat[ty, tx] < buf.tile_npix[ty, tx]:
-                return False
-    return True
+    return satab[-1, -1] == (satab.shape[0] - 1) * (satab.shape[1] - 1)
 
 
 @jit
-def _full_cells(c, vox, cls, cand, cell_start, cell_id):
-    """Traversal of the full method: every voxel of slice ``c`` that is not transparent, cell by cell (the
-    grouping the index's selection has), into ``cand = (flat index, a, b, density)``; returns the cells."""
-    cand_fi, cand_a, cand_b, cand_d = cand
+def _full_slice(c, vox, cls, hier, index, wanted):
+    """Traversal of the full method: every voxel of slice ``c`` that is not transparent, in the regions
+    ``wanted``, in the hierarchy (regions, blocks, cells) of the index's selection, into ``hier`` and
+    ``index`` (flat positions); returns the number of regions."""
+    region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count, offset, dens = hier
     density, gm, strides, n_a, n_b = vox.density, vox.gm, vox.strides, vox.n_a, vox.n_b
     alpha, use_gm = cls.alpha, cls.use_gm
-    nca = (n_a + CELL - 1) // CELL
-    ncb = (n_b + CELL - 1) // CELL
+    nra = (n_a + REGION - 1) // REGION
     cbase = c * strides[2]
-    ncand = 0
+    n = 0
+    ng = 0
+    nb = 0
     nq = 0
-    for qb in range(ncb):
-        for qa in range(nca):
-            first = ncand
-            for b in range(qb * CELL, min(n_b, qb * CELL + CELL)):
-                for a in range(qa * CELL, min(n_a, qa * CELL + CELL)):
-                    fi = cbase + a * strides[0] + b * strides[1]
-                    d = density[fi]
-                    if alpha[d, gm[fi] if use_gm else 0] != 0.0:
-                        cand_fi[ncand] = fi
-                        cand_a[ncand] = a
-                        cand_b[ncand] = b
-                        cand_d[ncand] = d
-                        ncand += 1
-            if ncand > first:
-                cell_start[nq] = first
-                cell_id[nq] = qb * nca + qa
-                nq += 1
-    cell_start[nq] = ncand
-    return nq
+    for rid in range(nra * ((n_b + REGION - 1) // REGION)):
+        if not wanted[rid]:
+            continue
+        ra0, rb0 = (rid % nra) * REGION, (rid // nra) * REGION
+        region_id[ng] = rid
+        region_ptr[ng] = nb
+        for bp in range(16):
+            ba0, bb0 = ra0 + (bp % 4) * BLOCK, rb0 + (bp // 4) * BLOCK
+            block_pos[nb] = bp
+            block_ptr[nb] = nq
+            block_voxel[nb] = n
+            for cp in range(16):
+                ca0, cb0 = ba0 + (cp % 4) * CELL, bb0 + (cp // 4) * CELL
+                first = n
+                for b in range(cb0, min(n_b, cb0 + CELL)):
+                    for a in range(ca0, min(n_a, ca0 + CELL)):
+                        fi = cbase + a * strides[0] + b * strides[1]
+                        d = density[fi]
+                        if alpha[d, gm[fi] if use_gm else 0] != 0.0:
+                            index[n] = fi
+                            offset[n] = (b - cb0) * CELL + a - ca0
+                            dens[n] = d
+                            n += 1
+                if n > first:
+                    cell_pos[nq] = cp
+                    cell_count[nq] = n - first
+                    nq += 1
+            nb += 1 if block_ptr[nb] < nq else 0
+        ng += 1 if region_ptr[ng] < nb else 0
+    region_ptr[ng] = nb
+    block_ptr[nb] = nq
+    block_voxel[nb] = n
+    return ng
 
 
 @leaf
@@ -160,80 +245,137 @@ def _slice_bases(c, geo, cs):
 
 
 @jit
-def _render_slice(c, cells, n_a, n_b, cls, geo, fp, buf, band):
-    """Stages 2-4 for slice ``c``: occlusion test per cell, classify/project/shade per voxel, splat into the
-    sheet, composite the sheet. ``cells = (q0, q1, cell_start, cell_id, a, b, density, gm, nrm, index,
-    direct)``: a voxel's channel values are at its own row (``direct``) or at ``index[row]``.
+def _render_slice(c, regions, p0, p1, hier, vals, n_a, n_b, cls, geo, fp, buf, band):
+    """Stages 2-4 for slice ``c`` and one band: the regions ``regions[p0:p1]``, their blocks and cells tested
+    for occlusion (stage 2, :func:`_visible_cells`), each voxel of the cells left classified, cut, projected
+    and shaded (stage 3) and splatted into the sheet (stage 4, :func:`_splat_cells`); then the sheet
+    composited into the image. Within a slice the tests see the saturation of the slices in front only, so
+    the cells can be picked first and splatted after. ``vals = (gm, nrm, index, direct)``: a voxel's channel
+    values are at its own row (``direct``) or at ``index[row]``."""
+    bi, y0b, y1b, et, satab, ty0 = band
+    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
+    base = _slice_bases(c, geo, cs)
+    box_args = (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1], y0b, y1b,
+                ty0, et < 1.0)
+    cells = buf.cells
+    nc = _visible_cells(regions, p0, p1, hier[:7], n_a, box_args, satab, buf.sat, cells)
+    nd = _splat_cells(cells, nc, hier[7], hier[8], vals, base, cs, cls, geo, fp, buf, band)
+    if composite_sheet(buf.img, buf.sheet, buf.sat, buf.tile_sat, buf.dirty_px, buf.dirty, nd, et) > 0:
+        _build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
+    buf.stats[bi, 3] += 1
+
+
+@leaf
+def _visible_cells(regions, p0, p1, hier, n_a, box_args, satab, sat, cells):
+    """Stage 2: the cells of regions ``regions[p0:p1]`` whose footprints can reach an unsaturated pixel of the
+    band, as rows ``(first voxel, end voxel, a0, b0)`` of ``cells``; a hidden region or block is skipped with
+    one test (whole tiles), a cell with one test of its tiles or pixels. Returns the number of cells."""
+    region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count = hier
+    nra = (n_a + REGION - 1) // REGION
+    nc = 0
+    for gi in range(p0, p1):
+        g = regions[gi]
+        ra0 = (region_id[g] % nra) * REGION
+        rb0 = (region_id[g] // nra) * REGION
+        if _hidden(ra0, rb0, REGION, box_args, satab, sat, False):
+            continue
+        for r in range(region_ptr[g], region_ptr[g + 1]):
+            ba0 = ra0 + (block_pos[r] % 4) * BLOCK
+            bb0 = rb0 + (block_pos[r] // 4) * BLOCK
+            if _hidden(ba0, bb0, BLOCK, box_args, satab, sat, False):
+                continue
+            n = block_voxel[r]
+            for q in range(block_ptr[r], block_ptr[r + 1]):
+                n1 = n + cell_count[q]
+                ca0 = ba0 + (cell_pos[q] % 4) * CELL
+                cb0 = bb0 + (cell_pos[q] // 4) * CELL
+                if not _hidden(ca0, cb0, CELL, box_args, satab, sat, True):
+                    cells[nc, 0] = n
+                    cells[nc, 1] = n1
+                    cells[nc, 2] = ca0
+                    cells[nc, 3] = cb0
+                    nc += 1
+                n = n1
+    return nc
+
+
+@jit
+def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, band):
+    """Stages 3 and 4 for the voxels of the cells ``cells[:nc]``; returns the sheet's touched-pixel count.
 
     The per-voxel stages take single arrays, not the grouped tuples: numba counts references to every array
     handed to a function, and a tuple of eight arrays per voxel costs more than the voxel's splat.
     """
-    q0, q1, cstart, cid, src_a, src_b, src_d, gm, nrm, index, direct = cells
+    gm, nrm, index, direct = vals
     alpha_tab, color, shade, use_gm, use_shade = cls
     coef, steps, cuts, persp = geo.coef, geo.steps, geo.cuts, geo.persp
-    sheet, sat, tile_sat, tile_npix, dirty_px, dirty, stats = buf.sheet, buf.sat, buf.tile_sat, buf.tile_npix, \
-        buf.dirty_px, buf.dirty, buf.stats
-    y0b, y1b, et = band
+    sheet, sat, dirty_px, dirty, stats = buf.sheet, buf.sat, buf.dirty_px, buf.dirty, buf.stats
+    bi, y0b, y1b, et, satab, ty0 = band
     et_on = et < 1.0
     img_w = sheet.shape[1]
     table = fp.table
     fpc = (fp.params[QA], 2.0 * fp.params[QB], fp.params[QC], fp.params[R2], fp.params[TSCALE])
     ex, ey = fp.params[EX], fp.params[EY]
     ncut = cuts.shape[0]
-    cs = np.empty(max(ncut, 1), dtype=np.float64)
-    base = _slice_bases(c, geo, cs)
-    test_cells = et_on or y0b > 0 or y1b < sheet.shape[0]
     nd = 0
-    for q in range(q0, q1):
-        if test_cells:
-            # stage 2: skip a cell whose footprints reach no pixel of this band, or only saturated ones
-            ok, box = _cell_box(cid[q], n_a, n_b, base, coef, persp, ex, ey)
-            if ok:
-                gx0, gx1 = max(box[0], 0), min(box[1], img_w - 1)
-                gy0, gy1 = max(box[2], y0b), min(box[3], y1b - 1)
-                if gy0 > gy1 or gx0 > gx1 or (et_on and _saturated(tile_sat, tile_npix, sat, gx0, gx1, gy0, gy1)):
-                    continue
-        for n in range(cstart[q], cstart[q + 1]):
+    for k in range(nc):
+        ca0, cb0 = cells[k, 2], cells[k, 3]
+        stats[bi, 1] += cells[k, 1] - cells[k, 0]
+        for n in range(cells[k, 0], cells[k, 1]):
             fi = n if direct else index[n]
-            a = np.int64(src_a[n])
-            b = np.int64(src_b[n])
-            d = src_d[n]
+            a = ca0 + np.int64(offset[n] % CELL)
+            b = cb0 + np.int64(offset[n] // CELL)
+            d = dens[n]
             L = alpha_tab[d, gm[fi] if use_gm else 0]
             if L == 0.0 or (ncut > 0 and _cut_away(a, b, cuts, cs)):
                 continue
             ok, px, py, s, box = _project(a, b, base, coef, persp, ex, ey, y0b, y1b, img_w)
-            if not ok or (et_on and _saturated(tile_sat, tile_npix, sat, box[0], box[1], box[2], box[3])):
+            if not ok or (et_on and _covered(satab, ty0, sat, box[0], box[1], box[2], box[3])):
                 continue
             alpha = _path_alpha(L, a, b, base, s, steps, persp, geo.inv_unit)
             cr, cg, cb = _shade(d, nrm[fi] if use_shade else 0, alpha, color, shade, use_shade)
             nd = _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty, nd)
             # a voxel spanning two bands is counted by the band holding its first image row
             if max(int(math.ceil(py - ey * s)), 0) >= y0b:
-                stats[1] += 1
-    composite_sheet(buf.img, sheet, sat, tile_sat, dirty_px, dirty, nd, et)
-    stats[2] += 1
+                stats[bi, 2] += 1
+    return nd
 
 
-@jit(inline="always")
-def _cell_box(cell, n_a, n_b, base, coef, persp, ex, ey):
-    """Stage 2: the pixel box ``(x0, x1, y0, y1)`` that the footprints of the cell's voxels can reach, from
-    the cell's corners (the projection of a planar rectangle is the hull of its corners' projections) grown
-    by the footprint's radius at the largest perspective scale; ``ok`` False when a corner is behind the near
-    plane (then its voxels are tested one by one)."""
+@leaf
+def _hidden(a0, b0, size, box_args, satab, sat, pixels):
+    """Stage 2: True when the footprints of the voxels of the square ``[a0, a0 + size) x [b0, b0 + size)`` of
+    the slice can reach no pixel of the band, or (early termination on) only saturated ones: whole tiles
+    answer at once, and with ``pixels`` the pixels themselves (worth it for a cell, not for larger squares)."""
+    n_a, n_b, base, coef, persp, ex, ey, img_w, y0b, y1b, ty0, et_on = box_args
+    ok, box = _rect_box(a0, min(a0 + size, n_a) - 1, b0, min(b0 + size, n_b) - 1, base, coef, persp, ex, ey)
+    if not ok:
+        return False
+    gx0, gx1 = max(box[0], 0), min(box[1], img_w - 1)
+    gy0, gy1 = max(box[2], y0b), min(box[3], y1b - 1)
+    if gy0 > gy1 or gx0 > gx1:
+        return True
+    if not et_on:
+        return False
+    if pixels:
+        return _covered(satab, ty0, sat, gx0, gx1, gy0, gy1)
+    return _tiles_whole(satab, ty0, gx0, gx1, gy0, gy1)
+
+
+@leaf
+def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
+    """The pixel box ``(x0, x1, y0, y1)`` that the footprints of voxels in the rectangle [a0, a1] x [b0, b1]
+    of the slice can reach, from its corners (the projection of a planar rectangle is the hull of its
+    corners' projections) grown by the footprint's radius at the largest perspective scale; ``ok`` False
+    when a corner is behind the near plane (then its voxels are tested one by one)."""
     xs, ys, ws = base[0], base[1], base[2]
-    nca = (n_a + CELL - 1) // CELL
-    qa0 = (cell % nca) * CELL
-    qb0 = (cell // nca) * CELL
-    qa1 = min(qa0 + CELL - 1, n_a - 1)
-    qb1 = min(qb0 + CELL - 1, n_b - 1)
     cx0 = 1e300
     cx1 = -1e300
     cy0 = 1e300
     cy1 = -1e300
     smax = 1.0
     for corner in range(4):
-        ka = qa0 if corner & 1 == 0 else qa1
-        kb = qb0 if corner & 2 == 0 else qb1
+        ka = a0 if corner & 1 == 0 else a1
+        kb = b0 if corner & 2 == 0 else b1
         kx = xs + ka * coef[XA] + kb * coef[XB]
         ky = ys + ka * coef[YA] + kb * coef[YB]
         if persp:
@@ -253,26 +395,61 @@ def _cell_box(cell, n_a, n_b, base, coef, persp, ex, ey):
 
 
 @leaf
-def _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
-    """True when every pixel of the box [x0, x1] x [y0, y1] has reached the early-termination opacity.
-
-    Tiles whose pixels are all saturated answer at once; otherwise the byte mask (small, stays in cache) does.
-    """
-    whole = True
-    for ty in range(y0 // TILE, y1 // TILE + 1):
-        for tx in range(x0 // TILE, x1 // TILE + 1):
-            if tile_sat[ty, tx] < tile_npix[ty, tx]:
-                whole = False
-                break
-        if not whole:
-            break
-    if whole:
+def _covered(satab, ty0, sat, x0, x1, y0, y1):
+    """True when every pixel of the box [x0, x1] x [y0, y1] (inside the band) has reached the
+    early-termination opacity: whole tiles answer at once; otherwise the byte mask (small, stays in cache)."""
+    if _tiles_whole(satab, ty0, x0, x1, y0, y1):
         return True
     for y in range(y0, y1 + 1):
         for x in range(x0, x1 + 1):
             if sat[y, x] == 0:
                 return False
     return True
+
+
+@jit
+def bin_regions(order, vox, geo, ex, ey, rows, img_w):
+    """Per frame, before any slice: for every band (``rows``: image rows ``[y0, y1)``, all as high as the
+    first but the last) the regions of each slice of ``order`` whose footprints can reach its rows; the
+    occlusion tests then run per band on only those. Returns :data:`Bins`' ``(ptr, regions)``."""
+    ptr = np.zeros((rows.shape[0], order.shape[0] + 1), dtype=np.int64)
+    _bin_pass(order, vox, geo, ex, ey, rows, img_w, ptr, ptr, np.empty(0, np.int64), False)
+    start = 0
+    for bi in range(rows.shape[0]):            # counts -> offsets, band after band
+        for oi in range(order.shape[0] + 1):
+            ptr[bi, oi], start = start, start + ptr[bi, oi]
+    regions = np.empty(start, dtype=np.int64)
+    _bin_pass(order, vox, geo, ex, ey, rows, img_w, ptr.copy(), ptr, regions, True)
+    return ptr, regions
+
+
+@jit
+def _bin_pass(order, vox, geo, ex, ey, rows, img_w, pos, ptr, regions, fill):
+    """One pass of :func:`bin_regions`: count the regions per band and slice into ``ptr``, or (``fill``) put
+    them at ``regions[pos[...]]``."""
+    band_h = rows[0, 1] - rows[0, 0]
+    nbands = rows.shape[0]
+    img_h = rows[nbands - 1, 1]
+    nra = (vox.n_a + REGION - 1) // REGION
+    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
+    for oi in range(order.shape[0]):
+        c = order[oi]
+        base = _slice_bases(c, geo, cs)
+        for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
+            a0 = (vox.region_id[g] % nra) * REGION
+            b0 = (vox.region_id[g] // nra) * REGION
+            ok, box = _rect_box(a0, min(a0 + REGION, vox.n_a) - 1, b0, min(b0 + REGION, vox.n_b) - 1, base,
+                                geo.coef, geo.persp, ex, ey)
+            if ok and (box[1] < 0 or box[0] > img_w - 1 or box[3] < 0 or box[2] > img_h - 1):
+                continue
+            first = max(box[2], 0) // band_h if ok else 0
+            last = min(box[3], img_h - 1) // band_h if ok else nbands - 1
+            for bi in range(first, last + 1):
+                if fill:
+                    regions[pos[bi, oi]] = g
+                    pos[bi, oi] += 1
+                else:
+                    ptr[bi, oi] += 1
 
 
 @leaf
@@ -369,15 +546,19 @@ def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty
     x0, x1, y0, y1 = box
     Qa, Qb2, Qc, R2v, tscale = fpc
     img_w = sheet.shape[1]
-    inv_s2 = 1.0 / (s * s)
+    # the quadratic form in table units (q * tscale), with this voxel's perspective scale folded in
+    k = tscale / (s * s)
+    A = Qa * k
+    B = Qb2 * k
+    C = Qc * k
+    T = R2v * tscale
     for y in range(y0, y1 + 1):
         dy = y - py
-        qy = Qc * dy * dy
-        qxy = Qb2 * dy
+        ty = C * dy * dy
+        txy = B * dy
         for x in range(x0, x1 + 1):
             dx = x - px
-            q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
-            wgt = table[int(min(q, R2v) * tscale)]
+            wgt = table[int(min((A * dx + txy) * dx + ty, T))]
             dirty[nd] = y * img_w + x
             nd += 1 - dirty_px[y, x]
             dirty_px[y, x] = 1

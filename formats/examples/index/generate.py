@@ -2,9 +2,13 @@
 
     .venv/bin/python formats/examples/index/generate.py
 
-The JSON files are the specification (their block bytes were derived by hand from formats/index.md);
-this script only writes the binary companions, with the isplat writer under test. tests/test_index_conformance.py
-checks that the writer reproduces the JSON bytes and that the committed .idx.h5 files decode back.
+The JSON files are the specification (their block bytes and the order of their channel values were derived by
+hand from formats/index.md); this script only writes the binary companions, with the isplat writer under test:
+NAME.idx.h5 (format version 3, with the channel values of the volume augmented as ``augment_array(volume,
+spacing (1, 1, 1), window (0, 255))`` does, so density codes equal the volume's values) and gaps.v2.idx.h5 (the
+same index in format version 2, without channel values, which isplat still reads).
+tests/test_index_conformance.py checks that the writer reproduces the JSON bytes and that the committed .idx.h5
+files decode back.
 """
 
 import json
@@ -14,6 +18,8 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
+SPACING = (1.0, 1.0, 1.0)
+WINDOW = (0.0, 255.0)
 
 
 def volume(example: dict) -> np.ndarray:
@@ -26,6 +32,17 @@ def volume(example: dict) -> np.ndarray:
     return v
 
 
+def channel_values(vol: np.ndarray, ranges):
+    """The example's ``/values``: its volume augmented with spacing 1 and window 0..255, in density order."""
+    from isplat.augment import augment_array
+    from isplat.index.build import order_values
+
+    aug = augment_array(vol, SPACING, WINDOW)
+    assert np.array_equal(aug["density"], vol)
+    return order_values(aug["density"], aug["gradient_magnitude"], aug["normal"], ranges, aug["spacing_ijk"],
+                        aug["gradient_magnitude_scale"]), aug
+
+
 def main() -> int:
     from isplat.augfile import density_sha256
     from isplat.index import build_index, write_index
@@ -36,7 +53,11 @@ def main() -> int:
         ranges = [tuple(r) for r in ex["density_ranges"]]
         np.save(HERE / f"{ex['name']}.npy", vol)
         index = build_index(vol, "".join(ex["axes"]), ranges)
-        write_index(HERE / f"{ex['name']}.idx.h5", index, vol.shape, density_sha256(vol), ranges, force=True)
+        values, _ = channel_values(vol, ranges)
+        write_index(HERE / f"{ex['name']}.idx.h5", index, vol.shape, density_sha256(vol), ranges, force=True,
+                    values=values)
+        if ex["name"] == "gaps":
+            write_index(HERE / "gaps.v2.idx.h5", index, vol.shape, density_sha256(vol), ranges, force=True)
         print(f"wrote {ex['name']}.npy, {ex['name']}.idx.h5", file=sys.stderr)
     return 0
 

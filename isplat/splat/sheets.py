@@ -1,0 +1,542 @@
+"""Image-aligned sheet-buffered splatting (Mueller and Crawfis 1998): no popping at the principal-axis switch.
+
+Axis-aligned sheets (:mod:`isplat.splat.kernels`) sum each slice of the principal axis into a sheet, so the
+sheets jump when the slice axis does. Here the sheets are slabs of constant depth along the view direction,
+``thick`` world units each, and every voxel adds to each slab its kernel overlaps the kernel's integral over
+that slab; slabs are composited front to back with the same premultiplied 'over' and early termination as
+the axis-aligned sheets (:func:`isplat.splat.composite.composite_sheet`). Nothing depends on the slice axis
+but the order voxels are read in, so the image changes continuously with the view.
+
+The kernel. isplat's reconstruction kernel is a Gaussian of ``sigma`` grid steps in grid space. In the
+coordinates (x, y) pixels and z depth (world units along the view direction) a grid step along a, b, c moves
+by the columns of ``J3`` (3 x 3), so the kernel is a 3-D Gaussian of covariance ``M = sigma^2 J3 J3^T``.
+Its marginal on the image is the usual footprint (:mod:`isplat.splat.footprint`, widened to at least
+MIN_SIGMA_PIXELS and cut at ``footprint_radius``); given the pixel offset ``d``, depth is Gaussian with mean
+``z_v + g.d`` and standard deviation ``s_c`` (``g = M_zxy M_xy^-1``, ``s_c^2 = M_zz - g M_xyz``). So a voxel's
+weight in slab ``[z0, z0 + thick)`` at pixel offset ``d`` is
+
+    footprint(d) * (F((z0 + thick - z_v - g.d) / s_c) - F((z0 - z_v - g.d) / s_c))
+
+with ``F`` the normal CDF cut at +-``footprint_radius`` and rescaled to 0..1, so the slabs of one voxel sum
+to exactly its footprint. With isotropic spacing ``g = 0`` and the depth factor is one number per voxel and
+slab; anisotropic spacing (thick slices) gives the slab boundary inside the ellipsoid its true tilt.
+Weights are normalised so that a uniform volume gives each slab the opacity of ``thick`` world units: the
+footprint table is scaled by ``V / (thick A_cell)`` (``V = |det J3|`` the voxel's volume in pixel-pixel-depth
+units, ``A_cell`` the projected slice cell the footprint table is normalised to). Opacities are corrected
+for a path of ``thick`` world units (orthographic); in perspective for ``thick / cos`` of the voxel's ray to
+the view direction, bounded at about 75 degrees like the axis-aligned sheets.
+
+Perspective: the slabs are planes of constant depth; the footprint and the depth profile use the kernel's
+projection along the central ray scaled by the voxel's ``t0`` (the same approximation as the axis-aligned
+footprint), not the per-voxel perspective Jacobian.
+
+The traversal: the selected voxels are bucketed once per frame by the first slab their kernel reaches
+(:func:`bucket_indexed`, :func:`bucket_full`: a counting sort, O(N)); slab ``k`` then reads the buckets
+``k - span .. k`` and keeps the voxels whose kernel reaches it. A voxel is projected, classified and shaded
+again in each slab it reaches (a few table reads) rather than held in a per-frame list.
+
+Slab thickness: the smallest spacing, or more when a kernel would otherwise reach more than
+MAX_SLABS_PER_KERNEL slabs (a spacing far below the others, e.g. 1 x 1 x 100).
+
+``_band_saturated``, ``_saturated``, ``_project`` (with the slice's terms per voxel), ``_shade`` and ``_splat``
+are copies of :mod:`isplat.splat.kernels` stages (that module's signatures are being reworked); like them
+they are compiled without reference counting (``leaf``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+from functools import lru_cache
+
+import numpy as np
+
+from ..jit import jit, leaf
+from .composite import TILE, composite_sheet
+from .select import BLOCK, CELL, REGION
+
+# coef layout (camera.Projection.coef), as in kernels.py
+X0, XA, XB, XC, Y0, YA, YB, YC, W0, WA, WB, WC, CX, CY, WPE, NEAR = range(16)
+# footprint params (footprint.Footprint.params)
+QA, QB, QC, EX, EY, R2, TSCALE = range(7)
+# a kernel reaching more slabs than this gets thicker slabs (a spacing far below the others)
+MAX_SLABS_PER_KERNEL = 48
+
+SheetVoxels = namedtuple("SheetVoxels", "slab_ptr a b c row d gm nrm culled")
+SheetVoxels.__doc__ = """The frame's voxels bucketed by first slab: bucket ``k`` holds rows
+``slab_ptr[k]:slab_ptr[k+1]`` of ``a, b, c`` (slice coordinates), ``row`` (where the voxel's ``gm``/``nrm``
+values are) and ``d`` (density); ``culled``: voxels examined but dropped when bucketing (transparent, cut
+away, behind the near plane)."""
+SheetGeometry = namedtuple("SheetGeometry", "coef zc qe steps persp inv_unit cuts z_lo thick span cond cdf")
+SheetGeometry.__doc__ = """``coef`` 16 floats (camera.Projection.coef); ``zc`` (Z0, ZA, ZB, ZC): depth along
+the view direction ``Z0 + a ZA + b ZB + c ZC`` (world units; in perspective the distance in front of the
+eye); ``qe`` volume origin minus eye and ``steps`` the world steps along a, b, c (9 floats, perspective);
+``inv_unit`` slab thickness / unit distance; ``cuts`` rows (g0, ga, gb,
+gc); ``z_lo`` depth of slab 0's front; ``thick`` slab thickness; ``span``: a voxel of first slab ``f`` reaches
+no slab after ``f + span``; ``cond`` (gx, gy, s_c, ext, flat): depth given the pixel offset (module
+docstring), ``ext`` the kernel's reach in depth, ``flat`` True when ``g`` is negligible; ``cdf``: the cut
+normal CDF ``F`` tabulated (:func:`cdf_table`)."""
+# entries of the tabulated depth CDF; linear interpolation keeps its error below 1e-7
+CDF_TABLE = 4096
+
+
+# ---- bucketing ---------------------------------------------------------------------------------------------
+@leaf
+def _first_slab(z, geo, n_slabs):
+    """First slab a kernel centred at depth ``z`` reaches (clipped to 0..n_slabs-1)."""
+    f = int(math.floor((z - geo.cond[3] - geo.z_lo) / geo.thick))
+    return min(max(f, 0), n_slabs - 1)
+
+
+@leaf
+def _keep(a, b, c, L, geo):
+    """Depth of a voxel, or -inf when it is transparent, cut away or (perspective) in front of the near
+    plane."""
+    if L == 0.0:
+        return -math.inf
+    cuts = geo.cuts
+    for ci in range(cuts.shape[0]):
+        if cuts[ci, 0] + a * cuts[ci, 1] + b * cuts[ci, 2] + c * cuts[ci, 3] < 0.0:
+            return -math.inf
+    zc = geo.zc
+    z = zc[0] + a * zc[1] + b * zc[2] + c * zc[3]
+    if geo.persp and z < geo.coef[NEAR]:
+        return -math.inf
+    return z
+
+
+@jit
+def _place(first, n_slabs, src_a, src_b, src_c, src_row, src_d, nkeep):
+    """Counting sort of the kept voxels (``first`` >= 0) by first slab into a SheetVoxels' arrays."""
+    counts = np.zeros(n_slabs + 1, dtype=np.int64)
+    for n in range(first.shape[0]):
+        if first[n] >= 0:
+            counts[first[n] + 1] += 1
+    for k in range(n_slabs):
+        counts[k + 1] += counts[k]
+    ptr = counts.copy()
+    a = np.empty(nkeep, dtype=np.uint16)
+    b = np.empty(nkeep, dtype=np.uint16)
+    c = np.empty(nkeep, dtype=np.int32)
+    row = np.empty(nkeep, dtype=np.int64)
+    d = np.empty(nkeep, dtype=np.uint8)
+    for n in range(first.shape[0]):
+        f = first[n]
+        if f >= 0:
+            p = counts[f]
+            counts[f] += 1
+            a[p] = src_a[n]
+            b[p] = src_b[n]
+            c[p] = src_c[n]
+            row[p] = src_row[n]
+            d[p] = src_d[n]
+    return ptr, a, b, c, row, d
+
+
+@jit
+def bucket_indexed(vox, alpha, use_gm, geo, n_slabs):
+    """Bucket the voxels of one axis of a selection (kernels.IndexedVoxels: slices, regions, blocks, cells,
+    voxels) by first slab; returns (slab_ptr, a, b, c, row, d, culled) with ``row`` the voxel's row in the
+    selection. The hierarchy is walked as :func:`isplat.splat.select.expand_coordinates` walks it (copied here:
+    that one allocates three int64 arrays per voxel)."""
+    n = vox.offset.shape[0]
+    first = np.full(n, -1, dtype=np.int32)
+    ca = np.empty(n, dtype=np.uint16)
+    cb = np.empty(n, dtype=np.uint16)
+    cc = np.empty(n, dtype=np.int32)
+    nra = (vox.n_a + REGION - 1) // REGION
+    nkeep = 0
+    for c in range(vox.slice_ptr.shape[0] - 1):
+        for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
+            ra0 = (vox.region_id[g] % nra) * REGION
+            rb0 = (vox.region_id[g] // nra) * REGION
+            for r in range(vox.region_ptr[g], vox.region_ptr[g + 1]):
+                v = vox.block_voxel[r]
+                for q in range(vox.block_ptr[r], vox.block_ptr[r + 1]):
+                    a0 = ra0 + (vox.block_pos[r] % 4) * BLOCK + (vox.cell_pos[q] % 4) * CELL
+                    b0 = rb0 + (vox.block_pos[r] // 4) * BLOCK + (vox.cell_pos[q] // 4) * CELL
+                    for _ in range(vox.cell_count[q]):
+                        a = np.int64(a0 + vox.offset[v] % CELL)
+                        b = np.int64(b0 + vox.offset[v] // CELL)
+                        ca[v], cb[v], cc[v] = a, b, c
+                        d = vox.density[v]
+                        z = _keep(a, b, c, alpha[d, vox.gm[v] if use_gm else 0], geo)
+                        if z > -math.inf:
+                            first[v] = _first_slab(z, geo, n_slabs)
+                            nkeep += 1
+                        v += 1
+    ptr, sa, sb, sc, srow, sd = _place(first, n_slabs, ca, cb, cc, np.arange(n), vox.density, nkeep)
+    return ptr, sa, sb, sc, srow, sd, n - nkeep
+
+
+@jit
+def bucket_full(density, gm, strides, n_a, n_b, n_c, alpha, use_gm, geo, n_slabs):
+    """Bucket every voxel of whole channels (flat ``[k, j, i]``, kernels.WholeVolume) by first slab; returns
+    (slab_ptr, a, b, c, row, d, culled) with ``row`` the flat index. Two passes over the volume (count, then
+    place), so nothing per voxel of the whole volume is held."""
+    counts = np.zeros(n_slabs + 1, dtype=np.int64)
+    for rep in range(2):
+        if rep == 1:
+            for k in range(n_slabs):
+                counts[k + 1] += counts[k]
+            ptr = counts.copy()
+            nkeep = counts[n_slabs]
+            sa = np.empty(nkeep, dtype=np.uint16)
+            sb = np.empty(nkeep, dtype=np.uint16)
+            sc = np.empty(nkeep, dtype=np.int32)
+            srow = np.empty(nkeep, dtype=np.int64)
+            sd = np.empty(nkeep, dtype=np.uint8)
+        for c in range(n_c):
+            for b in range(n_b):
+                for a in range(n_a):
+                    fi = c * strides[2] + a * strides[0] + b * strides[1]
+                    d = density[fi]
+                    z = _keep(a, b, c, alpha[d, gm[fi] if use_gm else 0], geo)
+                    if z > -math.inf:
+                        f = _first_slab(z, geo, n_slabs)
+                        if rep == 0:
+                            counts[f + 1] += 1
+                        else:
+                            p = counts[f]
+                            counts[f] += 1
+                            sa[p], sb[p], sc[p], srow[p], sd[p] = a, b, c, fi, d
+    return ptr, sa, sb, sc, srow, sd, n_a * n_b * n_c - nkeep
+
+
+# ---- the frame kernel --------------------------------------------------------------------------------------
+@jit
+def render_image(order, o0, bins, vox, cls, geo, fp, buf, bands):
+    """Render slabs ``order`` (front to back: increasing) of the bucketed voxels ``vox`` (SheetVoxels) into
+    ``buf.img``, for the image bands ``bands.mine`` one after the other; the arguments are those of
+    :func:`isplat.splat.kernels.render_indexed` with ``vox`` and ``geo`` of this module (``o0`` and ``bins``
+    unused: every band reads every bucket it needs)."""
+    for bi in bands.mine:
+        _render_band(order, bi, (bands.rows[bi, 0], bands.rows[bi, 1], bands.et), vox, cls, geo, fp, buf)
+
+
+@jit
+def _render_band(order, bi, band, vox, cls, geo, fp, buf):
+    """The slabs ``order`` for the image rows ``band = (y0, y1, et)``; counters into ``buf.stats[bi]``
+    (voxels examined, voxel visits past the depth test, voxels splatted, slabs)."""
+    alpha_tab, color, shade, use_gm, use_shade = cls
+    sheet, sat, tile_sat, tile_npix, dirty_px, dirty = buf.sheet, buf.sat, buf.tile_sat, buf.tile_npix, \
+        buf.dirty_px, buf.dirty
+    stats = buf.stats[bi]
+    y0b, y1b, et = band
+    et_on = et < 1.0
+    img_w = sheet.shape[1]
+    table = fp.table
+    fpc = (fp.params[QA], 2.0 * fp.params[QB], fp.params[QC], fp.params[R2], fp.params[TSCALE])
+    ex, ey = fp.params[EX], fp.params[EY]
+    coef, zc, persp, thick, span = geo.coef, geo.zc, geo.persp, geo.thick, geo.span
+    gx, gy, s_c, ext, flat = geo.cond
+    rcut = math.sqrt(fp.params[R2])
+    cdf = geo.cdf
+    # t (standard deviations) -> table position: (t + rcut) * depth[1]; depth[0] = 1 / s_c
+    depth = (1.0 / s_c, (cdf.shape[0] - 2) / (2.0 * rcut), rcut)
+    for oi in range(order.shape[0]):
+        if _band_saturated(tile_sat, tile_npix, band):
+            break
+        k = order[oi]
+        if k == 0:
+            stats[0] += vox.culled
+        stats[0] += vox.slab_ptr[k + 1] - vox.slab_ptr[k]
+        z0 = geo.z_lo + k * thick
+        nd = 0
+        for kk in range(max(k - span, 0), k + 1):
+            for n in range(vox.slab_ptr[kk], vox.slab_ptr[kk + 1]):
+                a = np.int64(vox.a[n])
+                b = np.int64(vox.b[n])
+                c = np.int64(vox.c[n])
+                z = zc[0] + a * zc[1] + b * zc[2] + c * zc[3]
+                if z + ext <= z0:
+                    continue            # the kernel ended in front of this slab
+                stats[1] += 1
+                ok, px, py, s, box = _project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w)
+                if not ok or (et_on and _saturated(tile_sat, tile_npix, sat, box[0], box[1], box[2], box[3])):
+                    continue
+                row = vox.row[n]
+                d = vox.d[n]
+                L = alpha_tab[d, vox.gm[row] if use_gm else 0]
+                alpha = _path_alpha(L, a, b, c, z, geo)
+                cr, cg, cb = _shade(d, vox.nrm[row] if use_shade else 0, alpha, color, shade, use_shade)
+                zrel = z - z0
+                if flat:
+                    f = _slab_mass(zrel, thick, depth, cdf)
+                    nd = _splat(px, py, s, box, cr * f, cg * f, cb * f, alpha * f, fpc, table, sheet, dirty_px,
+                                dirty, nd)
+                else:
+                    nd = _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, (zrel, thick, gx, gy),
+                                       depth, cdf, sheet, dirty_px, dirty, nd)
+                # counted once: in its first slab, by the band holding its first image row
+                if kk == k and max(int(math.ceil(py - ey * s)), 0) >= y0b:
+                    stats[2] += 1
+        composite_sheet(buf.img, sheet, sat, tile_sat, dirty_px, dirty, nd, et)
+        stats[3] += 1
+
+
+@leaf
+def _band_saturated(tile_sat, tile_npix, band):
+    """True when early termination is on and every pixel of the band ``(y0, y1, et)`` is saturated."""
+    if band[2] >= 1.0:
+        return False
+    for ty in range(band[0] // TILE, (band[1] + TILE - 1) // TILE):
+        for tx in range(tile_npix.shape[1]):
+            if tile_sat[ty, tx] < tile_npix[ty, tx]:
+                return False
+    return True
+
+
+@leaf
+def _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
+    """True when every pixel of the box has reached the early-termination opacity (copy of kernels.py's)."""
+    whole = True
+    for ty in range(y0 // TILE, y1 // TILE + 1):
+        for tx in range(x0 // TILE, x1 // TILE + 1):
+            if tile_sat[ty, tx] < tile_npix[ty, tx]:
+                whole = False
+                break
+        if not whole:
+            break
+    if whole:
+        return True
+    for y in range(y0, y1 + 1):
+        for x in range(x0, x1 + 1):
+            if sat[y, x] == 0:
+                return False
+    return True
+
+
+@leaf
+def _project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w):
+    """The voxel's pixel position, perspective scale and footprint box clipped to the image and the band
+    (kernels.py's ``_project`` with the slice's terms per voxel; ``z`` the depth, in perspective -D)."""
+    none = (0, 0, 0, 0)
+    Y = coef[Y0] + c * coef[YC] + a * coef[YA] + b * coef[YB]
+    s = 1.0
+    if persp:
+        s = -coef[WPE] / z                       # t0 of §3.2 (D = -z)
+        py = coef[CY] + s * Y
+    else:
+        py = Y
+    ry = ey * s
+    if py + ry < y0b or py - ry > y1b - 1:
+        return False, 0.0, py, s, none
+    X = coef[X0] + c * coef[XC] + a * coef[XA] + b * coef[XB]
+    px = coef[CX] + s * X if persp else X
+    rx = ex * s
+    fx0 = math.ceil(px - rx)
+    fx1 = math.floor(px + rx)
+    fy0 = math.ceil(py - ry)
+    fy1 = math.floor(py + ry)
+    if fx1 < 0 or fy1 < y0b or fx0 > img_w - 1 or fy0 > y1b - 1:
+        return False, px, py, s, none
+    box = (max(int(fx0), 0), min(int(fx1), img_w - 1), max(int(fy0), y0b), min(int(fy1), y1b - 1))
+    return box[2] <= box[3], px, py, s, box
+
+
+@leaf
+def _path_alpha(L, a, b, c, z, geo):
+    """The voxel's opacity for one slab: ``L`` (orthographic, corrected already) or, in perspective,
+    ``-expm1(thick / cos / unit * L)`` with ``cos`` between the voxel's ray and the view direction."""
+    if not geo.persp:
+        return L
+    qe = geo.qe
+    steps = geo.steps
+    vx = qe[0] + a * steps[0] + b * steps[3] + c * steps[6]
+    vy = qe[1] + a * steps[1] + b * steps[4] + c * steps[7]
+    vz = qe[2] + a * steps[2] + b * steps[5] + c * steps[8]
+    dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+    cosang = max(z / max(dist, 1e-300), 0.25)
+    return -math.expm1(geo.inv_unit / cosang * L)
+
+
+@leaf
+def _shade(d, code, alpha, color, shade, use_shade):
+    """Premultiplied colour of density ``d`` (copy of kernels.py's ``_shade``)."""
+    cr = color[d, 0]
+    cg = color[d, 1]
+    cb = color[d, 2]
+    if use_shade:
+        if shade.shape[1] == 2:
+            dif = shade[code, 0]
+            spe = shade[code, 1]
+            cr = cr * dif + spe
+            cg = cg * dif + spe
+            cb = cb * dif + spe
+        else:
+            cr = cr * shade[code, 0] + shade[code, 3]
+            cg = cg * shade[code, 1] + shade[code, 4]
+            cb = cb * shade[code, 2] + shade[code, 5]
+    return cr * alpha, cg * alpha, cb * alpha
+
+
+@lru_cache(maxsize=8)
+def cdf_table(radius: float, n: int = CDF_TABLE) -> np.ndarray:
+    """The normal CDF cut at +-``radius`` standard deviations and rescaled to 0..1, at ``n + 1`` equally
+    spaced points of [-radius, radius], plus a trailing 1 (read when t is at the top end)."""
+    t = np.linspace(-radius, radius, n + 1)
+    e = np.array([math.erf(x / math.sqrt(2.0)) for x in t])
+    er = math.erf(radius / math.sqrt(2.0))
+    out = np.append((e + er) / (2.0 * er), 1.0)
+    out.flags.writeable = False
+    return out
+
+
+@leaf
+def _cdf(t, depth, cdf):
+    """The cut normal CDF at ``t`` standard deviations, linearly interpolated in the table ``cdf``."""
+    x = (min(max(t, -depth[2]), depth[2]) + depth[2]) * depth[1]
+    i = int(x)
+    fr = x - i
+    return cdf[i] + fr * (cdf[i + 1] - cdf[i])
+
+
+@leaf
+def _slab_mass(zrel, thick, depth, cdf):
+    """Share of a voxel's kernel (centred ``zrel`` behind the slab's front) inside the slab: the depth
+    factor of an untilted kernel."""
+    return _cdf((thick - zrel) * depth[0], depth, cdf) - _cdf(-zrel * depth[0], depth, cdf)
+
+
+@leaf
+def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty, nd):
+    """Add the footprint into the sheet over ``box`` (copy of kernels.py's branch-free ``_splat``)."""
+    x0, x1, y0, y1 = box
+    Qa, Qb2, Qc, R2v, tscale = fpc
+    img_w = sheet.shape[1]
+    inv_s2 = 1.0 / (s * s)
+    for y in range(y0, y1 + 1):
+        dy = y - py
+        qy = Qc * dy * dy
+        qxy = Qb2 * dy
+        for x in range(x0, x1 + 1):
+            dx = x - px
+            q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
+            wgt = table[int(min(q, R2v) * tscale)]
+            dirty[nd] = y * img_w + x
+            nd += 1 - dirty_px[y, x]
+            dirty_px[y, x] = 1
+            sheet[y, x, 0] += wgt * cr
+            sheet[y, x, 1] += wgt * cg
+            sheet[y, x, 2] += wgt * cb
+            sheet[y, x, 3] += wgt * alpha
+    return nd
+
+
+@leaf
+def _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, slab, depth, cdf, sheet, dirty_px, dirty, nd):
+    """``_splat`` with the depth factor per pixel: the kernel's depth given the pixel offset moves by
+    ``g.d`` (``slab = (zrel, thick, gx, gy)``, offsets in pixels at ``t0 = 1``)."""
+    x0, x1, y0, y1 = box
+    Qa, Qb2, Qc, R2v, tscale = fpc
+    zrel, thick, gx, gy = slab
+    img_w = sheet.shape[1]
+    inv_s = 1.0 / s
+    inv_s2 = inv_s * inv_s
+    for y in range(y0, y1 + 1):
+        dy = y - py
+        qy = Qc * dy * dy
+        qxy = Qb2 * dy
+        zy = zrel + gy * dy * inv_s
+        for x in range(x0, x1 + 1):
+            dx = x - px
+            q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
+            wgt = table[int(min(q, R2v) * tscale)] * _slab_mass(zy + gx * dx * inv_s, thick, depth, cdf)
+            dirty[nd] = y * img_w + x
+            nd += 1 - dirty_px[y, x]
+            dirty_px[y, x] = 1
+            sheet[y, x, 0] += wgt * cr
+            sheet[y, x, 1] += wgt * cg
+            sheet[y, x, 2] += wgt * cb
+            sheet[y, x, 3] += wgt * alpha
+    return nd
+
+
+# ---- the frame's tables ------------------------------------------------------------------------------------
+SheetClassify = namedtuple("SheetClassify", "alpha color shade use_gm use_shade")
+SheetFootprint = namedtuple("SheetFootprint", "table params")
+
+
+def depth_kernel(jac, zrow, sigma, radius):
+    """The kernel's depth given the pixel offset (module docstring): ``(g, s_c, ext, V)`` for the pixel
+    Jacobian ``jac`` (2 x 3) and the depth per grid step ``zrow`` (3), with the footprint widened as
+    :func:`isplat.splat.footprint.make_footprint` widens it. ``ext``: the kernel's reach in depth over its
+    footprint; ``V = |det J3|``."""
+    from .footprint import MIN_SIGMA_PIXELS
+
+    J = np.asarray(jac, dtype=np.float64)
+    z = np.asarray(zrow, dtype=np.float64)
+    Sigma = sigma * sigma * (J @ J.T)
+    lam, vec = np.linalg.eigh(Sigma)
+    Sigma = (vec * np.maximum(lam, MIN_SIGMA_PIXELS ** 2)) @ vec.T
+    m_xz = sigma * sigma * (J @ z)
+    m_zz = sigma * sigma * float(z @ z)
+    g = np.linalg.solve(Sigma, m_xz)
+    s_c = math.sqrt(max(m_zz - float(g @ m_xz), 0.0))
+    tilt = math.sqrt(max(float(g @ Sigma @ g), 0.0))
+    V = abs(float(np.linalg.det(np.vstack([J, z]))))
+    return g, s_c, float(radius) * (s_c + tilt), V, tilt
+
+
+def slab_range(z0, zrow, n_abc, thick, ext, near=None):
+    """``(z_lo, n_slabs)``: the slabs covering every kernel of a grid of ``n_abc`` voxels whose centres have
+    depth ``z0 + (a, b, c) . zrow`` (in perspective not nearer than ``near``), slab boundaries anchored to
+    the middle depth of the grid's corners (so they move with the volume, not with the near plane)."""
+    n = np.asarray(n_abc) - 1
+    corners = np.array([[x, y, w] for x in (0, n[0]) for y in (0, n[1]) for w in (0, n[2])], dtype=np.float64)
+    zs = z0 + corners @ np.asarray(zrow, dtype=np.float64)
+    zmid = 0.5 * (float(zs.min()) + float(zs.max()))
+    zmin = float(zs.min()) if near is None else max(float(zs.min()), near)
+    zmax = max(float(zs.max()), zmin)
+    z_lo = zmid + thick * math.floor((zmin - ext - zmid) / thick)
+    return z_lo, max(1, int(math.floor((zmax + ext - z_lo) / thick)) + 1)
+
+
+def image_frame(sel, view, dtype, shade, cuts):
+    """The tables of an image-aligned frame: ``(kernel, vox, cls, geo, fp, order)`` for
+    :func:`isplat.frame.render_slab` (``shade`` the frame's shading table, ``cuts`` the planes' rows in slice
+    coordinates of the view's principal axis, as :func:`isplat.frame.cut_coefficients`)."""
+    from .. import camera as cam_mod
+    from .. import grid
+    from ..errors import IsplatError
+    from ..transfer import alpha_table
+    from .footprint import make_footprint
+
+    ro, geom, frame = view.render, view.geom, view.frame
+    axis = view.axis_sign[0]
+    ia, ib, ic = grid.SLICE_AXES[axis]
+    proj = cam_mod.projection(frame, geom, axis)
+    persp = frame.projection == "perspective"
+    S = proj.steps
+    zrow = -(S @ frame.w)
+    origin = frame.e if persp else frame.p
+    z0 = -float((geom.q - origin) @ frame.w)
+    g, s_c, ext, V, tilt = depth_kernel(proj.jac, zrow, ro.footprint_sigma, ro.footprint_radius)
+    if not s_c > 0.0 or not math.isfinite(ext):
+        raise IsplatError("render.sheets = 'image': the kernel has no depth in this view; use sheets = 'axis'")
+    thick = max(float(geom.spacing.min()), 2.0 * ext / MAX_SLABS_PER_KERNEL)
+    z_lo, n_slabs = slab_range(z0, zrow, geom.n_ijk[[ia, ib, ic]], thick, ext, frame.near if persp else None)
+    span = int(math.ceil(2.0 * ext / thick)) + 1
+    fp = make_footprint(proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, dtype)
+    a_cell = abs(float(np.linalg.det(proj.jac[:, :2])))
+    table = (fp.table.astype(np.float64) * (V / (thick * a_cell))).astype(dtype)
+    unit = sel.unit_distance or float(geom.spacing.min())
+    coef = tuple(float(x) for x in proj.coef)
+    zc = (z0, *(float(x) for x in zrow))
+    qe = tuple(float(x) for x in (geom.q - frame.e)) if persp else (0.0, 0.0, 0.0)
+    geo = SheetGeometry(coef, zc, qe, tuple(float(x) for x in S.ravel()), persp, thick / unit,
+                        np.ascontiguousarray(cuts, dtype=np.float64), float(z_lo), float(thick), span,
+                        (float(g[0]), float(g[1]), float(s_c), float(ext), bool(tilt <= 1e-9 * s_c)),
+                        cdf_table(float(ro.footprint_radius)))
+    atab = alpha_table(sel.luts, None if persp else thick / unit)
+    cls = SheetClassify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
+    vox = sel.voxels(axis)
+    if sel.method == "full":
+        n_c = int(geom.n_ijk[ic])
+        out = bucket_full(vox.density, vox.gm, np.asarray(vox.strides, np.int64), vox.n_a, vox.n_b, n_c, atab,
+                          sel.use_gm, geo, n_slabs)
+    else:
+        out = bucket_indexed(vox, atab, sel.use_gm, geo, n_slabs)
+    svox = SheetVoxels(*out[:6], vox.gm, vox.nrm, int(out[6]))
+    return render_image, svox, cls, geo, SheetFootprint(table, fp.params), np.arange(n_slabs, dtype=np.int64)

@@ -1,0 +1,324 @@
+"""The channel values in the index (format version 3, formats/index.md §9): the values a selection reads equal
+the position-ordered channels at the selected voxels, for random volumes, density ranges and intervals; the
+bytes HDF5 reads for them (counted at the file object) stay within the stated bound; old and mismatched files."""
+
+import tempfile
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conftest import write_volume
+from isplat import fileio
+from isplat.augfile import density_sha256, write_augmented
+from isplat.errors import IsplatError
+from isplat.index import build_index, build_index_file, open_index, write_index
+from isplat.index import store
+from isplat.index.build import order_values
+from isplat.selection import gather_channels, gather_from_index, select_from_files, value_order
+
+SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def reference_order(density, ranges):
+    """Flat positions of the indexed voxels by density, then position: a plain lexsort."""
+    d = density.ravel()
+    inside = np.zeros(256, bool)
+    for lo, hi in ranges:
+        inside[lo:hi + 1] = True
+    flat = np.flatnonzero(inside[d])
+    return flat[np.lexsort((flat, d[flat]))]
+
+
+def positions_to_flat(la, shape):
+    """Flat [k, j, i] index of each loaded voxel, from its slice and in-slice position (no shared code)."""
+    out = np.empty(la.n_voxels, np.int64)
+    n_k, n_j, n_i = shape
+    for s in range(la.n_slices):
+        r0, r1 = la.slice_block_ptr[s], la.slice_block_ptr[s + 1]
+        v0, v1 = la.block_voxel_ptr[r0], la.block_voxel_ptr[r1]
+        a, b = la.positions[v0:v1] % la.n_a, la.positions[v0:v1] // la.n_a
+        k, j, i = {"k": (s, b, a), "j": (b, s, a), "i": (b, a, s)}[la.axis]
+        out[v0:v1] = (np.asarray(k) * n_j + j) * n_i + i
+    return out
+
+
+@st.composite
+def volumes(draw):
+    shape = tuple(draw(st.integers(1, 7)) for _ in range(3))
+    seed = draw(st.integers(0, 2**31))
+    levels = np.array(sorted(set(draw(st.lists(st.integers(0, 255), min_size=1, max_size=6)))), np.uint8)
+    r = np.random.default_rng(seed)
+    dens = r.choice(levels, size=shape)
+    gm = r.integers(0, 256, shape, dtype=np.uint8)
+    nrm = r.integers(0, 65536, shape, dtype=np.uint16)
+    lo = draw(st.integers(0, 255))
+    ranges = [(lo, draw(st.integers(lo, 255)))]
+    if draw(st.booleans()):
+        ranges = [(0, 255)]
+    a = draw(st.integers(ranges[0][0], ranges[0][1]))
+    b = draw(st.integers(a, ranges[0][1]))
+    return dens, gm, nrm, ranges, [(a, b)]
+
+
+@SETTINGS
+@given(volumes(), st.integers(1, 40), st.integers(1, 60))
+def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget, slab_voxels):
+    """The writer (in windows of ``budget`` bytes, k-slabs of about ``slab_voxels``), the reader and the
+    per-axis reordering against lexsort and plain indexing of the position-ordered channels; the slab gathering
+    of version 2 agrees."""
+    dens, gm, nrm, ranges, ivs = v
+    with tempfile.TemporaryDirectory() as t:
+        t = Path(t)
+        aug = t / "a.h5"
+        write_augmented(aug, dens, gm, nrm, (1.0, 2.0, 0.5), (0.0, 255.0), 0.25)
+        idx_path = t / "i.h5"
+        from isplat.augfile import open_augmented
+        a = open_augmented(aug)
+        with fileio.create_hdf5(idx_path) as f:
+            store._write_root(f, dens.shape, a.density_sha256, ranges)
+            store.copy_values(f, a, dens, ranges, budget=budget, slab_voxels=slab_voxels)
+            for ax, ai in build_index(dens, "ijk", ranges).items():
+                store._write_axis(f, ai)
+        idx = open_index(idx_path)
+        ref = reference_order(dens, ranges)
+        ptr, vals = idx.read_values(["normal", "gradient_magnitude"], ranges)
+        assert np.array_equal(vals["normal"], nrm.ravel()[ref])
+        assert np.array_equal(vals["gradient_magnitude"], gm.ravel()[ref])
+        mem = order_values(dens, gm, nrm, ranges)
+        assert np.array_equal(mem.density_voxel_ptr, ptr) and np.array_equal(mem.normal, vals["normal"])
+        loaded = {ax: idx.load_axis(ax, ivs) for ax in "ijk"}
+        got = gather_from_index(idx.read_values(["normal", "gradient_magnitude"], ivs), loaded,
+                                ["normal", "gradient_magnitude"], dens.shape)
+        old = gather_channels(lambda ch, k0, k1: {"normal": nrm, "gradient_magnitude": gm}[ch][k0:k1], loaded,
+                              ["normal", "gradient_magnitude"], dens.shape)
+        for ax, la in loaded.items():
+            flat = positions_to_flat(la, dens.shape)
+            assert np.array_equal(got[ax]["normal"], nrm.ravel()[flat]), ax
+            assert np.array_equal(got[ax]["gradient_magnitude"], gm.ravel()[flat]), ax
+            assert np.array_equal(old[ax]["normal"], got[ax]["normal"])
+            # value_order is the (density, position) order of the loaded voxels
+            dv = np.repeat(la.block_density, np.diff(la.block_voxel_ptr))
+            perm = value_order(la, dens.shape)
+            key = dv.astype(np.int64) * dens.size + flat
+            assert np.all(np.diff(key[perm]) > 0)
+
+
+def _scene(make_scene, aug, idx, shading=True):
+    return make_scene(aug, idx, image="width = 12\nheight = 12",
+                      transfer="opacity = [[100, 0], [110, 1], [255, 1]]",
+                      shading=f"enabled = {'true' if shading else 'false'}",
+                      views="list = [{azimuth = 0}, {azimuth = 90}, {azimuth = 0, elevation = 90}]")
+
+
+def _selected_flat(s, shape):
+    """Flat index of every selected voxel of AxisSelection ``s``, from its slice and in-slice coordinates."""
+    n_k, n_j, n_i = shape
+    c, a, b = s.coordinates()
+    k, j, i = {"k": (c, b, a), "j": (b, c, a), "i": (b, a, c)}[s.axis]
+    return (np.asarray(k) * n_j + j) * n_i + i
+
+
+def test_selection_reads_only_the_values_and_they_are_right(tmp_path, make_scene):
+    """End to end: every selected voxel's normal and gradient magnitude (gathered from /values) equals the
+    augmented channels at its position; the augmented channels are not read; a version-2 index gives the same
+    selection by gathering slabs."""
+    r = np.random.default_rng(3)
+    shape = (9, 11, 13)
+    dens = r.choice(np.array([0, 50, 105, 180, 250], np.uint8), size=shape)
+    gm = r.integers(0, 256, shape, dtype=np.uint8)
+    nrm = r.integers(0, 65536, shape, dtype=np.uint16)
+    aug, idx = write_volume(tmp_path, dens, gm=gm, normal=nrm)
+    scene = make_scene(aug, idx, image="width = 12\nheight = 12",
+                       transfer="opacity = [[100, 0], [110, 1], [255, 1]]\n"
+                                "gradient_opacity = [[0, 0.5], [255, 1]]")
+    sel = select_from_files(scene, "ijk")
+    assert sel.report.values_from == "index" and sel.report.augmented_bytes == 0
+    assert set(sel.report.channels) == {"normal", "gradient_magnitude"}
+    want = int(((dens >= 101) & (dens <= 255)).sum())
+    assert sel.report.voxels_of_interest == want
+    for ax, s in sel.axes.items():
+        flat = _selected_flat(s, shape)
+        assert np.array_equal(s.normal, nrm.ravel()[flat]) and np.array_equal(s.gradient_magnitude, gm.ravel()[flat])
+        assert np.array_equal(s.density, dens.ravel()[flat])
+    # the same index in format version 2: the same selection, gathered from the augmented file's slabs
+    v2 = tmp_path / "v2.idx.h5"
+    write_index(v2, build_index(dens), shape, density_sha256(dens))
+    old = select_from_files(make_scene(aug, v2, image="width = 12\nheight = 12",
+                                       transfer="opacity = [[100, 0], [110, 1], [255, 1]]\n"
+                                                "gradient_opacity = [[0, 0.5], [255, 1]]"), "ijk")
+    assert old.report.values_from == "augmented slabs" and old.report.augmented_bytes > 0
+    assert old.report.index_format_version == 2 and sel.report.index_format_version == 3
+    for ax in "ijk":
+        for a, b in zip(old.axes[ax].arrays(), sel.axes[ax].arrays()):
+            assert np.array_equal(a, b)
+
+
+class _Trace:
+    """Record every read HDF5 makes through isplat's counting file object (offset, size)."""
+
+    def __init__(self, monkeypatch):
+        self.reads = []
+        orig = fileio._CountingRaw.readinto
+
+        def readinto(raw, buf):
+            pos = raw._f.tell()
+            n = orig(raw, buf)
+            self.reads.append((pos, n))
+            return n
+        monkeypatch.setattr(fileio._CountingRaw, "readinto", readinto)
+
+
+def _chunks(path, name):
+    """(offset, size) of every stored chunk of dataset ``name``, in row order."""
+    with h5py.File(path, "r") as f:
+        ds = f[name]
+        return ds.chunks[0], [(ds.id.get_chunk_info(n).byte_offset, ds.id.get_chunk_info(n).size)
+                              for n in range(ds.id.get_num_chunks())]
+
+
+META_BOUND = 16 << 10      # a range read's HDF5 metadata: the dataset's object header and one chunk-index page
+
+
+@SETTINGS
+@given(st.integers(0, 255), st.integers(0, 255), st.sampled_from(["normal", "gradient_magnitude"]))
+def test_bytes_read_for_an_interval_are_its_chunks_and_little_metadata(big_index, lo, hi, channel):
+    """Read counts from the HDF5 layer: an interval's values cost exactly the chunks that hold its rows (each
+    with its 4-byte checksum: at most one partial chunk at each end), plus at most META_BOUND of metadata."""
+    path, trace = big_index
+    lo, hi = min(lo, hi), max(lo, hi)
+    idx = open_index(path)
+    with idx.session():
+        ptr = idx.value_ptr()
+        trace.reads.clear()
+        before = idx.io.bytes
+        _, vals = idx.read_values([channel], [(lo, hi)])
+        read = idx.io.bytes - before
+    r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
+    rows_per_chunk, chunks = _chunks(path, f"values/{channel}")
+    touched = range(r0 // rows_per_chunk, -(-r1 // rows_per_chunk)) if r1 > r0 else range(0)
+    chunk_bytes = sum(chunks[c][1] for c in touched)
+    inside = {chunks[c][0] for c in touched}
+    data = sum(n for pos, n in trace.reads if pos in inside)
+    item = 2 if channel == "normal" else 1
+    assert data == chunk_bytes                            # whole chunks, each read once
+    assert chunk_bytes <= (r1 - r0) * item + 2 * store.VALUE_CHUNK + 4 * len(touched)
+    assert read - data <= META_BOUND                       # the rest is metadata
+    assert vals[channel].size == r1 - r0
+
+
+@pytest.fixture(scope="module")
+def big_index(tmp_path_factory):
+    """A 40 x 48 x 64 volume of smooth densities (so intervals are long row ranges over many chunks)."""
+    t = tmp_path_factory.mktemp("big")
+    k, j, i = np.meshgrid(np.arange(40), np.arange(48), np.arange(64), indexing="ij")
+    dens = ((k * 3 + j * 2 + i) % 256).astype(np.uint8)
+    r = np.random.default_rng(0)
+    aug, idx = write_volume(t, dens, gm=r.integers(0, 256, dens.shape, dtype=np.uint8),
+                            normal=r.integers(0, 65536, dens.shape, dtype=np.uint16))
+    mp = pytest.MonkeyPatch()
+    yield idx, _Trace(mp)
+    mp.undo()
+
+
+def test_selection_bytes_read_against_needed(tmp_path, make_scene):
+    """The report's figures: bytes needed = voxels of interest x 2 B of normal + the index blocks and tables
+    requested + the 257-row pointer table; bytes read (HDF5 layer) cover at least what was requested."""
+    dens = np.random.default_rng(5).choice(np.array([0, 120, 200], np.uint8), size=(20, 24, 28))
+    aug, idx = write_volume(tmp_path, dens)
+    sel = select_from_files(_scene(make_scene, aug, idx), "k")
+    rep = sel.report
+    voi = int((dens >= 101).sum())
+    assert rep.voxels_of_interest == voi
+    assert rep.bytes_needed == 2 * voi + rep.index_block_bytes + 257 * 8 == rep.index_bytes
+    assert rep.index_file_bytes >= rep.index_bytes and rep.file_bytes == rep.index_file_bytes + rep.augmented_file_bytes
+    assert rep.read_ratio == rep.file_bytes / rep.bytes_needed
+
+
+def test_values_from_another_augmentation_are_refused(tmp_path, make_scene):
+    """Same densities, other spacing: the index's values belong to another augmented file."""
+    dens = np.random.default_rng(6).choice(np.array([0, 200], np.uint8), size=(5, 6, 7))
+    aug, idx = write_volume(tmp_path, dens)
+    aug2, _ = write_volume(tmp_path, dens, spacing=(1.0, 1.0, 2.0), name="other", index=False)
+    with pytest.raises(IsplatError, match=r"channel values were copied from an augmented file with spacing_ijk "
+                                          r"\(1.0, 1.0, 1.0\).*rebuild it: isplat index .*other.aug.h5 -o .* --force"):
+        select_from_files(_scene(make_scene, aug2, idx), "k")
+
+
+@pytest.mark.parametrize("case, msg", [
+    ("ptr", "density_voxel_ptr is not non-decreasing from 0 to the"),
+    ("count", "/values holds 149 voxels of density 199, the blocks of axis k 0: corrupt index"),
+    ("missing", "group '/values' is missing (format version 3 requires it)"),
+    ("length", "gradient_magnitude: length 149, expected 150"),
+    ("attr", "attribute 'gradient_magnitude_scale' has type int64, expected float64"),
+])
+def test_corrupt_values_are_refused_with_one_line(tmp_path, make_scene, case, msg):
+    dens = np.zeros((5, 6, 7), np.uint8)
+    dens[:, :, :5] = 200
+    aug, idx = write_volume(tmp_path, dens, index=False)
+    build_index_file(aug, idx, ranges=[(150, 255)])
+    with h5py.File(idx, "r+") as f:
+        g = f["values"]
+        if case == "ptr":
+            p = g["density_voxel_ptr"][()]
+            p[100] = 7
+            g["density_voxel_ptr"][...] = p
+        elif case == "count":
+            p = g["density_voxel_ptr"][()]
+            p[200] = p[201] - 1
+            g["density_voxel_ptr"][...] = p
+        elif case == "missing":
+            del f["values"]
+        elif case == "length":
+            data = g["gradient_magnitude"][:-1]
+            del g["gradient_magnitude"]
+            fileio.create_checked_dataset(g, "gradient_magnitude", data.shape, "|u1", data)
+        elif case == "attr":
+            g.attrs["gradient_magnitude_scale"] = np.int64(1)
+    scene = make_scene(aug, idx, image="width = 12\nheight = 12", transfer="opacity = [[150, 0], [160, 1], [255, 1]]")
+    with pytest.raises(IsplatError) as exc:
+        select_from_files(scene, "k")
+    text = str(exc.value)
+    assert msg in text and str(idx) in text and "\n" not in text, text
+
+
+def test_index_cli_on_a_sample_volume(tmp_path, capsys):
+    """`isplat sample`, `isplat augment`, `isplat index`: the file holds every voxel's values in density order."""
+    from isplat.augfile import open_augmented
+    from isplat.cli.main import main
+
+    npy, out = tmp_path / "engine.npy", tmp_path / "engine.aug.h5"
+    for args in (["sample", "engine", "--shape", "24,20,12", "-o", npy, "-q"], ["augment", npy, "-o", out, "-q"],
+                 ["index", out, "-o", tmp_path / "e.idx.h5", "-q"]):
+        with pytest.raises(SystemExit) as exc:
+            main([str(a) for a in args])
+        assert exc.value.code == 0, capsys.readouterr().err
+    a = open_augmented(out)
+    dens, nrm = a.read("density"), a.read("normal")
+    idx = open_index(tmp_path / "e.idx.h5")
+    _, vals = idx.read_values(["normal"], [(0, 255)])
+    assert np.array_equal(vals["normal"], nrm.ravel()[reference_order(dens, [(0, 255)])])
+    assert idx.axes == "ijk" and idx.version == 3
+
+
+def test_stats_of_a_version_2_index_say_where_values_come_from(tmp_path, make_scene):
+    """`isplat stats` on a format-2 index: the values come from the augmented file, and the rebuild is named."""
+    from isplat.stats import collect, format_table
+
+    dens = np.random.default_rng(7).choice(np.array([0, 120, 200], np.uint8), size=(6, 7, 8))
+    aug, _ = write_volume(tmp_path, dens, index=False)
+    v2 = tmp_path / "v2.idx.h5"
+    write_index(v2, build_index(dens), dens.shape, density_sha256(dens))
+    scene = tmp_path / "s.toml"
+    scene.write_text(f'version = 1\n[data]\naugmented = "{aug}"\nindex = "{v2}"\n[image]\nwidth = 8\nheight = 8\n'
+                     '[transfer]\nopacity = [[100, 0], [110, 1], [255, 1]]\n')
+    s = collect(aug, v2, scene=scene)
+    assert s["index"]["format_version"] == 2 and s["index"]["values"] is None
+    ld = s["scene"]["loaded"]
+    assert ld["values_from"] == "augmented slabs" and ld["augmented_bytes"] == 2 * dens.size
+    assert ld["bytes_needed"] == 2 * int((dens >= 101).sum()) + ld["index_bytes"]
+    table = format_table(s)
+    assert "rebuild with isplat index" in table and "in slabs of 8 k-slices" in table

@@ -73,6 +73,8 @@ def run(out_dir: Path, quick: bool) -> Path:
               ("render, opaque (bone), `--slabs 8` (streamed)", render("bone8.png", scene, "--slabs", "8"), False),
               ("render, semi-transparent, `--slabs 32` (streamed)", render("veil32.png", scene + SEMI, "--slabs", "32"),
                False)]
+    for png in ("bone.png", "veil.png", "bone8.png", "veil32.png"):
+        (work / png).unlink(missing_ok=True)          # compare only what this run wrote
     rows = []
     for name, args, again in stages:
         _log(f"{name} (limited to {LIMIT >> 30} GiB)")

@@ -403,7 +403,7 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
     """
     check_output(out, force)  # fail before any work
     vol = read_volume(inp, shape=shape, dtype=dtype, byte_order=byte_order, header_bytes=header_bytes,
-                      spacing=spacing, level=level, series=series)
+                      spacing=spacing, level=level, series=series, stream=True)
     name = str(inp)
     if thin_slices:
         from .resample import thin_volume

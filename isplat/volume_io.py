@@ -87,14 +87,16 @@ def parse_triple(text: str, what: str, cast=float):
 
 
 def read_volume(path, shape=None, dtype=None, byte_order="little", header_bytes=0, spacing=None,
-                level=None, series=None) -> Volume:
+                level=None, series=None, stream: bool = False) -> Volume:
     """Read the volume at ``path`` (``'-'`` = raw data on stdin).
 
     Raw input needs ``shape=(n_i, n_j, n_k)`` and ``dtype``; a ``.raw``/``.bin`` file or ``-`` is raw, and
     so is any file when ``shape`` is given. ``spacing`` (i, j, k) overrides the file's spacing. ``level``
     picks an OME-Zarr multiscale level (0 = full resolution); ``series`` a DICOM SeriesInstanceUID.
+    ``stream``: a raw or C-order .npy file is read with plain file reads as it is indexed (:class:`LazyFile`),
+    not memory-mapped, so a volume larger than the process's address space can be read slab by slab.
     """
-    vol = _read_any(path, shape, dtype, byte_order, header_bytes, level, series)
+    vol = _read_any(path, shape, dtype, byte_order, header_bytes, level, series, stream)
     name = str(path)
     if level is not None and vol.meta.get("format") != "zarr":
         raise IsplatError(f"{name}: --level {level} applies to Zarr / OME-Zarr input only")
@@ -109,7 +111,7 @@ def read_volume(path, shape=None, dtype=None, byte_order="little", header_bytes=
     return vol
 
 
-def _read_any(path, shape, dtype, byte_order, header_bytes, level, series) -> Volume:
+def _read_any(path, shape, dtype, byte_order, header_bytes, level, series, stream=False) -> Volume:
     raw = shape is not None or dtype is not None or header_bytes
     name = str(path)
     p = Path(name)
@@ -128,9 +130,9 @@ def _read_any(path, shape, dtype, byte_order, header_bytes, level, series) -> Vo
                 return _read_zarr(p, level)
             vol = _read_folder(p, series)
         elif raw or low.endswith((".raw", ".bin", ".dat")):
-            vol = _read_raw_file(p, shape, dtype, byte_order, header_bytes)
+            vol = _read_raw_file(p, shape, dtype, byte_order, header_bytes, stream)
         elif low.endswith(".npy"):
-            vol = _read_npy(p)
+            vol = _read_npy(p, stream)
         elif low.endswith((".nrrd", ".nhdr")):
             vol = _read_nrrd(p)
         elif low.endswith((".nii", ".nii.gz")):
@@ -174,13 +176,16 @@ def _raw_meta(dt, shape, header_bytes, byte_order):
             "spacing_source": "default 1,1,1"}
 
 
-def _read_raw_file(p, shape, dtype, byte_order, header_bytes):
+def _read_raw_file(p, shape, dtype, byte_order, header_bytes, stream=False):
     dt, kji, nbytes = _raw_dtype(p, shape, dtype, byte_order, header_bytes)
     size = p.stat().st_size
     if size != header_bytes + nbytes:
         raise IsplatError(f"{p}: file has {size} bytes; --shape {','.join(map(str, shape))} --dtype {dtype} "
                           f"with --header-bytes {header_bytes} needs {header_bytes + nbytes} bytes")
-    arr = np.memmap(p, dtype=dt, mode="r", offset=int(header_bytes), shape=kji)
+    if stream:
+        arr = LazyFile(p, int(header_bytes), dt, kji)
+    else:
+        arr = np.memmap(p, dtype=dt, mode="r", offset=int(header_bytes), shape=kji)
     return Volume(arr, (1.0, 1.0, 1.0), _raw_meta(dt, shape, header_bytes, byte_order))
 
 
@@ -201,15 +206,34 @@ def _read_raw_stdin(shape, dtype, byte_order, header_bytes):
 
 # --- npy -------------------------------------------------------------------------------------------------------
 
-def _read_npy(p):
+def _read_npy(p, stream=False):
     try:
-        arr = np.load(p, mmap_mode="r", allow_pickle=False)
+        arr = _npy_stream(p) if stream else None
+        arr = np.load(p, mmap_mode="r", allow_pickle=False) if arr is None else arr
     except (ValueError, OSError, EOFError) as exc:
         raise IsplatError(f"{p}: not a readable .npy file ({_short(exc)}; truncated?)") from None
-    if not isinstance(arr, np.ndarray):
+    if not isinstance(arr, (np.ndarray, LazyFile)):
         raise IsplatError(f"{p}: .npy holds no array")
     return Volume(arr, (1.0, 1.0, 1.0), {"format": "npy", "source_dtype": arr.dtype.name,
                                          "spacing_source": "default 1,1,1 (.npy has no spacing)"})
+
+
+def _npy_stream(p):
+    """A :class:`LazyFile` over a C-order .npy file (None for Fortran order: memory-mapped then)."""
+    with open(p, "rb") as fh:
+        fmt = np.lib.format
+        version = fmt.read_magic(fh)
+        if version not in ((1, 0), (2, 0)):
+            return None
+        read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+        shape, fortran, dtype = read_header(fh)
+        offset = fh.tell()
+    if fortran or dtype.hasobject or len(shape) != 3:
+        return None
+    need = offset + int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    if p.stat().st_size < need:
+        raise ValueError(f"file has {p.stat().st_size} bytes, the header needs {need}")
+    return LazyFile(p, offset, dtype, tuple(int(n) for n in shape))
 
 
 def _short(exc):
@@ -485,6 +509,51 @@ def _read_vti(p):
 
 def _is_zarr(p: Path) -> bool:
     return p.suffix.lower() == ".zarr" or any((p / n).exists() for n in ("zarr.json", ".zarray", ".zgroup"))
+
+
+class LazyFile:
+    """A 3-D ``[k, j, i]`` C-order array in a file at byte ``offset``, read with plain file reads as it is
+    indexed (whole k-planes, then the j, i part): ``augment`` streams it slab by slab and needs no address
+    space for the whole file, as a memory map would.
+
+    >>> import tempfile, pathlib
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "v.raw"
+    >>> a = np.arange(60, dtype=">u2").reshape(3, 4, 5); p.write_bytes(b"xx" + a.tobytes())
+    122
+    >>> lf = LazyFile(p, 2, a.dtype, a.shape)
+    >>> bool(np.array_equal(lf[1:3], a[1:3]) and np.array_equal(lf[::2, 1::2, ::3], a[::2, 1::2, ::3]))
+    True
+    """
+
+    def __init__(self, path, offset: int, dtype, shape):
+        self.path, self.offset = Path(path), int(offset)
+        self.dtype, self.shape, self.ndim = np.dtype(dtype), tuple(int(n) for n in shape), 3
+        self.plane = self.shape[1] * self.shape[2]
+
+    def _planes(self, k0: int, k1: int) -> np.ndarray:
+        n = max(0, k1 - k0) * self.plane
+        with open(self.path, "rb") as fh:
+            fh.seek(self.offset + k0 * self.plane * self.dtype.itemsize)
+            out = np.fromfile(fh, dtype=self.dtype, count=n)
+        if out.shape[0] != n:
+            raise IsplatError(f"{self.path}: file ended inside plane k={k0 + out.shape[0] // self.plane}; truncated?")
+        return out.reshape(max(0, k1 - k0), self.shape[1], self.shape[2])
+
+    def __getitem__(self, key):
+        key = key if isinstance(key, tuple) else (key,)
+        key = key + (slice(None),) * (3 - len(key))
+        kk, rest = key[0], key[1:]
+        if isinstance(kk, (int, np.integer)):
+            k = range(self.shape[0])[kk]
+            return self._planes(k, k + 1)[0][rest]
+        ks = range(self.shape[0])[kk]
+        if ks.step == 1 or len(ks) <= 1:
+            k0 = ks.start if len(ks) else 0
+            return self._planes(k0, k0 + len(ks))[(slice(None),) + rest]
+        return np.stack([self._planes(k, k + 1)[0][rest] for k in ks])
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(self[:, :, :], dtype=dtype)
 
 
 class LazyZarr:

@@ -185,3 +185,27 @@ def test_missing_extra_names_it(tmp_path, vol, monkeypatch):
     monkeypatch.setattr(builtins, "__import__", fake)
     with pytest.raises(IsplatError, match=r"reading \.nrrd needs pynrrd: pip install 'isplat\[nrrd\]'"):
         read_volume(tmp_path / "v.nrrd")
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_streamed_npy_reads_what_the_memory_map_reads(tmp_path, order):
+    """read_volume(stream=True): plain file reads (no memory map of the whole file) for augment; the same
+    values for slabs, strided subsamples and single planes; Fortran order falls back to the memory map."""
+    from isplat.volume_io import LazyFile, read_volume
+
+    a = np.asarray(np.random.default_rng(0).integers(0, 4000, (7, 5, 6)), dtype=">i2", order=order)
+    np.save(tmp_path / "a.npy", a)
+    v = read_volume(tmp_path / "a.npy", stream=True)
+    assert isinstance(v.array, LazyFile) == (order == "C") and v.array.shape == a.shape
+    for key in (np.s_[2:5], np.s_[::3, ::2, ::4], np.s_[4], np.s_[6, 1:3], np.s_[5:2:-1], np.s_[9:]):
+        assert np.array_equal(v.array[key], a[key]), key
+
+
+def test_streamed_raw_file_that_ends_early_is_one_line(tmp_path):
+    from isplat.volume_io import LazyFile
+
+    (tmp_path / "a.raw").write_bytes(bytes(100))
+    lf = LazyFile(tmp_path / "a.raw", 0, np.uint8, (5, 4, 6))       # needs 120 bytes
+    assert lf[0:4].shape == (4, 4, 6)
+    with pytest.raises(IsplatError, match="a.raw: file ended inside plane k=4; truncated"):
+        lf[3:5]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import sys
@@ -25,13 +26,21 @@ log = logging.getLogger(__name__)
               help="Override a scene key, e.g. --set camera.azimuth=45 --set render.method=full (repeatable).")
 @click.option("--view", "view", type=int, default=None, metavar="N",
               help="Render only view N (0-based) of the scene's batch of views.")
+@click.option("--scheduler", default=None, metavar="local:N|tcp://HOST:PORT",
+              help="Render on Dask (the 'dask' extra): local:N starts N single-threaded worker processes here, "
+                   "tcp://HOST:PORT uses a running cluster whose workers see the scene's files. Frames are the "
+                   "same as without it. See docs/scale.md.")
+@click.option("--slabs", type=click.IntRange(1, 4096), default=1, metavar="K",
+              help="Split each frame's slices into K slabs: with --scheduler rendered on different workers and "
+                   "composited in order; without it rendered front to back here, one slab's selection in memory at "
+                   "a time (for selections larger than memory; the same image). Default 1.")
 @verbose_option("Report on stderr what was read (bytes, channels, axes) and per-view timing and voxel "
                 "counts (same as isplat -v).")
 @click.option("--json", "as_json", is_flag=True, help="Print that report as one JSON object on stdout "
                                                       "(not with -o -).")
 @force_option
 @quiet_option
-def render(scene_file, out, overrides, view, as_json, force):
+def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
     """Render SCENE (a TOML file, see formats/scene.md) to images.
 
     Only what the scene needs is read: the index axes its views use, the blocks in the transfer
@@ -49,7 +58,6 @@ def render(scene_file, out, overrides, view, as_json, force):
     from ..errors import IsplatError
     from ..output import (check_format, check_memory, check_outputs, frame_paths, output_buffer_bytes, write_movie,
                           write_still)
-    from ..renderer import Renderer
     from ..threads import default_threads
     from ..scene import load_scene
 
@@ -76,21 +84,19 @@ def render(scene_file, out, overrides, view, as_json, force):
     paths = [] if out == "-" else ([Path(out)] if movie else frame_paths(out, len(views)))
     check_outputs(paths, force)
 
-    renderer = Renderer(scene, views)
-    rep = renderer.report
-    frames, per_view = [], []
-    for n in progress.bar(range(len(views)), desc="views", unit="view"):
-        rgba, st = renderer.render_view(n)
-        per_view.append({"view": n if view is None else view, "axis": ("+" if st.sign > 0 else "-") + st.axis,
-                         "voxels_examined": st.voxels_examined, "voxels_splatted": st.voxels_splatted,
-                         "slices": st.slices, "seconds": round(st.seconds, 6)})
-        if movie:
-            frames.append(rgba)
-        else:
-            write_still(out if out == "-" else str(paths[n]), rgba, scene.image.bit_depth, force)
+    frames, per_view, rep = [], [], None
+    with _frames(scene, views, scheduler, slabs) as (method, results, held):
+        for n, rgba, st, rep in results:
+            per_view.append({"view": n if view is None else view, "axis": ("+" if st.sign > 0 else "-") + st.axis,
+                             "voxels_examined": st.voxels_examined, "voxels_splatted": st.voxels_splatted,
+                             "slices": st.slices, "seconds": round(st.seconds, 6)})
+            if movie:
+                frames.append(rgba)
+            else:
+                write_still(out if out == "-" else str(paths[n]), rgba, scene.image.bit_depth, force)
     if movie:
         write_movie(out, frames, force, fps=scene.fps)
-    report = {"scene": str(scene_file), "method": renderer.method, "output": out,
+    report = {"scene": str(scene_file), "method": method, "output": out,
               "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
               "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
               "file_bytes_read": rep.file_bytes, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
@@ -101,9 +107,52 @@ def render(scene_file, out, overrides, view, as_json, force):
     log.debug(f"read: {rep.augmented_bytes} bytes of augmented channels {rep.channels or '(none)'}; "
               f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}; "
               f"{rep.file_bytes} bytes read from the files (HDF5 chunks and metadata) for {rep.bytes_needed} needed "
-              f"({rep.read_ratio:.2f}x); channel values from {rep.values_from}; held "
-              f"{renderer.held_bytes()} bytes, "
-              f"{renderer.held_bytes() / max(1, rep.voxels_of_interest):.2f} per voxel of interest")
+              f"({rep.read_ratio:.2f}x); channel values from {rep.values_from}" + (
+                  f"; held {held()} bytes, {held() / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
+                  if held else " (selections held by the workers or one slab at a time)"))
     for v in per_view:
         log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, "
                   f"{v['voxels_splatted']} splatted, {v['seconds'] * 1000:.1f} ms")
+
+
+@contextlib.contextmanager
+def _frames(scene, views, scheduler, slabs):
+    """(method, iterator of (n, rgba, FrameStats, LoadReport) in view order, the held bytes' function or None):
+    in this process, in slabs here, or on Dask."""
+    from ..renderer import Renderer
+
+    bar = progress.bar(total=len(views), desc="views", unit="view")
+    with bar:
+        if scheduler is None and slabs > 1:
+            yield scene.render.method, _streamed(scene, views, slabs, bar), None
+            return
+        if scheduler is None:
+            renderer = Renderer(scene, views)
+
+            def local():
+                for n in range(len(views)):
+                    rgba, st = renderer.render_view(n)
+                    bar.update(1)
+                    yield n, rgba, st, renderer.report
+            yield renderer.method, local(), renderer.held_bytes
+            return
+        from .. import distributed
+        from ..augfile import open_augmented
+        from ..frame import views_for
+
+        with distributed.connect(scheduler) as client:
+            vs = views_for(scene, open_augmented(scene.data.augmented), views)
+            yield scene.render.method, distributed.render_views(client, scene, vs, slabs=slabs, bar=bar), None
+
+
+def _streamed(scene, views, slabs, bar):
+    """Each view front to back in ``slabs`` slabs, one slab's selection at a time (isplat.slabs.render_streamed)."""
+    from ..augfile import open_augmented
+    from ..frame import views_for
+    from ..slabs import render_streamed
+
+    aug = open_augmented(scene.data.augmented)
+    for n, view in enumerate(views_for(scene, aug, views)):
+        rgba, st, report = render_streamed(scene, view, slabs, aug)
+        bar.update(1)
+        yield n, rgba, st, report

@@ -1,0 +1,119 @@
+"""Volumes larger than memory on one machine: the `head` sample at 1024^3 through augment, index and render
+with the process limited to 2 GiB of address space. ``python -m benchmarks outofcore [--quick]`` (part of
+``make bench``; --quick: 128^3, the same limit).
+
+Each stage runs as ``isplat ...`` in a subprocess under ``setrlimit(RLIMIT_AS, 2 GiB)`` (what ``prlimit --as`` and
+``ulimit -v`` set) and ``/usr/bin/time -v`` (wall time, peak resident set). A stage that fails under the limit is
+recorded with its error line, then run without the limit (so the next stages have their input) and its peak
+memory recorded: that is the measure of what still has to stream. The last two stages render the same frames
+front to back in slabs (``isplat render --slabs K``, isplat.slabs.render_streamed), under the limit only.
+
+Writes the section "outofcore" of docs/scale.md.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from . import _doc
+from .render import ROOT
+
+LIMIT = 2 << 30
+WORK = ROOT / "out" / "bench"
+
+
+def _log(msg):
+    print(f"[outofcore] {msg}", file=sys.stderr, flush=True)
+
+
+def _limit():
+    resource.setrlimit(resource.RLIMIT_AS, (LIMIT, LIMIT))
+
+
+def run_stage(args, limited: bool, cwd):
+    """``isplat ARGS`` in a subprocess: (ok, seconds, peak RSS bytes or None, last stderr line)."""
+    cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "isplat", *map(str, args), "-q"]
+    env = dict(os.environ, ISPLAT_PROGRESS="0")
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, env=env, preexec_fn=_limit if limited else None)
+    dt = time.perf_counter() - t0
+    m = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith(("\t", "Command"))]
+    return r.returncode == 0, dt, (int(m.group(1)) * 1024 if m else None), (lines[-1] if lines else "")
+
+
+SEMI = ["transfer.opacity=[[60, 0.0], [110, 0.02], [170, 0.02], [200, 0.6], [255, 0.6]]",
+        "transfer.color=[[60, 0.9, 0.6, 0.5], [170, 0.9, 0.6, 0.5], [200, 1, 1, 0.95]]"]
+
+
+def run(out_dir: Path, quick: bool) -> Path:
+    n = 128 if quick else 1024
+    work = WORK / f"outofcore-{n}"
+    work.mkdir(parents=True, exist_ok=True)
+    npy, aug, idx = work / "head.npy", work / "head.aug.h5", work / "head.idx.h5"
+    if not npy.exists():
+        _log(f"sample head {n}^3 (not limited)")
+        ok, *_ , err = run_stage(["sample", "head", "-o", npy, "--shape", f"{n},{n},{n}", "--force"], False, work)
+        if not ok:
+            raise RuntimeError(f"isplat sample failed: {err}")
+    scene = [f'data.augmented="{aug}"', f'data.index="{idx}"', "image.width=512", "image.height=512"]
+    def render(png, sets, *extra):
+        return ["render", ROOT / "examples/head.toml", "-o", work / png, "--force", *extra,
+                *sum((["--set", s] for s in sets), [])]
+    stages = [("augment", ["augment", npy, "-o", aug, "--force"], True),
+              ("index", ["index", aug, "-o", idx, "--force"], True),
+              ("render, opaque (bone)", render("bone.png", scene), True),
+              ("render, semi-transparent (veil + bone)", render("veil.png", scene + SEMI), True),
+              ("render, opaque (bone), `--slabs 8` (streamed)", render("bone8.png", scene, "--slabs", "8"), False),
+              ("render, semi-transparent, `--slabs 32` (streamed)", render("veil32.png", scene + SEMI, "--slabs", "32"),
+               False)]
+    for png in ("bone.png", "veil.png", "bone8.png", "veil32.png"):
+        (work / png).unlink(missing_ok=True)          # compare only what this run wrote
+    rows = []
+    for name, args, again in stages:
+        _log(f"{name} (limited to {LIMIT >> 30} GiB)")
+        ok, dt, rss, err = run_stage(args, True, work)
+        row = [name, ok, dt, rss, err, None]
+        if not ok and again:
+            _log(f"{name} failed under the limit ({err}); again without it")
+            ok2, dt2, rss2, err2 = run_stage(args, False, work)
+            row[5] = (ok2, dt2, rss2, err2)
+        rows.append(row)
+    size = npy.stat().st_size
+    gib = lambda b: f"{b / 2**30:.2f} GiB" if b else "n/a"            # noqa: E731
+
+    def line(r):
+        name, ok, dt, rss, err, again = r
+        if ok:
+            return f"| {name} | ok | {dt:.1f} s | {gib(rss)} | |"
+        note = f"fails: `{err[:160]}`"
+        if again:
+            note += (f"; without the limit {again[1]:.1f} s, peak RSS {gib(again[2])}" if again[0]
+                     else f"; fails without the limit too: `{again[3][:120]}`")
+        return f"| {name} | **no** | {dt:.1f} s | {gib(rss)} | {note} |"
+    body = f"""```
+python -m benchmarks outofcore{' --quick' if quick else ''}
+```
+Machine: {_doc.machine_line()}; isplat {_doc.git_rev()}. The `head` sample at {n}^3 (`isplat sample head --shape
+{n},{n},{n}`: {size / 2**30:.2f} GiB of uint16 .npy; augmented {gib(aug.stat().st_size) if aug.exists() else 'n/a'}),
+each stage a process limited to {LIMIT >> 30} GiB of address space (`setrlimit(RLIMIT_AS)`, as `prlimit --as` or
+`ulimit -v`). Peak RSS from `/usr/bin/time -v` (with the interpreter, numpy, h5py, numba). Scenes:
+examples/head.toml at 512 x 512 (bone), and the same with a faint veil of soft tissue over the bone.
+
+| stage | under {LIMIT >> 30} GiB | wall time | peak RSS | note |
+|---|---|---|---|---|
+""" + "\n".join(line(r) for r in rows) + "\n"
+    same = "n/a"
+    if all((work / f).exists() for f in ("bone.png", "bone8.png")):
+        import imageio.v3 as iio
+        import numpy as np
+        same = "yes" if np.array_equal(iio.imread(work / "bone.png"), iio.imread(work / "bone8.png")) else "NO"
+    body += (f"\nThe streamed bone frame (`--slabs 8`, one slab's selection at a time) equals the one-pass frame "
+             f"bit for bit: **{same}**.\n")
+    return _doc.update_section(Path(out_dir) / "scale.md", "outofcore", body, title="isplat at scale: Dask")

@@ -1,0 +1,150 @@
+"""A selection restricted to a slab of slices: what one worker of a frame split into slabs holds.
+
+A frame's slab is ``view.order[start:stop]``, a run of the principal axis' slices in visibility order
+(:func:`isplat.frame.slab_bounds`). :func:`restrict` keeps, of a :class:`~isplat.selection.Selection`, only the
+selected voxels of those slices (with their gathered channel values), in the same traversal order and with the
+same slice numbering, so ``render_slab`` on the restricted selection draws exactly what it draws on the whole
+one for those slices: bit for bit the same partial image.
+
+>>> import numpy as np
+>>> from isplat.scene import parse_scene
+>>> from isplat.selection import Selection
+>>> vol = np.zeros((8, 8, 8), np.uint8); vol[2:6, 2:6, 2:6] = 200
+>>> scene = parse_scene("[transfer]\\nopacity = [[100, 0], [200, 0.8]]\\n[shading]\\nenabled = false",
+...                     ".", "example", data_required=False)
+>>> sel = Selection.from_arrays(vol, scene, axes="k")
+>>> part = restrict(sel, "k", [0, 1, 2, 3])          # slices 2 and 3 hold 16 voxels each
+>>> part.axes["k"].n_voxels, part.held_bytes() < sel.held_bytes()
+(32, True)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .errors import IsplatError
+from .selection import AxisSelection, Selection
+
+
+def slice_runs(slices, n_slices: int) -> list[tuple[int, int]]:
+    """The distinct slice indices of ``slices`` as sorted runs ``[s0, s1)`` of consecutive indices."""
+    s = np.unique(np.asarray(slices, dtype=np.int64))
+    if s.size and (s[0] < 0 or s[-1] >= n_slices):
+        raise IsplatError(f"slab slices {int(s[0])}..{int(s[-1])} outside 0..{n_slices - 1}")
+    if s.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(s) != 1) + 1
+    starts = np.r_[s[0], s[breaks]]
+    stops = np.r_[s[breaks - 1] + 1, s[-1] + 1]
+    return [(int(a), int(b)) for a, b in zip(starts, stops)]
+
+
+def _ranges(ptr, ranges):
+    """The rows that ``ptr`` points to from each range of ``ranges``."""
+    return [(int(ptr[a]), int(ptr[b])) for a, b in ranges]
+
+
+def _rebase(ptr, ranges):
+    """``ptr`` (a CSR pointer) for the rows in ``ranges`` only, counted from 0: its entries ``a:b`` of each
+    range shifted to follow the rows kept before, and the total at the end."""
+    parts, off = [], 0
+    for a, b in ranges:
+        parts.append(ptr[a:b] - ptr[a] + off)
+        off += int(ptr[b] - ptr[a])
+    return np.concatenate(parts + [np.asarray([off], dtype=ptr.dtype)]).astype(ptr.dtype, copy=False)
+
+
+def _slice_ptr(ptr, runs, n):
+    """The per-slice pointer keeping the rows of the slices in ``runs`` (other slices hold none)."""
+    counts = np.zeros(n, dtype=np.int64)
+    for s0, s1 in runs:
+        counts[s0:s1] = np.diff(ptr[s0:s1 + 1])
+    out = np.zeros(n + 1, dtype=ptr.dtype)
+    np.cumsum(counts, out=out[1:])
+    return out
+
+
+def _take(arr, ranges):
+    if arr.shape[0] == 0:            # a channel the scene does not use
+        return arr
+    return np.concatenate([arr[a:b] for a, b in ranges] or [arr[:0]])
+
+
+def restrict_axis(ax: AxisSelection, slices) -> AxisSelection:
+    """``ax`` with only the voxels (regions, blocks, cells) of ``slices``; other slices keep their index and
+    hold nothing."""
+    runs = slice_runs(slices, ax.n_slices)
+    g = _ranges(ax.slice_ptr, runs)                  # regions
+    r = _ranges(ax.region_ptr, g)                    # blocks
+    q = _ranges(ax.block_ptr, r)                     # cells
+    v = _ranges(ax.block_voxel, r)                   # voxels
+    return dataclasses.replace(
+        ax, slice_ptr=_slice_ptr(ax.slice_ptr, runs, ax.n_slices), region_id=_take(ax.region_id, g),
+        region_ptr=_rebase(ax.region_ptr, g), block_pos=_take(ax.block_pos, r), block_ptr=_rebase(ax.block_ptr, r),
+        block_voxel=_rebase(ax.block_voxel, r), cell_pos=_take(ax.cell_pos, q), cell_count=_take(ax.cell_count, q),
+        **{name: _take(getattr(ax, name), v) for name in ("offset", "density", "gradient_magnitude", "normal")})
+
+
+def restrict_loaded(la, slices):
+    """A decoded index axis (:class:`isplat.index.store.LoadedAxis`) with only the blocks of ``slices``: what
+    :func:`isplat.selection.select_from_files` selects from and gathers channel values for, when a worker
+    makes just its slab's selection (an index without values, format 2)."""
+    runs = slice_runs(slices, la.n_slices)
+    rows = _ranges(la.slice_block_ptr, runs)
+    return dataclasses.replace(la, slice_block_ptr=_slice_ptr(la.slice_block_ptr, runs, la.n_slices),
+                               block_density=_take(la.block_density, rows),
+                               block_voxel_ptr=_rebase(la.block_voxel_ptr, rows),
+                               positions=_take(la.positions, _ranges(la.block_voxel_ptr, rows)))
+
+
+def restrict(sel: Selection, axis: str, slices) -> Selection:
+    """The part of ``sel`` that renders ``slices`` of ``axis``: for the indexed method only that axis, with
+    only those slices' voxels; the full method's whole channels are shared as they are (it indexes them by
+    position, so a slab of it holds the whole volume)."""
+    if sel.method == "full" or sel.empty:
+        return sel
+    if axis not in sel.axes:
+        raise IsplatError(f"axis {axis} was not selected (selected: {sorted(sel.axes) or 'none'})")
+    return dataclasses.replace(sel, axes={axis: restrict_axis(sel.axes[axis], slices)},
+                               report=dataclasses.replace(sel.report))
+
+
+def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None):
+    """Render ``view`` of ``scene`` from its files in ``n_slabs`` slabs front to back, each slab's selection made
+    (:func:`isplat.selection.select_from_files` with ``slices=``), rendered over the partial image of the slabs in
+    front and dropped: the one-pass frame exactly (same image and counters, early termination included), holding
+    one slab's selection at a time. Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs:
+    bytes read added up).
+
+    What is still whole: the full method's channels (read once, kept for every slab); the index blocks of the transfer function's densities along the frame's axis are
+    decoded for each slab before its slices are kept, and for the i and j axes each slab's channel values are
+    gathered from every k-plane (docs/scale.md).
+    """
+    import time
+
+    from .augfile import open_augmented
+    from .frame import blank, finish_image, frame_stats, prepare, render_slab, slab_bounds
+    from .selection import select_from_files
+
+    t0 = time.perf_counter()
+    aug = aug or open_augmented(scene.data.augmented)
+    axis = view.axis_sign[0]
+    part = report = whole = None
+    for a, b in slab_bounds(len(view.order), n_slabs):
+        start = aug.bytes_read
+        if whole is not None:          # the full method reads whole channels: once, for every slab
+            sel = whole
+        else:
+            sel = select_from_files(scene, axis, aug=aug, slices=view.order[a:b])
+            whole = sel if sel.method == "full" else None
+        if report is None:
+            report = dataclasses.replace(sel.report, augmented_bytes=0, index_bytes=0)
+        report.augmented_bytes += int(aug.bytes_read - start)
+        report.index_bytes += sel.report.index_bytes
+        setup = prepare(sel, view, et)
+        part = blank(setup) if part is None else part
+        render_slab(setup, a, b, part)
+        del sel, setup
+    return finish_image(part.img, view.background), frame_stats(view, part, time.perf_counter() - t0), report

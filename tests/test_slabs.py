@@ -1,0 +1,173 @@
+"""A selection restricted to a slab of slices (isplat.slabs): the slab draws what the whole selection draws."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from conftest import write_volume
+from isplat import frame as F
+from isplat.errors import IsplatError
+from isplat.selection import Selection, select_from_files
+from isplat.slabs import restrict, slice_runs
+
+SLOW = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+@pytest.fixture(scope="module")
+def volume(tmp_path_factory):
+    from isplat.normals import encode
+
+    r = np.random.default_rng(3)
+    shape = (12, 9, 10)
+    dens = r.choice(np.array([0, 60, 120, 200], np.uint8), size=shape, p=[0.4, 0.2, 0.2, 0.2])
+    gm = r.integers(0, 256, shape).astype(np.uint8)
+    aug, idx = write_volume(tmp_path_factory.mktemp("slabs"), dens, spacing=(1.0, 1.2, 0.9), gm=gm,
+                            normal=encode(r.normal(size=shape + (3,))), gscale=0.5)
+    return aug, idx
+
+
+def scene(make_scene, volume, proj, cam, et=0.99, method="indexed"):
+    return make_scene(*volume, image="width = 30\nheight = 28", camera=f'projection = "{proj}"\n{cam}',
+                      transfer="opacity = [[50, 0.0], [60, 0.5], [130, 0.3], [200, 0.95]]\n"
+                               "gradient_opacity = [[0, 0.3], [100, 1]]",
+                      shading="enabled = true", render=f'method = "{method}"\nthreads = 1\nearly_termination = {et}')
+
+
+@given(st.lists(st.integers(0, 40), max_size=12), st.integers(1, 41))
+def test_slice_runs_are_the_sorted_distinct_slices_as_runs(slices, n):
+    slices = [s for s in slices if s < n]
+    runs = slice_runs(slices, n)
+    assert [s for a, b in runs for s in range(a, b)] == sorted(set(slices))
+    assert all(b2 > b1 for (_, b1), (b2, _) in zip(runs, runs[1:]))     # runs do not touch: maximal
+
+
+def test_slice_runs_refuse_slices_outside_the_axis():
+    with pytest.raises(IsplatError, match="outside 0..9"):
+        slice_runs([3, 10], 10)
+
+
+@given(data=st.data())
+@SLOW
+def test_a_slab_of_the_restricted_selection_is_the_slab_of_the_whole(make_scene, volume, data):
+    """render_slab on restrict(sel, axis, order[a:b]) equals render_slab on sel, bit for bit (perspective with
+    the eye inside too, where a slab's slices are two runs), and the slabs' voxels add up to the whole."""
+    proj = data.draw(st.sampled_from(["orthographic", "perspective"]))
+    cam = data.draw(st.sampled_from(["azimuth = 30\nelevation = 20", "azimuth = 100\nelevation = -50",
+                                     "mode = \"look_at\"\nposition = [0.5, 0.3, 0.2]\nlook_at = [3, -5, 2]"]))
+    if proj == "orthographic" and "look_at" in cam:
+        cam = "azimuth = 200\nelevation = 70"
+    sc = scene(make_scene, volume, proj, cam, et=data.draw(st.sampled_from([1.0, 0.9])))
+    from isplat.augfile import open_augmented
+    view = F.views_for(sc, open_augmented(sc.data.augmented))[0]
+    axis = view.axis_sign[0]
+    sel = select_from_files(sc, axis)
+    setup = F.prepare(sel, view)
+    n = len(view.order)
+    k = data.draw(st.integers(1, min(5, n)))
+    total = 0
+    for a, b in F.slab_bounds(n, k):
+        part_sel = restrict(sel, axis, view.order[a:b])
+        total += part_sel.axes[axis].n_voxels
+        want = F.render_slab(setup, a, b)
+        got = F.render_slab(F.prepare(part_sel, view), a, b)
+        assert np.array_equal(got.img, want.img) and np.array_equal(got.band_stats, want.band_stats)
+    assert total == sel.axes[axis].n_voxels
+
+
+def test_restrict_keeps_every_array_in_order(make_scene, volume):
+    sc = scene(make_scene, volume, "orthographic", "azimuth = 0")
+    sel = select_from_files(sc, "k")
+    whole = sel.axes["k"]
+    parts = [restrict(sel, "k", range(a, b)).axes["k"] for a, b in [(0, 5), (5, 12)]]
+    for name in ("region_id", "block_pos", "cell_pos", "cell_count", "offset", "density", "gradient_magnitude",
+                 "normal"):
+        assert np.array_equal(np.concatenate([getattr(p, name) for p in parts]), getattr(whole, name)), name
+    assert all(p.normal.size == p.density.size > 0 for p in parts)
+    empty = restrict(sel, "k", [])
+    assert empty.axes["k"].n_voxels == 0 and empty.axes["k"].block_voxel.tolist() == [0]
+
+
+@pytest.mark.parametrize("axis,slices", [("k", range(3, 8)), ("i", [0, 1, 7, 8, 9]), ("j", []), ("j", range(9))])
+def test_a_slab_selected_from_files_is_the_restricted_whole(make_scene, volume, axis, slices):
+    """select_from_files(..., slices=): the decoded blocks cut to the slab, its values gathered from the
+    augmented k-slabs: the same arrays as restricting the whole selection (index with values or without), and
+    fewer channel bytes read than the whole selection gathers the same way."""
+    from isplat.index import build_index_file
+
+    aug, idx = volume
+    v2 = idx.with_name("novalues.idx.h5")
+    if not v2.exists():
+        build_index_file(aug, v2, values=False)
+    for index in (idx, v2):
+        sc = make_scene(aug, index,
+                        transfer="opacity = [[50, 0.0], [200, 0.9]]\ngradient_opacity = [[0, 0.3], [100, 1]]",
+                        shading="enabled = true")
+        whole = select_from_files(sc, axis)
+        slab = select_from_files(sc, axis, slices=slices)
+        assert slab.report.values_from == "augmented slabs"
+        want = restrict(whole, axis, slices).axes[axis]
+        for got, exp in zip(slab.axes[axis].arrays(), want.arrays()):
+            assert got.dtype == exp.dtype and np.array_equal(got, exp)
+        if axis == "k" and len(slices) < 12 and index == v2:
+            assert slab.report.augmented_bytes < whole.report.augmented_bytes
+
+
+def test_restrict_of_the_full_method_shares_the_channels(make_scene, volume):
+    sc = scene(make_scene, volume, "orthographic", "azimuth = 0", method="full")
+    sel = select_from_files(sc, "k")
+    assert restrict(sel, "k", [1, 2]) is sel
+
+
+def test_restrict_refuses_an_axis_not_selected():
+    vol = np.zeros((6, 6, 6), np.uint8)
+    vol[2:4, 2:4, 2:4] = 200
+    from isplat.scene import parse_scene
+    sc = parse_scene("[transfer]\nopacity = [[100, 0], [200, 0.8]]", ".", "t", data_required=False)
+    sel = Selection.from_arrays(vol, sc, axes="k")
+    with pytest.raises(IsplatError, match="axis i was not selected"):
+        restrict(sel, "i", [0])
+
+
+INSIDE = "mode = \"look_at\"\nposition = [0.5, 0.3, 0.2]\nlook_at = [3, -5, 2]"      # the eye inside the volume
+
+
+@pytest.mark.parametrize("proj,cam", [("orthographic", "azimuth = 30\nelevation = 20"),
+                                      ("orthographic", "azimuth = 100\nelevation = -50"), ("perspective", INSIDE)])
+@pytest.mark.parametrize("et,method", [(0.9, "indexed"), (1.0, "indexed"), (0.9, "full")])
+def test_a_frame_streamed_slab_by_slab_is_the_one_pass_frame(make_scene, volume, proj, cam, et, method):
+    """render_streamed: each slab's selection made from the files, rendered over the slabs in front, dropped:
+    the same image and counters as one pass (early termination included), whatever the number of slabs."""
+    from isplat.renderer import Renderer
+    from isplat.slabs import render_streamed
+
+    sc = scene(make_scene, volume, proj, cam, et=et, method=method)
+    r = Renderer(sc)
+    want, st = r.render_view(0)
+    for k in (1, 2, 3, 7):
+        got, st_k, report = render_streamed(sc, r.views[0], k)
+        assert np.array_equal(got, want), k
+        assert (st_k.voxels_examined, st_k.voxels_splatted, st_k.slices) == (st.voxels_examined, st.voxels_splatted,
+                                                                             st.slices)
+        assert report.index_bytes >= r.report.index_block_bytes and report.axes == r.report.axes  # blocks, each slab
+        if method == "full":
+            assert report.augmented_bytes == r.report.augmented_bytes          # whole channels read once
+
+
+def test_cli_slabs_without_a_scheduler_stream_the_same_image(volume, tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    import imageio.v3 as iio
+    from conftest import scene_text
+
+    aug, idx = volume
+    (tmp_path / "s.toml").write_text(scene_text(aug, idx, image="width = 24\nheight = 20",
+                                                transfer="opacity = [[50, 0.0], [200, 0.9]]"))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST")}
+    env["ISPLAT_PROGRESS"] = "0"
+    for name, extra in (("one.png", []), ("slabs.png", ["--slabs", "4"])):
+        res = subprocess.run([sys.executable, "-m", "isplat", "render", "s.toml", "-o", name, *extra], cwd=tmp_path,
+                             capture_output=True, env=env)
+        assert res.returncode == 0, res.stderr
+    assert np.array_equal(iio.imread(tmp_path / "one.png"), iio.imread(tmp_path / "slabs.png"))

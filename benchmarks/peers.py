@@ -400,7 +400,8 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
     st = stats[iso]
     return dict(case=name, size=size, points=pts, paired=paired, ref_seconds=ref_s, ref_cached=cached,
                 between=REF.errors(imgs[iso], imgs[v1]), between05=REF.errors(imgs[iso], imgs[v05]),
-                examined=st.voxels_examined, splatted=st.voxels_splatted, threads=(r0.threads, vtkv.threads))
+                examined=st.voxels_examined, splatted=st.voxels_splatted, tested=st.voxels_tested,
+                threads=(r0.threads, vtkv.threads))
 
 
 # ---- peak memory: one frame in a process of its own -----------------------------------------------------------
@@ -654,10 +655,14 @@ def slower_text(results, mem, proc) -> list[str]:
                      f"pixels ({rs[256]['paired']['VTK 1']:.2f}x against {rs[1024]['paired']['VTK 1']:.2f}x at 1024).")
     hid = [r for r in results if r["case"] == "hidden material"]
     for r in hid:
-        L.append(f"- Hidden material ({r['size']} px): isplat visited {r['examined']:,} voxels of interest and splatted "
-                 f"{r['splatted']:,} ({100 * r['splatted'] / max(1, r['examined']):.0f}%); each visited voxel costs an "
-                 f"occlusion test whether or not it reaches a pixel, so the frame cost follows the voxels of interest, "
-                 f"while a ray caster stops each ray once it saturates. (The issue's check against the same view with "
+        tested = r.get("tested", r["examined"])
+        L.append(f"- Hidden material ({r['size']} px): of {r['examined']:,} voxels of interest, {tested:,} "
+                 f"({100 * tested / max(1, r['examined']):.0f}%) reached isplat's per-voxel stages (the rest were "
+                 f"skipped a region, block or cell of a slice at a time, docs/worksplit.md) and {r['splatted']:,} "
+                 f"({100 * r['splatted'] / max(1, r['examined']):.0f}%) were splatted. What remains is the splats: "
+                 f"each covers several pixels (the footprint reaches `render.footprint_radius` sigmas), while a ray caster takes one "
+                 f"sample per pixel and step; so isplat's cost per visible layer is higher. (The issue's check against "
+                 f"the same view with "
                  f"the hidden voxels removed is not measured here: which voxels are hidden depends on the view, and "
                  f"no scene setting removes exactly those.)")
     for (case, size), m in mem.items():

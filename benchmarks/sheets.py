@@ -41,31 +41,10 @@ def _log(msg):
 
 
 def sample(name: str, quick: bool) -> tuple[Path, Path]:
-    """The sample ``name`` augmented and indexed in bench-out/ (built once, reused)."""
-    from isplat.augfile import write_augmented
-    from isplat.augment import augment_array
-    from isplat.index import build_index_file
-    from isplat.samples import make_sample
+    """The sample ``name`` augmented and indexed (small when ``quick``), built once in CACHE."""
+    from .reference import sample_data
 
-    tag = f"sheets-{name}" + ("-quick" if quick else "")
-    aug, idx = CACHE / f"{tag}.aug.h5", CACHE / f"{tag}.idx.h5"
-    if aug.exists() and idx.exists():
-        return aug, idx
-    _log(f"making {tag}")
-    CACHE.mkdir(parents=True, exist_ok=True)
-    arr, sp = make_sample(name, shape=QUICK_SHAPE if quick else None)
-    o = augment_array(arr, sp)
-    tmp_aug, tmp_idx = (CACHE / f".{tag}{e}.{os.getpid()}" for e in (".aug.h5", ".idx.h5"))
-    try:
-        write_augmented(tmp_aug, o["density"], o["gradient_magnitude"], o["normal"], o["spacing_ijk"],
-                        o["density_window"], o["gradient_magnitude_scale"], {"source": f"isplat sample {name}"})
-        build_index_file(tmp_aug, tmp_idx)
-        os.replace(tmp_aug, aug)
-        os.replace(tmp_idx, idx)
-    finally:
-        for p in (tmp_aug, tmp_idx):
-            p.unlink(missing_ok=True)
-    return aug, idx
+    return sample_data(name, QUICK_SHAPE if quick else None, cache=CACHE)
 
 
 def scene(case: str, sheets: str, size: int, quick: bool):

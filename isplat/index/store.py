@@ -606,15 +606,7 @@ def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
     if min(spacing) <= 0 or gscale < 0:
         raise IsplatError(f"{where}: attributes 'spacing_ijk' {spacing} and 'gradient_magnitude_scale' {gscale}: "
                           f"expected positive spacings and a scale >= 0")
-    for name, dt in VALUE_DTYPES.items():
-        if name not in g or not isinstance(g[name], h5py.Dataset):
-            raise IsplatError(f"{where}: dataset {name!r} is missing")
-        ds = g[name]
-        if ds.ndim != 1:
-            raise IsplatError(f"{where}/{name}: expected 1-D, has shape {ds.shape}")
-        if ds.dtype != np.dtype(dt):
-            raise IsplatError(f"{where}/{name}: dtype {ds.dtype}, expected {np.dtype(dt)} ({dt})")
-        check_checked_dataset(f"{where}/{name}", ds)
+    _check_datasets(where, g, VALUE_DTYPES)
     if g["density_voxel_ptr"].shape[0] != 257:
         raise IsplatError(f"{where}/density_voxel_ptr: length {g['density_voxel_ptr'].shape[0]}, expected 257")
     n = int(g["normal"].shape[0])
@@ -625,6 +617,19 @@ def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
         raise IsplatError(f"{where}/normal: {n} rows, more than the {int(np.prod(shape, dtype=np.int64))} voxels of "
                           f"shape {shape}")
     return _ValuesMeta(n, spacing, gscale)
+
+
+def _check_datasets(where: str, g, dtypes: dict) -> None:
+    """Every dataset of ``dtypes`` is in group ``g``: 1-D, of its dtype, chunked with checksums."""
+    for name, dt in dtypes.items():
+        if name not in g or not isinstance(g[name], h5py.Dataset):
+            raise IsplatError(f"{where}: dataset {name!r} is missing")
+        ds = g[name]
+        if ds.ndim != 1:
+            raise IsplatError(f"{where}/{name}: expected 1-D, has shape {ds.shape}")
+        if ds.dtype != np.dtype(dt):
+            raise IsplatError(f"{where}/{name}: dtype {ds.dtype}, expected {np.dtype(dt)} ({dt})")
+        check_checked_dataset(f"{where}/{name}", ds)
 
 
 def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
@@ -650,15 +655,7 @@ def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
             ok = got == want
         if not ok:
             raise IsplatError(f"{where}: attribute {key!r} is {got!r}, expected {want!r} for shape {shape}")
-    for name, dt in DATASET_DTYPES.items():
-        if name not in g or not isinstance(g[name], h5py.Dataset):
-            raise IsplatError(f"{where}: dataset {name!r} is missing")
-        ds = g[name]
-        if ds.ndim != 1:
-            raise IsplatError(f"{where}/{name}: expected 1-D, has shape {ds.shape}")
-        if ds.dtype != np.dtype(dt):
-            raise IsplatError(f"{where}/{name}: dtype {ds.dtype}, expected {np.dtype(dt)} ({dt})")
-        check_checked_dataset(f"{where}/{name}", ds)
+    _check_datasets(where, g, DATASET_DTYPES)
     n_e = g["entry_slice"].shape[0]
     if g["density_entry_ptr"].shape[0] != 257:
         raise IsplatError(f"{where}/density_entry_ptr: length {g['density_entry_ptr'].shape[0]}, expected 257")

@@ -127,9 +127,7 @@ def render_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
                 break
             c = order[oi]
             # a band classifies only the regions whose footprints can reach its rows
-            base = _slice_bases(c, geo, cs)
-            box_args = (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1],
-                        band[1], band[2], band[5], False)
+            box_args = _box_args(n_a, n_b, _slice_bases(c, geo, cs), geo, fp, buf, band, False)
             for rid in range(ng):
                 wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4],
                                           buf.sat, False)
@@ -255,14 +253,20 @@ def _render_slice(c, regions, p0, p1, hier, vals, n_a, n_b, cls, geo, fp, buf, b
     bi, y0b, y1b, et, satab, ty0 = band
     cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
     base = _slice_bases(c, geo, cs)
-    box_args = (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1], y0b, y1b,
-                ty0, et < 1.0)
+    box_args = _box_args(n_a, n_b, base, geo, fp, buf, band, et < 1.0)
     cells = buf.cells
     nc = _visible_cells(regions, p0, p1, hier[:7], n_a, box_args, satab, buf.sat, cells)
     nd = _splat_cells(cells, nc, hier[7], hier[8], vals, base, cs, cls, geo, fp, buf, band)
     if composite_sheet(buf.img, buf.sheet, buf.sat, buf.tile_sat, buf.dirty_px, buf.dirty, nd, et) > 0:
         _build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
     buf.stats[bi, 3] += 1
+
+
+@jit(inline="always")
+def _box_args(n_a, n_b, base, geo, fp, buf, band, et_on):
+    """What :func:`_hidden` needs of a slice and a band (``et_on``: test saturation, not only the band)."""
+    return (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1], band[1], band[2],
+            band[5], et_on)
 
 
 @leaf
@@ -398,8 +402,12 @@ def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
 def _covered(satab, ty0, sat, x0, x1, y0, y1):
     """True when every pixel of the box [x0, x1] x [y0, y1] (inside the band) has reached the
     early-termination opacity: whole tiles answer at once; otherwise the byte mask (small, stays in cache)."""
-    if _tiles_whole(satab, ty0, x0, x1, y0, y1):
-        return True
+    return _tiles_whole(satab, ty0, x0, x1, y0, y1) or pixels_saturated(sat, x0, x1, y0, y1)
+
+
+@leaf
+def pixels_saturated(sat, x0, x1, y0, y1):
+    """True when every pixel of the box [x0, x1] x [y0, y1] is marked in the byte mask ``sat``."""
     for y in range(y0, y1 + 1):
         for x in range(x0, x1 + 1):
             if sat[y, x] == 0:
@@ -485,15 +493,22 @@ def _project(a, b, base, coef, persp, ex, ey, y0b, y1b, img_w):
         return False, 0.0, py, s, none
     X = xs + a * coef[XA] + b * coef[XB]
     px = coef[CX] + s * X if persp else X
-    rx = ex * s
+    ok, box = footprint_box(px, py, ex * s, ry, y0b, y1b, img_w)
+    return ok, px, py, s, box
+
+
+@leaf
+def footprint_box(px, py, rx, ry, y0b, y1b, img_w):
+    """The pixel box ``(x0, x1, y0, y1)`` of a footprint at (px, py) with half-extents (rx, ry), clipped to the
+    image and the band of rows ``y0b:y1b``; ``ok`` is False when it misses them."""
     fx0 = math.ceil(px - rx)
     fx1 = math.floor(px + rx)
     fy0 = math.ceil(py - ry)
     fy1 = math.floor(py + ry)
     if fx1 < 0 or fy1 < y0b or fx0 > img_w - 1 or fy0 > y1b - 1:
-        return False, px, py, s, none
+        return False, (0, 0, 0, 0)
     box = (max(int(fx0), 0), min(int(fx1), img_w - 1), max(int(fy0), y0b), min(int(fy1), y1b - 1))
-    return box[2] <= box[3], px, py, s, box
+    return box[2] <= box[3], box
 
 
 @leaf

@@ -53,7 +53,7 @@ import numpy as np
 
 from ..jit import jit, leaf
 from .composite import TILE, composite_sheet
-from .kernels import _shade, _splat
+from .kernels import _shade, _splat, footprint_box, pixels_saturated
 from .select import BLOCK, CELL, REGION
 
 # coef layout (camera.Projection.coef), as in kernels.py
@@ -290,7 +290,7 @@ def _band_saturated(tile_sat, tile_npix, band):
 
 @leaf
 def _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
-    """True when every pixel of the box has reached the early-termination opacity (copy of kernels.py's)."""
+    """True when every pixel of the box has reached the early-termination opacity: whole tiles first."""
     whole = True
     for ty in range(y0 // TILE, y1 // TILE + 1):
         for tx in range(x0 // TILE, x1 // TILE + 1):
@@ -299,13 +299,7 @@ def _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
                 break
         if not whole:
             break
-    if whole:
-        return True
-    for y in range(y0, y1 + 1):
-        for x in range(x0, x1 + 1):
-            if sat[y, x] == 0:
-                return False
-    return True
+    return whole or pixels_saturated(sat, x0, x1, y0, y1)
 
 
 @leaf
@@ -325,15 +319,8 @@ def _project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w):
         return False, 0.0, py, s, none
     X = coef[X0] + c * coef[XC] + a * coef[XA] + b * coef[XB]
     px = coef[CX] + s * X if persp else X
-    rx = ex * s
-    fx0 = math.ceil(px - rx)
-    fx1 = math.floor(px + rx)
-    fy0 = math.ceil(py - ry)
-    fy1 = math.floor(py + ry)
-    if fx1 < 0 or fy1 < y0b or fx0 > img_w - 1 or fy0 > y1b - 1:
-        return False, px, py, s, none
-    box = (max(int(fx0), 0), min(int(fx1), img_w - 1), max(int(fy0), y0b), min(int(fy1), y1b - 1))
-    return box[2] <= box[3], px, py, s, box
+    ok, box = footprint_box(px, py, ex * s, ry, y0b, y1b, img_w)
+    return ok, px, py, s, box
 
 
 @leaf

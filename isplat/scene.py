@@ -29,10 +29,11 @@ __all__ = [
     "RenderOptions", "load_scene", "parse_scene", "locate_keys", "scene_to_dict",
 ]
 
-SCENE_VERSION = 3
+SCENE_VERSION = 4
 # keys added by each version after 1: a file that says an older version must not use them
 KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
-              ("views", "fps"): 2, ("render", "sheets"): 3}
+              ("views", "fps"): 2, ("render", "sheets"): 3,
+              ("render", "classification"): 4}
 
 Vec3 = tuple[float, float, float]
 
@@ -135,6 +136,8 @@ class RenderOptions:
     precision: str
     threads: int
     sheets: str = "axis"         # "axis": a sheet per slice; "image": slabs parallel to the image plane
+    classification: str = "pre"  # "pre": each voxel classified, then splatted; "post": density splatted, then
+                                 # classified (isplat.splat.post)
 
 
 @dataclass(frozen=True)
@@ -171,7 +174,7 @@ SHADING_KEYS = ("enabled", "ambient", "diffuse", "specular", "shininess", "two_s
 LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
-               "precision", "threads", "sheets")
+               "precision", "threads", "sheets", "classification")
 VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
 DEFAULT_PATH_FRAMES = 60
 
@@ -1004,7 +1007,11 @@ def _render(ctx: _Ctx, tree: dict) -> RenderOptions:
     precision = ctx.choice(p + ("precision",), t.get("precision", "float32"), ("float32", "float64"))
     threads = ctx.integer(p + ("threads",), t.get("threads", 0), "expected an integer >= 0 (0 = all cores)", lo=0)
     sheets = ctx.choice(p + ("sheets",), t.get("sheets", "axis"), ("axis", "image"))
-    return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets)
+    classification = ctx.choice(p + ("classification",), t.get("classification", "pre"), ("pre", "post"))
+    if classification == "post" and sheets == "image":
+        ctx.fail(p + ("classification",), classification, 'post-classification samples the slices of the '
+                 'principal axis; it takes render.sheets = "axis"')
+    return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets, classification)
 
 
 def _cameras(ctx: _Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:

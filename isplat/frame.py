@@ -16,8 +16,8 @@ with early termination off, see docs/design.md for the bound with it on).
 ...                     ".", "example", data_required=False)
 >>> sel = Selection.from_arrays(vol, scene)
 >>> rgba, stats = render_frame(sel, views_for(scene, sel)[0])
->>> rgba.shape, stats.voxels_splatted
-((32, 32, 4), 64)
+>>> rgba.shape, stats.voxels_splatted, stats.classification      # post-classified: samples composited
+((32, 32, 4), 348, 'post')
 """
 
 from __future__ import annotations
@@ -50,6 +50,8 @@ class FrameStats:
     voxels_tested: int = 0      # voxels that reached the per-voxel stages (not skipped with their region,
                                 # block or cell), summed over the image bands (a voxel near a band's edge
                                 # is tested by both bands)
+    classification: str = "pre"  # "post": ``voxels_splatted`` counts the samples composited (one per pixel and
+                                 # slice where a quad of interest is seen), not voxels
 
 
 @dataclass(frozen=True)
@@ -179,19 +181,22 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
 
         *tables, order = image_frame(sel, view, dtype, shade, cuts)
         return Setup(view, *tables, rows, mine, None, _tile_pixels(H, W), *scratch, et_val, threads, False, order)
+    if ro.classification == "pre" and sel.post and sel.method == "indexed" and (sel.use_shade or sel.use_gm):
+        raise IsplatError("render.classification = 'pre' needs the channel values of the voxels of interest; this "
+                          "selection was made for 'post' (make it with the pre-classified scene)")
     cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
     vox = sel.voxels(axis)
     fpt = K.FootprintTable(fp.table, fp.params)
     kernel = K.render_full if sel.method == "full" else K.render_indexed
     if ro.classification == "post":
-        kernel, vox, fpt = _post_kernel(sel, axis, vox, coef, dtype)
+        kernel, vox, fpt = _post_kernel(sel, axis, vox, proj, dtype)
     bins = None if sel.method == "full" else \
         K.Bins(*K.bin_regions(view.order, sel.voxels(axis), geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
     return Setup(view, kernel, vox, cls, geo, fpt, rows, mine, bins, _tile_pixels(H, W), *scratch, et_val,
                  threads, False)
 
 
-def _post_kernel(sel, axis: str, vox, coef, dtype):
+def _post_kernel(sel, axis: str, vox, proj, dtype):
     """Post-classification (:mod:`isplat.splat.post`): its kernel, its voxels (the selection's hierarchy and
     the whole channels) and, as the footprint, the tent's reach (one voxel step), which the occlusion tests and
     the binning take."""
@@ -200,12 +205,12 @@ def _post_kernel(sel, axis: str, vox, coef, dtype):
     if not sel.post or sel.whole is None:
         raise IsplatError("render.classification = 'post' needs a selection made for it (the whole channels)")
     params = np.zeros(7, np.float64)
-    params[K.EX], params[K.EY] = post.reach(coef)
+    params[K.EX], params[K.EY] = post.reach(proj.coef)
     fpt = K.FootprintTable(np.zeros(2, dtype), params)
-    whole = sel.whole_volume(axis)
+    unit = post.scan_unit(proj.jac)
     if sel.method == "full":
-        return post.render_post_full, whole, fpt
-    return post.render_post_indexed, post.PostVoxels(vox, whole), fpt
+        return post.render_post_full, post.PostVoxels(None, sel.whole_volume(axis), unit), fpt
+    return post.render_post_indexed, post.PostVoxels(vox, sel.whole_volume(axis), unit), fpt
 
 
 def blank(setup: Setup) -> Partial:
@@ -257,7 +262,7 @@ def frame_stats(view: View, part: Partial, seconds: float) -> FrameStats:
     axis, sign = view.axis_sign
     bs = part.band_stats
     return FrameStats(axis, sign, int(bs[:, 0].max()), int(bs[:, 2].sum()), int(bs[:, 3].max()), seconds,
-                      int(bs[:, 1].sum()))
+                      int(bs[:, 1].sum()), view.render.classification)
 
 
 def render_frame(sel, view: View, et: float | None = None):

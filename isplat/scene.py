@@ -136,8 +136,8 @@ class RenderOptions:
     precision: str
     threads: int
     sheets: str = "axis"         # "axis": a sheet per slice; "image": slabs parallel to the image plane
-    classification: str = "pre"  # "pre": each voxel classified, then splatted; "post": density splatted, then
-                                 # classified (isplat.splat.post)
+    classification: str = "post"  # "pre": each voxel classified, then splatted; "post": density splatted,
+                                  # then classified (isplat.splat.post)
 
 
 @dataclass(frozen=True)
@@ -1007,7 +1007,11 @@ def _render(ctx: _Ctx, tree: dict) -> RenderOptions:
     precision = ctx.choice(p + ("precision",), t.get("precision", "float32"), ("float32", "float64"))
     threads = ctx.integer(p + ("threads",), t.get("threads", 0), "expected an integer >= 0 (0 = all cores)", lo=0)
     sheets = ctx.choice(p + ("sheets",), t.get("sheets", "axis"), ("axis", "image"))
-    classification = ctx.choice(p + ("classification",), t.get("classification", "pre"), ("pre", "post"))
+    # "post" is the default from version 4 on; a file that says an older version keeps the splatting it was
+    # written for, and image-aligned sheets splat pre-classified
+    older = isinstance(tree.get("version"), int) and tree["version"] < 4
+    default = "pre" if older or sheets == "image" else "post"
+    classification = ctx.choice(p + ("classification",), t.get("classification", default), ("pre", "post"))
     if classification == "post" and sheets == "image":
         ctx.fail(p + ("classification",), classification, 'post-classification samples the slices of the '
                  'principal axis; it takes render.sheets = "axis"')

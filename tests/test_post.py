@@ -138,7 +138,8 @@ def test_a_thin_opaque_edge_is_not_widened(tmp_path, make_scene):
     # the density crosses 100 half-way between voxels 3 and 4 and between 11 and 12: 8 voxels wide
     expect = 8.0 / r.frames[0].pixel_size
     assert expect > 20 and abs(covered.size - expect) <= 1.01
-    pre = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0\nzoom = 2.5", render="early_termination = 1.0", **kw)
+    pre = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0\nzoom = 2.5",
+                     render='early_termination = 1.0\nclassification = "pre"', **kw)
     pre_img, _ = render(pre)
     assert (pre_img[16, :, 3] > 0.5).sum() >= covered.size + 2
 
@@ -148,3 +149,18 @@ def test_post_with_image_sheets_is_refused(tmp_path, make_scene):
     aug, idx = write_volume(tmp_path, rng_volume(1, (4, 4, 4)))
     with pytest.raises(IsplatError, match="classification"):
         make_scene(aug, idx, transfer=TF, render='classification = "post"\nsheets = "image"')
+
+
+def test_a_post_selection_is_refused_by_the_pre_kernel_when_it_lacks_values(tmp_path, make_scene):
+    """A selection made for post-classification gathers no channel values (its frames read the whole channels);
+    a pre-classified frame that needs normals must not index the missing ones."""
+    from isplat.errors import IsplatError
+    from isplat.frame import render_frame, views_for
+    shape = (5, 6, 7)
+    aug, idx = write_volume(tmp_path, rng_volume(1, shape), normal=random_normals(1, shape))
+    post = post_scene(make_scene, aug, idx, "azimuth = 10")
+    pre = make_scene(aug, idx, transfer=TF, shading="enabled = true", render='classification = "pre"')
+    r = Renderer(post)
+    assert r.selection.post and r.selection.axes["j"].normal.size == 0
+    with pytest.raises(IsplatError, match="needs the channel values"):
+        render_frame(r.selection, views_for(pre, r.selection)[0])

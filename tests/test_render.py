@@ -13,7 +13,8 @@ from isplat import camera as C
 from isplat.renderer import Renderer
 from render_reference import reference_render
 
-BIG_TABLE = "footprint_table = 1048576\n"
+# these tests are about the paper's (pre-classified) splatting: its footprint, its reference (render_reference)
+BIG_TABLE = 'footprint_table = 1048576\nclassification = "pre"\n'
 
 
 def rng_volume(seed, shape, levels=(0, 60, 120, 200)):
@@ -124,7 +125,7 @@ def test_sphere_is_round_with_anisotropic_spacing(tmp_path, make_scene, spacing,
     aug, idx = write_volume(tmp_path, dens.transpose(2, 1, 0), spacing=spacing)
     sc = make_scene(aug, idx, image="width = 64\nheight = 64\nbackground = [0, 0, 0, 0]", camera=cam,
                     transfer="opacity = [[0, 0], [200, 0.002]]\nunit_distance = 1.0",
-                    shading="enabled = false", render="early_termination = 1.0")
+                    shading="enabled = false", render='early_termination = 1.0\nclassification = "pre"')
     img, _ = render(sc)
     a = img[..., 3]
     ys, xs = np.mgrid[0:64, 0:64]
@@ -270,7 +271,8 @@ def test_empty_transfer_function_renders_background_and_reads_nothing(tmp_path, 
 def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
     shape = (6, 7, 8)
     aug, idx = write_volume(tmp_path, rng_volume(7, shape))
-    base = dict(image="width = 8\nheight = 8", transfer="opacity = [[190, 0], [200, 1]]")
+    base = dict(image="width = 8\nheight = 8", transfer="opacity = [[190, 0], [200, 1]]",
+                render='classification = "pre"')
     r = Renderer(make_scene(aug, idx, shading="enabled = false", **base))
     assert r.report.channels == [] and r.report.axes == ["j"]
     assert r.report.augmented_bytes == 0 and r.report.index_bytes > 0
@@ -285,6 +287,16 @@ def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
     assert r.report.channels == ["density"] and r.report.index_bytes == 0
     r = Renderer(make_scene(aug, idx, views="list = [{azimuth = 0}, {azimuth = 90}]", **base))
     assert r.report.axes == ["i", "j"]
+    # post-classification (the default) samples the neighbours of the voxels of interest too: the whole
+    # density channel, and the normals when shaded; from the index only the blocks, no values
+    del base["render"]
+    r = Renderer(make_scene(aug, idx, shading="enabled = true", **base))
+    assert r.report.channels == ["density", "normal"] and r.report.values_from == "whole channels"
+    assert r.report.augmented_bytes == 3 * dens_size(shape) and r.report.index_bytes == blocks
+
+
+def dens_size(shape):
+    return int(np.prod(shape))
 
 
 def test_index_of_another_volume_is_refused(tmp_path, make_scene):

@@ -88,7 +88,8 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
     with _frames(scene, views, scheduler, slabs) as (method, results, held):
         for n, rgba, st, rep in results:
             per_view.append({"view": n if view is None else view, "axis": ("+" if st.sign > 0 else "-") + st.axis,
-                             "voxels_examined": st.voxels_examined, "voxels_splatted": st.voxels_splatted,
+                             "voxels_examined": st.voxels_examined, "classification": st.classification,
+                             "voxels_splatted" if st.classification == "pre" else "samples": st.voxels_splatted,
                              "slices": st.slices, "seconds": round(st.seconds, 6)})
             if movie:
                 frames.append(rgba)
@@ -111,8 +112,9 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
                   f"; held {held()} bytes, {held() / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
                   if held else " (selections held by the workers or one slab at a time)"))
     for v in per_view:
-        log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, "
-                  f"{v['voxels_splatted']} splatted, {v['seconds'] * 1000:.1f} ms")
+        drawn = f"{v['voxels_splatted']} splatted" if "voxels_splatted" in v else f"{v['samples']} samples composited"
+        log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, {drawn} "
+                  f"({v['classification']}-classified), {v['seconds'] * 1000:.1f} ms")
 
 
 @contextlib.contextmanager

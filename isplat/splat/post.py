@@ -39,12 +39,15 @@ from ..jit import jit, leaf
 from .composite import TILE
 from .kernels import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, _band, _band_saturated, _box_args, _build_sat,
                       _cut_away, _full_slice, _hidden, _path_alpha, _slice_bases, _visible_cells)
-from .select import CELL, KEYS, REGION
+from .select import BLOCK, CELL, KEYS, REGION
 
-PostVoxels = namedtuple("PostVoxels", "index whole")
-PostVoxels.__doc__ = """``index``: the selection's hierarchy (:data:`isplat.splat.kernels.IndexedVoxels`), which
-says which quads to sample; ``whole``: the whole channels (:data:`isplat.splat.kernels.WholeVolume`), which give
-the four densities of each sample."""
+SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (scan_unit)
+
+PostVoxels = namedtuple("PostVoxels", "index whole unit")
+PostVoxels.__doc__ = """``index``: the selection's hierarchy (:data:`isplat.splat.kernels.IndexedVoxels`; None
+without an index), which says which quads to sample; ``whole``: the whole channels
+(:data:`isplat.splat.kernels.WholeVolume`), which give the four densities of each sample; ``unit``: the side of
+the squares scanned together (:func:`scan_unit`)."""
 
 
 def reach(coef) -> tuple[float, float]:
@@ -59,7 +62,7 @@ def render_post_indexed(order, o0, bins, vox, cls, geo, fp, buf, bands):
     idx = vox.index
     hier = (idx.region_id, idx.region_ptr, idx.block_pos, idx.block_ptr, idx.block_voxel, idx.cell_pos,
             idx.cell_count)
-    mark, marked = _marks(idx.n_a, idx.n_b)
+    marks = _marks(idx.n_a, idx.n_b)
     for bi in bands.mine:
         band = _band(bi, bands, buf)
         for oi in range(order.shape[0]):
@@ -70,14 +73,15 @@ def render_post_indexed(order, o0, bins, vox, cls, geo, fp, buf, bands):
             r1 = idx.region_ptr[idx.slice_ptr[c + 1]]
             buf.stats[bi, 0] += idx.block_voxel[r1] - idx.block_voxel[r0]
             p0, p1 = bins.ptr[bi, o0 + oi], bins.ptr[bi, o0 + oi + 1]
-            _post_slice(c, bins.regions, p0, p1, hier, vox.whole, cls, geo, fp, buf, band, mark, marked)
+            _post_slice(c, bins.regions, p0, p1, hier, vox.whole, vox.unit, cls, geo, fp, buf, band, marks)
 
 
 @jit
 def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
-    """As :func:`render_post_indexed` without an index: every voxel of every slice is classified to find the
-    voxels of interest (``vox``: :data:`isplat.splat.kernels.WholeVolume`)."""
-    n_a, n_b = vox.n_a, vox.n_b
+    """As :func:`render_post_indexed` without an index (``vox.index`` None): every voxel of every slice is
+    classified to find the voxels of interest."""
+    whole = vox.whole
+    n_a, n_b = whole.n_a, whole.n_b
     nra = (n_a + REGION - 1) // REGION
     ng = nra * ((n_b + REGION - 1) // REGION)
     m = n_a * n_b
@@ -88,7 +92,7 @@ def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
     all_regions = np.arange(ng)
     wanted = np.empty(ng, np.bool_)
     cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
-    mark, marked = _marks(n_a, n_b)
+    marks = _marks(n_a, n_b)
     for bi in bands.mine:
         band = _band(bi, bands, buf)
         for oi in range(order.shape[0]):
@@ -99,20 +103,32 @@ def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
             for rid in range(ng):
                 wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4],
                                           buf.sat, False)
-            n_regions = _full_slice(c, vox, cls, hier, index, wanted)
+            n_regions = _full_slice(c, whole, cls, hier, index, wanted)
             buf.stats[bi, 0] += m
-            _post_slice(c, all_regions, 0, n_regions, hier[:7], vox, cls, geo, fp, buf, band, mark, marked)
+            _post_slice(c, all_regions, 0, n_regions, hier[:7], whole, vox.unit, cls, geo, fp, buf, band, marks)
 
 
 @jit
 def _marks(n_a, n_b):
-    """A slice's cell flags (zeroed) and the list of flagged cells (see :func:`_mark_cells`)."""
+    """A slice's cell flags (zeroed), the list of flagged cells (see :func:`_mark_cells`), and the same for the
+    squares that are scanned (cells, or squares of several cells, see :func:`scan_unit`)."""
     n = ((n_a + CELL - 1) // CELL) * ((n_b + CELL - 1) // CELL)
-    return np.zeros(n, np.uint8), np.empty(n, np.int64)
+    return np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8), np.empty(n, np.int64)
+
+
+def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
+    """The side, in voxels, of the squares of the slice whose pixels are scanned together: a cell (4 voxels) when
+    a cell covers at least ``target`` pixels, else 8 or 16, so that the per-square costs (its projected box,
+    its rows' spans) are shared by enough pixels when voxels are smaller than pixels."""
+    area = abs(float(jac[0][0]) * float(jac[1][1]) - float(jac[0][1]) * float(jac[1][0]))   # pixels per voxel
+    unit = CELL
+    while unit < BLOCK and unit * unit * area < target:
+        unit *= 2
+    return unit
 
 
 @jit
-def _post_slice(c, regions, p0, p1, hier, whole, cls, geo, fp, buf, band, mark, marked):
+def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, marks):
     """One slice and one band: the cells of interest left by the occlusion tests, the quads that touch their
     voxels sampled, classified and composited into the image."""
     bi, y0b, y1b, et, satab, ty0 = band
@@ -123,12 +139,19 @@ def _post_slice(c, regions, p0, p1, hier, whole, cls, geo, fp, buf, band, mark, 
     nc = _visible_cells(regions, p0, p1, hier, whole.n_a, box_args, satab, buf.sat, cells)
     for k in range(nc):
         buf.stats[bi, 1] += cells[k, 1] - cells[k, 0]
-    nm = _mark_cells(cells, nc, (whole.n_a + CELL - 1) // CELL, mark, marked)
+    mark, marked, smark, squares = marks
+    nca = (whole.n_a + CELL - 1) // CELL
+    nm = _mark_cells(cells, nc, nca, mark, marked)
+    ns = _mark_squares(marked, nm, nca, unit, (whole.n_a + unit - 1) // unit, smark, squares)
     voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c)
     inv = _ortho_inverse(base, geo.coef)
     counts = np.zeros(2, np.int64)      # samples composited, pixels newly saturated
-    _sample_cells(marked, nm, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base, cs,
-                  geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts)
+    _sample_squares(squares, ns, unit, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
+                    cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts)
+    for t in range(nm):
+        mark[marked[t]] = 0
+    for t in range(ns):
+        smark[squares[t]] = 0
     buf.stats[bi, 2] += counts[0]
     if counts[1] > 0:
         _build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
@@ -158,39 +181,56 @@ def _mark_cells(cells, nc, nca, mark, marked):
 
 
 @leaf
-def _sample_cells(marked, nm, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img, sat,
-                  tile_sat, band, counts):
-    """Sample the flagged cells ``marked[:nm]`` (:func:`_sample_cell`) and clear their flags. One call per slice:
-    the per-cell stage is inlined here, since handing a stage this many arrays costs more than a small cell."""
+def _mark_squares(marked, nm, nca, unit, nsa, smark, squares):
+    """The squares of ``unit`` voxels that hold the flagged cells ``marked[:nm]``, each listed once in
+    ``squares``; returns their number."""
+    per = unit // CELL
+    ns = 0
     for t in range(nm):
         q = marked[t]
-        _sample_cell(q, mark[q], voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img, sat,
-                     tile_sat, band, counts)
-        mark[q] = 0
+        s = ((q // nca) // per) * nsa + (q % nca) // per
+        if smark[s] == 0:
+            smark[s] = 1
+            squares[ns] = s
+            ns += 1
+    return ns
+
+
+@leaf
+def _sample_squares(squares, ns, unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
+                    sat, tile_sat, band, counts):
+    """Sample the squares ``squares[:ns]`` (:func:`_sample_square`). One call per slice: the per-square stage is
+    inlined here, since handing a stage this many arrays costs more than a small square."""
+    for t in range(ns):
+        _sample_square(squares[t], unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv,
+                       img, sat, tile_sat, band, counts)
 
 
 @leaf(inline="always")
-def _sample_cell(q, flags, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img, sat, tile_sat,
-                 band, counts):
-    """Sample the quads of cell ``q`` that ``flags`` asks for at the pixels whose point on the slice plane lies in
-    them (each pixel of the slice falls in one quad), and composite the samples front to back. ``inv``: the
-    slice's inverse projection when orthographic (:func:`_ortho_inverse`)."""
+def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img, sat,
+                   tile_sat, band, counts):
+    """Sample the quads of square ``sq`` (``unit`` voxels a side) that their cells' flags ask for, at the pixels
+    whose point on the slice plane lies in them (each pixel of the slice falls in one quad), and composite the
+    samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`)."""
     density, gm, nrm, strides, n_a, n_b, c = voxel
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp
     nca = (n_a + CELL - 1) // CELL
-    ci = q % nca
-    cj = q // nca
-    # the part of the slice plane to sample: the cell's quads [4 ci, 4 ci + 4) (the first from -0.5, the last
-    # to n - 0.5), or only its last column or row when just a neighbour's voxels need them
-    u0 = -0.5 if ci == 0 else float(ci * CELL)
-    u1 = min(float(ci * CELL + CELL), n_a - 0.5)
-    v0 = -0.5 if cj == 0 else float(cj * CELL)
-    v1 = min(float(cj * CELL + CELL), n_b - 0.5)
-    if flags & 5 == 0:
-        u0 = float(ci * CELL + CELL - 1)
-    if flags & 3 == 0:
-        v0 = float(cj * CELL + CELL - 1)
+    nsa = (n_a + unit - 1) // unit
+    a0 = (sq % nsa) * unit
+    b0 = (sq // nsa) * unit
+    # the square's part of the slice plane: its quads [a0, a0 + unit) (the first from -0.5, the last to n - 0.5),
+    # or a cell's last column or row only, when just a neighbour's voxels need them
+    u0 = -0.5 if a0 == 0 else float(a0)
+    u1 = min(float(a0 + unit), n_a - 0.5)
+    v0 = -0.5 if b0 == 0 else float(b0)
+    v1 = min(float(b0 + unit), n_b - 0.5)
+    if unit == CELL:
+        flags = mark[sq]
+        if flags & 5 == 0:
+            u0 = float(a0 + CELL - 1)
+        if flags & 3 == 0:
+            v0 = float(b0 + CELL - 1)
     if u0 >= u1 or v0 >= v1:
         return
     x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, coef, persp, img.shape[1], y0b, y1b)
@@ -209,11 +249,12 @@ def _sample_cell(q, flags, voxel, alpha, color, shade, use_gm, use_shade, base, 
                 u = inv[0] + x * inv[1] + y * inv[2]
                 v = inv[3] + x * inv[4] + y * inv[5]
             if u < u0 or u >= u1 or v < v0 or v >= v1:
-                continue                    # another cell's quad
+                continue                    # another square's quad
             qa = max(int(math.floor(u)), 0)
             qb = max(int(math.floor(v)), 0)
-            la = qa - ci * CELL
-            lb = qb - cj * CELL
+            flags = mark[(qb // CELL) * nca + qa // CELL]
+            la = qa % CELL
+            lb = qb % CELL
             if not (flags & 1 or (la == CELL - 1 and flags & 2) or (lb == CELL - 1 and flags & 4)
                     or (la == CELL - 1 and lb == CELL - 1 and flags & 8)):
                 continue                    # a quad no voxel of interest touches
@@ -336,8 +377,9 @@ def _ortho_inverse(base, coef):
 
 @leaf
 def _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b):
-    """The pixels (x0, x1, y0, y1) whose centres can see the part [u0, u1) x [v0, v1) of the slice plane, clipped
-    to the image and the band (the whole band when a corner is behind the near plane); empty when x0 > x1."""
+    """The pixels (x0, x1, y0, y1) whose centres can see the part [u0, u1) x [v0, v1) of the slice plane, with up
+    to a pixel of margin, clipped to the image and the band (the whole band when a corner is behind the near
+    plane); empty when x0 > x1."""
     xs, ys, ws = base[0], base[1], base[2]
     cx0 = 1e300
     cx1 = -1e300
@@ -361,5 +403,6 @@ def _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b):
         cy1 = max(cy1, ky)
     if cx1 < 0.0 or cy1 < y0b or cx0 > img_w - 1 or cy0 > y1b - 1:
         return 1, 0, 1, 0
-    return (max(int(math.ceil(cx0)), 0), min(int(math.floor(cx1)), img_w - 1),
-            max(int(math.ceil(cy0)), y0b), min(int(math.floor(cy1)), y1b - 1))
+    # rounded outwards: a pixel centre on the edge belongs to the square by the exact test per pixel
+    return (max(int(math.floor(cx0)), 0), min(int(math.ceil(cx1)), img_w - 1),
+            max(int(math.floor(cy0)), y0b), min(int(math.ceil(cy1)), y1b - 1))

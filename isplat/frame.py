@@ -168,10 +168,12 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     if frame.projection == "perspective":
         atab = alpha_table(sel.luts, None)
         geo = K.SliceGeometry(coef, steps, _floats(geom.q - frame.e), True, float(geom.spacing[ic]) / unit,
-                              float((geom.q - frame.e) @ geom.unit_axes[ic]), float(geom.spacing[ic]), cuts)
+                              float((geom.q - frame.e) @ geom.unit_axes[ic]), float(geom.spacing[ic]), cuts,
+                              eye_terms(frame, geom, ic, max(fp.params[K.EX], fp.params[K.EY]),
+                                        ro.footprint_radius))
     else:
         atab = alpha_table(sel.luts, proj.ds / unit)
-        geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts)
+        geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts, (0.0,) * 9)
     shade = (shade_table(view.shading, frame, geom, threads=threads) if sel.use_shade
              else np.zeros((1, 6), np.float32))
     if ro.sheets == "image":
@@ -189,6 +191,28 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
         bins = K.Bins(*K.bin_regions(view.order, vox, geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
     return Setup(view, kernel, vox, cls, geo, fpt, rows, mine, bins, _tile_pixels(H, W), *scratch, et_val,
                  threads, False)
+
+
+# A voxel whose footprint's sigma subtends more than this angle (radians) from the eye gets its opacity per
+# pixel, along each pixel's own ray (kernels._splat_rays), rather than along its own ray: with the voxel's own
+# ray, the opacity of a pixel in a uniform region is off by about half the square of that angle times
+# (sec^2 + tan^2) of the ray's angle to the slice normal (3e-4 to 1e-3 at this angle; up to 30% for the voxels
+# one spacing from an eye inside the volume).
+WIDE_ANGLE = 1.0 / 40.0
+
+
+def eye_terms(frame, geom, ic: int, extent: float, radius: float) -> tuple:
+    """The per-frame terms of kernels.SliceGeometry.eye (layout kernels.EY_*) for slices along grid axis ``ic``
+    and a footprint of half-extent ``extent`` pixels at t0 = 1, cut off at ``radius`` sigmas."""
+    ds = float(geom.spacing[ic])
+    n_c = int(geom.n_ijk[ic])
+    ce = float(geom.to_grid(frame.e)[ic])
+    h0 = max(-0.5 - ce, ce - (n_c - 0.5), 0.0) * ds             # eye to the box, along the slice normal
+    diag = float(np.linalg.norm(geom.n_ijk * geom.spacing))
+    f = float((frame.e - frame.p) @ frame.w) / frame.pixel_size  # focal length in pixels
+    n = geom.unit_axes[ic]
+    return (ds, h0, float(frame.clip), min(1.0, ds / diag), WIDE_ANGLE * f * radius, float(frame.u @ n),
+            -float(frame.v @ n), -float(frame.w @ n) * f, f * f)
 
 
 def blank(setup: Setup) -> Partial:

@@ -89,7 +89,8 @@ def views_for(scene, data, cameras=None) -> list[View]:
     """The :class:`View` of each camera (default: the scene's views) for ``data`` (anything with ``shape``
     and ``spacing_ijk``: a Selection or an augmented file)."""
     geom = scene_geometry(scene, data.shape, data.spacing_ijk, str(getattr(data, "path", "volume")))
-    W, H = scene.image.width, scene.image.height
+    n = scene.render.supersample                # frames at n times the image's size (finish_image box-filters)
+    W, H = scene.image.width * n, scene.image.height * n
     return [View(cam_mod.view_frame(c, geom, W, H), geom, scene.render, scene.shading, scene.cuts,
                  tuple(scene.image.background)) for c in (scene.views if cameras is None else cameras)]
 
@@ -280,15 +281,28 @@ def render_frame(sel, view: View, et: float | None = None):
     part = blank(setup)
     for start, stop in progress.bar(slabs, desc=f"slices ({n})", unit="slab", disable=len(slabs) == 1):
         render_slab(setup, start, stop, part)
-    return finish_image(part.img, view.background), frame_stats(view, part, time.perf_counter() - t0)
+    return (finish_image(part.img, view.background, view.render.supersample),
+            frame_stats(view, part, time.perf_counter() - t0))
 
 
-def finish_image(img: np.ndarray, background) -> np.ndarray:
-    """Premultiplied RGBA over the background colour -> straight RGBA (float)."""
+def finish_image(img: np.ndarray, background, supersample: int = 1) -> np.ndarray:
+    """Premultiplied RGBA over the background colour -> straight RGBA (float); with ``supersample`` n > 1 the
+    frame (n times the image's width and height) is first box-filtered down, each pixel the mean of its n x n
+    (premultiplied, so colour is weighted by opacity; the background goes over after, which is the same)."""
+    if supersample > 1:
+        img = box_filter(img, supersample)
     out = np.empty(img.shape, dtype=img.dtype)
     if not finish(img, np.asarray(background, dtype=np.float64), out):
         raise IsplatError("render produced non-finite pixels; please report this scene")
     return out
+
+
+def box_filter(img: np.ndarray, n: int) -> np.ndarray:
+    """The mean of every n x n block of pixels of ``img`` (H*n, W*n, C) -> (H, W, C), summed in float64."""
+    h, w = img.shape[0] // n, img.shape[1] // n
+    if (h * n, w * n) != img.shape[:2]:
+        raise IsplatError(f"supersample {n}: the frame is {img.shape[1]}x{img.shape[0]}, not a multiple of {n}")
+    return img.reshape(h, n, w, n, -1).mean(axis=(1, 3), dtype=np.float64).astype(img.dtype)
 
 
 def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:

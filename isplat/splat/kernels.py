@@ -327,6 +327,7 @@ def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, ban
     table = fp.table
     fpc = (fp.params[QA], 2.0 * fp.params[QB], fp.params[QC], fp.params[R2], fp.params[TSCALE])
     ex, ey = fp.params[EX], fp.params[EY]
+    wide_s = eye[EY_WIDE] / max(ex, ey) if persp else 0.0     # a larger perspective scale: a wide footprint
     ncut = cuts.shape[0]
     nd = 0
     for k in range(nc):
@@ -344,7 +345,7 @@ def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, ban
             if not ok or (et_on and _covered(satab, ty0, sat, box[0], box[1], box[2], box[3])):
                 continue
             alpha, r = _path_alpha(L, a, b, base, s, steps, persp, geo.inv_unit, coef, eye)
-            if persp and s * max(ex, ey) > eye[EY_WIDE]:
+            if persp and s > wide_s:
                 # next to the eye: the opacity along each pixel's own ray
                 cr, cg, cb = _shade(d, nrm[fi] if use_shade else 0, 1.0, color, shade, use_shade)
                 nd = _splat_rays(px, py, s, box, cr, cg, cb, r * L, fpc, table, coef, eye, sheet, dirty_px, dirty,
@@ -540,11 +541,10 @@ def _path_alpha(L, a, b, base, s, steps, persp, inv_unit, coef, eye):
     dist = math.sqrt(vx * vx + vy * vy + vz * vz)
     hc = base[6]                               # distance from the eye to the slice's plane, along the normal
     ds = eye[EY_DS]
-    depth = -coef[WPE] / s                     # -D: distance in front of the eye along -w
     r = inv_unit                               # = slice spacing / unit distance
-    # this ray crosses the slice plane in front at depth depth * (hc - ds) / hc: culled there?
-    if depth * (hc - ds) < coef[NEAR] * hc:
-        lower = max(eye[EY_H0], eye[EY_CLIP] * hc / depth)
+    # this ray crosses the slice plane in front at depth (-D) (hc - ds) / hc, with -D = -wpe / s: culled there?
+    if -coef[WPE] * (hc - ds) < coef[NEAR] * hc * s:
+        lower = max(eye[EY_H0], eye[EY_CLIP] * hc * s / -coef[WPE])
         r = inv_unit * max(hc + 0.5 * ds - lower, 0.0) / ds
     # the cosine between the ray and the slice normal, bounded so a ray runs inside one slab for at most the
     # volume's diagonal

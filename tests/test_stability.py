@@ -148,3 +148,27 @@ def test_eye_inside_matches_the_analytic_integral_from_the_eye(lab, pos, fov, ne
         cos = 1 / np.sqrt(1 + (xs * half) ** 2 + (ys * half) ** 2)
         every = -np.expm1((n / 2 - pos[2]) / cos * math.log1p(-a))
         assert np.abs(img[..., 3] / every - 1).max() <= 2e-3
+
+
+@pytest.mark.parametrize("near", [2.0, 3.7])
+def test_a_set_near_plane_clips_the_integral_there(lab, near):
+    """camera.near set: voxels nearer are culled and the integral starts at the near plane (the slab it cuts
+    counts from there on), so the centre pixel is the integral from depth ``near`` to the far face."""
+    n, a = 33, 0.02
+    vol = lab.volume(np.full((n, n, n), 200, np.uint8))
+    cam = ('projection = "perspective"\nposition = [0.0, 0.0, -0.5]\nlook_at = [0.0, 0.0, 10.0]\nup = [0, 1, 0]\n'
+           f'fov = 60\nnear = {near!r}')
+    img, ok = lab.render(vol, size=33, camera=cam, transfer=opacity_tf(a, 1.0))
+    expect = column(a, n / 2 + 0.5 - near)
+    assert ok and abs(centre(img) - expect) <= 2e-3 * expect
+
+
+def test_eye_just_outside_the_face_counts_from_the_face(lab):
+    """The eye 0.3 in front of the volume's face (the first slice, 0.8 away, is culled by the default near
+    plane): the first slab kept reaches back to the face, not to the eye, so the centre pixel is the whole
+    depth of the volume, 33 units."""
+    n, a = 33, 0.02
+    vol = lab.volume(np.full((n, n, n), 200, np.uint8))
+    cam = 'projection = "perspective"\nposition = [0.0, 0.0, -16.8]\nlook_at = [0.0, 0.0, 10.0]\nup = [0, 1, 0]\nfov = 60'
+    img, ok = lab.render(vol, size=33, camera=cam, transfer=opacity_tf(a, 1.0))
+    assert ok and abs(centre(img) / column(a, n) - 1) <= 2e-3

@@ -170,8 +170,7 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
         atab = alpha_table(sel.luts, None)
         geo = K.SliceGeometry(coef, steps, _floats(geom.q - frame.e), True, float(geom.spacing[ic]) / unit,
                               float((geom.q - frame.e) @ geom.unit_axes[ic]), float(geom.spacing[ic]), cuts,
-                              eye_terms(frame, geom, ic, max(fp.params[K.EX], fp.params[K.EY]),
-                                        ro.footprint_radius))
+                              eye_terms(frame, geom, ic, ro.footprint_radius))
     else:
         atab = alpha_table(sel.luts, proj.ds / unit)
         geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts, (0.0,) * 9)
@@ -202,9 +201,9 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
 WIDE_ANGLE = 1.0 / 40.0
 
 
-def eye_terms(frame, geom, ic: int, extent: float, radius: float) -> tuple:
+def eye_terms(frame, geom, ic: int, radius: float) -> tuple:
     """The per-frame terms of kernels.SliceGeometry.eye (layout kernels.EY_*) for slices along grid axis ``ic``
-    and a footprint of half-extent ``extent`` pixels at t0 = 1, cut off at ``radius`` sigmas."""
+    and a footprint cut off at ``radius`` sigmas."""
     ds = float(geom.spacing[ic])
     n_c = int(geom.n_ijk[ic])
     ce = float(geom.to_grid(frame.e)[ic])

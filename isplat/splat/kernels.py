@@ -11,7 +11,8 @@ Arrays in, arrays out, no I/O. A frame is cut into named stages, each a small co
    hidden material costs one test per square rather than one per voxel;
 3. per voxel, classify, cut, project (§3) and shade (:func:`_splat_cells`: :func:`_cut_away`,
    :func:`_project`, :func:`_path_alpha`, :func:`_shade`);
-4. the splat into the slice's sheet (:func:`_splat`), and the sheet composited into the image
+4. the splat into the slice's sheet (:func:`_splat`; next to the eye in perspective :func:`_splat_rays`, the
+   opacity along each pixel's own ray), and the sheet composited into the image
    (:func:`isplat.splat.composite.composite_sheet`).
 
 Within a slice contributions are summed into a sheet buffer, so both traversals give the same image up to

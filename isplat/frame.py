@@ -184,13 +184,30 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
     vox = sel.voxels(axis)
     fpt = K.FootprintTable(fp.table, fp.params)
-    if sel.method == "full":
-        kernel, bins = K.render_full, None
-    else:
-        kernel = K.render_indexed
-        bins = K.Bins(*K.bin_regions(view.order, vox, geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
+    kernel = K.render_full if sel.method == "full" else K.render_indexed
+    if ro.classification == "post":
+        kernel, vox, fpt = _post_kernel(sel, axis, vox, coef, dtype)
+    bins = None if sel.method == "full" else \
+        K.Bins(*K.bin_regions(view.order, sel.voxels(axis), geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
     return Setup(view, kernel, vox, cls, geo, fpt, rows, mine, bins, _tile_pixels(H, W), *scratch, et_val,
                  threads, False)
+
+
+def _post_kernel(sel, axis: str, vox, coef, dtype):
+    """Post-classification (:mod:`isplat.splat.post`): its kernel, its voxels (the selection's hierarchy and
+    the whole channels) and, as the footprint, the tent's reach (one voxel step), which the occlusion tests and
+    the binning take."""
+    from .splat import post
+
+    if not sel.post or sel.whole is None:
+        raise IsplatError("render.classification = 'post' needs a selection made for it (the whole channels)")
+    params = np.zeros(7, np.float64)
+    params[K.EX], params[K.EY] = post.reach(coef)
+    fpt = K.FootprintTable(np.zeros(2, dtype), params)
+    whole = sel.whole_volume(axis)
+    if sel.method == "full":
+        return post.render_post_full, whole, fpt
+    return post.render_post_indexed, post.PostVoxels(vox, whole), fpt
 
 
 # A voxel whose footprint's sigma subtends more than this angle (radians) from the eye gets its opacity per

@@ -345,7 +345,7 @@ def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, ban
             ok, px, py, s, box = _project(a, b, base, coef, persp, ex, ey, y0b, y1b, img_w)
             if not ok or (et_on and _covered(satab, ty0, sat, box[0], box[1], box[2], box[3])):
                 continue
-            alpha, r = _path_alpha(L, a, b, base, s, steps, persp, geo.inv_unit, coef, eye)
+            alpha, r = _path_alpha(L, a, b, base, steps, persp, geo.inv_unit, coef, eye)
             if persp and s > wide_s:
                 # next to the eye: the opacity along each pixel's own ray
                 cr, cg, cb = _shade(d, nrm[fi] if use_shade else 0, 1.0, color, shade, use_shade)
@@ -527,7 +527,7 @@ def footprint_box(px, py, rx, ry, y0b, y1b, img_w):
 
 
 @leaf
-def _path_alpha(L, a, b, base, s, steps, persp, inv_unit, coef, eye):
+def _path_alpha(L, a, b, base, steps, persp, inv_unit, coef, eye):
     """Stage 3c: the voxel's opacity and ``r``, its slab's thickness along the slice normal in unit distances
     (perspective; 0 orthographic). Orthographic: ``L`` (already corrected for the path length). Perspective:
     corrected here for the path ``r / cos`` through the slab along this voxel's ray. The slab is the slice
@@ -543,9 +543,10 @@ def _path_alpha(L, a, b, base, s, steps, persp, inv_unit, coef, eye):
     hc = base[6]                               # distance from the eye to the slice's plane, along the normal
     ds = eye[EY_DS]
     r = inv_unit                               # = slice spacing / unit distance
-    # this ray crosses the slice plane in front at depth (-D) (hc - ds) / hc, with -D = -wpe / s: culled there?
-    if -coef[WPE] * (hc - ds) < coef[NEAR] * hc * s:
-        lower = max(eye[EY_H0], eye[EY_CLIP] * hc * s / -coef[WPE])
+    depth = -(base[2] + a * coef[WA] + b * coef[WB])      # -D: in front of the eye along -w
+    # this ray crosses the slice plane in front at depth depth * (hc - ds) / hc: culled there?
+    if depth * (hc - ds) < coef[NEAR] * hc:
+        lower = max(eye[EY_H0], eye[EY_CLIP] * hc / depth)
         r = inv_unit * max(hc + 0.5 * ds - lower, 0.0) / ds
     # the cosine between the ray and the slice normal, bounded so a ray runs inside one slab for at most the
     # volume's diagonal

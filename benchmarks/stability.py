@@ -652,7 +652,7 @@ def wide_cost(lab: Lab, quick: bool) -> dict:
             "eye outside": 'projection = "perspective"\nazimuth = 30\nelevation = 20\nfov = 30'}
     keep, out = F.WIDE_ANGLE, {"size": n}
     try:
-        for rep in range(3 if quick else 6):
+        for rep in range(3 if quick else 11):
             for name, cam in cams.items():
                 for mode, wa in (("per pixel", keep), ("per voxel", math.inf)):
                     F.WIDE_ANGLE = wa

@@ -69,6 +69,10 @@ def post_reference(scene, view=0, et=1.0):
     lights = _lights(sh, frame)
     normal_axis = geom.unit_axes[ic]
     cos_ortho = abs(frame.w @ normal_axis)
+    cos_min = min(1.0, geom.spacing[ic] / float(np.linalg.norm(geom.n_ijk * geom.spacing)))
+    if persp:
+        ce = geom.to_grid(frame.e)[ic]
+        h0 = max(-0.5 - ce, ce - (n_ijk[ic] - 0.5), 0.0) * geom.spacing[ic]
     to_grid = geom.unit_axes / geom.spacing[:, None]
     img = np.zeros((H, W, 4))
     cx, cy = W / 2.0 - 0.5, H / 2.0 - 0.5
@@ -95,8 +99,18 @@ def post_reference(scene, view=0, et=1.0):
                 if s is None:
                     continue
                 lo, hi, f, rgb = s
-                cos = max(abs(d @ normal_axis), 0.25) if persp else cos_ortho
-                a = _alpha(lo, hi, f, geom.spacing[ic] / cos / unit, persp)
+                thick = geom.spacing[ic]
+                if persp:
+                    # as the splatting reference: the first slab kept reaches back to the eye (or a set near
+                    # plane, not in front of the box); the cosine bounded by slice spacing / box diagonal
+                    cos = max(abs(d @ normal_axis), cos_min)
+                    hc = abs(c - og[ic]) * thick
+                    depth = t * float(-(d @ frame.w))
+                    if depth * (hc - thick) < frame.near * hc:
+                        thick = max(hc + 0.5 * thick - max(h0, frame.clip * hc / depth), 0.0)
+                else:
+                    cos = cos_ortho
+                a = _alpha(lo, hi, f, thick / cos / unit, persp)
                 acc[:3] += (1 - acc[3]) * rgb * a
                 acc[3] += (1 - acc[3]) * a
             img[y, x] = acc

@@ -79,7 +79,7 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
     movie = ext in (".gif", ".mp4")
     itemsize = 8 if scene.render.precision == "float64" else 4
     check_memory(output_buffer_bytes(scene.image.width, scene.image.height, len(views), movie, ext, itemsize,
-                                     scene.render.threads or default_threads()),
+                                     scene.render.threads or default_threads(), scene.render.supersample),
                  f"{scene.image.width}x{scene.image.height}" + (f", {len(views)} views" if movie else ""))
     paths = [] if out == "-" else ([Path(out)] if movie else frame_paths(out, len(views)))
     check_outputs(paths, force)
@@ -147,6 +147,19 @@ def _frames(scene, views, scheduler, slabs):
             yield scene.render.method, distributed.render_views(client, scene, vs, slabs=slabs, bar=bar), None
 
 
+def _shrink_finished(rgba, n):
+    """A finished (straight, over the background) frame of n times the image's size, box-filtered down as
+    frame.finish_image does it (premultiplied means, then straight again)."""
+    import numpy as np
+
+    from ..frame import box_filter
+
+    a = rgba[..., 3:4].astype(np.float64)
+    pre = box_filter(np.concatenate([rgba[..., :3] * a, a], axis=-1), n)
+    return np.concatenate([np.where(pre[..., 3:] > 0, pre[..., :3] / np.maximum(pre[..., 3:], 1e-300), 0.0),
+                           pre[..., 3:]], axis=-1).astype(rgba.dtype)
+
+
 def _streamed(scene, views, slabs, bar):
     """Each view front to back in ``slabs`` slabs, one slab's selection at a time (isplat.slabs.render_streamed)."""
     from ..augfile import open_augmented
@@ -156,5 +169,7 @@ def _streamed(scene, views, slabs, bar):
     aug = open_augmented(scene.data.augmented)
     for n, view in enumerate(views_for(scene, aug, views)):
         rgba, st, report = render_streamed(scene, view, slabs, aug)
+        if rgba.shape[0] != scene.image.height:         # a supersampled frame, finished at its own size
+            rgba = _shrink_finished(rgba, scene.render.supersample)
         bar.update(1)
         yield n, rgba, st, report

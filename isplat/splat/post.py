@@ -311,7 +311,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     L = alpha[di, g] + f * (alpha[di + 1, g] - alpha[di, g])
     if L == 0.0:
         return
-    a = _path_alpha(L, u, v, base, 1.0, geo.steps, geo.persp, geo.inv_unit)
+    a, _ = _path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
     cr = color[di, 0] + f * (color[di + 1, 0] - color[di, 0])
     cg = color[di, 1] + f * (color[di + 1, 1] - color[di, 1])
     cb = color[di, 2] + f * (color[di + 1, 2] - color[di, 2])

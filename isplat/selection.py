@@ -339,8 +339,9 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
     """Read what ``scene`` needs for frames along ``axes`` from its files: only the index blocks of the
     transfer function's intervals (indexed method) and the channels the scene uses (module docstring).
     ``aug``: the scene's augmented file, if already open. ``slices``: keep only these slices of the axes (a
-    slab, :mod:`isplat.slabs`): the decoded blocks are cut first and the channel values of the slab's voxels
-    alone gathered from the augmented file's k-slabs (the index's ``/values`` hold a whole interval's)."""
+    slab, :mod:`isplat.slabs`): only those slices' index blocks are read and decoded (``load_axis(...,
+    slices=)``) and the channel values of the slab's voxels alone gathered from the augmented file's k-slabs
+    (the index's ``/values`` hold a whole interval's)."""
     from .augfile import open_augmented
 
     aug = aug or open_augmented(scene.data.augmented)
@@ -360,7 +361,7 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
             ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
             values = None
             with idx.session():
-                loaded = {ax: idx.load_axis(ax, ivs) for ax in sorted(axes)}
+                loaded = {ax: idx.load_axis(ax, ivs, slices=slices) for ax in sorted(axes)}
                 if idx.has_values and rep.channels and slices is None:
                     values = idx.read_values(rep.channels, ivs)
             rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
@@ -368,9 +369,7 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
                 gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, idx.path)  # noqa: E731
             else:                        # format version 2: the position-ordered channels, in k-slabs
                 gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
-            if slices is not None:       # a slab: its blocks only, its values from the augmented k-slabs
-                from .slabs import restrict_loaded
-                loaded = {ax: restrict_loaded(la, slices) for ax, la in loaded.items()}
+            if slices is not None:       # a slab: its blocks only (read so), its values from the augmented k-slabs
                 gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
                 rep.values_from = "none" if not rep.channels else "augmented slabs"
             _select(sel, loaded, gather, str(scene.data.index))

@@ -25,20 +25,10 @@ import dataclasses
 import numpy as np
 
 from .errors import IsplatError
+from .index.build import slice_runs
 from .selection import AxisSelection, Selection
 
-
-def slice_runs(slices, n_slices: int) -> list[tuple[int, int]]:
-    """The distinct slice indices of ``slices`` as sorted runs ``[s0, s1)`` of consecutive indices."""
-    s = np.unique(np.asarray(slices, dtype=np.int64))
-    if s.size and (s[0] < 0 or s[-1] >= n_slices):
-        raise IsplatError(f"slab slices {int(s[0])}..{int(s[-1])} outside 0..{n_slices - 1}")
-    if s.size == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(s) != 1) + 1
-    starts = np.r_[s[0], s[breaks]]
-    stops = np.r_[s[breaks - 1] + 1, s[-1] + 1]
-    return [(int(a), int(b)) for a, b in zip(starts, stops)]
+__all__ = ["restrict", "restrict_axis", "restrict_loaded", "render_streamed", "slice_runs"]
 
 
 def _ranges(ptr, ranges):

@@ -135,3 +135,75 @@ def test_along_k_a_window_reads_only_the_planes_of_its_blocks(tmp_path, monkeypa
     in_memory = tmp_path / "m.h5"
     write_index(in_memory, build_index(dens, "k"), dens.shape, density_sha256(dens))
     assert contents(tmp_path / "s.h5") == contents(in_memory)
+
+
+# ---------------------------------------------------------------------------------- loading a slab's blocks
+
+@SETTINGS
+@given(volumes(), ranges_st, st.data())
+def test_a_slab_load_is_the_whole_load_cut_to_its_slices(vol, ranges, data):
+    """load_axis(..., slices=) decodes exactly the blocks of those slices (the whole load restricted to them,
+    isplat.slabs.restrict_loaded), reads no more than the whole load, and less when it skips blocks."""
+    from isplat.index import normalize_ranges, open_index
+    from isplat.slabs import restrict_loaded
+
+    dens = vol[0]
+    norm = normalize_ranges(ranges)
+    with tempfile.TemporaryDirectory() as t:
+        path = Path(t) / "v.idx.h5"
+        write_index(path, build_index(dens, "ijk", ranges), dens.shape, "0" * 64, ranges)
+        idx = open_index(path)
+        lo, hi = data.draw(st.sampled_from(norm))
+        a = data.draw(st.integers(lo, hi))
+        ivs = [(a, data.draw(st.integers(a, hi)))]
+        for axis in "ijk":
+            n = idx.n_slices(axis)
+            slices = data.draw(st.lists(st.integers(0, n - 1), max_size=n + 2))
+            whole = idx.load_axis(axis, ivs)
+            want = restrict_loaded(whole, slices)
+            for verify in (False, True):
+                got = idx.load_axis(axis, ivs, verify_offsets=verify, slices=slices)
+                for key in ("slice_block_ptr", "block_density", "block_voxel_ptr", "positions"):
+                    x, y = getattr(got, key), getattr(want, key)
+                    assert x.dtype == y.dtype and np.array_equal(x, y), (axis, key)
+                if not verify:      # at most two end offsets per run of rows, as per interval
+                    assert got.bytes_read <= whole.bytes_read + 16 * got.n_blocks
+
+
+def test_a_slab_load_reads_its_own_blocks(tmp_path):
+    """One slice of 40 along each axis reads a small part of what the whole load reads."""
+    from isplat.index import open_index
+
+    dens = np.random.default_rng(5).choice(np.array([0, 90, 91, 200], np.uint8), size=(40, 40, 40))
+    path = tmp_path / "v.idx.h5"
+    write_index(path, build_index(dens, "ijk"), dens.shape, "0" * 64)
+    idx = open_index(path)
+    for axis in "ijk":
+        whole = idx.load_axis(axis, [(80, 220)])
+        one = idx.load_axis(axis, [(80, 220)], slices=range(17, 18))
+        assert one.n_voxels == whole.slice_positions(17).size > 0
+        assert one.bytes_read < whole.bytes_read / 10
+
+
+def test_a_slab_load_checks_the_slices_it_searches(tmp_path):
+    """entry_slice is checked (below n_slices, increasing per density) before a slab's rows are picked from it,
+    and a slab outside the axis is refused, each with one line naming the file."""
+    import pytest
+
+    from isplat.errors import IsplatError
+    from isplat.index import open_index
+
+    dens = np.arange(4 * 5 * 6, dtype=np.uint8).reshape(4, 5, 6) % 7
+    path = tmp_path / "v.idx.h5"
+    write_index(path, build_index(dens, "k"), dens.shape, "0" * 64)
+    with pytest.raises(IsplatError, match="outside 0..3"):
+        open_index(path).load_axis("k", [(0, 6)], slices=[2, 4])
+    for bad, msg in ((lambda s: s[::-1].copy(), "not increasing"), (lambda s: s + 9, "not below n_slices")):
+        p = tmp_path / f"bad{msg[:7].replace(' ', '')}.idx.h5"
+        write_index(p, build_index(dens, "k"), dens.shape, "0" * 64)
+        with h5py.File(p, "r+") as f:
+            ds = f["axes/k/entry_slice"]
+            n = int(f["axes/k/density_entry_ptr"][1])          # density 0's rows
+            ds[:n] = bad(ds[:n])
+        with pytest.raises(IsplatError, match=f"{p}: axis k, density 0, slice .*{msg}"):
+            open_index(p).load_axis("k", [(0, 6)], slices=[1, 2])

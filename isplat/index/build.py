@@ -130,6 +130,19 @@ def parse_ranges(text: str) -> list[tuple[int, int]]:
     return normalize_ranges(ranges)
 
 
+def slice_runs(slices, n_slices: int) -> list[tuple[int, int]]:
+    """The distinct slice indices of ``slices`` as sorted runs ``[s0, s1)`` of consecutive indices."""
+    s = np.unique(np.asarray(slices, dtype=np.int64))
+    if s.size and (s[0] < 0 or s[-1] >= n_slices):
+        raise IsplatError(f"slab slices {int(s[0])}..{int(s[-1])} outside 0..{n_slices - 1}")
+    if s.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(s) != 1) + 1
+    starts = np.r_[s[0], s[breaks]]
+    stops = np.r_[s[breaks - 1] + 1, s[-1] + 1]
+    return [(int(a), int(b)) for a, b in zip(starts, stops)]
+
+
 def ranges_mask(ranges) -> np.ndarray:
     """bool[256], True for the densities inside ``ranges``."""
     m = np.zeros(256, dtype=np.bool_)

@@ -21,7 +21,7 @@ from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check
                       open_counted, open_hdf5, set_string_attr)
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry, encode_windows, escape_width,
-                    k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask)
+                    k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)
 
 FORMAT_NAME = "isplat-index"
 FORMAT_VERSION = 3              # version 3: + /values, the indexed voxels' channel values in density order
@@ -474,7 +474,7 @@ class IndexFile:
                     total += rows + (8 if verify_offsets else 16) + max(0, int(o1) - int(o0))
         return total
 
-    def load_axis(self, axis: str, intervals, verify_offsets: bool = False) -> LoadedAxis:
+    def load_axis(self, axis: str, intervals, verify_offsets: bool = False, slices=None) -> LoadedAxis:
         """Read and decode the blocks of ``axis`` whose densities fall in inclusive ``intervals``.
 
         Per interval (§2.2: the densities of interest are contiguous, so are their entries and blocks): one
@@ -482,20 +482,21 @@ class IndexFile:
         ``entry_byte_offset``, and one read of the byte range. Block boundaries inside the range follow from
         the counts; ``verify_offsets=True`` also reads every row of ``entry_byte_offset`` and checks each
         block against it.
+
+        ``slices`` (slice indices, e.g. a slab of a frame): only the blocks of those slices are read and decoded
+        (other slices hold none, their numbering kept). The interval's ``entry_slice`` rows are read and checked
+        first; each run of rows whose slices are wanted (per density, the slices of a run of consecutive slice
+        indices) is then read as an interval is: its counts, two end offsets and one byte range.
         """
         m = self._axis(axis)
         ivs = self._intervals(intervals)
+        runs = None if slices is None else slice_runs(slices, m.n_slices)
         before = self.bytes_read
         dens_l, sl_l, cnt_l, st_l, en_l, buf_l = [], [], [], [], [], []
         base = 0
         with self._open(axis) as g:
             ptr = self._read_ptr(g, axis)
-            for lo, hi in ivs:
-                r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
-                if r1 == r0:
-                    continue
-                dens = np.repeat(np.arange(lo, hi + 1, dtype=np.int64), np.diff(ptr[lo:hi + 2]))
-                sl = self._read(g, "entry_slice", r0, r1).astype(np.int64)
+            for r0, r1, dens, sl in self._pieces(g, axis, m, ptr, ivs, runs):
                 cnt = self._read(g, "entry_voxel_count", r0, r1).astype(np.int64)
                 if verify_offsets:
                     off = self._read(g, "entry_byte_offset", r0, r1 + 1)
@@ -545,6 +546,35 @@ class IndexFile:
                 first += n
         return LoadedAxis(axis, m.n_slices, m.n_a, m.n_b, slice_block_ptr, dens[order].astype(np.uint8),
                           block_voxel_ptr, positions, self.bytes_read - before, ivs)
+
+    def _pieces(self, g, axis, m: _AxisMeta, ptr, ivs, runs):
+        """``(r0, r1, densities, slices)`` of each contiguous run of entry rows to load: the whole row range of
+        each interval, or (``runs`` of wanted slices) the runs of its rows whose slices are wanted."""
+        for lo, hi in ivs:
+            r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
+            if r1 == r0:
+                continue
+            dens = np.repeat(np.arange(lo, hi + 1, dtype=np.int64), np.diff(ptr[lo:hi + 2]))
+            sl = self._read(g, "entry_slice", r0, r1).astype(np.int64)
+            if runs is None:
+                yield r0, r1, dens, sl
+                continue
+            self._check_slices(axis, m, dens, sl)
+            keep = np.zeros(sl.size + 2, dtype=np.int8)
+            for s0, s1 in runs:
+                keep[1:-1] |= (sl >= s0) & (sl < s1)
+            edges = np.flatnonzero(np.diff(keep))            # starts and ends of the runs of kept rows
+            for a, b in zip(edges[0::2], edges[1::2]):
+                yield r0 + int(a), r0 + int(b), dens[a:b], sl[a:b]
+
+    def _check_slices(self, axis, m: _AxisMeta, dens, sl):
+        """``entry_slice`` rows below ``n_slices`` and strictly increasing within each density."""
+        bad = np.flatnonzero((sl >= m.n_slices) | (sl < 0))
+        if bad.size:
+            self._fail(axis, f"entry_slice is not below n_slices = {m.n_slices}", dens[bad[0]], sl[bad[0]])
+        bad = np.flatnonzero((dens[1:] == dens[:-1]) & (sl[1:] <= sl[:-1]))
+        if bad.size:
+            self._fail(axis, "entry_slice is not increasing within the density", dens[bad[0] + 1], sl[bad[0] + 1])
 
     def _check_entries(self, axis, m: _AxisMeta, dens, sl, cnt, off):
         """Check one interval's entry rows before compiled code uses them (formats/index.md, Reading)."""

@@ -370,7 +370,8 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
             else:                        # format version 2: the position-ordered channels, in k-slabs
                 gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
             if slices is not None:       # a slab: its blocks only (read so), its values from the augmented k-slabs
-                gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
+                read = _slab_reader(aug, axes, slices)
+                gather = lambda lo, ch, sh: gather_channels(read, lo, ch, sh)              # noqa: E731
                 rep.values_from = "none" if not rep.channels else "augmented slabs"
             _select(sel, loaded, gather, str(scene.data.index))
             rep.voxels_of_interest = next(iter(loaded.values())).n_voxels if loaded else 0
@@ -380,6 +381,28 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
     _needed(sel)
     return sel
+
+
+def _slab_reader(aug, axes, slices):
+    """``read(channel, k0, k1)`` for gathering a slab's values: ``aug.read``, or for a slab of j-slices (rows of
+    every k-plane) the k-planes with only the slab's rows read and the others zero (never gathered), so HDF5
+    reads only the chunks that hold those rows (the channels are chunked by rows of whole i-lines)."""
+    s = np.asarray(list(slices), dtype=np.int64)
+    if "".join(sorted(axes)) != "j" or s.size == 0:
+        return aug.read
+    j0, j1 = int(s.min()), int(s.max()) + 1
+    if j0 < 0 or j1 > aug.shape[1] or j1 - j0 == aug.shape[1]:
+        return aug.read
+    from .augfile import CHANNELS
+    from .fileio import hdf5_errors, open_counted
+
+    def read(ch, k0, k1):
+        out = np.zeros((k1 - k0,) + tuple(aug.shape[1:]), dtype=CHANNELS[ch])
+        with hdf5_errors(aug.path, f"dataset {ch!r}"), open_counted(aug.path, aug.io) as f:
+            out[:, j0:j1] = f[ch][k0:k1, j0:j1]
+        aug.bytes_read += int(out[:, j0:j1].nbytes)
+        return out
+    return read
 
 
 def _needed(sel: Selection) -> None:

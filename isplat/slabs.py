@@ -101,6 +101,56 @@ def restrict(sel: Selection, axis: str, slices) -> Selection:
                                report=dataclasses.replace(sel.report))
 
 
+PEAK_PER_VOXEL = 56     # bytes per voxel of interest while a selection is made (docs/scale.md, "Larger than memory")
+ROOM_SHARE = 0.5        # a slab's selection may take this share of the memory left
+
+
+def memory_room() -> int | None:
+    """Bytes this process can still allocate: the machine's available memory and, under an address-space limit
+    (``ulimit -v``, ``prlimit --as``), the address space left below it; None when neither is known."""
+    import resource
+
+    from .output import memory_available
+
+    room = memory_available()
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft != resource.RLIM_INFINITY:
+        try:
+            with open("/proc/self/status") as fh:
+                used = next(int(ln.split()[1]) * 1024 for ln in fh if ln.startswith("VmSize:"))
+        except (OSError, StopIteration, ValueError, IndexError):
+            used = 0
+        left = max(0, int(soft) - used)
+        room = left if room is None else min(room, left)
+    return room
+
+
+def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
+    """``(K, voxels)``: the slabs each of ``views`` (isplat.frame.View) needs so that one slab's selection takes
+    at most ROOM_SHARE of ``room`` (default :func:`memory_room`), from the voxels of interest of the views'
+    principal axes (the index's per-density counts, read from its tables; K = 1 when it fits, and for the full
+    method, whose channels a slab does not cut)."""
+    from .frame import axes_of
+    from .index import open_index
+    from .transfer import build_luts
+
+    room = memory_room() if room is None else room
+    if scene.render.method != "indexed" or room is None or scene.data.index is None:
+        return 1, 0
+    ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals
+    idx = open_index(scene.data.index)
+    k, most = 1, 0
+    for axis in axes_of(views):
+        if axis not in idx.axes:
+            continue                                # the render names the missing axis
+        counts = idx.voxel_counts(axis)
+        n = int(sum(int(counts[lo:hi + 1].sum()) for lo, hi in ivs))
+        most = max(most, n)
+        need = -(-n * PEAK_PER_VOXEL // max(1, int(room * ROOM_SHARE)))
+        k = max(k, min(int(need), idx.n_slices(axis)))
+    return k, most
+
+
 def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None):
     """Render ``view`` of ``scene`` from its files in ``n_slabs`` slabs front to back, each slab's selection made
     (:func:`isplat.selection.select_from_files` with ``slices=``), rendered over the partial image of the slabs in
@@ -108,9 +158,9 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
     one slab's selection at a time. Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs:
     bytes read added up).
 
-    What is still whole: the full method's channels (read once, kept for every slab); the index blocks of the transfer function's densities along the frame's axis are
-    decoded for each slab before its slices are kept, and for the i and j axes each slab's channel values are
-    gathered from every k-plane (docs/scale.md).
+    Each slab reads and decodes only its slices' index blocks. What is still whole: the full method's channels
+    (read once, kept for every slab); for the i and j axes each slab's channel values are gathered from every
+    k-plane (along j only the slab's rows of each plane), so the channels are read once per slab (docs/scale.md).
     """
     import time
 

@@ -255,6 +255,7 @@ def encode_windows(read, shape, layout: AxisLayout, budget: int | None = None, s
             if not np.array_equal(cursor[hit], lay.block_end[hit]):      # every block of the window filled exactly
                 raise AssertionError("index encoder: block lengths disagree between passes")
             yield o0, out
+            del out                                  # the caller has written it: one window alive at a time
 
 
 def build_axis(density: np.ndarray, axis: str, ranges=None) -> AxisIndex:

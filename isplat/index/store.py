@@ -229,6 +229,7 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
                 ds = _write_axis(f, lay.tables(), lay.n_bytes)
                 for o0, window in encode_windows(dens, aug.shape, lay, budget, slabs):
                     write_in_pieces(ds, window, o0)
+                    del window                           # before the next window is made
                 del lay
     return Path(out_path)
 

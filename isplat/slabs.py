@@ -78,9 +78,9 @@ def restrict_axis(ax: AxisSelection, slices) -> AxisSelection:
 
 
 def restrict_loaded(la, slices):
-    """A decoded index axis (:class:`isplat.index.store.LoadedAxis`) with only the blocks of ``slices``: what
-    :func:`isplat.selection.select_from_files` selects from and gathers channel values for, when a worker
-    makes just its slab's selection (an index without values, format 2)."""
+    """A decoded index axis (:class:`isplat.index.store.LoadedAxis`) with only the blocks of ``slices``, cut
+    from the whole axis in memory: what ``IndexFile.load_axis(..., slices=)`` reads directly from the file (the
+    tests check one against the other)."""
     runs = slice_runs(slices, la.n_slices)
     rows = _ranges(la.slice_block_ptr, runs)
     return dataclasses.replace(la, slice_block_ptr=_slice_ptr(la.slice_block_ptr, runs, la.n_slices),

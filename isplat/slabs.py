@@ -129,13 +129,14 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     """``(K, voxels)``: the slabs each of ``views`` (isplat.frame.View) needs so that one slab's selection takes
     at most ROOM_SHARE of ``room`` (default :func:`memory_room`), from the voxels of interest of the views'
     principal axes (the index's per-density counts, read from its tables; K = 1 when it fits, and for the full
-    method, whose channels a slab does not cut)."""
+    method and post-classification, whose whole channels a slab does not cut)."""
     from .frame import axes_of
     from .index import open_index
     from .transfer import build_luts
 
     room = memory_room() if room is None else room
-    if scene.render.method != "indexed" or room is None or scene.data.index is None:
+    post = getattr(scene.render, "classification", "pre") == "post"    # reads whole channels: slabs do not cut them
+    if scene.render.method != "indexed" or post or room is None or scene.data.index is None:
         return 1, 0
     ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals
     idx = open_index(scene.data.index)

@@ -32,17 +32,20 @@ from . import reference as REF
 from .reference import errors, make_scene
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULTS = {"method": "indexed", "early_termination": 0.99, "footprint_radius": 2.5, "footprint_sigma": 0.7,
-            "footprint_table": 1024, "precision": "float32", "threads": 0}
-KNOBS = [
+DEFAULTS = {"method": "indexed", "classification": "post", "early_termination": 0.99, "footprint_radius": 2.5,
+            "footprint_sigma": 0.7, "footprint_table": 1024, "precision": "float32", "threads": 0}
+KNOBS = [                    # knobs of the default, post-classified, renderer
     ("early_termination", [1.0, 0.999, 0.98, 0.95]),
-    ("footprint_radius", [1.5, 2.0, 3.0, 4.0]),
-    ("footprint_table", [32, 128, 65536]),
-    ("footprint_sigma", [0.5, 0.6, 0.85]),
     ("precision", ["float64"]),
     ("threads", [1]),
     ("method", ["full"]),
 ]
+PRE_KNOBS = [                # the footprint's knobs, which act on pre-classified splatting only
+    ("footprint_radius", [1.5, 2.0, 3.0, 4.0]),
+    ("footprint_table", [32, 128, 65536]),
+    ("footprint_sigma", [0.5, 0.6, 0.85]),
+]
+PRE = {"classification": "pre"}
 VTK_STEPS = [2.0, 1.0, 0.5, 0.25]
 CASES = list(REF.CASES)
 POP_OFFSETS = [-0.9, -0.7, -0.5, -0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9]   # degrees from the switch
@@ -70,6 +73,9 @@ def settings(sheets):
     out = [("defaults", "", [])]
     for knob, values in KNOBS:
         out += [(knob, v, REF.render_overrides({knob: v})) for v in values]
+    out.append(("classification", "pre", REF.render_overrides(PRE)))
+    for knob, values in PRE_KNOBS:
+        out += [(knob, v, REF.render_overrides({**PRE, knob: v})) for v in values]
     if sheets:
         out.append(("sheets", "image", sheets))
     return out
@@ -159,8 +165,9 @@ def _label(row):
         return "defaults"
     if row["renderer"] == "VTK":
         return f"VTK {row['value']:g}"
-    short = {"early_termination": "ET", "footprint_radius": "radius", "footprint_table": "table",
-             "footprint_sigma": "sigma", "precision": "", "threads": "threads", "method": "", "sheets": "sheets"}
+    short = {"early_termination": "ET", "footprint_radius": "pre, radius", "footprint_table": "pre, table",
+             "footprint_sigma": "pre, sigma", "precision": "", "threads": "threads", "method": "",
+             "sheets": "pre, sheets", "classification": ""}
     return f"{short[row['knob']]} {row['value']}".strip()
 
 
@@ -359,11 +366,16 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
          "`benchmarks/reference.py`): **(a)** the converged float64 emission-absorption ray integral of the same "
          "8-bit densities with trilinear reconstruction and the transfer function applied after it, step 0.05 "
          "voxel, shaded with the same lights from the reconstructed gradient; **(b)** for Marschner-Lobb, the same "
-         "integral of the exact signal (no grid). isplat classifies each voxel *before* reconstruction and spreads "
-         "it with a Gaussian footprint, so part of every error below is that model, not a knob.\n",
+         "integral of the exact signal (no grid). isplat's default (`render.classification = \"post\"`, "
+         "isplat/splat/post.py) reconstructs the density in each slice (bilinear: the tent kernel's splat) and "
+         "classifies it after, so along each ray it samples the trilinear field at the slice planes; the *pre* rows "
+         "are the paper's splatting, each voxel classified *before* reconstruction and spread by a Gaussian "
+         "footprint, whose blur of sharp transfer-function edges is most of their error.\n",
          f"Every image is {size}x{size}, orthographic, one view per case. Each setting is the format defaults "
-         "(`method = \"indexed\"`, `early_termination = 0.99`, `footprint_radius = 2.5`, `footprint_sigma = 0.7`, "
-         "`footprint_table = 1024`, `precision = \"float32\"`, `threads = 0` = all cores) with one knob changed. "
+         "(`method = \"indexed\"`, `classification = \"post\"`, `early_termination = 0.99`, "
+         "`precision = \"float32\"`, `threads = 0` = all cores) with one knob changed; the footprint's knobs "
+         "(`footprint_radius = 2.5`, `footprint_sigma = 0.7`, `footprint_table = 1024` by default) act on "
+         "pre-classified splatting only, so their rows change one of them with `classification = \"pre\"`. "
          f"Times are medians of {frames} frames per setting after 2 warm-up frames; the settings of a case (and "
          "VTK's points) are rendered in turn, round after round, so load from other processes hits them alike. "
          "Errors over RGB in [0, 1] after compositing on the background: RMSE, PSNR = -20 log10(RMSE), max abs "
@@ -379,7 +391,7 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
     for c in rows_by_case:
         L.append(f"- **{c}**: {REF.CASES[c][2]}; {ppv[c]:.2f} pixels per voxel, so `footprint_sigma` below about "
                  f"{MIN_SIGMA_PIXELS / ppv[c]:.2f} voxel is raised to the footprint's floor of {MIN_SIGMA_PIXELS:g} "
-                 "pixel (isplat.splat.footprint.MIN_SIGMA_PIXELS): sigma rows below it equal the defaults")
+                 "pixel (isplat.splat.footprint.MIN_SIGMA_PIXELS): pre sigma rows below it equal the *pre* row")
     L.append("\nThe references give a volume the extent of its voxel boxes (as isplat does); VTK's volume ends at "
              "the outer voxel centres, half a voxel thinner on each face. Only the Marschner-Lobb signal has material "
              "on the faces, so part of VTK's error there is that convention, not its sampling.")
@@ -448,12 +460,14 @@ def run(out_dir: Path, quick: bool) -> Path:
             conv[(case, k)] = REF.convergence(make_scene(case, size, shape=shape), k)
     _log("popping")
     shape = REF.QUICK_SHAPES["head"] if quick else None
-    pops = [measure_popping(size, shape, [], "defaults (axis-aligned sheets)"),
-            measure_popping(size, shape, REF.render_overrides({"footprint_radius": 4.0, "footprint_table": 1 << 20,
-                                                                "precision": "float64", "early_termination": 1.0}),
-                            "radius 4, table 2^20, float64, ET off")]
+    pops = [measure_popping(size, shape, [], "defaults (post-classified, axis-aligned sheets)"),
+            measure_popping(size, shape, REF.render_overrides(PRE), "pre-classified, axis-aligned sheets"),
+            measure_popping(size, shape, REF.render_overrides({**PRE, "footprint_radius": 4.0,
+                                                                "footprint_table": 1 << 20, "precision": "float64",
+                                                                "early_termination": 1.0}),
+                            "pre, radius 4, table 2^20, float64, ET off")]
     if sheets:
-        pops.append(measure_popping(size, shape, sheets, "defaults with sheets = \"image\""))
+        pops.append(measure_popping(size, shape, sheets, "pre-classified with sheets = \"image\""))
     gain = popping_strip(pops[0], out_dir / "img" / "popping_head.png")
     all_rows = [r for rows in rows_by_case.values() for r in rows]
     write_csv(all_rows, out_dir / "accuracy.csv")

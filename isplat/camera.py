@@ -79,6 +79,8 @@ class ViewFrame:
     width: int
     height: int
     near: float              # perspective: cull voxels closer to the eye than this (along -w)
+    clip: float = 0.0        # perspective: where the integral starts (along -w): camera.near when set, else 0 (the
+                             # eye); the material between it and the first slab kept goes to that slab
 
     @property
     def direction(self) -> np.ndarray:
@@ -152,11 +154,12 @@ def view_frame(cam, geom: VolumeGeometry, width: int, height: int) -> ViewFrame:
         if d_img <= 0:
             raise IsplatError("camera: the eye must be in front of the image plane (distance > 0)")
         pix = 2.0 * d_img * math.tan(math.radians(cam.fov) / 2.0) / (cam.zoom * height)
-        near = float(cam.near) if cam.near and cam.near > 0 else float(geom.spacing.min())
+        clip = float(cam.near) if cam.near and cam.near > 0 else 0.0
+        near = clip or float(geom.spacing.min())
     else:
         pix = 2.0 * geom.radius / (cam.zoom * min(width, height))
-        e, near = None, 0.0
-    return ViewFrame("perspective" if persp else "orthographic", p, u, v, w, e, pix, width, height, near)
+        e, near, clip = None, 0.0, 0.0
+    return ViewFrame("perspective" if persp else "orthographic", p, u, v, w, e, pix, width, height, near, clip)
 
 
 def principal_axis(frame: ViewFrame, geom: VolumeGeometry) -> tuple[str, int]:

@@ -214,7 +214,7 @@ def finish_task(parts, view):
     from .frame import finish_image, frame_stats
 
     part, report, seconds = parts
-    return finish_image(part.img, view.background), frame_stats(view, part, seconds), report
+    return finish_image(part.img, view.background, view.render.supersample), frame_stats(view, part, seconds), report
 
 
 # --- the client's side ---------------------------------------------------------------------------------------

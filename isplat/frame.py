@@ -16,8 +16,8 @@ with early termination off, see docs/design.md for the bound with it on).
 ...                     ".", "example", data_required=False)
 >>> sel = Selection.from_arrays(vol, scene)
 >>> rgba, stats = render_frame(sel, views_for(scene, sel)[0])
->>> rgba.shape, stats.voxels_splatted
-((32, 32, 4), 64)
+>>> rgba.shape, stats.voxels_splatted, stats.classification      # post-classified: samples composited
+((32, 32, 4), 348, 'post')
 """
 
 from __future__ import annotations
@@ -50,6 +50,8 @@ class FrameStats:
     voxels_tested: int = 0      # voxels that reached the per-voxel stages (not skipped with their region,
                                 # block or cell), summed over the image bands (a voxel near a band's edge
                                 # is tested by both bands)
+    classification: str = "pre"  # "post": ``voxels_splatted`` counts the samples composited (one per pixel and
+                                 # slice where a quad of interest is seen), not voxels
 
 
 @dataclass(frozen=True)
@@ -89,7 +91,8 @@ def views_for(scene, data, cameras=None) -> list[View]:
     """The :class:`View` of each camera (default: the scene's views) for ``data`` (anything with ``shape``
     and ``spacing_ijk``: a Selection or an augmented file)."""
     geom = scene_geometry(scene, data.shape, data.spacing_ijk, str(getattr(data, "path", "volume")))
-    W, H = scene.image.width, scene.image.height
+    n = scene.render.supersample                # frames at n times the image's size (finish_image box-filters)
+    W, H = scene.image.width * n, scene.image.height * n
     return [View(cam_mod.view_frame(c, geom, W, H), geom, scene.render, scene.shading, scene.cuts,
                  tuple(scene.image.background)) for c in (scene.views if cameras is None else cameras)]
 
@@ -168,10 +171,11 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     if frame.projection == "perspective":
         atab = alpha_table(sel.luts, None)
         geo = K.SliceGeometry(coef, steps, _floats(geom.q - frame.e), True, float(geom.spacing[ic]) / unit,
-                              float((geom.q - frame.e) @ geom.unit_axes[ic]), float(geom.spacing[ic]), cuts)
+                              float((geom.q - frame.e) @ geom.unit_axes[ic]), float(geom.spacing[ic]), cuts,
+                              eye_terms(frame, geom, ic, ro.footprint_radius))
     else:
         atab = alpha_table(sel.luts, proj.ds / unit)
-        geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts)
+        geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts, (0.0,) * 9)
     shade = (shade_table(view.shading, frame, geom, threads=threads) if sel.use_shade
              else np.zeros((1, 6), np.float32))
     if ro.sheets == "image":
@@ -179,16 +183,58 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
 
         *tables, order = image_frame(sel, view, dtype, shade, cuts)
         return Setup(view, *tables, rows, mine, None, _tile_pixels(H, W), *scratch, et_val, threads, False, order)
+    if ro.classification == "pre" and sel.post and sel.method == "indexed" and (sel.use_shade or sel.use_gm):
+        raise IsplatError("render.classification = 'pre' needs the channel values of the voxels of interest; this "
+                          "selection was made for 'post' (make it with the pre-classified scene)")
     cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
     vox = sel.voxels(axis)
     fpt = K.FootprintTable(fp.table, fp.params)
-    if sel.method == "full":
-        kernel, bins = K.render_full, None
-    else:
-        kernel = K.render_indexed
-        bins = K.Bins(*K.bin_regions(view.order, vox, geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
+    kernel = K.render_full if sel.method == "full" else K.render_indexed
+    if ro.classification == "post":
+        kernel, vox, fpt = _post_kernel(sel, axis, vox, proj, dtype)
+    bins = None if sel.method == "full" else \
+        K.Bins(*K.bin_regions(view.order, sel.voxels(axis), geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
     return Setup(view, kernel, vox, cls, geo, fpt, rows, mine, bins, _tile_pixels(H, W), *scratch, et_val,
                  threads, False)
+
+
+def _post_kernel(sel, axis: str, vox, proj, dtype):
+    """Post-classification (:mod:`isplat.splat.post`): its kernel, its voxels (the selection's hierarchy and
+    the whole channels) and, as the footprint, the tent's reach (one voxel step), which the occlusion tests and
+    the binning take."""
+    from .splat import post
+
+    if not sel.post or sel.whole is None:
+        raise IsplatError("render.classification = 'post' needs a selection made for it (the whole channels)")
+    params = np.zeros(7, np.float64)
+    params[K.EX], params[K.EY] = post.reach(proj.coef)
+    fpt = K.FootprintTable(np.zeros(2, dtype), params)
+    unit = post.scan_unit(proj.jac)
+    if sel.method == "full":
+        return post.render_post_full, post.PostVoxels(None, sel.whole_volume(axis), unit), fpt
+    return post.render_post_indexed, post.PostVoxels(vox, sel.whole_volume(axis), unit), fpt
+
+
+# A voxel whose footprint's sigma subtends more than this angle (radians) from the eye gets its opacity per
+# pixel, along each pixel's own ray (kernels._splat_rays), rather than along its own ray: with the voxel's own
+# ray, the opacity of a pixel in a uniform region is off by about half the square of that angle times
+# (sec^2 + tan^2) of the ray's angle to the slice normal (3e-4 to 1e-3 at this angle; up to 30% for the voxels
+# one spacing from an eye inside the volume).
+WIDE_ANGLE = 1.0 / 40.0
+
+
+def eye_terms(frame, geom, ic: int, radius: float) -> tuple:
+    """The per-frame terms of kernels.SliceGeometry.eye (layout kernels.EY_*) for slices along grid axis ``ic``
+    and a footprint cut off at ``radius`` sigmas."""
+    ds = float(geom.spacing[ic])
+    n_c = int(geom.n_ijk[ic])
+    ce = float(geom.to_grid(frame.e)[ic])
+    h0 = max(-0.5 - ce, ce - (n_c - 0.5), 0.0) * ds             # eye to the box, along the slice normal
+    diag = float(np.linalg.norm(geom.n_ijk * geom.spacing))
+    f = float((frame.e - frame.p) @ frame.w) / frame.pixel_size  # focal length in pixels
+    n = geom.unit_axes[ic]
+    return (ds, h0, float(frame.clip), min(1.0, ds / diag), WIDE_ANGLE * f * radius, float(frame.u @ n),
+            -float(frame.v @ n), -float(frame.w @ n) * f, f * f)
 
 
 def blank(setup: Setup) -> Partial:
@@ -240,7 +286,7 @@ def frame_stats(view: View, part: Partial, seconds: float) -> FrameStats:
     axis, sign = view.axis_sign
     bs = part.band_stats
     return FrameStats(axis, sign, int(bs[:, 0].max()), int(bs[:, 2].sum()), int(bs[:, 3].max()), seconds,
-                      int(bs[:, 1].sum()))
+                      int(bs[:, 1].sum()), view.render.classification)
 
 
 def render_frame(sel, view: View, et: float | None = None):
@@ -256,15 +302,28 @@ def render_frame(sel, view: View, et: float | None = None):
     part = blank(setup)
     for start, stop in progress.bar(slabs, desc=f"slices ({n})", unit="slab", disable=len(slabs) == 1):
         render_slab(setup, start, stop, part)
-    return finish_image(part.img, view.background), frame_stats(view, part, time.perf_counter() - t0)
+    return (finish_image(part.img, view.background, view.render.supersample),
+            frame_stats(view, part, time.perf_counter() - t0))
 
 
-def finish_image(img: np.ndarray, background) -> np.ndarray:
-    """Premultiplied RGBA over the background colour -> straight RGBA (float)."""
+def finish_image(img: np.ndarray, background, supersample: int = 1) -> np.ndarray:
+    """Premultiplied RGBA over the background colour -> straight RGBA (float); with ``supersample`` n > 1 the
+    frame (n times the image's width and height) is first box-filtered down, each pixel the mean of its n x n
+    (premultiplied, so colour is weighted by opacity; the background goes over after, which is the same)."""
+    if supersample > 1:
+        img = box_filter(img, supersample)
     out = np.empty(img.shape, dtype=img.dtype)
     if not finish(img, np.asarray(background, dtype=np.float64), out):
         raise IsplatError("render produced non-finite pixels; please report this scene")
     return out
+
+
+def box_filter(img: np.ndarray, n: int) -> np.ndarray:
+    """The mean of every n x n block of pixels of ``img`` (H*n, W*n, C) -> (H, W, C), summed in float64."""
+    h, w = img.shape[0] // n, img.shape[1] // n
+    if (h * n, w * n) != img.shape[:2]:
+        raise IsplatError(f"supersample {n}: the frame is {img.shape[1]}x{img.shape[0]}, not a multiple of {n}")
+    return img.reshape(h, n, w, n, -1).mean(axis=(1, 3), dtype=np.float64).astype(img.dtype)
 
 
 def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:

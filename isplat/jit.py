@@ -28,9 +28,12 @@ def jit(fn=None, **extra):
     return nb.jit(**OPTIONS)(fn)
 
 
-def leaf(fn):
+def leaf(fn=None, **extra):
     """``@jit`` for a small per-voxel stage that allocates nothing: compiled without numba's reference
     counting, so the arrays it takes cost nothing per call (with it, each array handed to a function in the
     per-voxel loop costs an atomic increment and decrement, which made the staged kernel 2.4x slower than one
-    big function). LLVM then inlines such a stage into the loop that calls it."""
+    big function). LLVM then inlines such a stage into the loop that calls it, or (``@leaf(inline="always")``,
+    for a per-pixel stage with many arguments) numba does, before LLVM sees a call."""
+    if fn is None:
+        return lambda f: nb.jit(**OPTIONS, _nrt=False, **extra)(f)
     return nb.jit(**OPTIONS, _nrt=False)(fn)

@@ -121,13 +121,15 @@ def memory_available() -> int | None:
 
 
 def output_buffer_bytes(width: int, height: int, n_views: int, movie: bool, ext: str, itemsize: int,
-                        threads: int) -> int:
+                        threads: int, supersample: int = 1) -> int:
     """Bytes of the image buffers a render allocates: image and sheet (RGBA, ``itemsize``), the composited
-    copy, saturation masks, one touched-pixel list (int64) per thread, the pixels written (float32 RGBA for TIFF),
-    and for a movie every frame kept until the file is written, plus their 8-bit stack."""
+    copy, saturation masks, one touched-pixel list (int64) per thread (all at ``supersample`` times the width
+    and height), the pixels written (float32 RGBA for TIFF), and for a movie every frame kept until the file is
+    written, plus their 8-bit stack."""
     px = int(width) * int(height)
     frame = px * 4 * itemsize
-    work = 3 * frame + 2 * px + max(1, threads) * (px + 1) * 8
+    fine = px * int(supersample) ** 2
+    work = 3 * fine * 4 * itemsize + 2 * fine + max(1, threads) * (fine + 1) * 8
     written = px * 4 * (4 if ext in (".tif", ".tiff") else 2)
     if movie:
         return work + int(n_views) * (frame + 2 * px * 3)

@@ -14,7 +14,7 @@
 >>> r = Renderer(scene)
 >>> rgba, stats = r.render_view(0)          # float (H, W, 4), straight alpha over the background
 >>> rgba.shape, stats.voxels_splatted, r.report.axes
-((256, 256, 4), 64, ['j'])
+((256, 256, 4), 18256, ['j'])
 
 What a scene needs, and nothing more, is read: the index axes its views use, only the blocks in the transfer
 function's non-zero-opacity intervals, the ``normal`` channel only when shading is on, the

@@ -29,12 +29,14 @@ __all__ = [
     "RenderOptions", "load_scene", "parse_scene", "locate_keys", "scene_to_dict",
 ]
 
-SCENE_VERSION = 3
+SCENE_VERSION = 4
 # keys added by each version after 1: a file that says an older version must not use them
 KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
-              ("views", "fps"): 2, ("render", "sheets"): 3}
+              ("views", "fps"): 2, ("render", "sheets"): 3,
+              ("render", "classification"): 4, ("render", "supersample"): 4}
 
 Vec3 = tuple[float, float, float]
+SUPERSAMPLE_MAX = 8
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -135,6 +137,9 @@ class RenderOptions:
     precision: str
     threads: int
     sheets: str = "axis"         # "axis": a sheet per slice; "image": slabs parallel to the image plane
+    classification: str = "post"  # "pre": each voxel classified, then splatted; "post": density splatted,
+                                  # then classified (isplat.splat.post)
+    supersample: int = 1          # render at N times the width and height, box-filtered down
 
 
 @dataclass(frozen=True)
@@ -171,7 +176,7 @@ SHADING_KEYS = ("enabled", "ambient", "diffuse", "specular", "shininess", "two_s
 LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
-               "precision", "threads", "sheets")
+               "precision", "threads", "sheets", "classification", "supersample")
 VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
 DEFAULT_PATH_FRAMES = 60
 
@@ -1004,7 +1009,19 @@ def _render(ctx: _Ctx, tree: dict) -> RenderOptions:
     precision = ctx.choice(p + ("precision",), t.get("precision", "float32"), ("float32", "float64"))
     threads = ctx.integer(p + ("threads",), t.get("threads", 0), "expected an integer >= 0 (0 = all cores)", lo=0)
     sheets = ctx.choice(p + ("sheets",), t.get("sheets", "axis"), ("axis", "image"))
-    return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets)
+    # "post" is the default from version 4 on; a file that says an older version keeps the splatting it was
+    # written for, and image-aligned sheets splat pre-classified
+    older = isinstance(tree.get("version"), int) and tree["version"] < 4
+    default = "pre" if older or sheets == "image" else "post"
+    classification = ctx.choice(p + ("classification",), t.get("classification", default), ("pre", "post"))
+    if classification == "post" and sheets == "image":
+        ctx.fail(p + ("classification",), classification, 'post-classification samples the slices of the '
+                 'principal axis; it takes render.sheets = "axis"')
+    supersample = ctx.integer(p + ("supersample",), t.get("supersample", 1),
+                              f"expected an integer 1..{SUPERSAMPLE_MAX} (render at N times the width and height, "
+                              "box-filtered down; 1 = off)", 1, SUPERSAMPLE_MAX)
+    return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets, classification,
+                         supersample)
 
 
 def _cameras(ctx: _Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:

@@ -125,7 +125,8 @@ class WholeChannels:
 @dataclass
 class Selection:
     """What the frames of one transfer function need (module docstring). ``axes`` for the indexed method,
-    ``whole`` for the full one."""
+    ``whole`` for the full one and for post-classification (which samples the neighbours of the voxels of
+    interest, whatever their density)."""
 
     method: str
     shape: tuple[int, int, int]            # (n_k, n_j, n_i)
@@ -134,6 +135,7 @@ class Selection:
     unit_distance: float                   # 0: the renderer's default (the smallest spacing)
     use_shade: bool
     use_gm: bool
+    post: bool = False                     # post-classified: the whole channels too (isplat.splat.post)
     axes: dict[str, AxisSelection] = field(default_factory=dict)
     whole: WholeChannels | None = None
     report: LoadReport = field(default_factory=LoadReport)
@@ -146,13 +148,17 @@ class Selection:
     def voxels(self, axis: str):
         """The kernel's view of the voxels of ``axis``: IndexedVoxels or WholeVolume."""
         if self.method == "full":
-            _, n_a, n_b = grid.slice_shape(self.shape, axis)
-            w = self.whole
-            return WholeVolume(w.density, w.gradient_magnitude, w.normal, grid.flat_strides(self.shape, axis), n_a, n_b)
+            return self.whole_volume(axis)
         if axis not in self.axes:
             raise IsplatError(f"axis {axis} was not selected (selected: {sorted(self.axes) or 'none'}); "
                               "select the axes of every view to be rendered")
         return self.axes[axis].voxels()
+
+    def whole_volume(self, axis: str) -> WholeVolume:
+        """The whole channels as the kernels take them, with the flat steps of ``axis``'s slices."""
+        _, n_a, n_b = grid.slice_shape(self.shape, axis)
+        w = self.whole
+        return WholeVolume(w.density, w.gradient_magnitude, w.normal, grid.flat_strides(self.shape, axis), n_a, n_b)
 
     def held_bytes(self) -> int:
         """Bytes of volume data held for the frames (selection and gathered values, or whole channels)."""
@@ -177,9 +183,9 @@ class Selection:
                                                gradient_magnitude_scale, spacing, window)
         sel = _empty_selection(method or scene.render.method, chans["density"].shape, sp, scene, gscale)
         read = lambda ch, k0, k1: chans[ch][k0:k1]      # noqa: E731
-        if sel.method == "full":
+        if sel.method == "full" or sel.post:
             sel.whole = _whole(sel, read)
-        elif not sel.empty:
+        if sel.method == "indexed" and not sel.empty:
             from .index.memory import load_axis_in_memory
 
             loaded = {ax: load_axis_in_memory(chans["density"], ax, sel.luts.intervals) for ax in grid.AXES
@@ -195,7 +201,7 @@ def _empty_selection(method, shape, spacing_ijk, scene, gradient_magnitude_scale
     empty = len(luts.intervals) == 0
     sel = Selection(method, tuple(int(x) for x in shape), tuple(float(x) for x in spacing_ijk), luts,
                     float(scene.transfer.unit_distance), bool(scene.shading.enabled) and not empty,
-                    luts.gradient is not None and not empty)
+                    luts.gradient is not None and not empty, scene.render.classification == "post")
     sel.report.intervals = luts.intervals.tolist()
     sel.report.channels = (["normal"] if sel.use_shade else []) + (["gradient_magnitude"] if sel.use_gm else [])
     return sel
@@ -205,7 +211,8 @@ def _whole(sel: Selection, read) -> WholeChannels:
     """The full method's channels: every voxel is visited, so whole channels, indexed by flat position."""
     if sel.empty:
         return WholeChannels(_EMPTY_U8, _EMPTY_U8, _EMPTY_U16)
-    sel.report.channels.insert(0, "density")
+    if "density" not in sel.report.channels:
+        sel.report.channels.insert(0, "density")
     n = int(np.prod(sel.shape))
     whole = {ch: read(ch, 0, sel.shape[0]).reshape(n) for ch in sel.report.channels}
     return WholeChannels(whole["density"], whole.get("gradient_magnitude", _EMPTY_U8), whole.get("normal", _EMPTY_U16))
@@ -213,9 +220,11 @@ def _whole(sel: Selection, read) -> WholeChannels:
 
 def _select(sel: Selection, loaded: dict, gather, source: str) -> None:
     """Select the voxels of every loaded axis (``{axis: LoadedAxis}``) and gather their channel values with
-    ``gather(loaded, channels, shape)`` (:func:`gather_channels` or :func:`gather_from_index`)."""
+    ``gather(loaded, channels, shape)`` (:func:`gather_channels` or :func:`gather_from_index`); none when the
+    selection is post-classified (its frames read the whole channels)."""
     from .splat.select import select_voxels
 
+    channels = [] if sel.post else [ch for ch in sel.report.channels if ch != "density"]
     ivs = sel.luts.intervals.astype(np.int64)
     picked = {}
     for ax, la in loaded.items():
@@ -225,10 +234,10 @@ def _select(sel: Selection, loaded: dict, gather, source: str) -> None:
         try:
             picked[ax] = select_voxels(la.slice_block_ptr, la.block_density, la.block_voxel_ptr, la.positions,
                                        ivs, la.n_a, la.n_b,
-                                       _index_like(la.positions.shape[0], bool(sel.report.channels)))
+                                       _index_like(la.positions.shape[0], bool(channels)))
         except ValueError as exc:
             raise IsplatError(f"{source}: axis {ax}: {exc}") from None
-    gathered = gather(loaded, sel.report.channels, sel.shape)
+    gathered = gather(loaded, channels, sel.shape) if channels else {ax: {} for ax in loaded}
     for ax, (*hier, src) in picked.items():
         g = gathered[ax]            # in the order of the decoded positions; the selection's order is ``src``
         gm = g["gradient_magnitude"][src] if "gradient_magnitude" in g else _EMPTY_U8
@@ -349,20 +358,21 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
     sel = _empty_selection(method or scene.render.method, aug.shape, sp, scene, aug.gradient_magnitude_scale)
     sel.report.axes = sorted(axes)
     rep = sel.report
-    if sel.method == "full":
+    if sel.method == "full" or sel.post:
         sel.whole = _whole(sel, aug.read)
         rep.values_from = "whole channels" if sel.report.channels else "none"
-    else:
+    if sel.method == "indexed":
         idx = _open_matching_index(scene, aug)
         rep.index_format_version = idx.version
-        rep.values_from = "none" if not rep.channels or sel.empty else \
-            "index" if idx.has_values else "augmented slabs"
+        if not sel.post:
+            rep.values_from = "none" if not rep.channels or sel.empty else \
+                "index" if idx.has_values else "augmented slabs"
         if not sel.empty:
             ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
             values = None
             with idx.session():
                 loaded = {ax: idx.load_axis(ax, ivs, slices=slices) for ax in sorted(axes)}
-                if idx.has_values and rep.channels and slices is None:
+                if idx.has_values and rep.channels and slices is None and not sel.post:
                     values = idx.read_values(rep.channels, ivs)
             rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
             if idx.has_values:
@@ -372,7 +382,8 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
             if slices is not None:       # a slab: its blocks only (read so), its values from the augmented k-slabs
                 read = _slab_reader(aug, axes, slices)
                 gather = lambda lo, ch, sh: gather_channels(read, lo, ch, sh)              # noqa: E731
-                rep.values_from = "none" if not rep.channels else "augmented slabs"
+                if not sel.post:
+                    rep.values_from = "none" if not rep.channels else "augmented slabs"
             _select(sel, loaded, gather, str(scene.data.index))
             rep.voxels_of_interest = next(iter(loaded.values())).n_voxels if loaded else 0
         rep.index_bytes = int(idx.bytes_read)

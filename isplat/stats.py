@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 1
+STATS_VERSION = 2
 
 
 def density_histogram(aug) -> np.ndarray:
@@ -233,7 +233,8 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | N
         "axis": ("+" if st.sign > 0 else "-") + st.axis,
         "slices": st.slices,
         "voxels_examined": st.voxels_examined,
-        "voxels_splatted": st.voxels_splatted,
+        "classification": st.classification,
+        "voxels_splatted": st.voxels_splatted,        # post-classified: the samples composited
         "splatted_ratio": _ratio(st.voxels_splatted, n),
         "render_seconds": st.seconds,
         "loaded": {
@@ -374,7 +375,11 @@ def format_table(s: dict) -> str:
         row("spatial ratio", f"{sc['spatial_ratio']:.4f}")
         row("view axis", f"{sc['axis']} ({sc['slices']} slices composited)")
         row("voxels examined", f"{sc['voxels_examined']:,}")
-        row("voxels splatted", f"{sc['voxels_splatted']:,} ({_pct(sc['splatted_ratio'])} of all voxels)")
+        if sc["classification"] == "pre":
+            row("voxels splatted", f"{sc['voxels_splatted']:,} ({_pct(sc['splatted_ratio'])} of all voxels)")
+        else:
+            row("samples composited", f"{sc['voxels_splatted']:,} (post-classified: one per pixel and slice "
+                                       "where a quad of interest is seen)")
         ld = sc["loaded"]
         row("loaded: channels", ", ".join(ld["channels"]) or "none")
         row("loaded: augmented", f"{_b(ld['augmented_bytes'])} = {_pct(ld['augmented_fraction'])} of the channels")

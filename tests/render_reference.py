@@ -14,6 +14,7 @@ import numpy as np
 
 from isplat import camera as C
 from isplat.augfile import open_augmented
+from isplat.frame import WIDE_ANGLE
 from isplat.normals import decode
 from isplat.splat.footprint import MIN_SIGMA_PIXELS
 from isplat.transfer import piecewise_linear
@@ -53,6 +54,21 @@ def reference_render(scene, view=0, et=1.0):
     a_cell = abs(np.linalg.det(J[:, :2]))
     R2 = ro.footprint_radius ** 2
     norm = a_cell / (2 * math.pi * math.sqrt(np.linalg.det(Sigma))) / (1 - math.exp(-R2 / 2))
+    if persp:
+        # next to the eye (a footprint's sigma wider than WIDE_ANGLE seen from the eye) the opacity is taken along each
+        # pixel's own ray: the secant of every pixel's ray against the slice normal, bounded by the box diagonal
+        nrm_c = geom.unit_axes[ic]
+        ds_c = float(geom.spacing[ic])
+        cos_min = min(1.0, ds_c / float(np.linalg.norm(geom.n_ijk * geom.spacing)))
+        wide_px = WIDE_ANGLE * d_img / frame.pixel_size
+        extent = math.sqrt(max(Sigma[0, 0], Sigma[1, 1]))         # the footprint's sigma in pixels at t0 = 1
+        pc = C.project_points(frame, [frame.e - frame.w])[0]          # the principal point
+        ys_, xs_ = np.mgrid[0:H, 0:W].astype(float)
+        rays = (((xs_ - pc[0]) * frame.pixel_size)[..., None] * frame.u
+                - ((ys_ - pc[1]) * frame.pixel_size)[..., None] * frame.v - d_img * frame.w)
+        pix_cos = np.maximum(np.abs(rays @ nrm_c) / np.linalg.norm(rays, axis=-1), cos_min)
+        ce = geom.to_grid(frame.e)[ic]
+        h0 = max(-0.5 - ce, ce - (n_ijk[ic] - 0.5), 0.0) * ds_c
 
     d = np.arange(256.0)
     opac = np.clip(piecewise_linear(tr.opacity, d, True)[:, 0], 0, 1)
@@ -99,8 +115,16 @@ def reference_render(scene, view=0, et=1.0):
                         continue
                     s = d_img / depth
                     ray = X - frame.e
-                    cosang = max(abs(ray @ geom.unit_axes[ic]) / np.linalg.norm(ray), 0.25)
-                    ds = geom.spacing[ic] / cosang
+                    hc = abs(ray @ nrm_c)
+                    thick = ds_c
+                    if depth * (hc - ds_c) / max(hc, 1e-300) < frame.near:
+                        # the slab in front along this ray is culled: this one reaches back to camera.clip
+                        lower = max(h0, frame.clip * hc / depth)
+                        thick = max(hc + 0.5 * ds_c - lower, 0.0)
+                    cosang = max(hc / np.linalg.norm(ray), cos_min)
+                    if s * extent > wide_px:
+                        cosang = pix_cos
+                    ds = thick / cosang
                 else:
                     ds = geom.spacing[ic] / abs(frame.w @ geom.unit_axes[ic])
                 alpha = 1 - (1 - min(alpha, 1 - 2.0 ** -40)) ** (ds / unit)
@@ -124,7 +148,7 @@ def reference_render(scene, view=0, et=1.0):
                 dx, dy = xs - px, ys - py
                 q = (Qi[0, 0] * dx * dx + 2 * Qi[0, 1] * dx * dy + Qi[1, 1] * dy * dy) / (s * s)
                 wgt = np.where(q < R2, norm * np.exp(-0.5 * q), 0.0)
-                sheet[..., :3] += wgt[..., None] * rgb * alpha
+                sheet[..., :3] += (wgt * alpha)[..., None] * rgb
                 sheet[..., 3] += wgt * alpha
         sa = sheet[..., 3]
         scale = np.where(sa > 1, 1 / np.maximum(sa, 1e-300), 1.0)

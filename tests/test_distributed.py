@@ -102,6 +102,19 @@ def test_a_frame_split_into_slabs_on_workers_is_the_one_process_frame(files, cli
             assert np.abs(rgba - F.finish_image(whole.img, view.background)).max() <= 1e-5
 
 
+def test_supersampled_frames_on_workers_are_box_filtered_like_one_process(files, client):
+    """render.supersample = 2: a view rendered whole or in slabs on the workers is finished at the image's size,
+    as in one process."""
+    scene = make(files, ["render.supersample=2", "render.early_termination=1.0", "views.orbit_steps=0",
+                         "image.width=24", "image.height=20"])
+    want = one_process(scene)[0]
+    view = views_of(scene)[0]
+    for slabs in (1, 2):
+        (_, rgba, _, _), = D.render_views(client, scene, [view], slabs=slabs)
+        assert rgba.shape == want.shape == (20, 24, 4)
+        assert np.abs(rgba - want).max() <= 1e-5
+
+
 def test_slab_workers_hold_only_their_slabs_voxels(files, client):
     scene = make(files, ["views.orbit_steps=0", "render.early_termination=1.0"])
     view = views_of(scene)[0]

@@ -13,7 +13,8 @@ from isplat import camera as C
 from isplat.renderer import Renderer
 from render_reference import reference_render
 
-BIG_TABLE = "footprint_table = 1048576\n"
+# these tests are about the paper's (pre-classified) splatting: its footprint, its reference (render_reference)
+BIG_TABLE = 'footprint_table = 1048576\nclassification = "pre"\n'
 
 
 def rng_volume(seed, shape, levels=(0, 60, 120, 200)):
@@ -91,8 +92,11 @@ def test_single_voxel_is_the_footprint_at_its_projection(tmp_path, make_scene, c
     pos = (3, 5, 4)                            # (k, j, i)
     dens[pos] = 200
     aug, idx = write_volume(tmp_path, dens)
+    # perspective from 60 units, where the footprint is narrow seen from the eye (the voxel's own ray gives its
+    # opacity; next to the eye see test_wide_voxel_next_to_the_eye_takes_each_pixels_own_ray)
+    far = "\ndistance = 60\nfov = 12" if proj == "perspective" else ""
     sc = make_scene(aug, idx, image="width = 96\nheight = 96\nbackground = [0, 0, 0, 0]",
-                    camera=f'projection = "{proj}"\n{cam}\nzoom = 0.6',
+                    camera=f'projection = "{proj}"\n{cam}\nzoom = 0.6{far}',
                     transfer="opacity = [[199, 0], [200, 0.5], [201, 0]]", shading="enabled = false",
                     render=BIG_TABLE + "footprint_radius = 4.0")
     img, stats = render(sc)
@@ -110,6 +114,43 @@ def test_single_voxel_is_the_footprint_at_its_projection(tmp_path, make_scene, c
     assert a.max() <= 0.5
 
 
+@pytest.mark.parametrize("ijk", [(4, 4, 6), (5, 4, 7)])
+def test_wide_voxel_next_to_the_eye_takes_each_pixels_own_ray(tmp_path, make_scene, ijk):
+    """A single voxel 3 units in front of the eye (its footprint spans tens of degrees): the opacity at each
+    pixel is the footprint's weight times the opacity of the slab along that pixel's ray, 1 - (1 - a)^(1/cos);
+    the weights so recovered are centred on the voxel's projection and sum to its projected cell area."""
+    shape = (9, 9, 9)
+    dens = np.zeros(shape, np.uint8)
+    dens[ijk[::-1]] = 200                       # world (i - 4, j - 4, k - 4): (0, 0, 2) or off the axis
+    aug, idx = write_volume(tmp_path, dens)
+    sc = make_scene(aug, idx, image="width = 64\nheight = 64\nbackground = [0, 0, 0, 0]",
+                    camera='projection = "perspective"\nposition = [0.0, 0.0, -1.0]\nlook_at = [0.0, 0.0, 10.0]\n'
+                           'up = [0, 1, 0]\nfov = 100',
+                    transfer="opacity = [[199, 0], [200, 0.5], [201, 0]]\nunit_distance = 1.0",
+                    shading="enabled = false", render=BIG_TABLE + "footprint_radius = 4.0")
+    img, stats = render(sc)
+    assert stats.voxels_splatted == 1 and stats.axis == "k"
+    frame = Renderer(sc).frames[0]
+    X = np.array(ijk, float) - 4.0
+    px, py = C.project_points(frame, [X])[0]
+    pc = C.project_points(frame, [frame.e - frame.w])[0]
+    d_img = float((frame.e - frame.p) @ frame.w)
+    ys, xs = np.mgrid[0:64, 0:64].astype(float)
+    rays = (((xs - pc[0]) * frame.pixel_size)[..., None] * frame.u
+            - ((ys - pc[1]) * frame.pixel_size)[..., None] * frame.v - d_img * frame.w)
+    cos = np.abs(rays[..., 2]) / np.linalg.norm(rays, axis=-1)
+    a = img[..., 3]
+    wgt = a / (1 - 0.5 ** (1 / cos))
+    assert a[0].max() == a[-1].max() == a[:, 0].max() == a[:, -1].max() == 0    # not clipped
+    cx, cy = (wgt * xs).sum() / wgt.sum(), (wgt * ys).sum() / wgt.sum()
+    assert abs(cx - px) < 0.01 and abs(cy - py) < 0.01
+    # partition of unity: the weights integrate to the voxel's projected cell area, (d_img / depth / pix)^2
+    depth = float((frame.e - X) @ frame.w)
+    assert abs(wgt.sum() / (d_img / depth / frame.pixel_size) ** 2 - 1) < 1e-3
+    # the voxel's own ray would give every pixel the same slab opacity: the corner rays are much longer here
+    assert cos.min() < 0.75
+
+
 @pytest.mark.parametrize("spacing", [(1.0, 1.0, 1.0), (0.7, 1.0, 2.5), (2.0, 0.5, 1.0)])
 @pytest.mark.parametrize("cam", ["azimuth = 0\nelevation = 0", "azimuth = 90\nelevation = 0",
                                  "azimuth = 0\nelevation = 90", "azimuth = 40\nelevation = 25"])
@@ -124,7 +165,7 @@ def test_sphere_is_round_with_anisotropic_spacing(tmp_path, make_scene, spacing,
     aug, idx = write_volume(tmp_path, dens.transpose(2, 1, 0), spacing=spacing)
     sc = make_scene(aug, idx, image="width = 64\nheight = 64\nbackground = [0, 0, 0, 0]", camera=cam,
                     transfer="opacity = [[0, 0], [200, 0.002]]\nunit_distance = 1.0",
-                    shading="enabled = false", render="early_termination = 1.0")
+                    shading="enabled = false", render='early_termination = 1.0\nclassification = "pre"')
     img, _ = render(sc)
     a = img[..., 3]
     ys, xs = np.mgrid[0:64, 0:64]
@@ -270,7 +311,8 @@ def test_empty_transfer_function_renders_background_and_reads_nothing(tmp_path, 
 def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
     shape = (6, 7, 8)
     aug, idx = write_volume(tmp_path, rng_volume(7, shape))
-    base = dict(image="width = 8\nheight = 8", transfer="opacity = [[190, 0], [200, 1]]")
+    base = dict(image="width = 8\nheight = 8", transfer="opacity = [[190, 0], [200, 1]]",
+                render='classification = "pre"')
     r = Renderer(make_scene(aug, idx, shading="enabled = false", **base))
     assert r.report.channels == [] and r.report.axes == ["j"]
     assert r.report.augmented_bytes == 0 and r.report.index_bytes > 0
@@ -285,6 +327,16 @@ def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
     assert r.report.channels == ["density"] and r.report.index_bytes == 0
     r = Renderer(make_scene(aug, idx, views="list = [{azimuth = 0}, {azimuth = 90}]", **base))
     assert r.report.axes == ["i", "j"]
+    # post-classification (the default) samples the neighbours of the voxels of interest too: the whole
+    # density channel, and the normals when shaded; from the index only the blocks, no values
+    del base["render"]
+    r = Renderer(make_scene(aug, idx, shading="enabled = true", **base))
+    assert r.report.channels == ["density", "normal"] and r.report.values_from == "whole channels"
+    assert r.report.augmented_bytes == 3 * dens_size(shape) and r.report.index_bytes == blocks
+
+
+def dens_size(shape):
+    return int(np.prod(shape))
 
 
 def test_index_of_another_volume_is_refused(tmp_path, make_scene):

@@ -273,7 +273,7 @@ def test_version_must_be_integer_one(value):
 
 
 def test_version_is_checked_before_unknown_keys():
-    assert "version = 4: this isplat reads scene versions 1 to 3" in error("version = 4\n" + BASE + "[future]\nx = 1\n")
+    assert "version = 5: this isplat reads scene versions 1 to 4" in error("version = 5\n" + BASE + "[future]\nx = 1\n")
 
 
 @pytest.mark.parametrize("key, table", [("units", "transfer"), ("preset", "transfer"), ("frames", "views"),
@@ -293,6 +293,7 @@ def test_version_1_files_still_read():
     parse_scene("version = 1\n" + BASE, ".", "s.toml")
     parse_scene("version = 2\n" + BASE, ".", "s.toml")
     parse_scene("version = 3\n" + BASE, ".", "s.toml")
+    parse_scene("version = 4\n" + BASE, ".", "s.toml")
 
 
 def test_point_rows_type_errors():

@@ -15,7 +15,8 @@ from isplat.scene import parse_scene
 from isplat.selection import Selection
 from sheets_reference import reference_sheets
 
-BIG_TABLE = "footprint_table = 1048576\n"
+# image-aligned sheets splat pre-classified: the axis-aligned sheets they are compared with do too
+BIG_TABLE = 'footprint_table = 1048576\nclassification = "pre"\n'
 
 
 def rng_volume(seed, shape, levels=(0, 60, 120, 200)):

@@ -26,11 +26,12 @@ def volume(tmp_path_factory):
     return aug, idx
 
 
-def scene(make_scene, volume, proj, cam, et=0.99, method="indexed"):
+def scene(make_scene, volume, proj, cam, et=0.99, method="indexed", classification="post"):
     return make_scene(*volume, image="width = 30\nheight = 28", camera=f'projection = "{proj}"\n{cam}',
                       transfer="opacity = [[50, 0.0], [60, 0.5], [130, 0.3], [200, 0.95]]\n"
                                "gradient_opacity = [[0, 0.3], [100, 1]]",
-                      shading="enabled = true", render=f'method = "{method}"\nthreads = 1\nearly_termination = {et}')
+                      shading="enabled = true", render=f'method = "{method}"\nthreads = 1\nearly_termination = {et}\n'
+                                                      f'classification = "{classification}"')
 
 
 @given(st.lists(st.integers(0, 40), max_size=12), st.integers(1, 41))
@@ -75,7 +76,7 @@ def test_a_slab_of_the_restricted_selection_is_the_slab_of_the_whole(make_scene,
 
 
 def test_restrict_keeps_every_array_in_order(make_scene, volume):
-    sc = scene(make_scene, volume, "orthographic", "azimuth = 0")
+    sc = scene(make_scene, volume, "orthographic", "azimuth = 0", classification="pre")   # values gathered
     sel = select_from_files(sc, "k")
     whole = sel.axes["k"]
     parts = [restrict(sel, "k", range(a, b)).axes["k"] for a, b in [(0, 5), (5, 12)]]
@@ -102,7 +103,7 @@ def test_a_slab_selected_from_files_is_the_restricted_whole(make_scene, volume, 
     for index in (idx, v2):
         sc = make_scene(aug, index,
                         transfer="opacity = [[50, 0.0], [200, 0.9]]\ngradient_opacity = [[0, 0.3], [100, 1]]",
-                        shading="enabled = true")
+                        shading="enabled = true", render='classification = "pre"')     # values gathered
         whole = select_from_files(sc, axis)
         slab = select_from_files(sc, axis, slices=slices)
         assert slab.report.values_from == "augmented slabs"

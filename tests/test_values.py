@@ -107,6 +107,15 @@ def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget, slab_vox
             assert np.all(np.diff(key[perm]) > 0)
 
 
+@pytest.fixture
+def make_scene(make_scene):
+    """These tests are about the channel values a selection gathers for its voxels of interest, which the
+    pre-classified kernel reads (post-classification reads the whole channels)."""
+    def make(aug, idx, overrides=(), **sections):
+        return make_scene(aug, idx, overrides=('render.classification="pre"', *overrides), **sections)
+    return make
+
+
 def _scene(make_scene, aug, idx, shading=True):
     return make_scene(aug, idx, image="width = 12\nheight = 12",
                       transfer="opacity = [[100, 0], [110, 1], [255, 1]]",

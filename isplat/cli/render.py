@@ -80,7 +80,7 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
     movie = ext in (".gif", ".mp4")
     itemsize = 8 if scene.render.precision == "float64" else 4
     check_memory(output_buffer_bytes(scene.image.width, scene.image.height, len(views), movie, ext, itemsize,
-                                     scene.render.threads or default_threads()),
+                                     scene.render.threads or default_threads(), scene.render.supersample),
                  f"{scene.image.width}x{scene.image.height}" + (f", {len(views)} views" if movie else ""))
     paths = [] if out == "-" else ([Path(out)] if movie else frame_paths(out, len(views)))
     check_outputs(paths, force)
@@ -89,7 +89,8 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
     with _frames(scene, views, scheduler, slabs) as (method, results, held):
         for n, rgba, st, rep in results:
             per_view.append({"view": n if view is None else view, "axis": ("+" if st.sign > 0 else "-") + st.axis,
-                             "voxels_examined": st.voxels_examined, "voxels_splatted": st.voxels_splatted,
+                             "voxels_examined": st.voxels_examined, "classification": st.classification,
+                             "voxels_splatted" if st.classification == "pre" else "samples": st.voxels_splatted,
                              "slices": st.slices, "seconds": round(st.seconds, 6)})
             if movie:
                 frames.append(rgba)
@@ -112,8 +113,9 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
                   f"; held {held()} bytes, {held() / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
                   if held else " (selections held by the workers or one slab at a time)"))
     for v in per_view:
-        log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, "
-                  f"{v['voxels_splatted']} splatted, {v['seconds'] * 1000:.1f} ms")
+        drawn = f"{v['voxels_splatted']} splatted" if "voxels_splatted" in v else f"{v['samples']} samples composited"
+        log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, {drawn} "
+                  f"({v['classification']}-classified), {v['seconds'] * 1000:.1f} ms")
 
 
 @contextlib.contextmanager
@@ -167,6 +169,19 @@ def _auto_slabs(scene, views) -> int:
     return k
 
 
+def _shrink_finished(rgba, n):
+    """A finished (straight, over the background) frame of n times the image's size, box-filtered down as
+    frame.finish_image does it (premultiplied means, then straight again)."""
+    import numpy as np
+
+    from ..frame import box_filter
+
+    a = rgba[..., 3:4].astype(np.float64)
+    pre = box_filter(np.concatenate([rgba[..., :3] * a, a], axis=-1), n)
+    return np.concatenate([np.where(pre[..., 3:] > 0, pre[..., :3] / np.maximum(pre[..., 3:], 1e-300), 0.0),
+                           pre[..., 3:]], axis=-1).astype(rgba.dtype)
+
+
 def _streamed(scene, views, slabs, bar):
     """Each view front to back in ``slabs`` slabs, one slab's selection at a time (isplat.slabs.render_streamed)."""
     from ..augfile import open_augmented
@@ -176,5 +191,7 @@ def _streamed(scene, views, slabs, bar):
     aug = open_augmented(scene.data.augmented)
     for n, view in enumerate(views_for(scene, aug, views)):
         rgba, st, report = render_streamed(scene, view, slabs, aug)
+        if rgba.shape[0] != scene.image.height:         # a supersampled frame, finished at its own size
+            rgba = _shrink_finished(rgba, scene.render.supersample)
         bar.update(1)
         yield n, rgba, st, report

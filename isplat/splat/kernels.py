@@ -11,7 +11,8 @@ Arrays in, arrays out, no I/O. A frame is cut into named stages, each a small co
    hidden material costs one test per square rather than one per voxel;
 3. per voxel, classify, cut, project (§3) and shade (:func:`_splat_cells`: :func:`_cut_away`,
    :func:`_project`, :func:`_path_alpha`, :func:`_shade`);
-4. the splat into the slice's sheet (:func:`_splat`), and the sheet composited into the image
+4. the splat into the slice's sheet (:func:`_splat`; next to the eye in perspective :func:`_splat_rays`, the
+   opacity along each pixel's own ray), and the sheet composited into the image
    (:func:`isplat.splat.composite.composite_sheet`).
 
 Within a slice contributions are summed into a sheet buffer, so both traversals give the same image up to
@@ -67,9 +68,16 @@ Classify = namedtuple("Classify", "alpha color shade use_gm use_shade")
 Classify.__doc__ = """``alpha`` float[256, G]: opacity per (density, gradient code), corrected for the slice's
 path length (orthographic) or as ``log1p(-alpha)`` (perspective); ``color`` float32[256, 3]; ``shade``
 float32[65536, 2 or 6]: Phong factors per normal code (:mod:`isplat.splat.shade`)."""
-SliceGeometry = namedtuple("SliceGeometry", "coef steps qe persp inv_unit normal_off slice_step cuts")
+SliceGeometry = namedtuple("SliceGeometry", "coef steps qe persp inv_unit normal_off slice_step cuts eye")
 SliceGeometry.__doc__ = """``coef`` 16 floats (camera.Projection.coef); ``steps`` rows A, B, C (3 x 3 floats);
-``qe`` volume origin minus eye (3 floats); tuples rather than arrays, so the per-voxel stages take no arrays; ``cuts`` rows (g0, ga, gb, gc), a voxel kept where ``g0 + a*ga + b*gb + c*gc >= 0``."""
+``qe`` volume origin minus eye (3 floats); tuples rather than arrays, so the per-voxel stages take no arrays; ``cuts`` rows (g0, ga, gb, gc), a voxel kept where ``g0 + a*ga + b*gb + c*gc >= 0``;
+``eye`` (perspective, :func:`_path_alpha` and :func:`_splat_rays`) 9 floats, see EY_DS..EY_F2."""
+# geo.eye layout: slice spacing; distance from the eye to the volume's box along the slice normal (0 inside);
+# camera.clip; the smallest cosine between a ray and the slice normal (slice spacing / box diagonal: a ray runs
+# inside one slab for at most the box's diagonal); the footprint radius in pixels above which a voxel's opacity
+# is corrected per pixel (its footprint spans a wide angle); a pixel ray's slice-normal component
+# gx (x - cx) + gy (y - cy) + g0 and its squared length (x - cx)^2 + (y - cy)^2 + f2, in pixels
+EY_DS, EY_H0, EY_CLIP, EY_COSMIN, EY_WIDE, EY_GX, EY_GY, EY_G0, EY_F2 = range(9)
 FootprintTable = namedtuple("FootprintTable", "table params")
 Buffers = namedtuple("Buffers", "img sheet sat tile_sat tile_npix dirty_px dirty cells stats")
 Buffers.__doc__ = """``img`` (H, W, 4) premultiplied; ``sat`` uint8 (H, W) saturated pixels; ``tile_sat`` their
@@ -312,7 +320,7 @@ def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, ban
     """
     gm, nrm, index, direct = vals
     alpha_tab, color, shade, use_gm, use_shade = cls
-    coef, steps, cuts, persp = geo.coef, geo.steps, geo.cuts, geo.persp
+    coef, steps, cuts, persp, eye = geo.coef, geo.steps, geo.cuts, geo.persp, geo.eye
     sheet, sat, dirty_px, dirty, stats = buf.sheet, buf.sat, buf.dirty_px, buf.dirty, buf.stats
     bi, y0b, y1b, et, satab, ty0 = band
     et_on = et < 1.0
@@ -320,6 +328,7 @@ def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, ban
     table = fp.table
     fpc = (fp.params[QA], 2.0 * fp.params[QB], fp.params[QC], fp.params[R2], fp.params[TSCALE])
     ex, ey = fp.params[EX], fp.params[EY]
+    wide_s = eye[EY_WIDE] / max(ex, ey) if persp else 0.0     # a larger perspective scale: a wide footprint
     ncut = cuts.shape[0]
     nd = 0
     for k in range(nc):
@@ -336,9 +345,15 @@ def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, ban
             ok, px, py, s, box = _project(a, b, base, coef, persp, ex, ey, y0b, y1b, img_w)
             if not ok or (et_on and _covered(satab, ty0, sat, box[0], box[1], box[2], box[3])):
                 continue
-            alpha = _path_alpha(L, a, b, base, s, steps, persp, geo.inv_unit)
-            cr, cg, cb = _shade(d, nrm[fi] if use_shade else 0, alpha, color, shade, use_shade)
-            nd = _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty, nd)
+            alpha, r = _path_alpha(L, a, b, base, steps, persp, geo.inv_unit, coef, eye)
+            if persp and s > wide_s:
+                # next to the eye: the opacity along each pixel's own ray
+                cr, cg, cb = _shade(d, nrm[fi] if use_shade else 0, 1.0, color, shade, use_shade)
+                nd = _splat_rays(px, py, s, box, cr, cg, cb, r * L, fpc, table, coef, eye, sheet, dirty_px, dirty,
+                                 nd)
+            else:
+                cr, cg, cb = _shade(d, nrm[fi] if use_shade else 0, alpha, color, shade, use_shade)
+                nd = _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty, nd)
             # a voxel spanning two bands is counted by the band holding its first image row
             if max(int(math.ceil(py - ey * s)), 0) >= y0b:
                 stats[bi, 2] += 1
@@ -512,19 +527,72 @@ def footprint_box(px, py, rx, ry, y0b, y1b, img_w):
 
 
 @leaf
-def _path_alpha(L, a, b, base, s, steps, persp, inv_unit):
-    """Stage 3c: the voxel's opacity. Orthographic: ``L`` (already corrected for the path length).
-    Perspective: corrected here for the path length through the slab along this voxel's ray."""
+def _path_alpha(L, a, b, base, steps, persp, inv_unit, coef, eye):
+    """Stage 3c: the voxel's opacity and ``r``, its slab's thickness along the slice normal in unit distances
+    (perspective; 0 orthographic). Orthographic: ``L`` (already corrected for the path length). Perspective:
+    corrected here for the path ``r / cos`` through the slab along this voxel's ray. The slab is the slice
+    spacing, except for the first slab kept along the ray (the one in front is behind the eye or nearer than the
+    near plane): it reaches back to where the integral starts (camera.clip: the eye or a set near plane; not in
+    front of the volume's box), so neither the eye's own slab nor the culled ones are lost or counted whole."""
     if not persp:
-        return L
+        return L, 0.0
     vx = base[3] + a * steps[0][0] + b * steps[1][0]
     vy = base[4] + a * steps[0][1] + b * steps[1][1]
     vz = base[5] + a * steps[0][2] + b * steps[1][2]
     dist = math.sqrt(vx * vx + vy * vy + vz * vz)
-    # cosine between the ray and the slice normal, bounded (a ray ~75 degrees off the normal, which only
-    # happens next to an eye inside the volume) so the path length stays finite
-    cosang = max(base[6] / max(dist, 1e-300), 0.25)
-    return -math.expm1(inv_unit / cosang * L)   # inv_unit = slice spacing / unit distance
+    hc = base[6]                               # distance from the eye to the slice's plane, along the normal
+    ds = eye[EY_DS]
+    r = inv_unit                               # = slice spacing / unit distance
+    depth = -(base[2] + a * coef[WA] + b * coef[WB])      # -D: in front of the eye along -w
+    # this ray crosses the slice plane in front at depth depth * (hc - ds) / hc: culled there?
+    if depth * (hc - ds) < coef[NEAR] * hc:
+        lower = max(eye[EY_H0], eye[EY_CLIP] * hc / depth)
+        r = inv_unit * max(hc + 0.5 * ds - lower, 0.0) / ds
+    # the cosine between the ray and the slice normal, bounded so a ray runs inside one slab for at most the
+    # volume's diagonal
+    cosang = max(hc / max(dist, 1e-300), eye[EY_COSMIN])
+    return -math.expm1(r / cosang * L), r
+
+
+@leaf
+def _splat_rays(px, py, s, box, cr, cg, cb, rL, fpc, table, coef, eye, sheet, dirty_px, dirty, nd):
+    """Stage 4 for a voxel next to the eye, whose footprint spans a wide angle: as :func:`_splat`, but the
+    opacity is corrected per pixel for the path through the slab along that pixel's own ray (``rL``: r times
+    log1p(-alpha) of :func:`_path_alpha`; ``cr, cg, cb`` straight colour). The voxel's own ray would give the
+    pixels around it the path of a ray far off theirs (a uniform slab seen from inside it would come out
+    denser at the centre than it is)."""
+    x0, x1, y0, y1 = box
+    Qa, Qb2, Qc, R2v, tscale = fpc
+    img_w = sheet.shape[1]
+    k = tscale / (s * s)
+    A = Qa * k
+    B = Qb2 * k
+    C = Qc * k
+    T = R2v * tscale
+    gx, cmin = eye[EY_GX], eye[EY_COSMIN]
+    for y in range(y0, y1 + 1):
+        dy = y - py
+        ty = C * dy * dy
+        txy = B * dy
+        ry = y - coef[CY]
+        ny = eye[EY_GY] * ry + eye[EY_G0]
+        r2y = ry * ry + eye[EY_F2]
+        for x in range(x0, x1 + 1):
+            dx = x - px
+            wgt = table[int(min((A * dx + txy) * dx + ty, T))]
+            dirty[nd] = y * img_w + x
+            nd += 1 - dirty_px[y, x]
+            dirty_px[y, x] = 1
+            if wgt == 0.0:
+                continue
+            rx = x - coef[CX]
+            cosang = max(abs(gx * rx + ny) / math.sqrt(rx * rx + r2y), cmin)
+            wa = wgt * -math.expm1(rL / cosang)
+            sheet[y, x, 0] += wa * cr
+            sheet[y, x, 1] += wa * cg
+            sheet[y, x, 2] += wa * cb
+            sheet[y, x, 3] += wa
+    return nd
 
 
 @leaf

@@ -1,0 +1,408 @@
+"""Post-classified splatting (``render.classification = "post"``): reconstruct the density, then classify.
+
+The pre-classified kernel (:mod:`isplat.splat.kernels`) looks each voxel up in the transfer function and
+spreads its colour and opacity with a Gaussian footprint, which blurs a sharp transfer-function edge and widens
+an opaque surface by the footprint's reach (Mueller, Moeller and Crawfis 1999, "Splatting without the blur").
+Here each slice's *densities* are splatted with the tent kernel of the slice's lattice (the linear B-spline,
+one voxel step in each in-slice direction), whose sum at a point of the slice plane is exactly the bilinear
+interpolation of the four voxels around it; the sum is then classified, shaded and composited. The tent
+footprint is evaluated in its gather form: each pixel of a quad's projection (the square between four voxels)
+takes its point on the slice plane and interpolates there. Along every pixel's ray the samples are then exactly
+the trilinear reconstruction at the slice planes, classified after reconstruction, as in a ray caster whose
+step is the slice spacing.
+
+What the index decides: which quads are sampled. A quad is sampled when one of its four voxels is of interest
+(its density is in the transfer function's non-zero intervals) and its cell is not hidden (the occlusion tests
+of :mod:`isplat.splat.kernels`). A quad none of whose voxels is of interest is skipped, though the bilinear
+density inside can still cross an interval (a thin material between two others, say skin at the boundary of
+bone and air); the reconstruction of such a quad is what a ray caster shows as a thin false layer.
+
+The four voxels' densities come from the whole density channel (one byte per voxel; the normals and gradient
+codes too when the scene uses them): the neighbours of the voxels of interest have any density, and the index
+does not hold them. Classification interpolates the 256-entry tables linearly between codes (the transfer
+function is applied to the interpolated value, not to a truncated code). Shading interpolates the four
+voxels' Phong factors (the shading of a trilinear ray caster that shades its grid points).
+
+Each pixel samples a slice at most once (it belongs to one quad), so a sample is composited straight into the
+image: no sheet. Images do not depend on the thread bands. Counters: ``stats[band, 1]`` the voxels of interest
+in the cells left after the occlusion tests, ``stats[band, 2]`` the samples composited.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+
+import numpy as np
+
+from ..jit import jit, leaf
+from .composite import TILE
+from .kernels import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, _band, _band_saturated, _box_args, _build_sat,
+                      _cut_away, _full_slice, _hidden, _path_alpha, _slice_bases, _visible_cells)
+from .select import BLOCK, CELL, KEYS, REGION
+
+SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (scan_unit)
+
+PostVoxels = namedtuple("PostVoxels", "index whole unit")
+PostVoxels.__doc__ = """``index``: the selection's hierarchy (:data:`isplat.splat.kernels.IndexedVoxels`; None
+without an index), which says which quads to sample; ``whole``: the whole channels
+(:data:`isplat.splat.kernels.WholeVolume`), which give the four densities of each sample; ``unit``: the side of
+the squares scanned together (:func:`scan_unit`)."""
+
+
+def reach(coef) -> tuple[float, float]:
+    """How far (pixels, x and y) a voxel's tent reaches at perspective scale 1: one step along a and b."""
+    return abs(coef[XA]) + abs(coef[XB]), abs(coef[YA]) + abs(coef[YB])
+
+
+@jit
+def render_post_indexed(order, o0, bins, vox, cls, geo, fp, buf, bands):
+    """Render the slices ``order`` (front to back) post-classified: the quads around the index's voxels of
+    interest (``vox.index``), sampled in the whole channels ``vox.whole``."""
+    idx = vox.index
+    hier = (idx.region_id, idx.region_ptr, idx.block_pos, idx.block_ptr, idx.block_voxel, idx.cell_pos,
+            idx.cell_count)
+    marks = _marks(idx.n_a, idx.n_b)
+    for bi in bands.mine:
+        band = _band(bi, bands, buf)
+        for oi in range(order.shape[0]):
+            if _band_saturated(band):
+                break
+            c = order[oi]
+            r0 = idx.region_ptr[idx.slice_ptr[c]]
+            r1 = idx.region_ptr[idx.slice_ptr[c + 1]]
+            buf.stats[bi, 0] += idx.block_voxel[r1] - idx.block_voxel[r0]
+            p0, p1 = bins.ptr[bi, o0 + oi], bins.ptr[bi, o0 + oi + 1]
+            _post_slice(c, bins.regions, p0, p1, hier, vox.whole, vox.unit, cls, geo, fp, buf, band, marks)
+
+
+@jit
+def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
+    """As :func:`render_post_indexed` without an index (``vox.index`` None): every voxel of every slice is
+    classified to find the voxels of interest."""
+    whole = vox.whole
+    n_a, n_b = whole.n_a, whole.n_b
+    nra = (n_a + REGION - 1) // REGION
+    ng = nra * ((n_b + REGION - 1) // REGION)
+    m = n_a * n_b
+    hier = (np.empty(ng, np.int32), np.empty(ng + 1, np.int64), np.empty(ng * 16, np.uint8),
+            np.empty(ng * 16 + 1, np.int64), np.empty(ng * 16 + 1, np.int64), np.empty(ng * KEYS, np.uint8),
+            np.empty(ng * KEYS, np.uint8), np.empty(m, np.uint8), np.empty(m, np.uint8))
+    index = np.empty(m, np.int64)
+    all_regions = np.arange(ng)
+    wanted = np.empty(ng, np.bool_)
+    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
+    marks = _marks(n_a, n_b)
+    for bi in bands.mine:
+        band = _band(bi, bands, buf)
+        for oi in range(order.shape[0]):
+            if _band_saturated(band):
+                break
+            c = order[oi]
+            box_args = _box_args(n_a, n_b, _slice_bases(c, geo, cs), geo, fp, buf, band, False)
+            for rid in range(ng):
+                wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4],
+                                          buf.sat, False)
+            n_regions = _full_slice(c, whole, cls, hier, index, wanted)
+            buf.stats[bi, 0] += m
+            _post_slice(c, all_regions, 0, n_regions, hier[:7], whole, vox.unit, cls, geo, fp, buf, band, marks)
+
+
+@jit
+def _marks(n_a, n_b):
+    """A slice's cell flags (zeroed), the list of flagged cells (see :func:`_mark_cells`), and the same for the
+    squares that are scanned (cells, or squares of several cells, see :func:`scan_unit`)."""
+    n = ((n_a + CELL - 1) // CELL) * ((n_b + CELL - 1) // CELL)
+    return np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8), np.empty(n, np.int64)
+
+
+def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
+    """The side, in voxels, of the squares of the slice whose pixels are scanned together: a cell (4 voxels) when
+    a cell covers at least ``target`` pixels, else 8 or 16, so that the per-square costs (its projected box,
+    its rows' spans) are shared by enough pixels when voxels are smaller than pixels."""
+    area = abs(float(jac[0][0]) * float(jac[1][1]) - float(jac[0][1]) * float(jac[1][0]))   # pixels per voxel
+    unit = CELL
+    while unit < BLOCK and unit * unit * area < target:
+        unit *= 2
+    return unit
+
+
+@jit
+def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, marks):
+    """One slice and one band: the cells of interest left by the occlusion tests, the quads that touch their
+    voxels sampled, classified and composited into the image."""
+    bi, y0b, y1b, et, satab, ty0 = band
+    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
+    base = _slice_bases(c, geo, cs)
+    box_args = _box_args(whole.n_a, whole.n_b, base, geo, fp, buf, band, et < 1.0)
+    cells = buf.cells
+    nc = _visible_cells(regions, p0, p1, hier, whole.n_a, box_args, satab, buf.sat, cells)
+    for k in range(nc):
+        buf.stats[bi, 1] += cells[k, 1] - cells[k, 0]
+    mark, marked, smark, squares = marks
+    nca = (whole.n_a + CELL - 1) // CELL
+    nm = _mark_cells(cells, nc, nca, mark, marked)
+    ns = _mark_squares(marked, nm, nca, unit, (whole.n_a + unit - 1) // unit, smark, squares)
+    voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c)
+    inv = _ortho_inverse(base, geo.coef)
+    counts = np.zeros(2, np.int64)      # samples composited, pixels newly saturated
+    _sample_squares(squares, ns, unit, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
+                    cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts)
+    for t in range(nm):
+        mark[marked[t]] = 0
+    for t in range(ns):
+        smark[squares[t]] = 0
+    buf.stats[bi, 2] += counts[0]
+    if counts[1] > 0:
+        _build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
+    buf.stats[bi, 3] += 1
+
+
+@leaf
+def _mark_cells(cells, nc, nca, mark, marked):
+    """Flag the cells whose quads touch a voxel of a visible cell: bit 1 the cell itself, bit 2 its neighbour
+    at +a, bit 4 at +b, bit 8 at +a+b (a quad is the square from its voxel to the next along a and b, so the
+    cells at -a, -b and -a-b hold quads that reach this cell's voxels). Returns the number of flagged cells,
+    listed in ``marked``."""
+    nm = 0
+    for k in range(nc):
+        ci = cells[k, 2] // CELL
+        cj = cells[k, 3] // CELL
+        for da in range(2):
+            for db in range(2):
+                if ci - da < 0 or cj - db < 0:
+                    continue
+                q = (cj - db) * nca + ci - da
+                if mark[q] == 0:
+                    marked[nm] = q
+                    nm += 1
+                mark[q] |= 1 << (da + 2 * db)
+    return nm
+
+
+@leaf
+def _mark_squares(marked, nm, nca, unit, nsa, smark, squares):
+    """The squares of ``unit`` voxels that hold the flagged cells ``marked[:nm]``, each listed once in
+    ``squares``; returns their number."""
+    per = unit // CELL
+    ns = 0
+    for t in range(nm):
+        q = marked[t]
+        s = ((q // nca) // per) * nsa + (q % nca) // per
+        if smark[s] == 0:
+            smark[s] = 1
+            squares[ns] = s
+            ns += 1
+    return ns
+
+
+@leaf
+def _sample_squares(squares, ns, unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
+                    sat, tile_sat, band, counts):
+    """Sample the squares ``squares[:ns]`` (:func:`_sample_square`). One call per slice: the per-square stage is
+    inlined here, since handing a stage this many arrays costs more than a small square."""
+    for t in range(ns):
+        _sample_square(squares[t], unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv,
+                       img, sat, tile_sat, band, counts)
+
+
+@leaf(inline="always")
+def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img, sat,
+                   tile_sat, band, counts):
+    """Sample the quads of square ``sq`` (``unit`` voxels a side) that their cells' flags ask for, at the pixels
+    whose point on the slice plane lies in them (each pixel of the slice falls in one quad), and composite the
+    samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`)."""
+    density, gm, nrm, strides, n_a, n_b, c = voxel
+    bi, y0b, y1b, et, satab, ty0 = band
+    coef, persp = geo.coef, geo.persp
+    nca = (n_a + CELL - 1) // CELL
+    nsa = (n_a + unit - 1) // unit
+    a0 = (sq % nsa) * unit
+    b0 = (sq // nsa) * unit
+    # the square's part of the slice plane: its quads [a0, a0 + unit) (the first from -0.5, the last to n - 0.5),
+    # or a cell's last column or row only, when just a neighbour's voxels need them
+    u0 = -0.5 if a0 == 0 else float(a0)
+    u1 = min(float(a0 + unit), n_a - 0.5)
+    v0 = -0.5 if b0 == 0 else float(b0)
+    v1 = min(float(b0 + unit), n_b - 0.5)
+    if unit == CELL:
+        flags = mark[sq]
+        if flags & 5 == 0:
+            u0 = float(a0 + CELL - 1)
+        if flags & 3 == 0:
+            v0 = float(b0 + CELL - 1)
+    if u0 >= u1 or v0 >= v1:
+        return
+    x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, coef, persp, img.shape[1], y0b, y1b)
+    for y in range(y0, y1 + 1):
+        xa, xb = x0, x1
+        if not persp:
+            xa, xb = _row_span(y, u0, u1, v0, v1, inv, x0, x1)
+        for x in range(xa, xb + 1):
+            if sat[y, x] != 0:
+                continue
+            if persp:
+                ok, u, v = _slice_point(x, y, base, coef)
+                if not ok:
+                    continue
+            else:
+                u = inv[0] + x * inv[1] + y * inv[2]
+                v = inv[3] + x * inv[4] + y * inv[5]
+            if u < u0 or u >= u1 or v < v0 or v >= v1:
+                continue                    # another square's quad
+            qa = max(int(math.floor(u)), 0)
+            qb = max(int(math.floor(v)), 0)
+            flags = mark[(qb // CELL) * nca + qa // CELL]
+            la = qa % CELL
+            lb = qb % CELL
+            if not (flags & 1 or (la == CELL - 1 and flags & 2) or (lb == CELL - 1 and flags & 4)
+                    or (la == CELL - 1 and lb == CELL - 1 and flags & 8)):
+                continue                    # a quad no voxel of interest touches
+            if geo.cuts.shape[0] > 0 and _cut_away(u, v, geo.cuts, cs):
+                continue
+            _sample(x, y, max(u - qa, 0.0), max(v - qb, 0.0), c * strides[2] + qa * strides[0] + qb * strides[1],
+                    strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v, density, gm, nrm,
+                    alpha, color, shade, use_gm, use_shade, base, geo, img, sat, tile_sat, et, counts)
+
+
+@leaf(inline="always")
+def _row_span(y, u0, u1, v0, v1, inv, x0, x1):
+    """The pixels of row ``y`` (within [x0, x1]) whose point on the slice plane can lie in [u0, u1) x [v0, v1)
+    (orthographic; one pixel of margin on each side, the exact test is per pixel)."""
+    lo, hi = _span(inv[0] + y * inv[2], inv[1], inv[6], u0, u1, float(x0), float(x1))
+    lo, hi = _span(inv[3] + y * inv[5], inv[4], inv[7], v0, v1, lo, hi)
+    if lo > hi:
+        return 1, 0
+    return max(int(math.ceil(lo)), x0), min(int(math.floor(hi)), x1)
+
+
+@leaf(inline="always")
+def _span(o, d, r, a, b, lo, hi):
+    """[lo, hi] cut to the x where ``o + x d`` lies in [a, b) (``r = 1 / d``, 0 when d is about 0), with one
+    pixel of margin."""
+    if r != 0.0:
+        t0 = (a - o) * r
+        t1 = (b - o) * r
+        return max(lo, min(t0, t1) - 1.0), min(hi, max(t0, t1) + 1.0)
+    if o < a or o >= b:
+        return 1.0, 0.0
+    return lo, hi
+
+
+@leaf(inline="always")
+def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo,
+            img, sat, tile_sat, et, counts):
+    """One sample: the bilinear density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
+    volume's edge, which repeats the edge voxel) at (fu, fv) in it, classified with the tables interpolated
+    between codes, shaded with the corners' Phong factors, composited over pixel (x, y)."""
+    w00 = (1.0 - fu) * (1.0 - fv)
+    w10 = fu * (1.0 - fv)
+    w01 = (1.0 - fu) * fv
+    w11 = fu * fv
+    i10 = i00 + sa
+    i01 = i00 + sb
+    i11 = i01 + sa
+    d = w00 * density[i00] + w10 * density[i10] + w01 * density[i01] + w11 * density[i11]
+    di = min(int(d), 254)
+    f = d - di
+    g = 0
+    if use_gm:
+        g = min(int(w00 * gm[i00] + w10 * gm[i10] + w01 * gm[i01] + w11 * gm[i11] + 0.5), alpha.shape[1] - 1)
+    L = alpha[di, g] + f * (alpha[di + 1, g] - alpha[di, g])
+    if L == 0.0:
+        return
+    a, _ = _path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
+    cr = color[di, 0] + f * (color[di + 1, 0] - color[di, 0])
+    cg = color[di, 1] + f * (color[di + 1, 1] - color[di, 1])
+    cb = color[di, 2] + f * (color[di + 1, 2] - color[di, 2])
+    if use_shade:
+        n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
+        s0 = w00 * shade[n00, 0] + w10 * shade[n10, 0] + w01 * shade[n01, 0] + w11 * shade[n11, 0]
+        s1 = w00 * shade[n00, 1] + w10 * shade[n10, 1] + w01 * shade[n01, 1] + w11 * shade[n11, 1]
+        if shade.shape[1] == 6:
+            s2 = w00 * shade[n00, 2] + w10 * shade[n10, 2] + w01 * shade[n01, 2] + w11 * shade[n11, 2]
+            s3 = w00 * shade[n00, 3] + w10 * shade[n10, 3] + w01 * shade[n01, 3] + w11 * shade[n11, 3]
+            s4 = w00 * shade[n00, 4] + w10 * shade[n10, 4] + w01 * shade[n01, 4] + w11 * shade[n11, 4]
+            s5 = w00 * shade[n00, 5] + w10 * shade[n10, 5] + w01 * shade[n01, 5] + w11 * shade[n11, 5]
+            cr, cg, cb = cr * s0 + s3, cg * s1 + s4, cb * s2 + s5
+        else:
+            cr, cg, cb = cr * s0 + s1, cg * s0 + s1, cb * s0 + s1
+    ai = img[y, x, 3]
+    t1 = 1.0 - ai
+    img[y, x, 0] += t1 * cr * a
+    img[y, x, 1] += t1 * cg * a
+    img[y, x, 2] += t1 * cb * a
+    an = ai + t1 * a
+    img[y, x, 3] = an
+    counts[0] += 1
+    if ai < et and an >= et:
+        sat[y, x] = 1
+        tile_sat[y // TILE, x // TILE] += 1
+        counts[1] += 1
+
+
+@leaf(inline="always")
+def _slice_point(x, y, base, coef):
+    """The point (u, v) of the slice plane (in-slice voxel coordinates a, b) that pixel (x, y) sees in
+    perspective: the §3 projection inverted; ``ok`` False when it is at or behind the near plane."""
+    xs, ys, ws = base[0], base[1], base[2]
+    X = x - coef[CX]
+    Y = y - coef[CY]
+    m00 = X * coef[WA] - coef[WPE] * coef[XA]
+    m01 = X * coef[WB] - coef[WPE] * coef[XB]
+    m10 = Y * coef[WA] - coef[WPE] * coef[YA]
+    m11 = Y * coef[WB] - coef[WPE] * coef[YB]
+    r0 = coef[WPE] * xs - X * ws
+    r1 = coef[WPE] * ys - Y * ws
+    det = m00 * m11 - m01 * m10
+    if det == 0.0:
+        return False, 0.0, 0.0
+    u = (r0 * m11 - m01 * r1) / det
+    v = (m00 * r1 - m10 * r0) / det
+    return -(ws + u * coef[WA] + v * coef[WB]) >= coef[NEAR], u, v
+
+
+@leaf
+def _ortho_inverse(base, coef):
+    """The orthographic slice's pixel -> (u, v) map ``(u0, du/dx, du/dy, v0, dv/dx, dv/dy)`` and the
+    reciprocals of du/dx and dv/dx (0 when about 0)."""
+    det = coef[XA] * coef[YB] - coef[XB] * coef[YA]
+    if det == 0.0:
+        return (0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0)    # the slice is seen edge-on: no pixel sees it
+    ux, uy = coef[YB] / det, -coef[XB] / det
+    vx, vy = -coef[YA] / det, coef[XA] / det
+    return (-(ux * base[0] + uy * base[1]), ux, uy, -(vx * base[0] + vy * base[1]), vx, vy,
+            1.0 / ux if abs(ux) > 1e-12 else 0.0, 1.0 / vx if abs(vx) > 1e-12 else 0.0)
+
+
+@leaf
+def _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b):
+    """The pixels (x0, x1, y0, y1) whose centres can see the part [u0, u1) x [v0, v1) of the slice plane, with up
+    to a pixel of margin, clipped to the image and the band (the whole band when a corner is behind the near
+    plane); empty when x0 > x1."""
+    xs, ys, ws = base[0], base[1], base[2]
+    cx0 = 1e300
+    cx1 = -1e300
+    cy0 = 1e300
+    cy1 = -1e300
+    for corner in range(4):
+        ka = u0 if corner & 1 == 0 else u1
+        kb = v0 if corner & 2 == 0 else v1
+        kx = xs + ka * coef[XA] + kb * coef[XB]
+        ky = ys + ka * coef[YA] + kb * coef[YB]
+        if persp:
+            kd = ws + ka * coef[WA] + kb * coef[WB]
+            if -kd < coef[NEAR]:
+                return 0, img_w - 1, y0b, y1b - 1
+            ks = coef[WPE] / kd
+            kx = coef[CX] + ks * kx
+            ky = coef[CY] + ks * ky
+        cx0 = min(cx0, kx)
+        cx1 = max(cx1, kx)
+        cy0 = min(cy0, ky)
+        cy1 = max(cy1, ky)
+    if cx1 < 0.0 or cy1 < y0b or cx0 > img_w - 1 or cy0 > y1b - 1:
+        return 1, 0, 1, 0
+    # rounded outwards: a pixel centre on the edge belongs to the square by the exact test per pixel
+    return (max(int(math.floor(cx0)), 0), min(int(math.ceil(cx1)), img_w - 1),
+            max(int(math.floor(cy0)), y0b), min(int(math.ceil(cy1)), y1b - 1))

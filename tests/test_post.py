@@ -1,0 +1,166 @@
+"""Post-classified splatting (render.classification = "post", isplat.splat.post) against its slow reference."""
+
+import numpy as np
+import pytest
+from conftest import write_volume
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from post_reference import post_reference
+
+from isplat.renderer import Renderer
+
+CAMERAS = ["azimuth = 0\nelevation = 0", "azimuth = 90\nelevation = 0", "azimuth = 180\nelevation = 0",
+           "azimuth = 0\nelevation = 90", "azimuth = 33\nelevation = 21", "azimuth = 150\nelevation = -40"]
+TF = "opacity = [[50, 0.0], [60, 0.3], [130, 0.1], [200, 0.9]]\ncolor = [[0, 1, 0, 0], [255, 0, 0.5, 1]]"
+
+
+def rng_volume(seed, shape, levels=(0, 60, 120, 200)):
+    r = np.random.default_rng(seed)
+    return r.choice(np.array(levels, np.uint8), size=shape, p=[0.55, 0.15, 0.15, 0.15])
+
+
+def random_normals(seed, shape):
+    from isplat.normals import encode
+    return encode(np.random.default_rng(seed + 1).normal(size=shape + (3,)))
+
+
+def render(scene, method=None, et=None):
+    return Renderer(scene, method=method).render_view(0, et=et)
+
+
+def post_scene(make_scene, aug, idx, cam, proj="orthographic", render="", et=1.0, **kw):
+    kw.setdefault("image", "width = 24\nheight = 20")
+    kw.setdefault("transfer", TF)
+    kw.setdefault("shading", "enabled = true")
+    return make_scene(aug, idx, camera=f'projection = "{proj}"\n{cam}',
+                      render=f'classification = "post"\nearly_termination = {et}\n{render}', **kw)
+
+
+@pytest.mark.parametrize("cam", CAMERAS)
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_post_agrees_with_the_reference_for_both_methods(tmp_path, make_scene, cam, proj):
+    shape = (5, 6, 7)
+    aug, idx = write_volume(tmp_path, rng_volume(1, shape), spacing=(1.0, 1.2, 0.8), normal=random_normals(1, shape))
+    sc = post_scene(make_scene, aug, idx, cam, proj)
+    ref = post_reference(sc)
+    ind, st_i = render(sc, "indexed")
+    full, st_f = render(sc, "full")
+    assert np.abs(ind - full).max() <= 1e-6
+    assert st_i.voxels_splatted == st_f.voxels_splatted > 0       # the samples composited
+    assert np.abs(ind - ref).max() <= 2e-4
+    assert ref[..., 3].max() > 0.2
+
+
+def test_post_with_cut_coloured_lights_and_early_termination(tmp_path, make_scene):
+    shape = (6, 5, 6)
+    aug, idx = write_volume(tmp_path, rng_volume(2, shape), normal=random_normals(2, shape))
+    sc = post_scene(make_scene, aug, idx, "azimuth = 20\nelevation = 30", image="width = 20\nheight = 20",
+                    transfer="opacity = [[55, 0.0], [60, 0.95], [255, 0.95]]",
+                    cut="point = [0.3, 0.0, 0.0]\nnormal = [1.0, 0.2, 0.0]",
+                    shading="enabled = true\ntwo_sided = false\nspecular = 0.5",
+                    shading__light="direction = [0.3, 0.5, 1.0]\ncolor = [1.0, 0.6, 0.2]\n"
+                                   "[[shading.light]]\ndirection = [-1.0, 0.2, 0.4]\nintensity = 0.5",
+                    et=0.9)
+    ind, _ = render(sc, "indexed", et=0.9)
+    full, _ = render(sc, "full", et=0.9)
+    assert np.abs(ind - full).max() <= 1e-6
+    assert np.abs(ind - post_reference(sc, et=0.9)).max() <= 2e-4
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), az=st.floats(0, 360), el=st.floats(-80, 80), zoom=st.floats(0.5, 3.0),
+       proj=st.sampled_from(["orthographic", "perspective"]))
+def test_post_property_random_volumes_and_views(tmp_path_factory, seed, az, el, zoom, proj):
+    from conftest import scene_text
+    from isplat.scene import parse_scene
+    tmp = tmp_path_factory.mktemp("post")
+    shape = tuple(int(x) for x in np.random.default_rng(seed).integers(2, 7, 3))
+    aug, idx = write_volume(tmp, rng_volume(seed, shape), normal=random_normals(seed, shape))
+    text = scene_text(aug, idx, image="width = 16\nheight = 14", transfer=TF, shading="enabled = true",
+                      camera=f'projection = "{proj}"\nazimuth = {az}\nelevation = {el}\nzoom = {zoom}',
+                      render='classification = "post"\nearly_termination = 1.0')
+    sc = parse_scene(text, tmp, "t.toml")
+    img, _ = render(sc)
+    assert np.abs(img - post_reference(sc)).max() <= 2e-4
+
+
+def test_post_images_do_not_depend_on_threads_or_bands(tmp_path, make_scene, monkeypatch):
+    from isplat import frame as F
+    shape = (24, 10, 70)
+    dens = rng_volume(5, shape)
+    dens[:, :2, :] = 250
+    aug, idx = write_volume(tmp_path, dens)
+    images = []
+    for threads, per, least in [(1, 1, 1000), (2, 2, 1), (3, 2, 4), (3, 5, 1)]:
+        monkeypatch.setattr(F, "BANDS_PER_THREAD", per)
+        monkeypatch.setattr(F, "MIN_BAND_TILES", least)
+        sc = post_scene(make_scene, aug, idx, "azimuth = 4\nelevation = 3", image="width = 100\nheight = 72",
+                        transfer="opacity = [[55, 0.0], [60, 0.6], [249, 0.6], [250, 1.0]]",
+                        shading="enabled = false", render=f"threads = {threads}", et=0.9)
+        img, st_ = render(sc, et=0.9)
+        images.append(img)
+        if least == 1000:            # one band: the wall hides most voxels behind it, cells and all
+            assert st_.voxels_tested - dens[:, :2].size < 0.3 * (dens[:, 2:] >= 55).sum()
+    assert all(np.array_equal(images[0], im) for im in images[1:])
+    assert np.abs(images[0] - post_reference(sc, et=0.9)).max() <= 2e-4
+
+
+def test_uniform_block_gives_the_closed_form_opacity_without_lattice_ripple(tmp_path, make_scene):
+    """A uniform block seen head-on at 4 pixels per voxel: every pixel inside sees n slices of opacity alpha,
+    1 - (1 - alpha)^n, exactly (the bilinear density is constant), where a Gaussian splat ripples."""
+    shape = (8, 8, 8)
+    aug, idx = write_volume(tmp_path, np.full(shape, 200, np.uint8))
+    alpha = 0.1
+    sc = post_scene(make_scene, aug, idx, "azimuth = 0\nelevation = 0\nzoom = 0.25",
+                    image="width = 64\nheight = 64\nbackground = [0, 0, 0, 0]",
+                    transfer=f"opacity = [[199, 0], [200, {alpha}], [201, 0]]\nunit_distance = 1.0",
+                    shading="enabled = false")
+    img, _ = render(sc)
+    a = img[..., 3]
+    inside = a[a > 0.5 * a.max()]
+    assert np.abs(inside - (1 - (1 - alpha) ** 8)).max() < 1e-5
+
+
+def test_a_thin_opaque_edge_is_not_widened(tmp_path, make_scene):
+    """An opaque slab with a sharp transfer-function edge: post-classification puts the silhouette where the
+    bilinear density crosses the edge (half-way between the voxels), pre-classification widens it by the
+    footprint's reach."""
+    shape = (8, 8, 16)
+    dens = np.zeros(shape, np.uint8)
+    dens[:, :, 4:12] = 200                         # i in [4, 12): its edges at i = 3.5 and 11.5
+    aug, idx = write_volume(tmp_path, dens)
+    kw = dict(image="width = 64\nheight = 32\nbackground = [0, 0, 0, 0]", shading="enabled = false",
+              transfer="opacity = [[99, 0], [100, 1.0], [255, 1.0]]")
+    post = post_scene(make_scene, aug, idx, "azimuth = 0\nelevation = 0\nzoom = 2.5", **kw)
+    r = Renderer(post)
+    img, _ = r.render_view(0)
+    covered = np.flatnonzero(img[16, :, 3] > 0.5)
+    # the density crosses 100 half-way between voxels 3 and 4 and between 11 and 12: 8 voxels wide
+    expect = 8.0 / r.frames[0].pixel_size
+    assert expect > 20 and abs(covered.size - expect) <= 1.01
+    pre = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0\nzoom = 2.5",
+                     render='early_termination = 1.0\nclassification = "pre"', **kw)
+    pre_img, _ = render(pre)
+    assert (pre_img[16, :, 3] > 0.5).sum() >= covered.size + 2
+
+
+def test_post_with_image_sheets_is_refused(tmp_path, make_scene):
+    from isplat.errors import IsplatError
+    aug, idx = write_volume(tmp_path, rng_volume(1, (4, 4, 4)))
+    with pytest.raises(IsplatError, match="classification"):
+        make_scene(aug, idx, transfer=TF, render='classification = "post"\nsheets = "image"')
+
+
+def test_a_post_selection_is_refused_by_the_pre_kernel_when_it_lacks_values(tmp_path, make_scene):
+    """A selection made for post-classification gathers no channel values (its frames read the whole channels);
+    a pre-classified frame that needs normals must not index the missing ones."""
+    from isplat.errors import IsplatError
+    from isplat.frame import render_frame, views_for
+    shape = (5, 6, 7)
+    aug, idx = write_volume(tmp_path, rng_volume(1, shape), normal=random_normals(1, shape))
+    post = post_scene(make_scene, aug, idx, "azimuth = 10")
+    pre = make_scene(aug, idx, transfer=TF, shading="enabled = true", render='classification = "pre"')
+    r = Renderer(post)
+    assert r.selection.post and r.selection.axes["j"].normal.size == 0
+    with pytest.raises(IsplatError, match="needs the channel values"):
+        render_frame(r.selection, views_for(pre, r.selection)[0])

@@ -188,7 +188,8 @@ def test_a_selection_that_does_not_fit_is_streamed_by_itself(volume, tmp_path, m
 
     aug, idx = volume
     (tmp_path / "s.toml").write_text(scene_text(aug, idx, image="width = 24\nheight = 20",
-                                                transfer="opacity = [[50, 0.0], [200, 0.9]]"))
+                                                transfer="opacity = [[50, 0.0], [200, 0.9]]",
+                                                render='classification = "pre"'))
     sc = load_scene(tmp_path / "s.toml")
     a = open_augmented(aug)
     views = F.views_for(sc, a)
@@ -197,6 +198,8 @@ def test_a_selection_that_does_not_fit_is_streamed_by_itself(volume, tmp_path, m
     room = 2 * voxels * S.PEAK_PER_VOXEL // 3 + 6    # a slab may take half of it: a third of the selection
     assert S.slabs_needed(sc, views, a, room=room)[0] == 3
     assert S.slabs_needed(sc, views, a, room=1)[0] == len(views[0].order)   # at most a slice per slab
+    post = load_scene(tmp_path / "s.toml", ['render.classification="post"'])    # whole channels: not cut
+    assert S.slabs_needed(post, views, a, room=1) == (1, 0)
 
     def render(name):
         with pytest.raises(SystemExit) as exc:

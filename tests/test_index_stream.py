@@ -111,7 +111,8 @@ def test_working_arrays_stay_within_the_budget(tmp_path, monkeypatch):
     budget, plane = 999, shape[1] * shape[2]
     build_index_file(tmp_path / "a.h5", tmp_path / "s.h5", budget=budget, slab_voxels=3 * plane)
     assert max(seen["planes"]) == 3 and max(seen["window"]) <= budget and max(seen["values"]) <= budget
-    assert len(set(seen["window"])) > 1 and len(seen["values"]) > 10 * len(store._slabs_of(shape, 3 * plane)) // 8
+    assert len(set(seen["window"])) > 1                                         # several windows of bytes
+    assert len(seen["values"]) > len(store._slabs_of(shape, 3 * plane))         # and of values: passes over slabs
     in_memory_file(tmp_path / "m.h5", dens, gm, nrm, "ijk", None)
     assert contents(tmp_path / "s.h5") == contents(tmp_path / "m.h5")
 

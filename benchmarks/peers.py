@@ -650,8 +650,10 @@ def slower_text(results, mem, proc) -> list[str]:
             gi = _pt(rs[1024], "isplat defaults")["ms"] / _pt(rs[256], "isplat defaults")["ms"]
             gv = _pt(rs[1024], "VTK 1")["ms"] / _pt(rs[256], "VTK 1")["ms"]
             L.append(f"- {case}: from 256 to 1024 pixels (16x the pixels) isplat's frame time grows {gi:.1f}x, "
-                     f"VTK's {gv:.1f}x: a ray caster's cost follows pixels times samples, isplat's the voxels it "
-                     f"visits plus the footprints it draws, so isplat's ratio to VTK is "
+                     f"VTK's {gv:.1f}x: a ray caster's cost follows pixels times samples, isplat's the cells of "
+                     f"interest it visits plus the pixels their quads cover in each slice (one sample per pixel "
+                     f"and slice, as many as a ray caster takes at step 1 where the rays cross material), so "
+                     f"isplat's ratio to VTK is "
                      f"{'worst' if rs[256]['paired']['VTK 1'] >= rs[1024]['paired']['VTK 1'] else 'best'} at 256 "
                      f"pixels ({rs[256]['paired']['VTK 1']:.2f}x against {rs[1024]['paired']['VTK 1']:.2f}x at 1024).")
     hid = [r for r in results if r["case"] == "hidden material"]

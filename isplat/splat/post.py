@@ -234,6 +234,9 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
     if u0 >= u1 or v0 >= v1:
         return
     x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, coef, persp, img.shape[1], y0b, y1b)
+    cbase = c * strides[2]
+    drawn = 0
+    newly = 0
     for y in range(y0, y1 + 1):
         xa, xb = x0, x1
         if not persp:
@@ -250,8 +253,8 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
                 v = inv[3] + x * inv[4] + y * inv[5]
             if u < u0 or u >= u1 or v < v0 or v >= v1:
                 continue                    # another square's quad
-            qa = max(int(math.floor(u)), 0)
-            qb = max(int(math.floor(v)), 0)
+            qa = max(int(u + 1.0) - 1, 0)      # floor: u, v >= -0.5 here
+            qb = max(int(v + 1.0) - 1, 0)
             flags = mark[(qb // CELL) * nca + qa // CELL]
             la = qa % CELL
             lb = qb % CELL
@@ -260,9 +263,13 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
                 continue                    # a quad no voxel of interest touches
             if geo.cuts.shape[0] > 0 and _cut_away(u, v, geo.cuts, cs):
                 continue
-            _sample(x, y, max(u - qa, 0.0), max(v - qb, 0.0), c * strides[2] + qa * strides[0] + qb * strides[1],
-                    strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v, density, gm, nrm,
-                    alpha, color, shade, use_gm, use_shade, base, geo, img, sat, tile_sat, et, counts)
+            done = _sample(x, y, max(u - qa, 0.0), max(v - qb, 0.0), cbase + qa * strides[0] + qb * strides[1],
+                           strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v, density, gm,
+                           nrm, alpha, color, shade, use_gm, use_shade, base, geo, img, sat, tile_sat, et)
+            drawn += done > 0
+            newly += done > 1
+    counts[0] += drawn
+    counts[1] += newly
 
 
 @leaf(inline="always")
@@ -291,10 +298,11 @@ def _span(o, d, r, a, b, lo, hi):
 
 @leaf(inline="always")
 def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo,
-            img, sat, tile_sat, et, counts):
+            img, sat, tile_sat, et):
     """One sample: the bilinear density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
     volume's edge, which repeats the edge voxel) at (fu, fv) in it, classified with the tables interpolated
-    between codes, shaded with the corners' Phong factors, composited over pixel (x, y)."""
+    between codes, shaded with the corners' Phong factors, composited over pixel (x, y). Returns 0 when
+    transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity."""
     w00 = (1.0 - fu) * (1.0 - fv)
     w10 = fu * (1.0 - fv)
     w01 = (1.0 - fu) * fv
@@ -310,8 +318,10 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
         g = min(int(w00 * gm[i00] + w10 * gm[i10] + w01 * gm[i01] + w11 * gm[i11] + 0.5), alpha.shape[1] - 1)
     L = alpha[di, g] + f * (alpha[di + 1, g] - alpha[di, g])
     if L == 0.0:
-        return
-    a, _ = _path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
+        return 0
+    a = L                       # orthographic: the table is corrected for the slices' path already
+    if geo.persp:
+        a, _ = _path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
     cr = color[di, 0] + f * (color[di + 1, 0] - color[di, 0])
     cg = color[di, 1] + f * (color[di + 1, 1] - color[di, 1])
     cb = color[di, 2] + f * (color[di + 1, 2] - color[di, 2])
@@ -328,17 +338,17 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
         else:
             cr, cg, cb = cr * s0 + s1, cg * s0 + s1, cb * s0 + s1
     ai = img[y, x, 3]
-    t1 = 1.0 - ai
-    img[y, x, 0] += t1 * cr * a
-    img[y, x, 1] += t1 * cg * a
-    img[y, x, 2] += t1 * cb * a
-    an = ai + t1 * a
+    ta = (1.0 - ai) * a
+    img[y, x, 0] += ta * cr
+    img[y, x, 1] += ta * cg
+    img[y, x, 2] += ta * cb
+    an = ai + ta
     img[y, x, 3] = an
-    counts[0] += 1
     if ai < et and an >= et:
         sat[y, x] = 1
         tile_sat[y // TILE, x // TILE] += 1
-        counts[1] += 1
+        return 2
+    return 1
 
 
 @leaf(inline="always")

@@ -348,8 +348,9 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
     """Read what ``scene`` needs for frames along ``axes`` from its files: only the index blocks of the
     transfer function's intervals (indexed method) and the channels the scene uses (module docstring).
     ``aug``: the scene's augmented file, if already open. ``slices``: keep only these slices of the axes (a
-    slab, :mod:`isplat.slabs`): the decoded blocks are cut first and the channel values of the slab's voxels
-    alone gathered from the augmented file's k-slabs (the index's ``/values`` hold a whole interval's)."""
+    slab, :mod:`isplat.slabs`): only those slices' index blocks are read and decoded (``load_axis(...,
+    slices=)``) and the channel values of the slab's voxels alone gathered from the augmented file's k-slabs
+    (the index's ``/values`` hold a whole interval's)."""
     from .augfile import open_augmented
 
     aug = aug or open_augmented(scene.data.augmented)
@@ -370,7 +371,7 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
             ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
             values = None
             with idx.session():
-                loaded = {ax: idx.load_axis(ax, ivs) for ax in sorted(axes)}
+                loaded = {ax: idx.load_axis(ax, ivs, slices=slices) for ax in sorted(axes)}
                 if idx.has_values and rep.channels and slices is None and not sel.post:
                     values = idx.read_values(rep.channels, ivs)
             rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
@@ -378,10 +379,9 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
                 gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, idx.path)  # noqa: E731
             else:                        # format version 2: the position-ordered channels, in k-slabs
                 gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
-            if slices is not None:       # a slab: its blocks only, its values from the augmented k-slabs
-                from .slabs import restrict_loaded
-                loaded = {ax: restrict_loaded(la, slices) for ax, la in loaded.items()}
-                gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
+            if slices is not None:       # a slab: its blocks only (read so), its values from the augmented k-slabs
+                read = _slab_reader(aug, axes, slices)
+                gather = lambda lo, ch, sh: gather_channels(read, lo, ch, sh)              # noqa: E731
                 if not sel.post:
                     rep.values_from = "none" if not rep.channels else "augmented slabs"
             _select(sel, loaded, gather, str(scene.data.index))
@@ -392,6 +392,28 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
     _needed(sel)
     return sel
+
+
+def _slab_reader(aug, axes, slices):
+    """``read(channel, k0, k1)`` for gathering a slab's values: ``aug.read``, or for a slab of j-slices (rows of
+    every k-plane) the k-planes with only the slab's rows read and the others zero (never gathered), so HDF5
+    reads only the chunks that hold those rows (the channels are chunked by rows of whole i-lines)."""
+    s = np.asarray(list(slices), dtype=np.int64)
+    if "".join(sorted(axes)) != "j" or s.size == 0:
+        return aug.read
+    j0, j1 = int(s.min()), int(s.max()) + 1
+    if j0 < 0 or j1 > aug.shape[1] or j1 - j0 == aug.shape[1]:
+        return aug.read
+    from .augfile import CHANNELS
+    from .fileio import hdf5_errors, open_counted
+
+    def read(ch, k0, k1):
+        out = np.zeros((k1 - k0,) + tuple(aug.shape[1:]), dtype=CHANNELS[ch])
+        with hdf5_errors(aug.path, f"dataset {ch!r}"), open_counted(aug.path, aug.io) as f:
+            out[:, j0:j1] = f[ch][k0:k1, j0:j1]
+        aug.bytes_read += int(out[:, j0:j1].nbytes)
+        return out
+    return read
 
 
 def _needed(sel: Selection) -> None:

@@ -25,20 +25,10 @@ import dataclasses
 import numpy as np
 
 from .errors import IsplatError
+from .index.build import slice_runs
 from .selection import AxisSelection, Selection
 
-
-def slice_runs(slices, n_slices: int) -> list[tuple[int, int]]:
-    """The distinct slice indices of ``slices`` as sorted runs ``[s0, s1)`` of consecutive indices."""
-    s = np.unique(np.asarray(slices, dtype=np.int64))
-    if s.size and (s[0] < 0 or s[-1] >= n_slices):
-        raise IsplatError(f"slab slices {int(s[0])}..{int(s[-1])} outside 0..{n_slices - 1}")
-    if s.size == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(s) != 1) + 1
-    starts = np.r_[s[0], s[breaks]]
-    stops = np.r_[s[breaks - 1] + 1, s[-1] + 1]
-    return [(int(a), int(b)) for a, b in zip(starts, stops)]
+__all__ = ["restrict", "restrict_axis", "restrict_loaded", "render_streamed", "slice_runs"]
 
 
 def _ranges(ptr, ranges):
@@ -88,9 +78,9 @@ def restrict_axis(ax: AxisSelection, slices) -> AxisSelection:
 
 
 def restrict_loaded(la, slices):
-    """A decoded index axis (:class:`isplat.index.store.LoadedAxis`) with only the blocks of ``slices``: what
-    :func:`isplat.selection.select_from_files` selects from and gathers channel values for, when a worker
-    makes just its slab's selection (an index without values, format 2)."""
+    """A decoded index axis (:class:`isplat.index.store.LoadedAxis`) with only the blocks of ``slices``, cut
+    from the whole axis in memory: what ``IndexFile.load_axis(..., slices=)`` reads directly from the file (the
+    tests check one against the other)."""
     runs = slice_runs(slices, la.n_slices)
     rows = _ranges(la.slice_block_ptr, runs)
     return dataclasses.replace(la, slice_block_ptr=_slice_ptr(la.slice_block_ptr, runs, la.n_slices),
@@ -111,6 +101,57 @@ def restrict(sel: Selection, axis: str, slices) -> Selection:
                                report=dataclasses.replace(sel.report))
 
 
+PEAK_PER_VOXEL = 56     # bytes per voxel of interest while a selection is made (docs/scale.md, "Larger than memory")
+ROOM_SHARE = 0.5        # a slab's selection may take this share of the memory left
+
+
+def memory_room() -> int | None:
+    """Bytes this process can still allocate: the machine's available memory and, under an address-space limit
+    (``ulimit -v``, ``prlimit --as``), the address space left below it; None when neither is known."""
+    import resource
+
+    from .output import memory_available
+
+    room = memory_available()
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft != resource.RLIM_INFINITY:
+        try:
+            with open("/proc/self/status") as fh:
+                used = next(int(ln.split()[1]) * 1024 for ln in fh if ln.startswith("VmSize:"))
+        except (OSError, StopIteration, ValueError, IndexError):
+            used = 0
+        left = max(0, int(soft) - used)
+        room = left if room is None else min(room, left)
+    return room
+
+
+def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
+    """``(K, voxels)``: the slabs each of ``views`` (isplat.frame.View) needs so that one slab's selection takes
+    at most ROOM_SHARE of ``room`` (default :func:`memory_room`), from the voxels of interest of the views'
+    principal axes (the index's per-density counts, read from its tables; K = 1 when it fits, and for the full
+    method and post-classification, whose whole channels a slab does not cut)."""
+    from .frame import axes_of
+    from .index import open_index
+    from .transfer import build_luts
+
+    room = memory_room() if room is None else room
+    post = getattr(scene.render, "classification", "pre") == "post"    # reads whole channels: slabs do not cut them
+    if scene.render.method != "indexed" or post or room is None or scene.data.index is None:
+        return 1, 0
+    ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals
+    idx = open_index(scene.data.index)
+    k, most = 1, 0
+    for axis in axes_of(views):
+        if axis not in idx.axes:
+            continue                                # the render names the missing axis
+        counts = idx.voxel_counts(axis)
+        n = int(sum(int(counts[lo:hi + 1].sum()) for lo, hi in ivs))
+        most = max(most, n)
+        need = -(-n * PEAK_PER_VOXEL // max(1, int(room * ROOM_SHARE)))
+        k = max(k, min(int(need), idx.n_slices(axis)))
+    return k, most
+
+
 def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None):
     """Render ``view`` of ``scene`` from its files in ``n_slabs`` slabs front to back, each slab's selection made
     (:func:`isplat.selection.select_from_files` with ``slices=``), rendered over the partial image of the slabs in
@@ -118,9 +159,9 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
     one slab's selection at a time. Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs:
     bytes read added up).
 
-    What is still whole: the full method's channels (read once, kept for every slab); the index blocks of the transfer function's densities along the frame's axis are
-    decoded for each slab before its slices are kept, and for the i and j axes each slab's channel values are
-    gathered from every k-plane (docs/scale.md).
+    Each slab reads and decodes only its slices' index blocks. What is still whole: the full method's channels
+    (read once, kept for every slab); for the i and j axes each slab's channel values are gathered from every
+    k-plane (along j only the slab's rows of each plane), so the channels are read once per slab (docs/scale.md).
     """
     import time
 

@@ -88,7 +88,8 @@ def test_restrict_keeps_every_array_in_order(make_scene, volume):
     assert empty.axes["k"].n_voxels == 0 and empty.axes["k"].block_voxel.tolist() == [0]
 
 
-@pytest.mark.parametrize("axis,slices", [("k", range(3, 8)), ("i", [0, 1, 7, 8, 9]), ("j", []), ("j", range(9))])
+@pytest.mark.parametrize("axis,slices", [("k", range(3, 8)), ("i", [0, 1, 7, 8, 9]), ("j", []), ("j", range(9)),
+                                         ("j", [2, 3, 6])])
 def test_a_slab_selected_from_files_is_the_restricted_whole(make_scene, volume, axis, slices):
     """select_from_files(..., slices=): the decoded blocks cut to the slab, its values gathered from the
     augmented k-slabs: the same arrays as restricting the whole selection (index with values or without), and
@@ -109,7 +110,7 @@ def test_a_slab_selected_from_files_is_the_restricted_whole(make_scene, volume, 
         want = restrict(whole, axis, slices).axes[axis]
         for got, exp in zip(slab.axes[axis].arrays(), want.arrays()):
             assert got.dtype == exp.dtype and np.array_equal(got, exp)
-        if axis == "k" and len(slices) < 12 and index == v2:
+        if axis in "jk" and len(slices) < {"j": 9, "k": 12}[axis] and index == v2:     # only its planes or rows
             assert slab.report.augmented_bytes < whole.report.augmented_bytes
 
 
@@ -172,3 +173,42 @@ def test_cli_slabs_without_a_scheduler_stream_the_same_image(volume, tmp_path):
                              capture_output=True, env=env)
         assert res.returncode == 0, res.stderr
     assert np.array_equal(iio.imread(tmp_path / "one.png"), iio.imread(tmp_path / "slabs.png"))
+
+
+def test_a_selection_that_does_not_fit_is_streamed_by_itself(volume, tmp_path, monkeypatch, capsys):
+    """Without --slabs, a render whose selection would not fit the memory left (here: made small) is rendered in
+    the slabs slabs_needed asks for, says so on stderr, and writes the one-pass image."""
+    import imageio.v3 as iio
+
+    from conftest import scene_text
+    from isplat import slabs as S
+    from isplat.augfile import open_augmented
+    from isplat.cli.main import main
+    from isplat.scene import load_scene
+
+    aug, idx = volume
+    (tmp_path / "s.toml").write_text(scene_text(aug, idx, image="width = 24\nheight = 20",
+                                                transfer="opacity = [[50, 0.0], [200, 0.9]]",
+                                                render='classification = "pre"'))
+    sc = load_scene(tmp_path / "s.toml")
+    a = open_augmented(aug)
+    views = F.views_for(sc, a)
+    k, voxels = S.slabs_needed(sc, views, a, room=10 ** 12)
+    assert k == 1 and voxels > 0
+    room = 2 * voxels * S.PEAK_PER_VOXEL // 3 + 6    # a slab may take half of it: a third of the selection
+    assert S.slabs_needed(sc, views, a, room=room)[0] == 3
+    assert S.slabs_needed(sc, views, a, room=1)[0] == len(views[0].order)   # at most a slice per slab
+    post = load_scene(tmp_path / "s.toml", ['render.classification="post"'])    # whole channels: not cut
+    assert S.slabs_needed(post, views, a, room=1) == (1, 0)
+
+    def render(name):
+        with pytest.raises(SystemExit) as exc:
+            main(["render", str(tmp_path / "s.toml"), "-o", str(tmp_path / name)])
+        assert exc.value.code in (0, None)
+        return iio.imread(tmp_path / name), capsys.readouterr().err
+    one, err = render("one.png")
+    assert "slabs front to back" not in err
+    monkeypatch.setattr(S, "memory_room", lambda: room)
+    streamed, err = render("auto.png")
+    assert "each frame in 3 slabs front to back (--slabs 3)" in err
+    assert np.array_equal(one, streamed)

@@ -30,10 +30,11 @@ log = logging.getLogger(__name__)
               help="Render on Dask (the 'dask' extra): local:N starts N single-threaded worker processes here, "
                    "tcp://HOST:PORT uses a running cluster whose workers see the scene's files. Frames are the "
                    "same as without it. See docs/scale.md.")
-@click.option("--slabs", type=click.IntRange(1, 4096), default=1, metavar="K",
+@click.option("--slabs", type=click.IntRange(1, 4096), default=None, metavar="K",
               help="Split each frame's slices into K slabs: with --scheduler rendered on different workers and "
                    "composited in order; without it rendered front to back here, one slab's selection in memory at "
-                   "a time (for selections larger than memory; the same image). Default 1.")
+                   "a time (the same image). Default: 1, or without --scheduler as many as a selection too large "
+                   "for the memory left needs (said on stderr).")
 @verbose_option("Report on stderr what was read (bytes, channels, axes) and per-view timing and voxel "
                 "counts (same as isplat -v).")
 @click.option("--json", "as_json", is_flag=True, help="Print that report as one JSON object on stdout "
@@ -123,6 +124,9 @@ def _frames(scene, views, scheduler, slabs):
     in this process, in slabs here, or on Dask."""
     from ..renderer import Renderer
 
+    if scheduler is None and slabs is None:
+        slabs = _auto_slabs(scene, views)
+    slabs = slabs or 1
     bar = progress.bar(total=len(views), desc="views", unit="view")
     with bar:
         if scheduler is None and slabs > 1:
@@ -145,6 +149,24 @@ def _frames(scene, views, scheduler, slabs):
         with distributed.connect(scheduler) as client:
             vs = views_for(scene, open_augmented(scene.data.augmented), views)
             yield scene.render.method, distributed.render_views(client, scene, vs, slabs=slabs, bar=bar), None
+
+
+def _auto_slabs(scene, views) -> int:
+    """The slabs a frame needs to fit in the memory left (isplat.slabs.slabs_needed); 1 when it fits."""
+    from ..augfile import open_augmented
+    from ..frame import views_for
+    from ..slabs import PEAK_PER_VOXEL, memory_room, slabs_needed
+
+    room = memory_room()
+    if room is None or scene.render.method != "indexed":
+        return 1
+    aug = open_augmented(scene.data.augmented)
+    k, voxels = slabs_needed(scene, views_for(scene, aug, views), aug, room)
+    if k > 1:
+        log.info(f"isplat render: the selection ({voxels:,} voxels of interest, about "
+                 f"{voxels * PEAK_PER_VOXEL / 2**30:.2f} GiB while it is made) does not fit the "
+                 f"{room / 2**30:.2f} GiB of memory left: each frame in {k} slabs front to back (--slabs {k})")
+    return k
 
 
 def _shrink_finished(rgba, n):

@@ -130,6 +130,19 @@ def parse_ranges(text: str) -> list[tuple[int, int]]:
     return normalize_ranges(ranges)
 
 
+def slice_runs(slices, n_slices: int) -> list[tuple[int, int]]:
+    """The distinct slice indices of ``slices`` as sorted runs ``[s0, s1)`` of consecutive indices."""
+    s = np.unique(np.asarray(slices, dtype=np.int64))
+    if s.size and (s[0] < 0 or s[-1] >= n_slices):
+        raise IsplatError(f"slab slices {int(s[0])}..{int(s[-1])} outside 0..{n_slices - 1}")
+    if s.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(s) != 1) + 1
+    starts = np.r_[s[0], s[breaks]]
+    stops = np.r_[s[breaks - 1] + 1, s[-1] + 1]
+    return [(int(a), int(b)) for a, b in zip(starts, stops)]
+
+
 def ranges_mask(ranges) -> np.ndarray:
     """bool[256], True for the densities inside ``ranges``."""
     m = np.zeros(256, dtype=np.bool_)
@@ -138,9 +151,111 @@ def ranges_mask(ranges) -> np.ndarray:
     return m
 
 
-def _slabs(n_k: int, n_ji: int):
-    step = max(1, SLAB_VOXELS // max(1, n_ji))
+def k_slabs(n_k: int, plane: int, voxels: int = SLAB_VOXELS) -> list[tuple[int, int]]:
+    """Runs ``(k0, k1)`` of whole k-planes of about ``voxels`` voxels (at least one plane) covering ``0 .. n_k``."""
+    step = max(1, int(voxels) // max(1, int(plane)))
     return [(k0, min(n_k, k0 + step)) for k0 in range(0, n_k, step)]
+
+
+@dataclass
+class AxisLayout:
+    """What the measuring pass fixes for one axis: its tables (density-major entries, formats/index.md §4) and
+    where each (density, slice) block starts and ends in the byte stream (``block_start``/``block_end``
+    int64[256, n_slices], 0 for absent blocks)."""
+
+    axis: str
+    n_slices: int
+    n_a: int
+    n_b: int
+    escape_width: int
+    coef: np.ndarray
+    indexed: np.ndarray              # bool[256]
+    present: np.ndarray              # bool[256, n_slices]
+    block_start: np.ndarray
+    block_end: np.ndarray
+    density_entry_ptr: np.ndarray
+    entry_slice: np.ndarray
+    entry_voxel_count: np.ndarray
+    entry_byte_offset: np.ndarray
+
+    @property
+    def n_bytes(self) -> int:
+        return int(self.entry_byte_offset[-1])
+
+    def tables(self, data: np.ndarray | None = None) -> AxisIndex:
+        """The axis as an :class:`AxisIndex` with byte stream ``data`` (empty placeholder when None)."""
+        return AxisIndex(self.axis, self.n_slices, self.n_a, self.n_b, self.escape_width, self.density_entry_ptr,
+                         self.entry_slice, self.entry_voxel_count, self.entry_byte_offset,
+                         np.zeros(0, np.uint8) if data is None else data)
+
+
+def measure_axes(read, shape, axes: str, ranges=None, slabs=None) -> dict[str, AxisLayout]:
+    """One pass over the k-slabs ``read(k0, k1)`` (uint8 planes ``k0:k1`` of a volume of ``shape``) measures
+    every (density, slice) block of each of ``axes``: voxel counts and encoded lengths, hence the tables."""
+    axes = parse_axes(axes)
+    indexed = ranges_mask(ranges)
+    slabs = slabs or k_slabs(shape[0], shape[1] * shape[2])
+    state = {}
+    for a in axes:
+        n_slices, n_a, n_b = axis_geometry(shape, a)
+        ew = escape_width(n_a, n_b)
+        state[a] = (slice_coefficients(shape, a), codec.escape_cost(ew), np.full((n_slices, 256), -1, np.int64),
+                    np.zeros((256, n_slices), np.int64), np.zeros((256, n_slices), np.int64))
+    with progress.bar(total=int(shape[0]), desc=f"index {axes}: measure", unit="slice") as pb:
+        for k0, k1 in slabs:
+            planes = _check_planes(read(k0, k1), k1 - k0, shape)
+            for coef, esc, prev, counts, lengths in state.values():
+                codec.measure_slab(planes, k0, coef, indexed, esc, prev, counts, lengths)
+            pb.update(k1 - k0)
+    out = {}
+    for a, (coef, _, prev, counts, lengths) in state.items():
+        del prev
+        n_slices, n_a, n_b = axis_geometry(shape, a)
+        if int(counts.max(initial=0)) > np.iinfo(np.uint32).max:
+            raise IsplatError("a block holds more than 2^32-1 voxels")
+        present = counts > 0
+        ptr = np.zeros(257, dtype=np.int64)
+        np.cumsum(present.sum(axis=1), out=ptr[1:])
+        s_idx = np.nonzero(present)[1]                      # density-major: by density, then slice
+        offsets = np.zeros(s_idx.size + 1, dtype=np.int64)
+        np.cumsum(lengths[present], out=offsets[1:])
+        start = np.zeros((256, n_slices), np.int64)
+        end = np.zeros((256, n_slices), np.int64)
+        start[present], end[present] = offsets[:-1], offsets[1:]
+        out[a] = AxisLayout(a, n_slices, n_a, n_b, escape_width(n_a, n_b), coef, indexed, present, start, end, ptr,
+                            s_idx.astype(np.uint32), counts[present].astype(np.uint32), offsets)
+    return out
+
+
+def encode_windows(read, shape, layout: AxisLayout, budget: int | None = None, slabs=None):
+    """The byte stream of ``layout``'s axis in windows of at most ``budget`` bytes (None: one window), in order:
+    yields ``(first byte, uint8 window)``. Each window is one pass over the k-slabs ``read(k0, k1)`` that hold
+    a block reaching into it, encoding only the densities whose blocks do (codec.encode_slab keeps the bytes
+    inside the window); along axis k a block lies in one k-plane, so only those planes are read."""
+    lay = layout
+    slabs = slabs or k_slabs(shape[0], shape[1] * shape[2])
+    total = lay.n_bytes
+    width = max(1, total if budget is None else int(budget))
+    prev = np.full((lay.n_slices, 256), -1, np.int64)
+    cursor = np.zeros((256, lay.n_slices), np.int64)
+    with progress.bar(total=int(shape[0]) * -(-total // width), desc=f"index {lay.axis}", unit="slice") as pb:
+        for o0 in range(0, total, width):
+            o1 = min(total, o0 + width)
+            hit = lay.present & (lay.block_start < o1) & (lay.block_end > o0)
+            active = lay.indexed & hit.any(axis=1)
+            planes_hit = hit.any(axis=0) if lay.axis == "k" else None
+            prev.fill(-1)
+            cursor[...] = lay.block_start
+            out = np.empty(o1 - o0, dtype=np.uint8)
+            for k0, k1 in slabs:
+                if planes_hit is None or planes_hit[k0:k1].any():
+                    planes = _check_planes(read(k0, k1), k1 - k0, shape)
+                    codec.encode_slab(planes, k0, lay.coef, active, lay.n_a, lay.escape_width, prev, cursor, out, o0)
+                pb.update(k1 - k0)
+            if not np.array_equal(cursor[hit], lay.block_end[hit]):      # every block of the window filled exactly
+                raise AssertionError("index encoder: block lengths disagree between passes")
+            yield o0, out
+            del out                                  # the caller has written it: one window alive at a time
 
 
 def build_axis(density: np.ndarray, axis: str, ranges=None) -> AxisIndex:
@@ -150,42 +265,17 @@ def build_axis(density: np.ndarray, axis: str, ranges=None) -> AxisIndex:
     density-major layout; the second writes each block's bytes in place.
     """
     density = _check_density(density)
-    n_slices, n_a, n_b = axis_geometry(density.shape, axis)
-    ew = escape_width(n_a, n_b)
-    coef = slice_coefficients(density.shape, axis)
-    indexed = ranges_mask(ranges)
-    slabs = _slabs(density.shape[0], density.shape[1] * density.shape[2])
+    read = lambda k0, k1: density[k0:k1]        # noqa: E731
+    lay = measure_axes(read, density.shape, axis, ranges)[axis]
+    parts = [w for _, w in encode_windows(read, density.shape, lay)]
+    return lay.tables(parts[0] if parts else np.zeros(0, np.uint8))
 
-    prev = np.full((n_slices, 256), -1, dtype=np.int64)
-    counts = np.zeros((256, n_slices), dtype=np.int64)
-    lengths = np.zeros((256, n_slices), dtype=np.int64)
-    with progress.bar(total=2 * density.shape[0], desc=f"index {axis}", unit="slice") as pb:
-        for k0, k1 in slabs:
-            codec.measure_slab(density, k0, k1, coef, indexed, codec.escape_cost(ew), prev, counts, lengths)
-            pb.update(k1 - k0)
 
-        # density-major entries: by density, then by slice (formats/index.md)
-        present = counts > 0
-        ptr = np.zeros(257, dtype=np.int64)
-        np.cumsum(present.sum(axis=1), out=ptr[1:])
-        d_idx, s_idx = np.nonzero(present)
-        del d_idx
-        offsets = np.zeros(s_idx.size + 1, dtype=np.int64)
-        np.cumsum(lengths[present], out=offsets[1:])
-        if int(counts.max(initial=0)) > np.iinfo(np.uint32).max:
-            raise IsplatError("a block holds more than 2^32-1 voxels")
-        cursor = np.zeros((256, n_slices), dtype=np.int64)
-        cursor[present] = offsets[:-1]
-        out = np.empty(int(offsets[-1]), dtype=np.uint8)
-
-        prev.fill(-1)
-        for k0, k1 in slabs:
-            codec.encode_slab(density, k0, k1, coef, indexed, n_a, ew, prev, cursor, out)
-            pb.update(k1 - k0)
-    if not np.array_equal(cursor[present], offsets[1:]):   # every block filled exactly
-        raise AssertionError("index encoder: block lengths disagree between passes")
-    return AxisIndex(axis, n_slices, n_a, n_b, ew, ptr, s_idx.astype(np.uint32),
-                     counts[present].astype(np.uint32), offsets, out)
+def _check_planes(planes, n: int, shape) -> np.ndarray:
+    planes = np.ascontiguousarray(planes)
+    if planes.dtype != np.uint8 or planes.shape != (n, shape[1], shape[2]):
+        raise IsplatError(f"density slab of shape {planes.shape} ({planes.dtype}), expected {(n, *shape[1:])} uint8")
+    return planes
 
 
 @dataclass

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import jit
+from ..jit import jit, leaf
 
 # decoder status codes
 OK = 0
@@ -46,17 +46,19 @@ def _slice_pos(coef, k, j, i):
 
 
 @jit
-def measure_slab(density, k0, k1, coef, indexed, esc, prev, counts, lengths):
-    """Add the voxel counts and encoded byte lengths of slab ``k0:k1`` to ``counts``/``lengths[d, s]``.
+def measure_slab(planes, k0, coef, indexed, esc, prev, counts, lengths):
+    """Add the voxel counts and encoded byte lengths of k-planes ``planes`` (k-planes ``k0, k0 + 1, ...`` of the
+    volume) to ``counts``/``lengths[d, s]``.
 
     ``prev[s, d]`` (start at -1) carries the last position across slabs; ``esc`` is the escape's byte cost.
     """
-    n_j = density.shape[1]
-    n_i = density.shape[2]
-    for k in range(k0, k1):
+    n_j = planes.shape[1]
+    n_i = planes.shape[2]
+    for t in range(planes.shape[0]):
+        k = k0 + t
         for j in range(n_j):
             for i in range(n_i):
-                d = density[k, j, i]
+                d = planes[t, j, i]
                 if not indexed[d]:
                     continue
                 s, p = _slice_pos(coef, k, j, i)
@@ -69,37 +71,48 @@ def measure_slab(density, k0, k1, coef, indexed, esc, prev, counts, lengths):
                 counts[d, s] += 1
 
 
+@leaf
+def _put(out, o0, c, value):
+    """Byte ``c`` of the stream into window ``out`` (stream bytes ``o0 .. o0 + len(out) - 1``), if inside."""
+    w = c - o0
+    if 0 <= w < out.shape[0]:
+        out[w] = value
+
+
 @jit
-def encode_slab(density, k0, k1, coef, indexed, n_a, escape_width, prev, cursor, out):
-    """Encode slab ``k0:k1`` into ``out``: the next byte of block (d, s) goes to ``out[cursor[d, s]]`` (§2.3)."""
-    n_j = density.shape[1]
-    n_i = density.shape[2]
-    for k in range(k0, k1):
+def encode_slab(planes, k0, coef, indexed, n_a, escape_width, prev, cursor, out, o0):
+    """Encode k-planes ``planes`` (``k0, k0 + 1, ...``): the next byte of block (d, s) is stream byte
+    ``cursor[d, s]`` (§2.3), stored at ``out[cursor[d, s] - o0]`` when it falls in the window ``out`` (stream
+    bytes ``o0 .. o0 + len(out) - 1``) and skipped otherwise; ``prev`` and ``cursor`` advance either way."""
+    n_j = planes.shape[1]
+    n_i = planes.shape[2]
+    for t in range(planes.shape[0]):
+        k = k0 + t
         for j in range(n_j):
             for i in range(n_i):
-                d = density[k, j, i]
+                d = planes[t, j, i]
                 if not indexed[d]:
                     continue
                 s, p = _slice_pos(coef, k, j, i)
                 off = p - prev[s, d]
                 c = cursor[d, s]
                 if off <= 255:
-                    out[c] = off
+                    _put(out, o0, c, off)
                     c += 1
                 else:
                     # §2.3: a zero byte, then the explicit in-slice coordinates
                     a = p % n_a
                     b = p // n_a
-                    out[c] = 0
+                    _put(out, o0, c, 0)
                     if escape_width == 1:
-                        out[c + 1] = a
-                        out[c + 2] = b
+                        _put(out, o0, c + 1, a)
+                        _put(out, o0, c + 2, b)
                         c += 3
                     else:
-                        out[c + 1] = a & 0xFF
-                        out[c + 2] = a >> 8
-                        out[c + 3] = b & 0xFF
-                        out[c + 4] = b >> 8
+                        _put(out, o0, c + 1, a & 0xFF)
+                        _put(out, o0, c + 2, a >> 8)
+                        _put(out, o0, c + 3, b & 0xFF)
+                        _put(out, o0, c + 4, b >> 8)
                         c += 5
                 cursor[d, s] = c
                 prev[s, d] = p

@@ -20,8 +20,8 @@ from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check
                       check_string_attrs, create_checked_dataset, create_group, create_hdf5, hdf5_errors,
                       open_counted, open_hdf5, set_string_attr)
 from . import codec
-from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry, build_axis, escape_width,
-                    normalize_ranges, parse_axes, ranges_mask)
+from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry, encode_windows, escape_width,
+                    k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)
 
 FORMAT_NAME = "isplat-index"
 FORMAT_VERSION = 3              # version 3: + /values, the indexed voxels' channel values in density order
@@ -48,6 +48,7 @@ BYTES_CHUNK = 1 << 12           # bytes (the encoded blocks)
 VALUE_CHUNK = 1 << 12           # gradient_magnitude, normal under /values
 PTR_CHUNK = 257 * 8             # density_entry_ptr, density_voxel_ptr: whole
 VALUE_SLAB_VOXELS = 1 << 20     # voxels per k-slab when copying values from the augmented file
+BUILD_BUDGET = 1 << 29          # bytes of working arrays for isplat index: one window of an axis's bytes or values
 
 
 # ----------------------------------------------------------------------------------------------- write
@@ -64,7 +65,9 @@ def _write_root(f: h5py.File, shape, sha: str, ranges, version: int = FORMAT_VER
     create_group(f, "axes")
 
 
-def _write_axis(f: h5py.File, ax: AxisIndex) -> None:
+def _write_axis(f: h5py.File, ax: AxisIndex, n_bytes: int | None = None):
+    """Write axis ``ax`` under ``/axes/<axis>``; with ``n_bytes`` its ``bytes`` dataset is made that long and
+    left for the caller to fill (returned), else ``ax.bytes`` is written."""
     g = create_group(f["axes"], ax.axis)
     set_string_attr(g, "axis", ax.axis)
     g.attrs["n_slices"] = np.int64(ax.n_slices)
@@ -72,13 +75,19 @@ def _write_axis(f: h5py.File, ax: AxisIndex) -> None:
     g.attrs["n_a"] = np.int64(ax.n_a)
     g.attrs["n_b"] = np.int64(ax.n_b)
     g.attrs["escape_width"] = np.int64(ax.escape_width)
+    filled_later = None
     for name, dt in DATASET_DTYPES.items():
         # chunked with the Fletcher-32 checksum filter, little-endian (formats/index.md §1)
         data = np.ascontiguousarray(getattr(ax, name), dtype=dt)
+        shape = (int(n_bytes),) if name == "bytes" and n_bytes is not None else data.shape
         # small chunks: a load reads single rows of entry_byte_offset and row ranges, each rounded out to chunks
-        ds = create_checked_dataset(g, name, data.shape, dt, target=BYTES_CHUNK if name == "bytes" else
+        ds = create_checked_dataset(g, name, shape, dt, target=BYTES_CHUNK if name == "bytes" else
                                     PTR_CHUNK if name == "density_entry_ptr" else TABLE_CHUNK)
-        write_in_pieces(ds, data)
+        if name == "bytes" and n_bytes is not None:
+            filled_later = ds
+        else:
+            write_in_pieces(ds, data)
+    return filled_later
 
 
 WRITE_CHUNKS = 1024     # chunks per write call: HDF5 keeps a selection per chunk a write touches (~3 KiB each)
@@ -125,57 +134,79 @@ def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, r
 
 
 def _slabs_of(shape, voxels: int = VALUE_SLAB_VOXELS):
-    plane = int(shape[1]) * int(shape[2])
-    step = max(1, voxels // max(1, plane))
-    return [(k0, min(int(shape[0]), k0 + step)) for k0 in range(0, int(shape[0]), step)]
+    return k_slabs(int(shape[0]), int(shape[1]) * int(shape[2]), voxels)
 
 
-def copy_values(f: h5py.File, aug, density: np.ndarray, ranges, budget: int | None = None,
+@contextlib.contextmanager
+def _channel_reader(aug, density: np.ndarray | None = None):
+    """``read(channel, k0, k1)``: k-planes of the augmented file ``aug`` (an open, validated
+    :class:`isplat.augfile.AugmentedVolume`) through one open handle; the density from ``density`` when given."""
+    from ..augfile import CHANNELS
+
+    with hdf5_errors(aug.path, "open"):
+        src = h5py.File(aug.path, "r")
+    try:
+        def read(ch, k0, k1):
+            if ch == "density" and density is not None:
+                return density[k0:k1]
+            with hdf5_errors(aug.path, f"dataset {ch!r} [{k0}:{k1}]"):
+                return np.ascontiguousarray(src[ch][k0:k1], dtype=CHANNELS[ch])
+        yield read
+    finally:
+        src.close()
+
+
+def copy_values(f: h5py.File, aug, density: np.ndarray | None, ranges, budget: int | None = None,
                 slab_voxels: int = VALUE_SLAB_VOXELS) -> None:
-    """Write ``/values`` of open index ``f`` from augmented volume ``aug`` (its ``density`` in memory).
+    """Write ``/values`` of open index ``f`` from augmented volume ``aug`` (its ``density`` read slab by slab
+    from the file, or taken from ``density`` when given).
 
     The rows (density-major, then by position) are filled in windows of at most ``budget`` bytes of values
-    (default: the size of the density channel, so this holds no more than the density already in memory);
-    each window is one pass over the k-slabs (of about ``slab_voxels``) that hold some of its rows, reading
-    their channel slabs; a compiled counting scatter puts each slab's values in place. Written in pieces of
-    WRITE_CHUNKS chunks, so the peak stays that of the axes' build (docs/selective-read.md measures it)."""
+    (default BUILD_BUDGET); each window is one pass over the k-slabs (of about ``slab_voxels``) that hold some
+    of its rows, reading their channel slabs; a compiled counting scatter puts each slab's values in place.
+    Written in pieces of WRITE_CHUNKS chunks. Memory: one window and one slab of each channel."""
     indexed = ranges_mask(ranges)
-    slabs = _slabs_of(density.shape, slab_voxels)
+    slabs = _slabs_of(aug.shape, slab_voxels)
     per_slab = np.zeros((len(slabs), 256), dtype=np.int64)
-    for n, (k0, k1) in enumerate(slabs):
-        per_slab[n] = np.bincount(density[k0:k1].reshape(-1), minlength=256)
-    per_slab[:, ~indexed] = 0
-    ptr = np.zeros(257, dtype=np.int64)
-    np.cumsum(per_slab.sum(axis=0), out=ptr[1:])
-    # first row of each (slab, density): the density's start plus the voxels of earlier slabs
-    first = ptr[:-1] + np.cumsum(per_slab, axis=0) - per_slab
-    _, (ds_gm, ds_nrm) = _values_group(f, ptr, aug.spacing_ijk, aug.gradient_magnitude_scale)
-    total = int(ptr[256])
-    budget = max(1 << 24, int(density.nbytes)) if budget is None else int(budget)
-    width = max(1, budget // 3)                     # 1 + 2 bytes of values per row
-    with progress.bar(total=total, desc="index values", unit="voxel") as pb:
-        for r0 in range(0, total, width):
-            r1 = min(total, r0 + width)
-            gm = np.empty(r1 - r0, dtype=np.uint8)
-            nrm = np.empty(r1 - r0, dtype=np.uint16)
-            for n, (k0, k1) in enumerate(slabs):
-                hit = (per_slab[n] > 0) & (first[n] < r1) & (first[n] + per_slab[n] > r0)
-                if hit.any():
-                    codec.scatter_values(density[k0:k1].reshape(-1),
-                                         aug.read("gradient_magnitude", k0, k1).reshape(-1),
-                                         aug.read("normal", k0, k1).reshape(-1), indexed, first[n].copy(), r0, r1,
-                                         gm, nrm)
-            write_in_pieces(ds_gm, gm, r0)
-            write_in_pieces(ds_nrm, nrm, r0)
-            pb.update(r1 - r0)
-            del gm, nrm
+    with _channel_reader(aug, density) as read:
+        for n, (k0, k1) in enumerate(slabs):
+            per_slab[n] = np.bincount(read("density", k0, k1).reshape(-1), minlength=256)
+        per_slab[:, ~indexed] = 0
+        ptr = np.zeros(257, dtype=np.int64)
+        np.cumsum(per_slab.sum(axis=0), out=ptr[1:])
+        # first row of each (slab, density): the density's start plus the voxels of earlier slabs
+        first = ptr[:-1] + np.cumsum(per_slab, axis=0) - per_slab
+        _, (ds_gm, ds_nrm) = _values_group(f, ptr, aug.spacing_ijk, aug.gradient_magnitude_scale)
+        total = int(ptr[256])
+        width = max(1, (BUILD_BUDGET if budget is None else int(budget)) // 3)    # 1 + 2 bytes of values per row
+        with progress.bar(total=total, desc="index values", unit="voxel") as pb:
+            for r0 in range(0, total, width):
+                r1 = min(total, r0 + width)
+                gm = np.empty(r1 - r0, dtype=np.uint8)
+                nrm = np.empty(r1 - r0, dtype=np.uint16)
+                for n, (k0, k1) in enumerate(slabs):
+                    hit = (per_slab[n] > 0) & (first[n] < r1) & (first[n] + per_slab[n] > r0)
+                    if hit.any():
+                        codec.scatter_values(read("density", k0, k1).reshape(-1),
+                                             read("gradient_magnitude", k0, k1).reshape(-1),
+                                             read("normal", k0, k1).reshape(-1), indexed & hit, first[n].copy(),
+                                             r0, r1, gm, nrm)
+                write_in_pieces(ds_gm, gm, r0)
+                write_in_pieces(ds_nrm, nrm, r0)
+                pb.update(r1 - r0)
+                del gm, nrm
 
 
 def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False,
-                     values: bool = True) -> Path:
-    """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), one axis at a time,
-    with the indexed voxels' channel values in density order (formats/index.md §9); ``values=False`` writes
-    format version 2 (no values), as isplat did before version 3."""
+                     values: bool = True, budget: int = BUILD_BUDGET, slab_voxels: int | None = None) -> Path:
+    """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), with the indexed
+    voxels' channel values in density order (formats/index.md §9); ``values=False`` writes format version 2
+    (no values), as isplat did before version 3.
+
+    Streams: the density is read in k-slabs (of about ``slab_voxels``), never whole. One pass measures every
+    axis's blocks (which fixes the tables); then each axis's byte stream is encoded and written in windows of
+    at most ``budget`` bytes, one pass over the slabs per window (docs/design.md, "isplat index streams"), and
+    the values likewise. The file equals that of :func:`write_index` on the in-memory build."""
     from ..augfile import open_augmented
 
     axes = parse_axes(axes)
@@ -183,16 +214,23 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
     aug = open_augmented(aug_path)
     for a in axes:
         escape_width(*axis_geometry(aug.shape, a)[1:])     # refuse impossible sizes before any work
+    slabs = k_slabs(aug.shape[0], aug.shape[1] * aug.shape[2], **({} if slab_voxels is None else
+                                                                   {"voxels": slab_voxels}))
     with atomic_output(out_path, force) as tmp:
-        density = aug.read("density")
-        with create_hdf5(tmp) as f:
+        with create_hdf5(tmp) as f, _channel_reader(aug) as read:
             _write_root(f, aug.shape, aug.density_sha256, ranges, FORMAT_VERSION if values else 2)
             if values:
-                copy_values(f, aug, density, ranges)
+                copy_values(f, aug, None, ranges, budget, **({} if slab_voxels is None else
+                                                            {"slab_voxels": slab_voxels}))
+            dens = lambda k0, k1: read("density", k0, k1)      # noqa: E731
+            layouts = measure_axes(dens, aug.shape, axes, ranges, slabs)
             for a in axes:
-                ax = build_axis(density, a, ranges)
-                _write_axis(f, ax)
-                del ax
+                lay = layouts.pop(a)
+                ds = _write_axis(f, lay.tables(), lay.n_bytes)
+                for o0, window in encode_windows(dens, aug.shape, lay, budget, slabs):
+                    write_in_pieces(ds, window, o0)
+                    del window                           # before the next window is made
+                del lay
     return Path(out_path)
 
 
@@ -437,7 +475,7 @@ class IndexFile:
                     total += rows + (8 if verify_offsets else 16) + max(0, int(o1) - int(o0))
         return total
 
-    def load_axis(self, axis: str, intervals, verify_offsets: bool = False) -> LoadedAxis:
+    def load_axis(self, axis: str, intervals, verify_offsets: bool = False, slices=None) -> LoadedAxis:
         """Read and decode the blocks of ``axis`` whose densities fall in inclusive ``intervals``.
 
         Per interval (§2.2: the densities of interest are contiguous, so are their entries and blocks): one
@@ -445,20 +483,21 @@ class IndexFile:
         ``entry_byte_offset``, and one read of the byte range. Block boundaries inside the range follow from
         the counts; ``verify_offsets=True`` also reads every row of ``entry_byte_offset`` and checks each
         block against it.
+
+        ``slices`` (slice indices, e.g. a slab of a frame): only the blocks of those slices are read and decoded
+        (other slices hold none, their numbering kept). The interval's ``entry_slice`` rows are read and checked
+        first; each run of rows whose slices are wanted (per density, the slices of a run of consecutive slice
+        indices) is then read as an interval is: its counts, two end offsets and one byte range.
         """
         m = self._axis(axis)
         ivs = self._intervals(intervals)
+        runs = None if slices is None else slice_runs(slices, m.n_slices)
         before = self.bytes_read
         dens_l, sl_l, cnt_l, st_l, en_l, buf_l = [], [], [], [], [], []
         base = 0
         with self._open(axis) as g:
             ptr = self._read_ptr(g, axis)
-            for lo, hi in ivs:
-                r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
-                if r1 == r0:
-                    continue
-                dens = np.repeat(np.arange(lo, hi + 1, dtype=np.int64), np.diff(ptr[lo:hi + 2]))
-                sl = self._read(g, "entry_slice", r0, r1).astype(np.int64)
+            for r0, r1, dens, sl in self._pieces(g, axis, m, ptr, ivs, runs):
                 cnt = self._read(g, "entry_voxel_count", r0, r1).astype(np.int64)
                 if verify_offsets:
                     off = self._read(g, "entry_byte_offset", r0, r1 + 1)
@@ -508,6 +547,35 @@ class IndexFile:
                 first += n
         return LoadedAxis(axis, m.n_slices, m.n_a, m.n_b, slice_block_ptr, dens[order].astype(np.uint8),
                           block_voxel_ptr, positions, self.bytes_read - before, ivs)
+
+    def _pieces(self, g, axis, m: _AxisMeta, ptr, ivs, runs):
+        """``(r0, r1, densities, slices)`` of each contiguous run of entry rows to load: the whole row range of
+        each interval, or (``runs`` of wanted slices) the runs of its rows whose slices are wanted."""
+        for lo, hi in ivs:
+            r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
+            if r1 == r0:
+                continue
+            dens = np.repeat(np.arange(lo, hi + 1, dtype=np.int64), np.diff(ptr[lo:hi + 2]))
+            sl = self._read(g, "entry_slice", r0, r1).astype(np.int64)
+            if runs is None:
+                yield r0, r1, dens, sl
+                continue
+            self._check_slices(axis, m, dens, sl)
+            keep = np.zeros(sl.size + 2, dtype=np.int8)
+            for s0, s1 in runs:
+                keep[1:-1] |= (sl >= s0) & (sl < s1)
+            edges = np.flatnonzero(np.diff(keep))            # starts and ends of the runs of kept rows
+            for a, b in zip(edges[0::2], edges[1::2]):
+                yield r0 + int(a), r0 + int(b), dens[a:b], sl[a:b]
+
+    def _check_slices(self, axis, m: _AxisMeta, dens, sl):
+        """``entry_slice`` rows below ``n_slices`` and strictly increasing within each density."""
+        bad = np.flatnonzero((sl >= m.n_slices) | (sl < 0))
+        if bad.size:
+            self._fail(axis, f"entry_slice is not below n_slices = {m.n_slices}", dens[bad[0]], sl[bad[0]])
+        bad = np.flatnonzero((dens[1:] == dens[:-1]) & (sl[1:] <= sl[:-1]))
+        if bad.size:
+            self._fail(axis, "entry_slice is not increasing within the density", dens[bad[0] + 1], sl[bad[0] + 1])
 
     def _check_entries(self, axis, m: _AxisMeta, dens, sl, cnt, off):
         """Check one interval's entry rows before compiled code uses them (formats/index.md, Reading)."""

@@ -139,6 +139,7 @@ class Selection:
     axes: dict[str, AxisSelection] = field(default_factory=dict)
     whole: WholeChannels | None = None
     report: LoadReport = field(default_factory=LoadReport)
+    slab: tuple | None = None              # (axis, c0, c1): ``whole`` holds only these slices (post, a slab)
 
     @property
     def empty(self) -> bool:
@@ -155,10 +156,21 @@ class Selection:
         return self.axes[axis].voxels()
 
     def whole_volume(self, axis: str) -> WholeVolume:
-        """The whole channels as the kernels take them, with the flat steps of ``axis``'s slices."""
+        """The whole channels as the kernels take them: the flat steps of ``axis``'s slices, and a fourth entry
+        added to every flat index (not 0 when the channels hold only a slab's slices, ``slab``)."""
         _, n_a, n_b = grid.slice_shape(self.shape, axis)
         w = self.whole
-        return WholeVolume(w.density, w.gradient_magnitude, w.normal, grid.flat_strides(self.shape, axis), n_a, n_b)
+        shape, base = self.shape, 0
+        if self.slab is not None:
+            ax, c0, c1 = self.slab
+            if ax != axis:
+                raise IsplatError(f"this selection holds the channels of slices {c0}..{c1 - 1} of axis {ax}, "
+                                  f"not of axis {axis}")
+            shape = _slab_shape(self.shape, axis, c1 - c0)
+        steps = grid.flat_strides(shape, axis)
+        if self.slab is not None:
+            base = -self.slab[1] * int(steps[2])
+        return WholeVolume(w.density, w.gradient_magnitude, w.normal, np.append(steps, base), n_a, n_b)
 
     def held_bytes(self) -> int:
         """Bytes of volume data held for the frames (selection and gathered values, or whole channels)."""
@@ -358,7 +370,10 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
     sel = _empty_selection(method or scene.render.method, aug.shape, sp, scene, aug.gradient_magnitude_scale)
     sel.report.axes = sorted(axes)
     rep = sel.report
-    if sel.method == "full" or sel.post:
+    if sel.post and sel.method == "indexed" and slices is not None and len(axes) == 1 and not sel.empty:
+        sel.whole, sel.slab = _slab_channels(sel, aug, axes, slices)     # post: only the slab's slices
+        rep.values_from = "slab's channels"
+    elif sel.method == "full" or sel.post:
         sel.whole = _whole(sel, aug.read)
         rep.values_from = "whole channels" if sel.report.channels else "none"
     if sel.method == "indexed":
@@ -392,6 +407,38 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
     _needed(sel)
     return sel
+
+
+def _slab_shape(shape, axis: str, n: int) -> tuple[int, int, int]:
+    """``shape`` (k, j, i) with ``axis``'s extent ``n``."""
+    out = list(shape)
+    out[2 - grid.AXES.index(axis)] = n
+    return tuple(out)
+
+
+def _slab_channels(sel: Selection, aug, axis: str, slices) -> tuple[WholeChannels, tuple]:
+    """Post-classification of a slab: the channels of just the slab's slices (the tent kernel reaches no other
+    slice), read as a block of the file (``[k0:k1]``, ``[:, j0:j1]`` or ``[:, :, i0:i1]``); and the slab."""
+    from .augfile import CHANNELS
+    from .fileio import hdf5_errors, open_counted
+
+    s = np.asarray(list(slices), dtype=np.int64)
+    n = grid.slice_shape(sel.shape, axis)[0]
+    c0, c1 = (int(s.min()), int(s.max()) + 1) if s.size else (0, 0)
+    if c0 < 0 or c1 > n:
+        raise IsplatError(f"{aug.path}: slices {c0}..{c1 - 1} of axis {axis}: the axis has {n}")
+    if "density" not in sel.report.channels:
+        sel.report.channels.insert(0, "density")
+    block = (slice(None),) * (2 - grid.AXES.index(axis)) + (slice(c0, c1),)
+    out = {}
+    with open_counted(aug.path, aug.io) as f:
+        for ch in sel.report.channels:
+            with hdf5_errors(aug.path, f"dataset {ch!r}"):
+                a = np.ascontiguousarray(f[ch][block], dtype=CHANNELS[ch]).reshape(-1)
+            aug.bytes_read += int(a.nbytes)
+            out[ch] = a
+    return (WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16)),
+            (axis, c0, c1))
 
 
 def _slab_reader(aug, axes, slices):

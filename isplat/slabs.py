@@ -128,16 +128,22 @@ def memory_room() -> int | None:
 def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     """``(K, voxels)``: the slabs each of ``views`` (isplat.frame.View) needs so that one slab's selection takes
     at most ROOM_SHARE of ``room`` (default :func:`memory_room`), from the voxels of interest of the views'
-    principal axes (the index's per-density counts, read from its tables; K = 1 when it fits, and for the full
-    method and post-classification, whose whole channels a slab does not cut)."""
+    principal axes (the index's per-density counts, read from its tables) and, post-classified, the channels of
+    the volume, which slabs cut too (K = 1 when it fits, and for the full method, whose whole channels a slab
+    does not cut)."""
     from .frame import axes_of
     from .index import open_index
     from .transfer import build_luts
 
     room = memory_room() if room is None else room
-    post = getattr(scene.render, "classification", "pre") == "post"    # reads whole channels: slabs do not cut them
-    if scene.render.method != "indexed" or post or room is None or scene.data.index is None:
+    if scene.render.method != "indexed" or room is None or scene.data.index is None:
         return 1, 0
+    # post-classification also holds the slab's channels: density, and normals (2 B) when shaded, gradient
+    # magnitudes when used
+    post = scene.render.classification == "post"
+    per_voxel = (1 + (2 if scene.shading.enabled else 0) + (1 if scene.transfer.gradient_opacity else 0)) if post \
+        else 0
+    whole = int(np.prod(aug.shape)) * per_voxel
     ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals
     idx = open_index(scene.data.index)
     k, most = 1, 0
@@ -147,7 +153,7 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
         counts = idx.voxel_counts(axis)
         n = int(sum(int(counts[lo:hi + 1].sum()) for lo, hi in ivs))
         most = max(most, n)
-        need = -(-n * PEAK_PER_VOXEL // max(1, int(room * ROOM_SHARE)))
+        need = -(-(n * PEAK_PER_VOXEL + whole) // max(1, int(room * ROOM_SHARE)))
         k = max(k, min(int(need), idx.n_slices(axis)))
     return k, most
 

@@ -6,6 +6,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from conftest import write_volume
 from isplat import frame as F
+from isplat import grid
 from isplat.errors import IsplatError
 from isplat.selection import Selection, select_from_files
 from isplat.slabs import restrict, slice_runs
@@ -198,8 +199,13 @@ def test_a_selection_that_does_not_fit_is_streamed_by_itself(volume, tmp_path, m
     room = 2 * voxels * S.PEAK_PER_VOXEL // 3 + 6    # a slab may take half of it: a third of the selection
     assert S.slabs_needed(sc, views, a, room=room)[0] == 3
     assert S.slabs_needed(sc, views, a, room=1)[0] == len(views[0].order)   # at most a slice per slab
-    post = load_scene(tmp_path / "s.toml", ['render.classification="post"'])    # whole channels: not cut
-    assert S.slabs_needed(post, views, a, room=1) == (1, 0)
+    # post-classified, a slab holds its slices' channels too (density, and normals when shaded)
+    post = load_scene(tmp_path / "s.toml", ['render.classification="post"'])
+    assert S.slabs_needed(post, views, a, room=10 ** 12)[0] == 1
+    assert S.slabs_needed(post, views, a, room=1)[0] == len(views[0].order)
+    whole = int(np.prod(a.shape)) * (3 if post.shading.enabled else 1)
+    room_post = 2 * (voxels * S.PEAK_PER_VOXEL + whole) // 3 + 6
+    assert S.slabs_needed(post, views, a, room=room_post)[0] == 3
 
     def render(name):
         with pytest.raises(SystemExit) as exc:
@@ -212,3 +218,25 @@ def test_a_selection_that_does_not_fit_is_streamed_by_itself(volume, tmp_path, m
     streamed, err = render("auto.png")
     assert "each frame in 3 slabs front to back (--slabs 3)" in err
     assert np.array_equal(one, streamed)
+
+
+@pytest.mark.parametrize("axis", ["k", "j", "i"])
+def test_a_post_classified_slab_reads_only_its_slices_channels(make_scene, volume, axis):
+    """Post-classification samples within a slice, so a slab's selection holds the channels of its slices alone
+    (a block of the file), and its frame is the one-pass frame's slab."""
+    sc = scene(make_scene, volume, "orthographic", "azimuth = 20\nelevation = 10", et=1.0)
+    whole = select_from_files(sc, axis)
+    n = whole.whole_volume(axis)
+    slab = select_from_files(sc, axis, slices=range(2, 5))
+    assert slab.slab == (axis, 2, 5) and whole.slab is None
+    assert slab.report.augmented_bytes * 2 < whole.report.augmented_bytes
+    per_slice = whole.whole.density.size // grid.slice_shape(whole.shape, axis)[0]
+    assert slab.whole.density.size == 3 * per_slice
+    w = slab.whole_volume(axis)
+    # the flat index of voxel (a, b) of slice c reads the same density in both
+    for c, a_, b_ in [(2, 0, 0), (4, n.n_a - 1, n.n_b - 1), (3, 1, 2)]:
+        fw = c * n.strides[2] + a_ * n.strides[0] + b_ * n.strides[1] + n.strides[3]
+        fs = c * w.strides[2] + a_ * w.strides[0] + b_ * w.strides[1] + w.strides[3]
+        assert whole.whole.density[fw] == slab.whole.density[fs]
+    with pytest.raises(IsplatError, match="not of axis"):
+        slab.whole_volume("k" if axis != "k" else "i")

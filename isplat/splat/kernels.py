@@ -63,7 +63,9 @@ IndexedVoxels.__doc__ = """One axis of a selection, in the hierarchy of :mod:`is
 blocks, cells, voxels), with the gathered channel values ``gm`` (gradient magnitude codes) and ``nrm`` (normal
 codes) per voxel, empty when unused."""
 WholeVolume = namedtuple("WholeVolume", "density gm nrm strides n_a n_b")
-WholeVolume.__doc__ = """Whole channels, flat ``[k, j, i]`` (full method); ``strides``: flat steps along a, b, c."""
+WholeVolume.__doc__ = """Whole channels, flat ``[k, j, i]`` (full method, post-classification); ``strides``: flat
+steps along a, b, c and an offset added to every flat index (post-classification of a slab whose channels hold
+only its slices; 0 otherwise)."""
 Classify = namedtuple("Classify", "alpha color shade use_gm use_shade")
 Classify.__doc__ = """``alpha`` float[256, G]: opacity per (density, gradient code), corrected for the slice's
 path length (orthographic) or as ``log1p(-alpha)`` (perspective); ``color`` float32[256, 3]; ``shade``

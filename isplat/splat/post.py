@@ -234,7 +234,7 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
     if u0 >= u1 or v0 >= v1:
         return
     x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, coef, persp, img.shape[1], y0b, y1b)
-    cbase = c * strides[2]
+    cbase = c * strides[2] + strides[3]         # strides[3]: the channels may hold a slab's slices only
     drawn = 0
     newly = 0
     for y in range(y0, y1 + 1):

@@ -119,32 +119,47 @@ def render_indexed(order, o0, bins, vox, cls, geo, fp, buf, bands):
 def render_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
     """Render the slices ``order`` (front to back) of the whole volume ``vox`` into ``buf.img``: every voxel of
     every slice is classified (the no-index baseline), in the hierarchy the index's selection has."""
-    n_a, n_b = vox.n_a, vox.n_b
-    nra = (n_a + REGION - 1) // REGION
-    ng = nra * ((n_b + REGION - 1) // REGION)
-    m = n_a * n_b
-    hier = (np.empty(ng, np.int32), np.empty(ng + 1, np.int64), np.empty(ng * 16, np.uint8),
-            np.empty(ng * 16 + 1, np.int64), np.empty(ng * 16 + 1, np.int64), np.empty(ng * KEYS, np.uint8),
-            np.empty(ng * KEYS, np.uint8), np.empty(m, np.uint8), np.empty(m, np.uint8))
-    index = np.empty(m, np.int64)
-    all_regions = np.arange(ng)
-    wanted = np.empty(ng, np.bool_)
-    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
+    scratch = full_scratch(vox.n_a, vox.n_b)
+    hier, index, all_regions, _ = scratch
     for bi in bands.mine:
         band = _band(bi, bands, buf)
         for oi in range(order.shape[0]):
             if _band_saturated(band):
                 break
             c = order[oi]
-            # a band classifies only the regions whose footprints can reach its rows
-            box_args = _box_args(n_a, n_b, _slice_bases(c, geo, cs), geo, fp, buf, band, False)
-            for rid in range(ng):
-                wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4],
-                                          buf.sat, False)
-            n_regions = _full_slice(c, vox, cls, hier, index, wanted)
-            buf.stats[bi, 0] += m
-            _render_slice(c, all_regions, 0, n_regions, hier, (vox.gm, vox.nrm, index, False), n_a, n_b, cls,
+            n_regions = full_slice_regions(c, vox, cls, geo, fp, buf, band, scratch)
+            _render_slice(c, all_regions, 0, n_regions, hier, (vox.gm, vox.nrm, index, False), vox.n_a, vox.n_b, cls,
                           geo, fp, buf, band)
+
+
+@jit
+def full_scratch(n_a, n_b):
+    """The full method's scratch for a slice of ``n_a`` x ``n_b`` voxels: the hierarchy's arrays (as
+    :data:`IndexedVoxels` has them), the voxels' flat positions, every region's id and the regions wanted."""
+    nra = (n_a + REGION - 1) // REGION
+    ng = nra * ((n_b + REGION - 1) // REGION)
+    m = n_a * n_b
+    hier = (np.empty(ng, np.int32), np.empty(ng + 1, np.int64), np.empty(ng * 16, np.uint8),
+            np.empty(ng * 16 + 1, np.int64), np.empty(ng * 16 + 1, np.int64), np.empty(ng * KEYS, np.uint8),
+            np.empty(ng * KEYS, np.uint8), np.empty(m, np.uint8), np.empty(m, np.uint8))
+    return hier, np.empty(m, np.int64), np.arange(ng), np.empty(ng, np.bool_)
+
+
+@jit
+def full_slice_regions(c, vox, cls, geo, fp, buf, band, scratch):
+    """Stage 1 of the full method for slice ``c`` and one band: every voxel of the regions whose footprints can
+    reach the band's rows classified, those not transparent put in the hierarchy (``scratch``,
+    :func:`full_scratch`); returns the number of regions."""
+    hier, index, _, wanted = scratch
+    n_a, n_b = vox.n_a, vox.n_b
+    nra = (n_a + REGION - 1) // REGION
+    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
+    box_args = _box_args(n_a, n_b, _slice_bases(c, geo, cs), geo, fp, buf, band, False)
+    for rid in range(wanted.shape[0]):
+        wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4], buf.sat,
+                                  False)
+    buf.stats[band[0], 0] += n_a * n_b
+    return _full_slice(c, vox, cls, hier, index, wanted)
 
 
 @jit

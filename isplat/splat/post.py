@@ -38,8 +38,8 @@ import numpy as np
 from ..jit import jit, leaf
 from .composite import TILE
 from .kernels import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, _band, _band_saturated, _box_args, _build_sat,
-                      _cut_away, _full_slice, _hidden, _path_alpha, _slice_bases, _visible_cells)
-from .select import BLOCK, CELL, KEYS, REGION
+                      _cut_away, _path_alpha, _slice_bases, _visible_cells, full_scratch, full_slice_regions)
+from .select import BLOCK, CELL
 
 SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (scan_unit)
 
@@ -79,32 +79,18 @@ def render_post_indexed(order, o0, bins, vox, cls, geo, fp, buf, bands):
 @jit
 def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
     """As :func:`render_post_indexed` without an index (``vox.index`` None): every voxel of every slice is
-    classified to find the voxels of interest."""
+    classified to find the voxels of interest (:func:`isplat.splat.kernels.full_slice_regions`)."""
     whole = vox.whole
-    n_a, n_b = whole.n_a, whole.n_b
-    nra = (n_a + REGION - 1) // REGION
-    ng = nra * ((n_b + REGION - 1) // REGION)
-    m = n_a * n_b
-    hier = (np.empty(ng, np.int32), np.empty(ng + 1, np.int64), np.empty(ng * 16, np.uint8),
-            np.empty(ng * 16 + 1, np.int64), np.empty(ng * 16 + 1, np.int64), np.empty(ng * KEYS, np.uint8),
-            np.empty(ng * KEYS, np.uint8), np.empty(m, np.uint8), np.empty(m, np.uint8))
-    index = np.empty(m, np.int64)
-    all_regions = np.arange(ng)
-    wanted = np.empty(ng, np.bool_)
-    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
-    marks = _marks(n_a, n_b)
+    scratch = full_scratch(whole.n_a, whole.n_b)
+    hier, _, all_regions, _ = scratch
+    marks = _marks(whole.n_a, whole.n_b)
     for bi in bands.mine:
         band = _band(bi, bands, buf)
         for oi in range(order.shape[0]):
             if _band_saturated(band):
                 break
             c = order[oi]
-            box_args = _box_args(n_a, n_b, _slice_bases(c, geo, cs), geo, fp, buf, band, False)
-            for rid in range(ng):
-                wanted[rid] = not _hidden((rid % nra) * REGION, (rid // nra) * REGION, REGION, box_args, band[4],
-                                          buf.sat, False)
-            n_regions = _full_slice(c, whole, cls, hier, index, wanted)
-            buf.stats[bi, 0] += m
+            n_regions = full_slice_regions(c, whole, cls, geo, fp, buf, band, scratch)
             _post_slice(c, all_regions, 0, n_regions, hier[:7], whole, vox.unit, cls, geo, fp, buf, band, marks)
 
 

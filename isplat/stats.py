@@ -390,7 +390,10 @@ def format_table(s: dict) -> str:
         row("channel values from", {"index": "the index (only the voxels of interest)",
                                     "augmented slabs": "the augmented file, in slabs of 8 k-slices (index format "
                                                        "2; rebuild it with isplat index to read only theirs)",
-                                    "whole channels": "the augmented file, whole channels (full method)",
+                                    "whole channels": "the augmented file, whole channels (full method, or "
+                                                      "post-classification: the neighbours of the voxels of "
+                                                      "interest are sampled too)",
+                                    "slab's channels": "the augmented file, the slab's slices of the channels",
                                     "none": "nowhere (no channel needed)"}[ld["values_from"]])
         row("bytes read from the files", f"{_b(ld['file_bytes_read'])} (HDF5's reads: whole chunks with checksums, "
                                          f"and metadata)")
@@ -398,8 +401,8 @@ def format_table(s: dict) -> str:
                             f"+ the index blocks and tables of the intervals)")
         row("read / needed", f"{ld['read_ratio']:.3f}")
         row("held for rendering", f"{_b(ld['held_bytes'])} (selected voxels and their channel values, or "
-                                  f"whole channels for the full method), {ld['held_bytes_per_voxel_of_interest']:.2f} "
-                                  f"B per voxel of interest")
+                                  f"whole channels for the full method and post-classification), "
+                                  f"{ld['held_bytes_per_voxel_of_interest']:.2f} B per voxel of interest")
     width = max(len(k) for k, v in rows if v is not None) + 2
     lines = []
     for k, v in rows:

@@ -42,6 +42,10 @@ from .kernels import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, _band, _band_sa
 from .select import BLOCK, CELL
 
 SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (scan_unit)
+# pixels a square's box and row spans are grown by: the forward projection of the square's corners and the
+# inverse map of each pixel round differently (about 1e-12 of the pixel coordinates); far more than that, far
+# less than a pixel, so the scan visits hardly a pixel outside the square
+SPAN_MARGIN = 1e-4
 
 PostVoxels = namedtuple("PostVoxels", "index whole unit")
 PostVoxels.__doc__ = """``index``: the selection's hierarchy (:data:`isplat.splat.kernels.IndexedVoxels`; None
@@ -211,8 +215,10 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
     u1 = min(float(a0 + unit), n_a - 0.5)
     v0 = -0.5 if b0 == 0 else float(b0)
     v1 = min(float(b0 + unit), n_b - 0.5)
+    every = False                   # every quad of the square is needed: no per-pixel look-up of the flags
     if unit == CELL:
         flags = mark[sq]
+        every = flags & 1 != 0
         if flags & 5 == 0:
             u0 = float(a0 + CELL - 1)
         if flags & 3 == 0:
@@ -241,12 +247,13 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
                 continue                    # another square's quad
             qa = max(int(u + 1.0) - 1, 0)      # floor: u, v >= -0.5 here
             qb = max(int(v + 1.0) - 1, 0)
-            flags = mark[(qb // CELL) * nca + qa // CELL]
-            la = qa % CELL
-            lb = qb % CELL
-            if not (flags & 1 or (la == CELL - 1 and flags & 2) or (lb == CELL - 1 and flags & 4)
-                    or (la == CELL - 1 and lb == CELL - 1 and flags & 8)):
-                continue                    # a quad no voxel of interest touches
+            if not every:
+                flags = mark[(qb // CELL) * nca + qa // CELL]
+                la = qa % CELL
+                lb = qb % CELL
+                if not (flags & 1 or (la == CELL - 1 and flags & 2) or (lb == CELL - 1 and flags & 4)
+                        or (la == CELL - 1 and lb == CELL - 1 and flags & 8)):
+                    continue                # a quad no voxel of interest touches
             if geo.cuts.shape[0] > 0 and _cut_away(u, v, geo.cuts, cs):
                 continue
             done = _sample(x, y, max(u - qa, 0.0), max(v - qb, 0.0), cbase + qa * strides[0] + qb * strides[1],
@@ -261,7 +268,7 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
 @leaf(inline="always")
 def _row_span(y, u0, u1, v0, v1, inv, x0, x1):
     """The pixels of row ``y`` (within [x0, x1]) whose point on the slice plane can lie in [u0, u1) x [v0, v1)
-    (orthographic; one pixel of margin on each side, the exact test is per pixel)."""
+    (orthographic; SPAN_MARGIN pixels of margin on each side for rounding, the exact test is per pixel)."""
     lo, hi = _span(inv[0] + y * inv[2], inv[1], inv[6], u0, u1, float(x0), float(x1))
     lo, hi = _span(inv[3] + y * inv[5], inv[4], inv[7], v0, v1, lo, hi)
     if lo > hi:
@@ -271,12 +278,12 @@ def _row_span(y, u0, u1, v0, v1, inv, x0, x1):
 
 @leaf(inline="always")
 def _span(o, d, r, a, b, lo, hi):
-    """[lo, hi] cut to the x where ``o + x d`` lies in [a, b) (``r = 1 / d``, 0 when d is about 0), with one
-    pixel of margin."""
+    """[lo, hi] cut to the x where ``o + x d`` lies in [a, b) (``r = 1 / d``, 0 when d is about 0), with
+    SPAN_MARGIN pixels of margin."""
     if r != 0.0:
         t0 = (a - o) * r
         t1 = (b - o) * r
-        return max(lo, min(t0, t1) - 1.0), min(hi, max(t0, t1) + 1.0)
+        return max(lo, min(t0, t1) - SPAN_MARGIN), min(hi, max(t0, t1) + SPAN_MARGIN)
     if o < a or o >= b:
         return 1.0, 0.0
     return lo, hi
@@ -399,6 +406,7 @@ def _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b):
         cy1 = max(cy1, ky)
     if cx1 < 0.0 or cy1 < y0b or cx0 > img_w - 1 or cy0 > y1b - 1:
         return 1, 0, 1, 0
-    # rounded outwards: a pixel centre on the edge belongs to the square by the exact test per pixel
-    return (max(int(math.floor(cx0)), 0), min(int(math.ceil(cx1)), img_w - 1),
-            max(int(math.floor(cy0)), y0b), min(int(math.ceil(cy1)), y1b - 1))
+    # grown by SPAN_MARGIN for rounding: a pixel centre on the edge belongs to the square by the exact test per
+    # pixel, which the inverse map decides
+    return (max(int(math.ceil(cx0 - SPAN_MARGIN)), 0), min(int(math.floor(cx1 + SPAN_MARGIN)), img_w - 1),
+            max(int(math.ceil(cy0 - SPAN_MARGIN)), y0b), min(int(math.floor(cy1 + SPAN_MARGIN)), y1b - 1))

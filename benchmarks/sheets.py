@@ -376,7 +376,11 @@ def reading(pops, times) -> str:
             f"{min(cost.values()):.1f}-{max(cost.values()):.1f}x the time; the existing images and their tests "
             "stay as they are. For orbits and camera paths (`[views]` with `orbit_steps` or `path`, GIF/MP4) "
             "whose azimuth crosses a diagonal the switch is visible in every such animation, so set "
-            '`render.sheets = "image"` there' + (" (it removes the jump)." if met else "."))
+            '`render.sheets = "image"` there' + (" (it removes the jump)." if met else ".") +
+            " These measurements are of pre-classified splatting (`render.classification = \"pre\"`, which "
+            "image-aligned sheets imply). Post-classification, the default from scene version 4, samples the "
+            "trilinear field at the slice planes and has no footprints to cut: its change across the switch, "
+            "against neighbouring views, is in docs/accuracy.md's popping table (`make accuracy`).")
     return txt
 
 

@@ -18,34 +18,9 @@ from isplat import camera as C
 from isplat.augfile import open_augmented
 from isplat.normals import decode
 from isplat.transfer import piecewise_linear
+from phong_reference import camera_lights, phong
 
 ALPHA_MAX = 1 - 2.0 ** -40
-
-
-def _lights(sh, frame):
-    R = np.stack([frame.u, frame.v, frame.w])
-    out = []
-    for L in sh.lights:
-        lw = np.asarray(L.direction) @ R
-        lw = lw / np.linalg.norm(lw)
-        h = lw + frame.w
-        out.append((lw, h / np.linalg.norm(h), L.intensity * np.asarray(L.color)))
-    return out
-
-
-def _phong(n, sh, lights):
-    diff = np.full(3, sh.ambient)
-    spec = np.zeros(3)
-    for lw, hv, lc in lights:
-        ndl, ndh = n @ lw, n @ hv
-        if sh.two_sided:
-            ndl, ndh = abs(ndl), abs(ndh)
-        else:
-            ndh = max(ndh, 0.0) if ndl > 0 else 0.0
-            ndl = max(ndl, 0.0)
-        diff += sh.diffuse * ndl * lc
-        spec += sh.specular * ndh ** sh.shininess * lc
-    return diff, spec
 
 
 def post_reference(scene, view=0, et=1.0):
@@ -66,7 +41,7 @@ def post_reference(scene, view=0, et=1.0):
     codes = np.arange(256.0)
     opac = np.minimum(np.clip(piecewise_linear(tr.opacity, codes, True)[:, 0], 0, 1), ALPHA_MAX)
     col = np.clip(piecewise_linear(tr.color, codes, False), 0, 1)
-    lights = _lights(sh, frame)
+    lights = camera_lights(sh, frame)
     normal_axis = geom.unit_axes[ic]
     cos_ortho = abs(frame.w @ normal_axis)
     cos_min = min(1.0, geom.spacing[ic] / float(np.linalg.norm(geom.n_ijk * geom.spacing)))
@@ -150,7 +125,7 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom):
         diff, spec = np.zeros(3), np.zeros(3)
         for w, k in zip(weights, corners):
             n = decode(np.array([nrm[k]]))[0].astype(float) @ geom.unit_axes
-            dd, ss = _phong(n, sh, lights)
+            dd, ss = phong(n, sh, lights)
             diff += w * dd
             spec += w * ss
         rgb = rgb * diff + spec

@@ -18,6 +18,7 @@ from isplat.frame import WIDE_ANGLE
 from isplat.normals import decode
 from isplat.splat.footprint import MIN_SIGMA_PIXELS
 from isplat.transfer import piecewise_linear
+from phong_reference import camera_lights, phong
 
 
 def reference_render(scene, view=0, et=1.0):
@@ -77,13 +78,7 @@ def reference_render(scene, view=0, et=1.0):
     if len(tr.gradient_opacity):
         gfac = np.clip(piecewise_linear(tr.gradient_opacity, d * aug.gradient_magnitude_scale, False)[:, 0], 0, 1)
 
-    Rcam = np.stack([frame.u, frame.v, frame.w])
-    lights = []
-    for L in sh.lights:
-        lw = np.asarray(L.direction) @ Rcam
-        lw = lw / np.linalg.norm(lw)
-        h = lw + frame.w
-        lights.append((lw, h / np.linalg.norm(h), L.intensity * np.asarray(L.color)))
+    lights = camera_lights(sh, frame)
 
     n_c = n_ijk[ic]
     if persp:
@@ -132,17 +127,7 @@ def reference_render(scene, view=0, et=1.0):
                 if sh.enabled:
                     n = decode(np.array([nrm[k, j, i]]))[0].astype(float)
                     nw = n @ geom.unit_axes
-                    diff = np.full(3, sh.ambient)
-                    spec = np.zeros(3)
-                    for lw, hv, lc in lights:
-                        ndl, ndh = nw @ lw, nw @ hv
-                        if sh.two_sided:
-                            ndl, ndh = abs(ndl), abs(ndh)
-                        else:
-                            ndh = max(ndh, 0.0) if ndl > 0 else 0.0
-                            ndl = max(ndl, 0.0)
-                        diff += sh.diffuse * ndl * lc
-                        spec += sh.specular * ndh ** sh.shininess * lc
+                    diff, spec = phong(nw, sh, lights)
                     rgb = rgb * diff + spec
                 px, py = C.project_points(frame, [X])[0]
                 dx, dy = xs - px, ys - py

@@ -21,6 +21,7 @@ from isplat.augfile import open_augmented
 from isplat.normals import decode
 from isplat.splat.footprint import MIN_SIGMA_PIXELS
 from isplat.transfer import piecewise_linear
+from phong_reference import camera_lights, phong
 
 
 def _covariance(frame, geom, sigma, origin):
@@ -74,13 +75,7 @@ def reference_sheets(scene, view=0, et=1.0):
     gfac = None
     if len(tr.gradient_opacity):
         gfac = np.clip(piecewise_linear(tr.gradient_opacity, d * aug.gradient_magnitude_scale, False)[:, 0], 0, 1)
-    Rcam = np.stack([frame.u, frame.v, frame.w])
-    lights = []
-    for L in sh.lights:
-        lw = np.asarray(L.direction) @ Rcam
-        lw = lw / np.linalg.norm(lw)
-        hv = lw + frame.w
-        lights.append((lw, hv / np.linalg.norm(hv), L.intensity * np.asarray(L.color)))
+    lights = camera_lights(sh, frame)
 
     # every voxel that is drawn: (depth, pixel position, scale, premultiplied colour, opacity)
     splats = []
@@ -106,16 +101,7 @@ def reference_sheets(scene, view=0, et=1.0):
                 rgb = col[dv].copy()
                 if sh.enabled:
                     nw = decode(np.array([nrm[k, j, i]]))[0].astype(float) @ geom.unit_axes
-                    diff, spec = np.full(3, sh.ambient), np.zeros(3)
-                    for lw, hv, lc in lights:
-                        ndl, ndh = nw @ lw, nw @ hv
-                        if sh.two_sided:
-                            ndl, ndh = abs(ndl), abs(ndh)
-                        else:
-                            ndh = max(ndh, 0.0) if ndl > 0 else 0.0
-                            ndl = max(ndl, 0.0)
-                        diff += sh.diffuse * ndl * lc
-                        spec += sh.specular * ndh ** sh.shininess * lc
+                    diff, spec = phong(nw, sh, lights)
                     rgb = rgb * diff + spec
                 px, py = C.project_points(frame, [X])[0]
                 splats.append((z, px, py, s, rgb * alpha, alpha))

@@ -400,9 +400,21 @@ def _hidden(a0, b0, size, box_args, satab, sat, pixels):
 @leaf
 def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
     """The pixel box ``(x0, x1, y0, y1)`` that the footprints of voxels in the rectangle [a0, a1] x [b0, b1]
-    of the slice can reach, from its corners (the projection of a planar rectangle is the hull of its
-    corners' projections) grown by the footprint's radius at the largest perspective scale; ``ok`` False
-    when a corner is behind the near plane (then its voxels are tested one by one)."""
+    of the slice can reach: the hull of its corners' projections (:func:`rect_hull`) grown by the footprint's
+    radius at the largest perspective scale; ``ok`` False when a corner is behind the near plane (then its
+    voxels are tested one by one)."""
+    ok, cx0, cx1, cy0, cy1, smax = rect_hull(a0, a1, b0, b1, base, coef, persp)
+    if not ok:
+        return False, (0, 0, 0, 0)
+    return True, (int(math.ceil(cx0 - ex * smax)), int(math.floor(cx1 + ex * smax)),
+                  int(math.ceil(cy0 - ey * smax)), int(math.floor(cy1 + ey * smax)))
+
+
+@leaf
+def rect_hull(a0, a1, b0, b1, base, coef, persp):
+    """The pixel bounds ``(ok, x0, x1, y0, y1, largest perspective scale)`` of the rectangle [a0, a1] x [b0, b1]
+    of the slice plane (the projection of a planar rectangle is the hull of its corners' projections); ``ok``
+    False when a corner is at or behind the near plane."""
     xs, ys, ws = base[0], base[1], base[2]
     cx0 = 1e300
     cx1 = -1e300
@@ -417,7 +429,7 @@ def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
         if persp:
             kd = ws + ka * coef[WA] + kb * coef[WB]
             if -kd < coef[NEAR]:
-                return False, (0, 0, 0, 0)
+                return False, 0.0, 0.0, 0.0, 0.0, 1.0
             ks = coef[WPE] / kd
             smax = max(smax, ks) if corner > 0 else ks
             kx = coef[CX] + ks * kx
@@ -426,8 +438,7 @@ def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
         cx1 = max(cx1, kx)
         cy0 = min(cy0, ky)
         cy1 = max(cy1, ky)
-    return True, (int(math.ceil(cx0 - ex * smax)), int(math.floor(cx1 + ex * smax)),
-                  int(math.ceil(cy0 - ey * smax)), int(math.floor(cy1 + ey * smax)))
+    return True, cx0, cx1, cy0, cy1, smax
 
 
 @leaf

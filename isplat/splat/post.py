@@ -38,7 +38,8 @@ import numpy as np
 from ..jit import jit, leaf
 from .composite import TILE
 from .kernels import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, _band, _band_saturated, _box_args, _build_sat,
-                      _cut_away, _path_alpha, _slice_bases, _visible_cells, full_scratch, full_slice_regions)
+                      _cut_away, _path_alpha, _slice_bases, _visible_cells, full_scratch, full_slice_regions,
+                      rect_hull)
 from .select import BLOCK, CELL
 
 SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (scan_unit)
@@ -383,27 +384,9 @@ def _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b):
     """The pixels (x0, x1, y0, y1) whose centres can see the part [u0, u1) x [v0, v1) of the slice plane, with up
     to a pixel of margin, clipped to the image and the band (the whole band when a corner is behind the near
     plane); empty when x0 > x1."""
-    xs, ys, ws = base[0], base[1], base[2]
-    cx0 = 1e300
-    cx1 = -1e300
-    cy0 = 1e300
-    cy1 = -1e300
-    for corner in range(4):
-        ka = u0 if corner & 1 == 0 else u1
-        kb = v0 if corner & 2 == 0 else v1
-        kx = xs + ka * coef[XA] + kb * coef[XB]
-        ky = ys + ka * coef[YA] + kb * coef[YB]
-        if persp:
-            kd = ws + ka * coef[WA] + kb * coef[WB]
-            if -kd < coef[NEAR]:
-                return 0, img_w - 1, y0b, y1b - 1
-            ks = coef[WPE] / kd
-            kx = coef[CX] + ks * kx
-            ky = coef[CY] + ks * ky
-        cx0 = min(cx0, kx)
-        cx1 = max(cx1, kx)
-        cy0 = min(cy0, ky)
-        cy1 = max(cy1, ky)
+    ok, cx0, cx1, cy0, cy1, _ = rect_hull(u0, u1, v0, v1, base, coef, persp)
+    if not ok:
+        return 0, img_w - 1, y0b, y1b - 1
     if cx1 < 0.0 or cy1 < y0b or cx0 > img_w - 1 or cy0 > y1b - 1:
         return 1, 0, 1, 0
     # grown by SPAN_MARGIN for rounding: a pixel centre on the edge belongs to the square by the exact test per

@@ -2,15 +2,16 @@
 
 ``python -m benchmarks worksplit [--quick]`` (part of ``make bench``) writes docs/worksplit.md.
 
-1. Hidden material: per frame, the voxels of interest in the slices traversed, the voxels that reached the
-   per-voxel stages (not skipped with their region, block or cell of the slice), and the voxels splatted.
+1. Hidden material: per frame, the voxels of interest in the slices traversed, those in the cells left after
+   the occlusion tests (not skipped with their region, block or cell of the slice), and the voxels splatted or
+   samples composited.
    These are counts, not times: they do not depend on the machine's load.
 2. Threads: the image is cut into bands of rows (isplat.frame.image_bands), threads take every n-th band and
-   each band walks the slices on its own. The work that is repeated is that of voxels whose footprint crosses
-   a band's edge (tested, shaded and splatted by both bands): counted for the bands that 1 to 64 threads use.
-   The work that is serial is the frame's set-up (tables, binning the regions to the bands; ``prepare``)
-   measured beside the frame. From both, the speed-up on N cores is predicted (Amdahl's law with the
-   repeated work added to the parallel part), and on this machine 2 threads are timed against 1.
+   each band walks the slices on its own. The work that is repeated is that of cells that cross a band's edge
+   (visited by both bands): counted for the bands that 1 to 64 threads use. The work that is serial is the
+   calling thread's CPU time outside the kernels (set-up, finishing). From both, the speed-up on N cores is
+   predicted (Amdahl's law with the repeated work added to the parallel part), and on this machine 2 threads
+   are timed against 1, in wall time and in each thread's CPU time.
 """
 
 from __future__ import annotations
@@ -69,21 +70,57 @@ def counts(r, threads: int):
     return len(F.image_bands(view.frame.height, threads)), F.render_frame(r.selection, view)[1]
 
 
+def cpu_frame(r, view) -> dict:
+    """One frame of ``view``: its wall time, and the CPU time of the thread that made it outside the kernels
+    (the serial part: set-up, finishing) and of each thread inside them (``time.thread_time``, which does not
+    count time a thread waits for a core: on a shared machine the CPU times hold where wall times do not)."""
+    from isplat import frame as F
+
+    per, orig = [], F.run_parallel
+
+    def timed(fn, items, threads):
+        def one(x):
+            t = time.thread_time()
+            fn(x)
+            per.append(time.thread_time() - t)
+        return orig(one, items, threads)
+
+    F.run_parallel = timed
+    try:
+        t0, c0 = time.perf_counter(), time.thread_time()
+        F.render_frame(r.selection, view)
+        wall, main = time.perf_counter() - t0, time.thread_time() - c0
+    finally:
+        F.run_parallel = orig
+    inline = view.render.threads <= 1                 # one thread: the kernel ran in this thread
+    return dict(wall=wall, serial=main - (sum(per) if inline else 0.0), threads=per)
+
+
 def timings(r, frames: int) -> dict:
-    """Median seconds of the frame on 1 and 2 threads and of its set-up (``prepare``), interleaved."""
+    """Medians over interleaved frames on 1 and 2 threads: wall time, serial CPU time, the threads' CPU time in
+    the kernels (total and the busiest thread's); and the set-up alone (``prepare``)."""
     from isplat import frame as F
 
     views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2)}
-    out = {"1": [], "2": [], "prepare": []}
+    runs = {"1": [], "2": []}
+    prep = []
     for _ in range(frames + 1):
         for key, view in views.items():
-            t = time.perf_counter()
-            F.render_frame(r.selection, view)
-            out[key].append(time.perf_counter() - t)
+            runs[key].append(cpu_frame(r, view))
         t = time.perf_counter()
         F.prepare(r.selection, views["2"])
-        out["prepare"].append(time.perf_counter() - t)
-    return {k: statistics.median(v[1:]) for k, v in out.items()}
+        prep.append(time.perf_counter() - t)
+    med = statistics.median
+    out = {"prepare": med(prep[1:])}
+    for key, rs in runs.items():
+        rs = rs[1:]
+        out[key] = med(x["wall"] for x in rs)
+        out[f"serial{key}"] = med(x["serial"] for x in rs)
+        out[f"work{key}"] = med(sum(x["threads"]) for x in rs)
+        out[f"busiest{key}"] = med(max(x["threads"]) for x in rs)
+        out[f"imbalance{key}"] = med(max(x["threads"]) * len(x["threads"]) / sum(x["threads"]) for x in rs)
+    out["cpu_speedup"] = (out["serial1"] + out["work1"]) / (out["serial2"] + out["busiest2"])
+    return out
 
 
 def predicted(serial: float, repeated: float, n: int, bands: int) -> float:
@@ -116,41 +153,57 @@ def doc(rows, quick: bool, seconds: float) -> str:
          "front, orthographic; the engine as examples/engine.toml shows it; square images; early "
          "termination at 0.99.", "",
          "## Hidden material costs one test per region, block or cell", "",
-         "| scene | image | voxels of interest | in slices traversed | tested one by one | splatted | "
-         "tested / splatted |", "|---|---:|---:|---:|---:|---:|---:|"]
+         "| scene | classification | image | voxels of interest | in slices traversed | in cells left | "
+         "splatted or sampled | left / splatted or sampled |", "|---|---|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         st = per[1][1]
-        L.append(f"| {name} | {size} | {n_vox:,} | {st.voxels_examined:,} | {st.voxels_tested:,} | "
+        L.append(f"| {name} | {st.classification} | {size} | {n_vox:,} | {st.voxels_examined:,} | {st.voxels_tested:,} | "
                  f"{st.voxels_splatted:,} | {st.voxels_tested / max(st.voxels_splatted, 1):.2f} |")
-    L += ["", "A voxel is tested one by one only when its cell (4 x 4 voxels of a slice), block (16 x 16) and "
-          "region (64 x 64) can reach a pixel of the band that is not yet saturated; the rest cost one test per "
-          "square, against a summed-area table of the whole tiles (8 x 8 pixels) whose pixels are all saturated.",
+    L += ["", "A voxel's cell (4 x 4 voxels of a slice) is left, and its voxels (pre-classified) or the quads "
+          "they touch (post-classified) are visited, only when the cell, its block (16 x 16) and its region "
+          "(64 x 64) can reach a pixel of the band that is not yet saturated; the rest cost one test per square, "
+          "against a summed-area table of the whole tiles (8 x 8 pixels) whose pixels are all saturated. "
+          "*Splatted or sampled*: voxels splatted (pre) or samples composited (post: one per pixel and slice "
+          "where a quad of interest is seen).",
           "", "## Threads: repeated and serial work", "",
           "| scene | threads | bands | voxels tested | repeated work | predicted speed-up |",
           "|---|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         base = per[1][1].voxels_tested
-        serial = tm["prepare"] / tm["1"]
+        serial = tm["serial1"] / (tm["serial1"] + tm["work1"])
         for t in THREADS:
             nb, st = per[t]
             rep = st.voxels_tested / max(base, 1) - 1.0
             L.append(f"| {name} | {t} | {nb} | {st.voxels_tested:,} | {100 * rep:.1f}% | "
                      f"{predicted(serial, rep, t, nb):.2f} |")
-    L += ["", "| scene | 1 thread (ms) | ns per voxel of interest | ns per voxel splatted | 2 threads (ms) | "
-          "speed-up | set-up per frame (ms) | serial share |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames). Wall times suffer "
+          "when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
+          "calling thread outside the kernels: the serial part) do not count waiting for a core, so the CPU "
+          "speed-up is what 2 free cores would give, memory bandwidth aside.", "",
+          "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | kernel CPU, 1 thread (ms) | kernel CPU, 2 "
+          "threads: sum / busiest (ms) | imbalance | serial CPU (ms) | CPU speed-up |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
-        L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e9 * tm['1'] / max(n_vox, 1):.1f} | "
-                 f"{1e9 * tm['1'] / max(per[1][1].voxels_splatted, 1):.0f} | {1e3 * tm['2']:.1f} | "
-                 f"{tm['1'] / tm['2']:.2f} | {1e3 * tm['prepare']:.2f} | {100 * tm['prepare'] / tm['1']:.1f}% |")
-    L += ["", "If the frame's cost follows what is visible, the time per voxel splatted stays about the same from "
+        L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
+                 f"{1e3 * tm['work1']:.1f} | {1e3 * tm['work2']:.1f} / {1e3 * tm['busiest2']:.1f} | "
+                 f"{tm['imbalance2']:.2f} | {1e3 * tm['serial2']:.2f} | {tm['cpu_speedup']:.2f} |")
+    L += ["", "| scene | ns per voxel of interest | ns per voxel splatted or sample | set-up per frame (ms) | "
+          "serial share |", "|---|---:|---:|---:|---:|"]
+    for name, size, per, tm, n_vox in rows:
+        L.append(f"| {name} | {1e9 * tm['1'] / max(n_vox, 1):.1f} | "
+                 f"{1e9 * tm['1'] / max(per[1][1].voxels_splatted, 1):.0f} | {1e3 * tm['prepare']:.2f} | "
+                 f"{100 * tm['serial1'] / (tm['serial1'] + tm['work1']):.1f}% |")
+    L += ["", "If the frame's cost follows what is visible, the time per voxel splatted or sample stays about the same from "
           "scene to scene however much lies hidden, while the time per voxel of interest falls as more of them "
-          "are hidden.", "", "Repeated work: the voxels tested by all bands together over those tested with one band, minus "
-          "one (a voxel whose footprint crosses a band's edge is tested, and partly splatted, by both). "
-          "Serial share: the frame's set-up (``isplat.frame.prepare``: opacity and shading tables, footprint, "
-          "binning the regions to the bands) over the one-thread frame; the shading table is itself shared "
-          "between threads, so this overstates it. Predicted speed-up on N cores: 1 / (serial + (1 - serial) "
+          "are hidden.", "", "Repeated work: the voxels in cells left, summed over the bands, over those with one band, "
+          "minus one (a cell that crosses a band's edge is visited by both; post-classified, each band samples "
+          "only its own pixels, so what is repeated is the per-cell and per-square set-up, not the samples). "
+          "Serial share: the calling thread's CPU time outside the kernels (``isplat.frame.prepare``: tables, "
+          "binning the regions to the bands; finishing the image) over the one-thread frame's CPU time. "
+          "Imbalance: the busiest thread's kernel CPU time over the mean. Predicted speed-up on N cores: "
+          "1 / (serial + (1 - serial) "
           "(1 + repeated) / min(N, bands)): a band is rendered by one thread, and bands are at least "
           "4 tiles (32 rows) high, so a 256-row image keeps at most 8 threads busy and a 1024-row one 32. "
-          "Not counted: memory bandwidth, which all cores share, and load imbalance "
-          "between bands (threads take every n-th band to even it out)."]
+          "Not counted in the prediction: memory bandwidth, which all cores share, and load imbalance "
+          "between bands (threads take every n-th band to even it out; measured above for 2 threads)."]
     return "\n".join(L)

@@ -4,6 +4,8 @@ so ``isplat --help`` and a render start without importing every stage."""
 from __future__ import annotations
 
 import importlib
+import logging
+import os
 import signal
 import sys
 
@@ -132,6 +134,29 @@ def _run(argv):
         click.echo("isplat: error: out of memory", err=True)
         sys.exit(1)
     sys.exit(0)
+
+
+def console():
+    """The ``isplat`` command: :func:`main`, then out of the process without tearing the interpreter down.
+
+    Once the outputs are written (closed and renamed by the stages) and stdout and stderr are flushed, nothing
+    is left to do; yet Python's finalisation frees every module and numba's compiled code one by one, which
+    took 0.15-0.33 s of a 1.5 s one-frame render (docs/performance.md, process start). ``os._exit`` skips it.
+    In-process callers (tests) use :func:`main`, which returns normally."""
+    code = 0
+    try:
+        main()
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        if exc.code is not None and not isinstance(exc.code, int):
+            print(exc.code, file=sys.stderr)
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (BrokenPipeError, ValueError, OSError):
+            code = code or 1
+    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -197,7 +197,7 @@ def _tiles_whole(satab, ty0, x0, x1, y0, y1):
     return whole == (r1 - r0) * (tx1 - tx0)
 
 
-@jit
+@leaf
 def _band_saturated(band):
     """True when early termination is on and every pixel of the band is saturated."""
     satab = band[4]

@@ -63,22 +63,35 @@ def reach(coef) -> tuple[float, float]:
 @jit
 def render_post_indexed(order, o0, bins, vox, cls, geo, fp, buf, bands):
     """Render the slices ``order`` (front to back) post-classified: the quads around the index's voxels of
-    interest (``vox.index``), sampled in the whole channels ``vox.whole``."""
+    interest (``vox.index``), sampled in the whole channels ``vox.whole``. What allocates is here, once per
+    call; the bands' slice loops are leaves (:func:`_post_band`)."""
     idx = vox.index
     hier = (idx.region_id, idx.region_ptr, idx.block_pos, idx.block_ptr, idx.block_voxel, idx.cell_pos,
             idx.cell_count)
     marks = _marks(idx.n_a, idx.n_b)
+    scratch = _slice_scratch(geo)
     for bi in bands.mine:
         band = _band(bi, bands, buf)
-        for oi in range(order.shape[0]):
-            if _band_saturated(band):
-                break
-            c = order[oi]
-            r0 = idx.region_ptr[idx.slice_ptr[c]]
-            r1 = idx.region_ptr[idx.slice_ptr[c + 1]]
-            buf.stats[bi, 0] += idx.block_voxel[r1] - idx.block_voxel[r0]
-            p0, p1 = bins.ptr[bi, o0 + oi], bins.ptr[bi, o0 + oi + 1]
-            _post_slice(c, bins.regions, p0, p1, hier, vox.whole, vox.unit, cls, geo, fp, buf, band, marks)
+        _post_band(order, o0, bins, idx.slice_ptr, hier, vox.whole, vox.unit, cls, geo, fp, buf, band, marks,
+                   scratch)
+
+
+@leaf
+def _post_band(order, o0, bins, slice_ptr, hier, whole, unit, cls, geo, fp, buf, band, marks, scratch):
+    """One band's slices, front to back until the band saturates. A leaf: without reference counting, the
+    arrays this loop hands on per slice cost no atomic increments and decrements of counters that every
+    thread's loop shares (and the slice's scratch arrays are made once per call, not per slice)."""
+    bi = band[0]
+    region_ptr, block_voxel = hier[1], hier[4]
+    for oi in range(order.shape[0]):
+        if _band_saturated(band):
+            break
+        c = order[oi]
+        r0 = region_ptr[slice_ptr[c]]
+        r1 = region_ptr[slice_ptr[c + 1]]
+        buf.stats[bi, 0] += block_voxel[r1] - block_voxel[r0]
+        p0, p1 = bins.ptr[bi, o0 + oi], bins.ptr[bi, o0 + oi + 1]
+        _post_slice(c, bins.regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, marks, scratch)
 
 
 @jit
@@ -89,6 +102,7 @@ def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
     scratch = full_scratch(whole.n_a, whole.n_b)
     hier, _, all_regions, _ = scratch
     marks = _marks(whole.n_a, whole.n_b)
+    per_slice = _slice_scratch(geo)
     for bi in bands.mine:
         band = _band(bi, bands, buf)
         for oi in range(order.shape[0]):
@@ -96,7 +110,8 @@ def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
                 break
             c = order[oi]
             n_regions = full_slice_regions(c, whole, cls, geo, fp, buf, band, scratch)
-            _post_slice(c, all_regions, 0, n_regions, hier[:7], whole, vox.unit, cls, geo, fp, buf, band, marks)
+            _post_slice(c, all_regions, 0, n_regions, hier[:7], whole, vox.unit, cls, geo, fp, buf, band, marks,
+                        per_slice)
 
 
 @jit
@@ -105,6 +120,13 @@ def _marks(n_a, n_b):
     squares that are scanned (cells, or squares of several cells, see :func:`scan_unit`)."""
     n = ((n_a + CELL - 1) // CELL) * ((n_b + CELL - 1) // CELL)
     return np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8), np.empty(n, np.int64)
+
+
+@jit
+def _slice_scratch(geo):
+    """What :func:`_post_slice` fills per slice: the cut planes' offsets, and (samples composited, pixels newly
+    saturated)."""
+    return np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64), np.zeros(2, np.int64)
 
 
 def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
@@ -118,12 +140,14 @@ def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
     return unit
 
 
-@jit
-def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, marks):
+@leaf
+def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, marks, scratch):
     """One slice and one band: the cells of interest left by the occlusion tests, the quads that touch their
     voxels sampled, classified and composited into the image."""
     bi, y0b, y1b, et, satab, ty0 = band
-    cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
+    cs, counts = scratch
+    counts[0] = 0
+    counts[1] = 0
     base = _slice_bases(c, geo, cs)
     box_args = _box_args(whole.n_a, whole.n_b, base, geo, fp, buf, band, et < 1.0)
     cells = buf.cells
@@ -136,7 +160,6 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, 
     ns = _mark_squares(marked, nm, nca, unit, (whole.n_a + unit - 1) // unit, smark, squares)
     voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c)
     inv = _ortho_inverse(base, geo.coef)
-    counts = np.zeros(2, np.int64)      # samples composited, pixels newly saturated
     _sample_squares(squares, ns, unit, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
                     cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts)
     for t in range(nm):

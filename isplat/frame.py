@@ -302,18 +302,22 @@ def render_frame(sel, view: View, et: float | None = None):
     part = blank(setup)
     for start, stop in progress.bar(slabs, desc=f"slices ({n})", unit="slab", disable=len(slabs) == 1):
         render_slab(setup, start, stop, part)
-    return (finish_image(part.img, view.background, view.render.supersample),
+    return (finish_image(part.img, view.background, view.render.supersample, setup.threads),
             frame_stats(view, part, time.perf_counter() - t0))
 
 
-def finish_image(img: np.ndarray, background, supersample: int = 1) -> np.ndarray:
+def finish_image(img: np.ndarray, background, supersample: int = 1, threads: int = 1) -> np.ndarray:
     """Premultiplied RGBA over the background colour -> straight RGBA (float); with ``supersample`` n > 1 the
     frame (n times the image's width and height) is first box-filtered down, each pixel the mean of its n x n
-    (premultiplied, so colour is weighted by opacity; the background goes over after, which is the same)."""
+    (premultiplied, so colour is weighted by opacity; the background goes over after, which is the same).
+    ``threads`` threads take a block of rows each (the same pixels, computed alike)."""
     if supersample > 1:
         img = box_filter(img, supersample)
     out = np.empty(img.shape, dtype=img.dtype)
-    if not finish(img, np.asarray(background, dtype=np.float64), out):
+    bg = np.asarray(background, dtype=np.float64)
+    edges = np.linspace(0, img.shape[0], max(1, min(threads, img.shape[0])) + 1).round().astype(int)
+    ok = run_parallel(lambda r: finish(img[r[0]:r[1]], bg, out[r[0]:r[1]]), zip(edges[:-1], edges[1:]), threads)
+    if not all(ok):
         raise IsplatError("render produced non-finite pixels; please report this scene")
     return out
 

@@ -302,3 +302,25 @@ def test_boundscheck_switch_turns_numba_bounds_checks_on(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "caught"
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(h=st.integers(1, 40), w=st.integers(1, 9), threads=st.integers(1, 5), seed=st.integers(0, 2**31 - 1),
+       bg=st.tuples(*[st.floats(0, 1)] * 4))
+def test_finish_image_by_row_blocks_is_the_whole_and_the_obvious_formula(h, w, threads, seed, bg):
+    """Any thread count finishes each pixel alike; the result is (premultiplied + (1 - a) * bg_a * bg_rgb) over
+    alpha a + (1 - a) * bg_a, clipped to [0, 1]; and a non-finite pixel in any row block is refused."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0, 1, (h, w, 1))
+    img = np.concatenate([rng.uniform(0, 1, (h, w, 3)) * a, a], axis=-1).astype(np.float32)
+    out = F.finish_image(img, bg, threads=threads)
+    assert np.array_equal(out, F.finish_image(img, bg))
+    a64 = img[..., 3:].astype(np.float64)
+    t = (1 - a64) * bg[3]
+    alpha = a64 + t
+    rgb = np.where(alpha > 0, (img[..., :3] + t * np.asarray(bg[:3])) / np.where(alpha > 0, alpha, 1), 0.0)
+    want = np.clip(np.concatenate([rgb, alpha], axis=-1), 0, 1)
+    assert np.abs(out - want).max() <= 1e-6
+    img[rng.integers(h), rng.integers(w), rng.integers(4)] = np.nan
+    with pytest.raises(IsplatError, match="non-finite"):
+        F.finish_image(img, bg, threads=threads)

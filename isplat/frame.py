@@ -192,6 +192,8 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     kernel = K.render_full if sel.method == "full" else K.render_indexed
     if ro.classification == "post":
         kernel, vox, fpt = _post_kernel(sel, axis, vox, proj, dtype)
+        # the per-sample lerps run in float64: tables in float64 save a conversion per load (same values)
+        cls = cls._replace(alpha=atab.astype(np.float64), color=np.asarray(sel.luts.color, np.float64))
     bins = None if sel.method == "full" else \
         K.Bins(*K.bin_regions(view.order, sel.voxels(axis), geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
     return Setup(view, kernel, vox, cls, geo, fpt, rows, mine, bins, _tile_pixels(H, W), *scratch, et_val,

@@ -258,7 +258,7 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
         if not persp:
             xa, xb = _row_span(y, u0, u1, v0, v1, inv, x0, x1)
         for x in range(xa, xb + 1):
-            if sat[y, x] != 0:
+            if sat[np.uint64(y), np.uint64(x)] != 0:      # unsigned: no negative-index wrap-around
                 continue
             if persp:
                 ok, u, v = _slice_point(x, y, base, coef)
@@ -272,7 +272,7 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
             qa = max(int(u + 1.0) - 1, 0)      # floor: u, v >= -0.5 here
             qb = max(int(v + 1.0) - 1, 0)
             if not every:
-                flags = mark[(qb // CELL) * nca + qa // CELL]
+                flags = mark[np.uint64((qb // CELL) * nca + qa // CELL)]
                 la = qa % CELL
                 lb = qb % CELL
                 if not (flags & 1 or (la == CELL - 1 and flags & 2) or (lb == CELL - 1 and flags & 4)
@@ -320,28 +320,33 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     volume's edge, which repeats the edge voxel) at (fu, fv) in it, classified with the tables interpolated
     between codes, shaded with the corners' Phong factors, composited over pixel (x, y). Returns 0 when
     transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity."""
+    # unsigned indices: numba adds no negative-index wrap-around to them (all are >= 0 here)
     w00 = (1.0 - fu) * (1.0 - fv)
     w10 = fu * (1.0 - fv)
     w01 = (1.0 - fu) * fv
     w11 = fu * fv
-    i10 = i00 + sa
-    i01 = i00 + sb
-    i11 = i01 + sa
+    i00 = np.uint64(i00)
+    i10 = i00 + np.uint64(sa)
+    i01 = i00 + np.uint64(sb)
+    i11 = i01 + np.uint64(sa)
     d = w00 * density[i00] + w10 * density[i10] + w01 * density[i01] + w11 * density[i11]
-    di = min(int(d), 254)
-    f = d - di
-    g = 0
+    di = np.uint64(min(int(d), 254))
+    dj = di + np.uint64(1)
+    f = d - np.float64(di)
+    g = np.uint64(0)
     if use_gm:
-        g = min(int(w00 * gm[i00] + w10 * gm[i10] + w01 * gm[i01] + w11 * gm[i11] + 0.5), alpha.shape[1] - 1)
-    L = alpha[di, g] + f * (alpha[di + 1, g] - alpha[di, g])
+        g = np.uint64(min(int(w00 * gm[i00] + w10 * gm[i10] + w01 * gm[i01] + w11 * gm[i11] + 0.5),
+                          alpha.shape[1] - 1))
+    L = alpha[di, g] + f * (alpha[dj, g] - alpha[di, g])
     if L == 0.0:
         return 0
     a = L                       # orthographic: the table is corrected for the slices' path already
     if geo.persp:
         a, _ = _path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
-    cr = color[di, 0] + f * (color[di + 1, 0] - color[di, 0])
-    cg = color[di, 1] + f * (color[di + 1, 1] - color[di, 1])
-    cb = color[di, 2] + f * (color[di + 1, 2] - color[di, 2])
+    c0, c1, c2 = np.uint64(0), np.uint64(1), np.uint64(2)
+    cr = color[di, c0] + f * (color[dj, c0] - color[di, c0])
+    cg = color[di, c1] + f * (color[dj, c1] - color[di, c1])
+    cb = color[di, c2] + f * (color[dj, c2] - color[di, c2])
     if use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
         s0 = w00 * shade[n00, 0] + w10 * shade[n10, 0] + w01 * shade[n01, 0] + w11 * shade[n11, 0]
@@ -354,15 +359,16 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
             cr, cg, cb = cr * s0 + s3, cg * s1 + s4, cb * s2 + s5
         else:
             cr, cg, cb = cr * s0 + s1, cg * s0 + s1, cb * s0 + s1
-    ai = img[y, x, 3]
+    uy, ux = np.uint64(y), np.uint64(x)
+    ai = img[uy, ux, np.uint64(3)]
     ta = (1.0 - ai) * a
-    img[y, x, 0] += ta * cr
-    img[y, x, 1] += ta * cg
-    img[y, x, 2] += ta * cb
+    img[uy, ux, c0] += ta * cr
+    img[uy, ux, c1] += ta * cg
+    img[uy, ux, c2] += ta * cb
     an = ai + ta
-    img[y, x, 3] = an
+    img[uy, ux, np.uint64(3)] = an
     if ai < et and an >= et:
-        sat[y, x] = 1
+        sat[uy, ux] = 1
         tile_sat[y // TILE, x // TILE] += 1
         return 2
     return 1

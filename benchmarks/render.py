@@ -196,7 +196,11 @@ def doc(main, st, pv, orb, e2e, rss, scaling, r0, quick, seconds) -> str:
         "image). Medians of several frames with the settings compared interleaved in one run.",
         "",
         f"Voxels of interest (density in the transfer function's non-zero intervals): {st.voxels_examined:,} "
-        f"of {int(np.prod(r0.geom.shape)):,}; splatted after early termination: {st.voxels_splatted:,}.",
+        f"of {int(np.prod(r0.geom.shape)):,}; " + (f"splatted after early termination: {st.voxels_splatted:,}."
+                                                   if st.classification == "pre" else
+                                                   f"post-classified: samples composited after early termination "
+                                                   f"(one per pixel and slice where a quad of interest is seen): "
+                                                   f"{st.voxels_splatted:,}."),
         "",
         "| | indexed | full | full / indexed |",
         "|---|---:|---:|---:|",

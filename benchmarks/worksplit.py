@@ -71,18 +71,23 @@ def counts(r, threads: int):
 
 
 def cpu_frame(r, view) -> dict:
-    """One frame of ``view``: its wall time, and the CPU time of the thread that made it outside the kernels
-    (the serial part: set-up, finishing) and of each thread inside them (``time.thread_time``, which does not
-    count time a thread waits for a core: on a shared machine the CPU times hold where wall times do not)."""
+    """One frame of ``view``: its wall time; the CPU time of the thread that made it outside the parallel parts
+    (the serial part: set-up, binning); and per parallel part (the kernels, then finishing the image) each
+    thread's CPU time in it (``time.thread_time``, which does not count time a thread waits for a core: on a
+    shared machine the CPU times hold where wall times do not)."""
     from isplat import frame as F
 
-    per, orig = [], F.run_parallel
+    parts, orig = [], F.run_parallel
 
     def timed(fn, items, threads):
+        part = []
+        parts.append(part)
+
         def one(x):
             t = time.thread_time()
-            fn(x)
-            per.append(time.thread_time() - t)
+            out = fn(x)
+            part.append(time.thread_time() - t)
+            return out
         return orig(one, items, threads)
 
     F.run_parallel = timed
@@ -92,8 +97,9 @@ def cpu_frame(r, view) -> dict:
         wall, main = time.perf_counter() - t0, time.thread_time() - c0
     finally:
         F.run_parallel = orig
-    inline = view.render.threads <= 1                 # one thread: the kernel ran in this thread
-    return dict(wall=wall, serial=main - (sum(per) if inline else 0.0), threads=per)
+    inline = view.render.threads <= 1                 # one thread: the parallel parts ran in this thread
+    return dict(wall=wall, serial=main - (sum(map(sum, parts)) if inline else 0.0), threads=parts[0],
+                rest=sum(map(sum, parts[1:])), rest_busiest=sum(max(p, default=0.0) for p in parts[1:]))
 
 
 def timings(r, frames: int) -> dict:
@@ -119,7 +125,10 @@ def timings(r, frames: int) -> dict:
         out[f"work{key}"] = med(sum(x["threads"]) for x in rs)
         out[f"busiest{key}"] = med(max(x["threads"]) for x in rs)
         out[f"imbalance{key}"] = med(max(x["threads"]) * len(x["threads"]) / sum(x["threads"]) for x in rs)
-    out["cpu_speedup"] = (out["serial1"] + out["work1"]) / (out["serial2"] + out["busiest2"])
+        out[f"rest{key}"] = med(x["rest"] for x in rs)
+        out[f"rest_busiest{key}"] = med(x["rest_busiest"] for x in rs)
+    out["cpu_speedup"] = (out["serial1"] + out["work1"] + out["rest1"]) / (out["serial2"] + out["busiest2"] +
+                                                                         out["rest_busiest2"])
     return out
 
 
@@ -170,7 +179,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "|---|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         base = per[1][1].voxels_tested
-        serial = tm["serial1"] / (tm["serial1"] + tm["work1"])
+        serial = tm["serial1"] / (tm["serial1"] + tm["work1"] + tm["rest1"])
         for t in THREADS:
             nb, st = per[t]
             rep = st.voxels_tested / max(base, 1) - 1.0
@@ -178,28 +187,31 @@ def doc(rows, quick: bool, seconds: float) -> str:
                      f"{predicted(serial, rep, t, nb):.2f} |")
     L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames). Wall times suffer "
           "when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
-          "calling thread outside the kernels: the serial part) do not count waiting for a core, so the CPU "
+          "calling thread outside the parallel parts: the serial part) do not count waiting for a core, so the CPU "
           "speed-up is what 2 free cores would give, memory bandwidth aside.", "",
           "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | kernel CPU, 1 thread (ms) | kernel CPU, 2 "
-          "threads: sum / busiest (ms) | imbalance | serial CPU (ms) | CPU speed-up |",
-          "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "threads: sum / busiest (ms) | imbalance | finishing CPU, 1 thread / 2 threads' busiest (ms) | serial "
+          "CPU, 2 threads (ms) | CPU speed-up |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
                  f"{1e3 * tm['work1']:.1f} | {1e3 * tm['work2']:.1f} / {1e3 * tm['busiest2']:.1f} | "
-                 f"{tm['imbalance2']:.2f} | {1e3 * tm['serial2']:.2f} | {tm['cpu_speedup']:.2f} |")
+                 f"{tm['imbalance2']:.2f} | {1e3 * tm['rest1']:.2f} / {1e3 * tm['rest_busiest2']:.2f} | "
+                 f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup']:.2f} |")
     L += ["", "| scene | ns per voxel of interest | ns per voxel splatted or sample | set-up per frame (ms) | "
           "serial share |", "|---|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         L.append(f"| {name} | {1e9 * tm['1'] / max(n_vox, 1):.1f} | "
                  f"{1e9 * tm['1'] / max(per[1][1].voxels_splatted, 1):.0f} | {1e3 * tm['prepare']:.2f} | "
-                 f"{100 * tm['serial1'] / (tm['serial1'] + tm['work1']):.1f}% |")
+                 f"{100 * tm['serial1'] / (tm['serial1'] + tm['work1'] + tm['rest1']):.1f}% |")
     L += ["", "If the frame's cost follows what is visible, the time per voxel splatted or sample stays about the same from "
           "scene to scene however much lies hidden, while the time per voxel of interest falls as more of them "
           "are hidden.", "", "Repeated work: the voxels in cells left, summed over the bands, over those with one band, "
           "minus one (a cell that crosses a band's edge is visited by both; post-classified, each band samples "
           "only its own pixels, so what is repeated is the per-cell and per-square set-up, not the samples). "
-          "Serial share: the calling thread's CPU time outside the kernels (``isplat.frame.prepare``: tables, "
-          "binning the regions to the bands; finishing the image) over the one-thread frame's CPU time. "
+          "Serial share: the calling thread's CPU time outside the parallel parts (``isplat.frame.prepare``: "
+          "tables, binning the regions to the bands) over the one-thread frame's CPU time; the parallel parts are "
+          "the kernels and finishing the image (a block of rows per thread). "
           "Imbalance: the busiest thread's kernel CPU time over the mean. Predicted speed-up on N cores: "
           "1 / (serial + (1 - serial) "
           "(1 + repeated) / min(N, bands)): a band is rendered by one thread, and bands are at least "

@@ -419,9 +419,8 @@ def hidden_removed_data(scene, view, tag: str) -> tuple[Path, Path, float]:
     (:func:`hidden_voxels` along the view's rays, from the voxels' own opacities), built once into
     ``bench-out/<tag>-visible-<key>.*``; and the share of the voxels of interest removed. Orthographic views of
     an axis-aligned volume only."""
-    from isplat.augfile import open_augmented, write_augmented
+    from isplat.augfile import open_augmented
     from isplat.grid import AXES
-    from isplat.index import build_index_file
 
     from . import reference as REF
 
@@ -445,18 +444,9 @@ def hidden_removed_data(scene, view, tag: str) -> tuple[Path, Path, float]:
                              HIDDEN_T, HIDDEN_MARGIN)).encode()).hexdigest()[:10]
     out_aug, out_idx = (REF.DATA / f"{tag}-visible-{key}.{ext}.h5" for ext in ("aug", "idx"))
     if not (out_aug.exists() and out_idx.exists()):
-        kept = np.where(hidden, np.uint8(0), dens)
-        tmp_aug, tmp_idx = (p.with_name(f".{p.name}.{os.getpid()}") for p in (out_aug, out_idx))
-        try:
-            write_augmented(tmp_aug, kept, aug.read("gradient_magnitude"), aug.read("normal"), aug.spacing_ijk,
-                            aug.density_window, aug.gradient_magnitude_scale,
-                            {"source": f"{scene.data.augmented} with the voxels hidden in one view set to 0"})
-            build_index_file(tmp_aug, tmp_idx)
-            os.replace(tmp_aug, out_aug)
-            os.replace(tmp_idx, out_idx)
-        finally:
-            for p in (tmp_aug, tmp_idx):
-                p.unlink(missing_ok=True)
+        REF.write_pair(out_aug, out_idx, np.where(hidden, np.uint8(0), dens), aug.read("gradient_magnitude"),
+                       aug.read("normal"), aug.spacing_ijk, aug.density_window, aug.gradient_magnitude_scale,
+                       f"{scene.data.augmented} with the voxels hidden in one view set to 0")
     return out_aug, out_idx, removed
 
 

@@ -108,9 +108,7 @@ def _readable(aug: Path, idx: Path) -> bool:
 def sample_data(name: str, shape=None, cache: Path = DATA) -> tuple[Path, Path]:
     """The augmented and indexed sample ``name`` (``shape`` (n_i, n_j, n_k) or its default) in ``cache``, built
     once and reused."""
-    from isplat.augfile import write_augmented
     from isplat.augment import augment_array
-    from isplat.index import build_index_file
     from isplat.samples import make_sample
 
     tag = name if shape is None else f"{name}-{'x'.join(map(str, shape))}"
@@ -120,17 +118,25 @@ def sample_data(name: str, shape=None, cache: Path = DATA) -> tuple[Path, Path]:
     cache.mkdir(parents=True, exist_ok=True)
     arr, sp = make_sample(name, shape)
     o = augment_array(arr, sp)
-    tmp_aug, tmp_idx = cache / f".{tag}.aug.h5.{os.getpid()}", cache / f".{tag}.idx.h5.{os.getpid()}"
+    write_pair(aug, idx, o["density"], o["gradient_magnitude"], o["normal"], o["spacing_ijk"], o["density_window"],
+               o["gradient_magnitude_scale"], f"isplat sample {name}")
+    return aug, idx
+
+
+def write_pair(aug: Path, idx: Path, density, gradient_magnitude, normal, spacing, window, gm_scale, source: str):
+    """Write the augmented file ``aug`` and its index ``idx``, both or neither (temporary names, then renamed)."""
+    from isplat.augfile import write_augmented
+    from isplat.index import build_index_file
+
+    tmp_aug, tmp_idx = (p.with_name(f".{p.name}.{os.getpid()}") for p in (aug, idx))
     try:
-        write_augmented(tmp_aug, o["density"], o["gradient_magnitude"], o["normal"], o["spacing_ijk"],
-                        o["density_window"], o["gradient_magnitude_scale"], {"source": f"isplat sample {name}"})
+        write_augmented(tmp_aug, density, gradient_magnitude, normal, spacing, window, gm_scale, {"source": source})
         build_index_file(tmp_aug, tmp_idx)
         os.replace(tmp_aug, aug)
         os.replace(tmp_idx, idx)
     finally:
         for p in (tmp_aug, tmp_idx):
             p.unlink(missing_ok=True)
-    return aug, idx
 
 
 def render_overrides(render: dict) -> list[str]:

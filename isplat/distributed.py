@@ -219,8 +219,18 @@ def finish_task(parts, view):
 
 # --- the client's side ---------------------------------------------------------------------------------------
 
-def _workers(client) -> list[str]:
-    return sorted(client.scheduler_info(n_workers=-1)["workers"])
+def _workers(client, timeout: float = 60.0) -> list[str]:
+    """The cluster's workers now; when it has none (all of them restarting, or not yet joined), the ones that
+    join within ``timeout`` seconds."""
+    workers = sorted(client.scheduler_info(n_workers=-1)["workers"])
+    if not workers:
+        try:
+            client.wait_for_workers(1, timeout=timeout)
+        except TimeoutError:
+            raise IsplatError(f"the Dask cluster at {client.scheduler.address} has no workers "
+                              f"(none joined in {timeout:g} s)") from None
+        workers = sorted(client.scheduler_info(n_workers=-1)["workers"])
+    return workers
 
 
 def reduce_pairwise(items: list, combine):

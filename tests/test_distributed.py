@@ -231,3 +231,29 @@ def test_bad_scheduler_options_are_one_line(files, args, needle):
     res = cli("render", "one.toml", "-o", "y.png", *args, cwd=files)
     err = res.stderr.decode().strip().splitlines()
     assert res.returncode == 2 and len(err) == 1 and needle in err[0], res.stderr
+
+
+class _Cluster:
+    """A client whose cluster has no workers at first and ``joined`` after waiting (None: none join)."""
+
+    def __init__(self, joined):
+        self.joined, self.waited = joined, False
+        self.scheduler = type("S", (), {"address": "tcp://127.0.0.1:1"})()
+
+    def scheduler_info(self, n_workers=-1):
+        return {"workers": dict.fromkeys(self.joined or []) if self.waited else {}}
+
+    def wait_for_workers(self, n, timeout=None):
+        from distributed.client import WorkerStartTimeoutError
+
+        self.waited = True
+        if not self.joined:
+            raise WorkerStartTimeoutError(0, n, timeout)
+
+
+def test_a_cluster_without_workers_is_waited_for_then_refused_in_one_line():
+    """No workers at the moment of asking (all restarting): the ones that join are used; none joining is one
+    IsplatError naming the scheduler, not a division by zero when slabs are spread over ``s mod W`` workers."""
+    assert D._workers(_Cluster(["tcp://b", "tcp://a"]), timeout=1) == ["tcp://a", "tcp://b"]
+    with pytest.raises(IsplatError, match=r"tcp://127.0.0.1:1 has no workers \(none joined in 1 s\)"):
+        D._workers(_Cluster(None), timeout=1)

@@ -1,0 +1,170 @@
+"""Start-up: ``python -m benchmarks startup [--quick]`` (part of ``make bench``) writes docs/startup.md.
+
+Where the time of a one-frame ``isplat render`` process goes, and what the first run on a new machine compiles:
+
+1. Warm (numba's cache present): a child process runs the steps of ``isplat render`` one after the other and
+   stamps each (import numpy, the CLI, the scene, numba, the renderer's modules, ``Renderer`` (the first
+   cached kernel also sets up numba's compiler target), the first frame, a second frame, the PNG), then leaves
+   with ``os._exit`` as the ``isplat`` command does, or through Python's normal teardown; the parent times the
+   whole process, so the teardown is the time after the last stamp. Repeated, the two exits interleaved.
+2. Cold (an empty ``NUMBA_CACHE_DIR``): the same child with numba's ``Dispatcher.compile`` timed per top-level
+   function, once at numba's default optimisation and once at ``NUMBA_OPT=0`` (how much of the compile time is
+   LLVM's optimiser).
+
+Both with Python's bytecode cache on, as a package installed by pip has it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from . import _doc
+from .render import ROOT, SCENE, ensure_head
+
+SIZE = 512
+CHILD = r'''
+import json, os, sys, time
+T = [("start", time.time())]
+def mark(name):
+    T.append((name, time.time()))
+compiles = []
+if os.environ.get("STARTUP_COMPILES") == "1":
+    import numba.core.dispatcher as D
+    orig, depth = D.Dispatcher.compile, [0]
+    def compile(self, sig):
+        depth[0] += 1
+        t = time.perf_counter()
+        try:
+            return orig(self, sig)
+        finally:
+            depth[0] -= 1
+            if depth[0] == 0:
+                compiles.append((self.py_func.__module__ + "." + self.py_func.__name__, time.perf_counter() - t))
+    D.Dispatcher.compile = compile
+    mark("numba (for timing compiles)")
+import numpy
+mark("import numpy")
+import isplat.cli.main, isplat.cli.render
+mark("import the CLI (click)")
+from isplat.scene import load_scene
+scene = load_scene(sys.argv[1], sys.argv[3:])
+mark("read the scene")
+import numba
+mark("import numba")
+from isplat.renderer import Renderer
+from isplat.output import write_still
+mark("import the renderer")
+r = Renderer(scene, scene.views)
+mark("Renderer: index, selection, first kernels")
+rgba, st = r.render_view(0)
+mark("first frame")
+r.render_view(0)
+mark("second frame (for comparison)")
+write_still(sys.argv[2], rgba, scene.image.bit_depth, True)
+mark("write the PNG")
+print(json.dumps({"marks": T, "compiles": compiles}), flush=True)
+if os.environ.get("STARTUP_EXIT") == "os":
+    sys.stdout.flush()
+    os._exit(0)
+'''
+
+
+def _log(msg):
+    print(f"[startup] {msg}", file=sys.stderr, flush=True)
+
+
+def child_run(scene_args, env_extra: dict) -> dict:
+    """One child process: its stamps, compile times, and the teardown (process end after the last stamp)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(env_extra)
+    with tempfile.TemporaryDirectory(prefix="isplat-startup-") as tmp:
+        t0 = time.time()
+        r = subprocess.run([sys.executable, "-c", CHILD, str(SCENE), str(Path(tmp) / "f.png"), *scene_args],
+                           capture_output=True, text=True, env=env, cwd=ROOT)
+        t1 = time.time()
+    if r.returncode != 0:
+        raise RuntimeError(f"startup child failed: {r.stderr.strip()[-500:]}")
+    d = json.loads(r.stdout.strip().splitlines()[-1])
+    marks = [("interpreter start", t0)] + d["marks"][1:]       # "start" is the first line of the child
+    steps = [(name, b - a) for (_, a), (name, b) in zip(marks, marks[1:])]
+    return dict(steps=steps, teardown=t1 - marks[-1][1], total=t1 - t0, compiles=d["compiles"])
+
+
+def run(out_dir: Path, quick: bool) -> Path:
+    t_start = time.perf_counter()
+    aug, idx = ensure_head((64, 64, 56) if quick else None)
+    size = 64 if quick else SIZE
+    args = [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={size}", f"image.height={size}"]
+    repeats = 1 if quick else 5
+    _log("warm")
+    child_run(args, {})                                   # numba's cache and .pyc files made
+    warm = {"os": [], "normal": []}
+    for i in range(repeats):
+        for how in (("os", "normal") if i % 2 == 0 else ("normal", "os")):
+            warm[how].append(child_run(args, {"STARTUP_EXIT": how}))
+    cold = {}
+    for opt in ((None,) if quick else (None, "0")):
+        _log(f"cold, NUMBA_OPT={opt or 'default'}")
+        with tempfile.TemporaryDirectory(prefix="isplat-numba-empty-") as cache:
+            env = {"NUMBA_CACHE_DIR": cache, "STARTUP_COMPILES": "1", "STARTUP_EXIT": "os"}
+            if opt is not None:
+                env["NUMBA_OPT"] = opt
+            cold[opt or "default"] = child_run(args, env)
+    body = doc(warm, cold, size, quick, time.perf_counter() - t_start)
+    path = out_dir / "startup.md"
+    path.write_text(body + "\n")
+    return path
+
+
+def _med(xs) -> float:
+    return statistics.median(xs)
+
+
+def doc(warm, cold, size, quick, seconds) -> str:
+    runs = warm["os"]
+    names = [n for n, _ in runs[0]["steps"]]
+    L = ["# Start-up: one frame as a process, and the first run on a machine", "",
+         f"Made by `python -m benchmarks startup{' --quick' if quick else ''}` (part of `make bench`) on "
+         f"{_doc.machine_line()}, git {_doc.git_rev()}, in {seconds:.0f} s. Do not edit: rerun the command.", "",
+         f"The steps of `isplat render examples/head.toml` (the head sample, {size} x {size}, shaded bone) in a "
+         "child process, each stamped; the parent times the whole process, so *teardown* is from the last stamp "
+         "to the process's end. Medians of "
+         f"{len(runs)} runs per exit, the two exits interleaved; Python's bytecode cache on, as installed by pip.",
+         "", "## Warm: numba's cache present", "",
+         "| step | ms (median) | range |", "|---|---:|---:|"]
+    for k, name in enumerate(names):
+        xs = [1e3 * r["steps"][k][1] for r in runs]
+        L.append(f"| {name} | {_med(xs):.0f} | {min(xs):.0f}-{max(xs):.0f} |")
+    for how, label in (("os", "teardown, `os._exit` (as the `isplat` command leaves)"),
+                       ("normal", "teardown, Python's normal exit")):
+        xs = [1e3 * r["teardown"] for r in warm[how]]
+        L.append(f"| {label} | {_med(xs):.0f} | {min(xs):.0f}-{max(xs):.0f} |")
+    for how, label in (("os", "whole process, `os._exit`"), ("normal", "whole process, normal exit")):
+        xs = [1e3 * r["total"] for r in warm[how]]
+        L.append(f"| **{label}** | **{_med(xs):.0f}** | {min(xs):.0f}-{max(xs):.0f} |")
+    L += ["", "numba costs a one-frame process three things: its import, setting up its compiler target when the "
+          "first kernel is loaded from the cache (inside the *Renderer* step: numba refreshes its typing and "
+          "lowering registries even for a cached kernel), and loading each kernel's machine code. The first frame "
+          "is slower than the second by the kernels it loads.", "",
+          "## Cold: an empty numba cache (the first run on a machine)", "",
+          "| | " + " | ".join(f"NUMBA_OPT={k}" for k in cold) + " |",
+          "|---|" + "---:|" * len(cold)]
+    L.append("| whole process (s) | " + " | ".join(f"{c['total']:.1f}" for c in cold.values()) + " |")
+    L.append("| compiling, all top-level kernels (s) | " +
+             " | ".join(f"{sum(t for _, t in c['compiles']):.1f}" for c in cold.values()) + " |")
+    first = next(iter(cold.values()))["compiles"]
+    L += ["", "Top-level kernels compiled (each with the functions it calls), at numba's default optimisation:", "",
+          "| kernel | s |", "|---|---:|"]
+    for name, t in sorted(first, key=lambda x: -x[1]):
+        L.append(f"| `{name}` | {t:.2f} |")
+    L += ["", "With `NUMBA_OPT=0` LLVM hardly optimises, so the difference between the columns is LLVM's share; "
+          "the rest is numba's typing and lowering, which grows with the number of compiled functions and "
+          "their argument types (each distinct set of argument types is compiled again)."]
+    return "\n".join(L)

@@ -140,8 +140,8 @@ def console():
     """The ``isplat`` command: :func:`main`, then out of the process without tearing the interpreter down.
 
     Once the outputs are written (closed and renamed by the stages) and stdout and stderr are flushed, nothing
-    is left to do; yet Python's finalisation frees every module and numba's compiled code one by one, which
-    took 0.15-0.33 s of a 1.5 s one-frame render (docs/performance.md, process start). ``os._exit`` skips it.
+    is left to do; yet Python's finalisation frees every module and numba's compiled code one by one, about
+    0.3 s of a one-frame render (docs/startup.md, ``python -m benchmarks startup``). ``os._exit`` skips it.
     In-process callers (tests) use :func:`main`, which returns normally."""
     code = 0
     try:

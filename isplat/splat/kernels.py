@@ -377,7 +377,7 @@ def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, ban
     return nd
 
 
-@leaf
+@leaf(inline="always")
 def _hidden(a0, b0, size, box_args, satab, sat, pixels):
     """Stage 2: True when the footprints of the voxels of the square ``[a0, a0 + size) x [b0, b0 + size)`` of
     the slice can reach no pixel of the band, or (early termination on) only saturated ones: whole tiles
@@ -397,7 +397,7 @@ def _hidden(a0, b0, size, box_args, satab, sat, pixels):
     return _tiles_whole(satab, ty0, gx0, gx1, gy0, gy1)
 
 
-@leaf
+@leaf(inline="always")
 def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
     """The pixel box ``(x0, x1, y0, y1)`` that the footprints of voxels in the rectangle [a0, a1] x [b0, b1]
     of the slice can reach: the hull of its corners' projections (:func:`rect_hull`) grown by the footprint's
@@ -410,7 +410,7 @@ def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
                   int(math.ceil(cy0 - ey * smax)), int(math.floor(cy1 + ey * smax)))
 
 
-@leaf
+@leaf(inline="always")
 def rect_hull(a0, a1, b0, b1, base, coef, persp):
     """The pixel bounds ``(ok, x0, x1, y0, y1, largest perspective scale)`` of the rectangle [a0, a1] x [b0, b1]
     of the slice plane (the projection of a planar rectangle is the hull of its corners' projections); ``ok``

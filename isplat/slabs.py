@@ -174,6 +174,7 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
     from .augfile import open_augmented
     from .frame import blank, finish_image, frame_stats, prepare, render_slab, slab_bounds
     from .selection import select_from_files
+    from .threads import default_threads
 
     t0 = time.perf_counter()
     aug = aug or open_augmented(scene.data.augmented)
@@ -194,4 +195,6 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
         part = blank(setup) if part is None else part
         render_slab(setup, a, b, part)
         del sel, setup
-    return finish_image(part.img, view.background), frame_stats(view, part, time.perf_counter() - t0), report
+    threads = view.render.threads or default_threads()
+    return (finish_image(part.img, view.background, view.render.supersample, threads),
+            frame_stats(view, part, time.perf_counter() - t0), report)

@@ -59,7 +59,7 @@ def test_bad_supersample_is_one_clear_line(value, got):
 
 
 def test_streamed_frames_are_box_filtered_too(volume):
-    """The slab-by-slab path (isplat render --slabs) finishes the finer frame; the CLI shrinks it the same way."""
+    """The slab-by-slab path (isplat render --slabs) box-filters the finer frame as one pass does."""
     from isplat.cli.render import _streamed
     from isplat.progress import bar
 

@@ -169,19 +169,6 @@ def _auto_slabs(scene, views) -> int:
     return k
 
 
-def _shrink_finished(rgba, n):
-    """A finished (straight, over the background) frame of n times the image's size, box-filtered down as
-    frame.finish_image does it (premultiplied means, then straight again)."""
-    import numpy as np
-
-    from ..frame import box_filter
-
-    a = rgba[..., 3:4].astype(np.float64)
-    pre = box_filter(np.concatenate([rgba[..., :3] * a, a], axis=-1), n)
-    return np.concatenate([np.where(pre[..., 3:] > 0, pre[..., :3] / np.maximum(pre[..., 3:], 1e-300), 0.0),
-                           pre[..., 3:]], axis=-1).astype(rgba.dtype)
-
-
 def _streamed(scene, views, slabs, bar):
     """Each view front to back in ``slabs`` slabs, one slab's selection at a time (isplat.slabs.render_streamed)."""
     from ..augfile import open_augmented
@@ -191,7 +178,5 @@ def _streamed(scene, views, slabs, bar):
     aug = open_augmented(scene.data.augmented)
     for n, view in enumerate(views_for(scene, aug, views)):
         rgba, st, report = render_streamed(scene, view, slabs, aug)
-        if rgba.shape[0] != scene.image.height:         # a supersampled frame, finished at its own size
-            rgba = _shrink_finished(rgba, scene.render.supersample)
         bar.update(1)
         yield n, rgba, st, report

@@ -582,6 +582,15 @@ def _path_alpha(L, a, b, base, steps, persp, inv_unit, coef, eye):
     return -math.expm1(r / cosang * L), r
 
 
+@leaf(inline="always")
+def _footprint_form(fpc, s):
+    """The footprint's quadratic form in table units (q * tscale), with the voxel's perspective scale ``s``
+    folded in: ``(A, B, C, T)``, the cut-off ``T``."""
+    Qa, Qb2, Qc, R2v, tscale = fpc
+    k = tscale / (s * s)
+    return Qa * k, Qb2 * k, Qc * k, R2v * tscale
+
+
 @leaf
 def _splat_rays(px, py, s, box, cr, cg, cb, rL, fpc, table, coef, eye, sheet, dirty_px, dirty, nd):
     """Stage 4 for a voxel next to the eye, whose footprint spans a wide angle: as :func:`_splat`, but the
@@ -590,13 +599,8 @@ def _splat_rays(px, py, s, box, cr, cg, cb, rL, fpc, table, coef, eye, sheet, di
     pixels around it the path of a ray far off theirs (a uniform slab seen from inside it would come out
     denser at the centre than it is)."""
     x0, x1, y0, y1 = box
-    Qa, Qb2, Qc, R2v, tscale = fpc
     img_w = sheet.shape[1]
-    k = tscale / (s * s)
-    A = Qa * k
-    B = Qb2 * k
-    C = Qc * k
-    T = R2v * tscale
+    A, B, C, T = _footprint_form(fpc, s)
     gx, cmin = eye[EY_GX], eye[EY_COSMIN]
     for y in range(y0, y1 + 1):
         dy = y - py
@@ -655,14 +659,8 @@ def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty
     reads the table's trailing zero; the dirty list always stores the pixel and advances only on its first touch.
     """
     x0, x1, y0, y1 = box
-    Qa, Qb2, Qc, R2v, tscale = fpc
     img_w = sheet.shape[1]
-    # the quadratic form in table units (q * tscale), with this voxel's perspective scale folded in
-    k = tscale / (s * s)
-    A = Qa * k
-    B = Qb2 * k
-    C = Qc * k
-    T = R2v * tscale
+    A, B, C, T = _footprint_form(fpc, s)
     for y in range(y0, y1 + 1):
         dy = y - py
         ty = C * dy * dy

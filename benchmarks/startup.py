@@ -3,10 +3,11 @@
 Where the time of a one-frame ``isplat render`` process goes, and what the first run on a new machine compiles:
 
 1. Warm (numba's cache present): a child process runs the steps of ``isplat render`` one after the other and
-   stamps each (import numpy, the CLI, the scene, numba, the renderer's modules, ``Renderer`` (the first
-   cached kernel also sets up numba's compiler target), the first frame, a second frame, the PNG), then leaves
-   with ``os._exit`` as the ``isplat`` command does, or through Python's normal teardown; the parent times the
-   whole process, so the teardown is the time after the last stamp. Repeated, the two exits interleaved.
+   stamps each (import numpy, the CLI, the scene, numba, the renderer's modules, ``Renderer`` (index, selection,
+   the first cached kernels), the first frame, a second frame, the PNG), then leaves with ``os._exit`` as the
+   ``isplat`` command does, or through Python's normal teardown; the parent times the whole process, so the
+   teardown is the time after the last stamp. A third kind of run loads the kernels as numba does
+   (``ISPLAT_NUMBA_STOCK_LOAD=1``: its target refreshed first). Repeated, the three interleaved.
 2. Cold (an empty ``NUMBA_CACHE_DIR``): the same child with numba's ``Dispatcher.compile`` timed per top-level
    function, once at numba's default optimisation and once at ``NUMBA_OPT=0`` (how much of the compile time is
    LLVM's optimiser).
@@ -105,10 +106,12 @@ def run(out_dir: Path, quick: bool) -> Path:
     repeats = 1 if quick else 5
     _log("warm")
     child_run(args, {})                                   # numba's cache and .pyc files made
-    warm = {"os": [], "normal": []}
+    warm = {"os": [], "normal": [], "stock": []}
+    env = {"os": {"STARTUP_EXIT": "os"}, "normal": {"STARTUP_EXIT": "normal"},
+           "stock": {"STARTUP_EXIT": "os", "ISPLAT_NUMBA_STOCK_LOAD": "1"}}
     for i in range(repeats):
-        for how in (("os", "normal") if i % 2 == 0 else ("normal", "os")):
-            warm[how].append(child_run(args, {"STARTUP_EXIT": how}))
+        for how in (("os", "normal", "stock") if i % 2 == 0 else ("stock", "normal", "os")):
+            warm[how].append(child_run(args, env[how]))
     cold = {}
     for opt in ((None,) if quick else (None, "0")):
         _log(f"cold, NUMBA_OPT={opt or 'default'}")
@@ -149,10 +152,19 @@ def doc(warm, cold, size, quick, seconds) -> str:
     for how, label in (("os", "whole process, `os._exit`"), ("normal", "whole process, normal exit")):
         xs = [1e3 * r["total"] for r in warm[how]]
         L.append(f"| **{label}** | **{_med(xs):.0f}** | {min(xs):.0f}-{max(xs):.0f} |")
-    L += ["", "numba costs a one-frame process three things: its import, setting up its compiler target when the "
-          "first kernel is loaded from the cache (inside the *Renderer* step: numba refreshes its typing and "
-          "lowering registries even for a cached kernel), and loading each kernel's machine code. The first frame "
-          "is slower than the second by the kernels it loads.", "",
+    renderer = names.index("Renderer: index, selection, first kernels")
+    stock = {k: [1e3 * r[k] for r in warm["stock"]] for k in ("total",)}
+    stock["renderer"] = [1e3 * r["steps"][renderer][1] for r in warm["stock"]]
+    ours = [1e3 * r["steps"][renderer][1] for r in runs]
+    L += ["", "numba costs a one-frame process three things: its import, loading each kernel's machine code (the "
+          "first frame is slower than the second by the kernels it loads), and, as numba does it, setting up its "
+          "compiler target before the first kernel is loaded from the cache: it imports and installs every typing "
+          "and lowering registry, which only compiling needs. isplat loads its kernels without that refresh "
+          "(`isplat.jit._CacheLoad`: numba's runtime is initialised, nothing else; a compile still refreshes). "
+          f"Loaded as numba does it (`ISPLAT_NUMBA_STOCK_LOAD=1`, interleaved with the runs above): the "
+          f"*Renderer* step takes {_med(stock['renderer']):.0f} ms against {_med(ours):.0f} ms, the whole "
+          f"process (`os._exit`) {_med(stock['total']):.0f} ms (range {min(stock['total']):.0f}-"
+          f"{max(stock['total']):.0f}) against {_med([1e3 * r['total'] for r in runs]):.0f} ms.", "",
           "## Cold: an empty numba cache (the first run on a machine)", "",
           "| | " + " | ".join(f"NUMBA_OPT={k}" for k in cold) + " |",
           "|---|" + "---:|" * len(cold)]

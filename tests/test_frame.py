@@ -304,6 +304,59 @@ def test_boundscheck_switch_turns_numba_bounds_checks_on(tmp_path):
     assert out.stdout.strip() == "caught"
 
 
+# ---------------------------------------------------------------------------------------------------------
+# loading compiled code from numba's cache (isplat.jit._CacheLoad)
+
+CACHED = """
+import sys
+import numpy as np
+from isplat.jit import jit, leaf
+
+@leaf
+def _step(x):
+    return 2.0 * x + 1.0
+
+@jit
+def kernel(a):
+    out = np.empty(a.shape[0] + 1)       # an allocation: needs numba's runtime initialised
+    for i in range(a.shape[0]):
+        out[i] = _step(a[i])
+    out[-1] = a.sum()
+    return out
+"""
+CACHED_RUN = """
+import sys
+sys.path.insert(0, sys.argv[1])
+import numpy as np
+from cached_mod import kernel
+out = kernel(np.arange(5.0))
+print(repr(out.tolist()), kernel.stats.cache_hits[kernel.signatures[0]], 'numba.np.polynomial.polynomial_core' in sys.modules)
+"""
+
+
+def test_cached_kernels_load_without_numbas_registry_refresh(tmp_path):
+    """The first process compiles and saves; the next loads the machine code from the cache, without importing
+    the typing and lowering registries that only compiling needs (numba.np.polynomial stands for them), and
+    computes the same; ISPLAT_NUMBA_STOCK_LOAD=1 loads through numba's own cache object (registries
+    refreshed) with the same result."""
+    (tmp_path / "mod").mkdir()
+    (tmp_path / "mod" / "cached_mod.py").write_text(CACHED)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("ISPLAT_NUMBA_STOCK_LOAD", None)
+
+    def run(**extra):
+        out = subprocess.run([sys.executable, "-c", CACHED_RUN, str(tmp_path / "mod")], env=dict(env, **extra),
+                             capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        values, hits, registries = out.stdout.split("] ")[0] + "]", *out.stdout.split("] ")[1].split()
+        return values, int(hits), registries == "True"
+
+    expected = repr([1.0, 3.0, 5.0, 7.0, 9.0, 10.0])
+    assert run() == (expected, 0, True)                      # compiled (numba's compiler refreshes)
+    assert run() == (expected, 1, False)                     # loaded, no refresh
+    assert run(ISPLAT_NUMBA_STOCK_LOAD="1") == (expected, 1, True)
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(h=st.integers(1, 40), w=st.integers(1, 9), threads=st.integers(1, 5), seed=st.integers(0, 2**31 - 1),
        bg=st.tuples(*[st.floats(0, 1)] * 4))

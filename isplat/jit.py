@@ -11,6 +11,7 @@ A kernel's cache is made when first used and loaded without numba's registry ref
 
 from __future__ import annotations
 
+import logging
 import os
 import tempfile
 
@@ -21,6 +22,19 @@ if BOUNDSCHECK:
 import numba as nb  # noqa: E402  (after NUMBA_CACHE_DIR is settled)
 
 OPTIONS = {"nopython": True, "nogil": True, "cache": True, "boundscheck": BOUNDSCHECK or None}
+
+
+_ANNOUNCED = []
+
+
+def _announce_compile(cache_path: str) -> None:
+    """Say once per process, as an INFO log line (shown by the command line unless ``-q``), that kernels are
+    being compiled: the first run on a machine spends about half a minute there before any output."""
+    if not _ANNOUNCED:
+        _ANNOUNCED.append(cache_path)
+        logging.getLogger(__name__).info(
+            f"isplat: compiling the kernels for this machine, once (about half a minute; later runs load them from "
+            f"numba's cache, {cache_path})")
 
 
 try:
@@ -52,8 +66,12 @@ try:
 
         def load_overload(self, sig, target_context):
             rtsys.initialize(target_context)
+            found = None
             with self._guard_against_spurious_io_errors():
-                return self._load_overload(sig, target_context)
+                found = self._load_overload(sig, target_context)
+            if found is None:
+                _announce_compile(self._cache_path)
+            return found
 
     # ISPLAT_NUMBA_STOCK_LOAD=1: numba's own cache object, refresh included (docs/startup.md measures both)
     _FAST_LOAD = (all(hasattr(FunctionCache, a) for a in ("_load_overload", "_guard_against_spurious_io_errors"))

@@ -325,7 +325,8 @@ def kernel(a):
     return out
 """
 CACHED_RUN = """
-import sys
+import logging, sys
+logging.basicConfig(level=logging.INFO, format="%(message)s")
 sys.path.insert(0, sys.argv[1])
 import numpy as np
 from cached_mod import kernel
@@ -338,7 +339,7 @@ def test_cached_kernels_load_without_numbas_registry_refresh(tmp_path):
     """The first process compiles and saves; the next loads the machine code from the cache, without importing
     the typing and lowering registries that only compiling needs (numba.np.polynomial stands for them), and
     computes the same; ISPLAT_NUMBA_STOCK_LOAD=1 loads through numba's own cache object (registries
-    refreshed) with the same result."""
+    refreshed) with the same result. A compile is announced once, as an INFO log line naming the cache."""
     (tmp_path / "mod").mkdir()
     (tmp_path / "mod" / "cached_mod.py").write_text(CACHED)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
@@ -349,12 +350,15 @@ def test_cached_kernels_load_without_numbas_registry_refresh(tmp_path):
                              capture_output=True, text=True, timeout=300)
         assert out.returncode == 0, out.stderr
         values, hits, registries = out.stdout.split("] ")[0] + "]", *out.stdout.split("] ")[1].split()
-        return values, int(hits), registries == "True"
+        announced = [line for line in out.stderr.splitlines() if "compiling the kernels" in line]
+        return values, int(hits), registries == "True", announced
 
     expected = repr([1.0, 3.0, 5.0, 7.0, 9.0, 10.0])
-    assert run() == (expected, 0, True)                      # compiled (numba's compiler refreshes)
-    assert run() == (expected, 1, False)                     # loaded, no refresh
-    assert run(ISPLAT_NUMBA_STOCK_LOAD="1") == (expected, 1, True)
+    values, hits, registries, announced = run()              # compiled (numba's compiler refreshes)
+    assert (values, hits, registries) == (expected, 0, True)
+    assert len(announced) == 1 and str(tmp_path / "cache") in announced[0]
+    assert run() == (expected, 1, False, [])                 # loaded, no refresh, nothing said
+    assert run(ISPLAT_NUMBA_STOCK_LOAD="1") == (expected, 1, True, [])
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

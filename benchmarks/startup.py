@@ -139,7 +139,9 @@ def doc(warm, cold, size, quick, seconds) -> str:
          f"The steps of `isplat render examples/head.toml` (the head sample, {size} x {size}, shaded bone) in a "
          "child process, each stamped; the parent times the whole process, so *teardown* is from the last stamp "
          "to the process's end. Medians of "
-         f"{len(runs)} runs per exit, the two exits interleaved; Python's bytecode cache on, as installed by pip.",
+         f"{len(runs)} runs of each kind (leaving with `os._exit` or through Python's normal exit, and the "
+         "kernels loaded as numba does it, below), the kinds interleaved; Python's bytecode cache on, as "
+         "installed by pip.",
          "", "## Warm: numba's cache present", "",
          "| step | ms (median) | range |", "|---|---:|---:|"]
     for k, name in enumerate(names):

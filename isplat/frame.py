@@ -192,8 +192,12 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     kernel = K.render_full if sel.method == "full" else K.render_indexed
     if ro.classification == "post":
         kernel, vox, fpt = _post_kernel(sel, axis, vox, proj, dtype)
-        # the per-sample lerps run in float64: tables in float64 save a conversion per load (same values)
-        cls = cls._replace(alpha=atab.astype(np.float64), color=np.asarray(sel.luts.color, np.float64))
+        # the tables with their steps between codes (post.lerp_tables; the full method's search reads the
+        # opacities, the first half of the columns)
+        from .splat.post import lerp_tables
+
+        alpha, color = lerp_tables(atab, sel.luts.color)
+        cls = cls._replace(alpha=alpha, color=color)
     bins = None if sel.method == "full" else \
         K.Bins(*K.bin_regions(view.order, sel.voxels(axis), geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
     return Setup(view, kernel, vox, cls, geo, fpt, rows, mine, bins, _tile_pixels(H, W), *scratch, et_val,

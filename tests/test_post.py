@@ -164,3 +164,24 @@ def test_a_post_selection_is_refused_by_the_pre_kernel_when_it_lacks_values(tmp_
     assert r.selection.post and r.selection.axes["j"].normal.size == 0
     with pytest.raises(IsplatError, match="needs the channel values"):
         render_frame(r.selection, views_for(pre, r.selection)[0])
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), levels=st.sampled_from([1, 2, 7, 256]), k=st.integers(0, 254),
+       f=st.floats(0.0, 1.0))
+def test_lerp_tables_give_the_lerp_between_codes_bit_for_bit(seed, levels, k, f):
+    """post.lerp_tables: the opacities and colours, then their steps to the next code; t[k] + f step[k] is the
+    lerp t[k] + f (t[k + 1] - t[k]) exactly (the kernel's samples are those of the two-load lerp), and code
+    255's steps are 0."""
+    from isplat.splat.post import lerp_tables
+
+    rng = np.random.default_rng(seed)
+    alpha = rng.uniform(0, 1, (256, levels)).astype(np.float32) * (rng.uniform(size=(256, 1)) > 0.3)
+    color = rng.uniform(0, 1, (256, 3)).astype(np.float32)
+    a, c = lerp_tables(alpha, color)
+    assert a.shape == (256, 2 * levels) and c.shape == (256, 6) and a.dtype == c.dtype == np.float64
+    assert a.flags.c_contiguous and c.flags.c_contiguous
+    for t, lerped in ((alpha.astype(np.float64), a), (color.astype(np.float64), c)):
+        n = t.shape[1]
+        assert np.array_equal(lerped[:, :n], t) and not lerped[255, n:].any()
+        assert np.array_equal(lerped[k, :n] + f * lerped[k, n:], t[k] + f * (t[k + 1] - t[k]))

@@ -129,6 +129,20 @@ def _slice_scratch(geo):
     return np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64), np.zeros(2, np.int64)
 
 
+def lerp_tables(alpha, color) -> tuple[np.ndarray, np.ndarray]:
+    """The transfer tables as :func:`_sample` takes them, float64 (the per-sample lerps run in float64: no
+    conversion per load): ``alpha`` (256, G) -> (256, 2G), each code's opacities and then their steps to the
+    next code's; ``color`` (256, 3) -> (256, 6) the same. A sample at density ``k + f`` is ``t[k] + f step[k]``,
+    the same value as ``t[k] + f (t[k + 1] - t[k])`` with one subtraction fewer per sample (the steps of code
+    255 are 0; a sample's ``k`` is at most 254)."""
+    out = []
+    for t in (np.asarray(alpha, np.float64), np.asarray(color, np.float64)):
+        step = np.zeros_like(t)
+        step[:-1] = t[1:] - t[:-1]
+        out.append(np.ascontiguousarray(np.concatenate([t, step], axis=1)))
+    return out[0], out[1]
+
+
 def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
     """The side, in voxels, of the squares of the slice whose pixels are scanned together: a cell (4 voxels) when
     a cell covers at least ``target`` pixels, else 8 or 16, so that the per-square costs (its projected box,
@@ -330,23 +344,24 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     i01 = i00 + np.uint64(sb)
     i11 = i01 + np.uint64(sa)
     d = w00 * density[i00] + w10 * density[i10] + w01 * density[i01] + w11 * density[i11]
-    di = np.uint64(min(int(d), 254))
-    dj = di + np.uint64(1)
-    f = d - np.float64(di)
+    k = min(int(d), 254)
+    f = d - k                   # from the signed code: one conversion (an unsigned one takes five)
+    di = np.uint64(k)
+    ng = np.uint64(alpha.shape[1] // 2)     # (:func:`lerp_tables`) opacities, then their steps to the next code
     g = np.uint64(0)
     if use_gm:
         g = np.uint64(min(int(w00 * gm[i00] + w10 * gm[i10] + w01 * gm[i01] + w11 * gm[i11] + 0.5),
-                          alpha.shape[1] - 1))
-    L = alpha[di, g] + f * (alpha[dj, g] - alpha[di, g])
+                          alpha.shape[1] // 2 - 1))
+    L = alpha[di, g] + f * alpha[di, ng + g]
     if L == 0.0:
         return 0
     a = L                       # orthographic: the table is corrected for the slices' path already
     if geo.persp:
         a, _ = _path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
     c0, c1, c2 = np.uint64(0), np.uint64(1), np.uint64(2)
-    cr = color[di, c0] + f * (color[dj, c0] - color[di, c0])
-    cg = color[di, c1] + f * (color[dj, c1] - color[di, c1])
-    cb = color[di, c2] + f * (color[dj, c2] - color[di, c2])
+    cr = color[di, c0] + f * color[di, np.uint64(3)]
+    cg = color[di, c1] + f * color[di, np.uint64(4)]
+    cb = color[di, c2] + f * color[di, np.uint64(5)]
     if use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
         s0 = w00 * shade[n00, 0] + w10 * shade[n10, 0] + w01 * shade[n01, 0] + w11 * shade[n11, 0]

@@ -4,7 +4,7 @@
 whose images are known analytically (uniform slabs seen along a grid axis, where the opacity of a pixel is
 ``1 - (1 - a)^(path / unit_distance)``), each rendered with ``precision = "float32"`` and ``"float64"``; the
 value measured, its error and whether every pixel came out finite (the renderer refuses to return non-finite
-pixels: :func:`isplat.frame.finish_image` raises).
+pixels: :func:`isplat.frame.render_slab`, which finishes the rows, or :func:`isplat.frame.finish_image` raises).
 
 Unless a case is about them, the kernel knobs are at reference values (``footprint_radius = 4``,
 ``footprint_table = 2^20``, early termination off) so that the kernel's own error (the partition of unity,
@@ -489,7 +489,8 @@ def render_doc(rows, quick, seconds, load0, cover=None, cost=None, rows_post=Non
          "odd sizes). Kernel knobs at reference values (`footprint_radius = 4`, `footprint_table = 2^20`, early "
          "termination off) except rows 2 and the early-termination row, so the kernel's partition-of-unity error "
          "(row 1) is the floor every error sits on. *finite*: the render returned (the renderer refuses to "
-         "return a non-finite pixel: `finish()` in splat/composite.py reports it and `frame.finish_image` raises) and "
+         "return a non-finite pixel: `finish()` in splat/composite.py reports it and `frame.render_slab` or "
+         "`frame.finish_image`, whichever finished the rows, raises) and "
          "every pixel is finite.\n",
          "| # | case | quantity | expected | float32 | float64 | error f32 | error f64 | finite f32/f64 |",
          "|---:|---|---|---:|---:|---:|---:|---:|---|"]

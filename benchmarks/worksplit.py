@@ -72,8 +72,8 @@ def counts(r, threads: int):
 
 def cpu_frame(r, view) -> dict:
     """One frame of ``view``: its wall time; the CPU time of the thread that made it outside the parallel parts
-    (the serial part: set-up, binning); and per parallel part (the kernels, then finishing the image) each
-    thread's CPU time in it (``time.thread_time``, which does not count time a thread waits for a core: on a
+    (the serial part: set-up, binning); and per parallel part (each thread's kernel, then finishing its bands'
+    rows; a supersampled frame is finished in a part of its own) each thread's CPU time in it (``time.thread_time``, which does not count time a thread waits for a core: on a
     shared machine the CPU times hold where wall times do not)."""
     from isplat import frame as F
 
@@ -189,14 +189,13 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
           "calling thread outside the parallel parts: the serial part) do not count waiting for a core, so the CPU "
           "speed-up is what 2 free cores would give, memory bandwidth aside.", "",
-          "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | kernel CPU, 1 thread (ms) | kernel CPU, 2 "
-          "threads: sum / busiest (ms) | imbalance | finishing CPU, 1 thread / 2 threads' busiest (ms) | serial "
-          "CPU, 2 threads (ms) | CPU speed-up |",
-          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | threads' CPU, 1 thread (ms) | threads' CPU, "
+          "2 threads: sum / busiest (ms) | imbalance | serial CPU, 2 threads (ms) | CPU speed-up |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
-                 f"{1e3 * tm['work1']:.1f} | {1e3 * tm['work2']:.1f} / {1e3 * tm['busiest2']:.1f} | "
-                 f"{tm['imbalance2']:.2f} | {1e3 * tm['rest1']:.2f} / {1e3 * tm['rest_busiest2']:.2f} | "
+                 f"{1e3 * (tm['work1'] + tm['rest1']):.1f} | {1e3 * (tm['work2'] + tm['rest2']):.1f} / "
+                 f"{1e3 * (tm['busiest2'] + tm['rest_busiest2']):.1f} | {tm['imbalance2']:.2f} | "
                  f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup']:.2f} |")
     L += ["", "| scene | ns per voxel of interest | ns per voxel splatted or sample | set-up per frame (ms) | "
           "serial share |", "|---|---:|---:|---:|---:|"]
@@ -210,9 +209,10 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "minus one (a cell that crosses a band's edge is visited by both; post-classified, each band samples "
           "only its own pixels, so what is repeated is the per-cell and per-square set-up, not the samples). "
           "Serial share: the calling thread's CPU time outside the parallel parts (``isplat.frame.prepare``: "
-          "tables, binning the regions to the bands) over the one-thread frame's CPU time; the parallel parts are "
-          "the kernels and finishing the image (a block of rows per thread). "
-          "Imbalance: the busiest thread's kernel CPU time over the mean. Predicted speed-up on N cores: "
+          "tables, binning the regions to the bands) over the one-thread frame's CPU time; the parallel part is "
+          "each thread's kernel and then finishing its bands' rows (premultiplied to straight over the "
+          "background; ``isplat.frame.render_slab``'s ``finished``). "
+          "Imbalance: the busiest thread's CPU time over the mean. Predicted speed-up on N cores: "
           "1 / (serial + (1 - serial) "
           "(1 + repeated) / min(N, bands)): a band is rendered by one thread, and bands are at least "
           "4 tiles (32 rows) high, so a 256-row image keeps at most 8 threads busy and a 1024-row one 32. "

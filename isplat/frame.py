@@ -250,22 +250,32 @@ def blank(setup: Setup) -> Partial:
                    np.zeros(setup.tile_npix.shape, np.int32), np.zeros((len(setup.rows), 4), np.int64))
 
 
-def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Partial | None = None) -> Partial:
+def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Partial | None = None,
+                finished: np.ndarray | None = None) -> Partial:
     """Render the slices ``order[start:stop]`` of the frame (front to back) over ``state`` (the partial image
-    of the slices in front, updated in place; a blank one when None) and return it."""
+    of the slices in front, updated in place; a blank one when None) and return it.
+
+    ``finished`` (an image like the partial's; only for the frame's last slices, without supersampling): each
+    thread then also finishes its bands' rows into it over the view's background (:func:`finish_image`'s
+    pixels) as soon as its slices are done, with no second round of the threads."""
     part = blank(setup) if state is None else state
     slices = setup.sheets[start:stop]
     if setup.empty or slices.size == 0:
         return part
     et = part.img.dtype.type(setup.et)
+    bg = np.asarray(setup.view.background, dtype=np.float64)
 
     def run(t):
         buf = K.Buffers(part.img, setup.sheet, part.sat, part.tile_sat, setup.tile_npix, setup.dirty_px,
                         setup.dirty[t], setup.cells[t], part.band_stats)
         setup.kernel(slices, start, setup.bins or _NO_BINS, setup.vox, setup.cls, setup.geo, setup.fp, buf,
                      K.Bands(setup.rows, setup.mine[t], et))
+        if finished is None:
+            return True
+        return all([finish(part.img[y0:y1], bg, finished[y0:y1]) for y0, y1 in setup.rows[setup.mine[t]]])
 
-    run_parallel(run, range(len(setup.mine)), setup.threads)
+    if not all(run_parallel(run, range(len(setup.mine)), setup.threads)):
+        raise IsplatError(NON_FINITE)
     return part
 
 
@@ -306,10 +316,14 @@ def render_frame(sel, view: View, et: float | None = None):
     n = len(setup.sheets)
     slabs = slab_bounds(n, 20) if progress.enabled() and n >= 40 and not setup.empty else [(0, n)]
     part = blank(setup)
-    for start, stop in progress.bar(slabs, desc=f"slices ({n})", unit="slab", disable=len(slabs) == 1):
-        render_slab(setup, start, stop, part)
-    return (finish_image(part.img, view.background, view.render.supersample, setup.threads),
-            frame_stats(view, part, time.perf_counter() - t0))
+    # without supersampling the last slices' threads finish their own rows (render_slab's ``finished``)
+    out = np.empty_like(part.img) if view.render.supersample == 1 and not setup.empty and n > 0 else None
+    for i, (start, stop) in enumerate(progress.bar(slabs, desc=f"slices ({n})", unit="slab",
+                                                   disable=len(slabs) == 1)):
+        render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None)
+    if out is None:
+        out = finish_image(part.img, view.background, view.render.supersample, setup.threads)
+    return out, frame_stats(view, part, time.perf_counter() - t0)
 
 
 def finish_image(img: np.ndarray, background, supersample: int = 1, threads: int = 1) -> np.ndarray:
@@ -324,8 +338,11 @@ def finish_image(img: np.ndarray, background, supersample: int = 1, threads: int
     edges = np.linspace(0, img.shape[0], max(1, min(threads, img.shape[0])) + 1).round().astype(int)
     ok = run_parallel(lambda r: finish(img[r[0]:r[1]], bg, out[r[0]:r[1]]), zip(edges[:-1], edges[1:]), threads)
     if not all(ok):
-        raise IsplatError("render produced non-finite pixels; please report this scene")
+        raise IsplatError(NON_FINITE)
     return out
+
+
+NON_FINITE = "render produced non-finite pixels; please report this scene"
 
 
 def box_filter(img: np.ndarray, n: int) -> np.ndarray:

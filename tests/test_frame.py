@@ -203,6 +203,31 @@ def test_slabs_that_continue_one_another_are_the_one_pass_frame(make_scene, volu
 
 @given(data=st.data())
 @SLOW
+def test_threads_finishing_their_own_rows_give_finish_image(make_scene, volume, data):
+    """render_slab(finished=out): each thread finishes its bands' rows when its slices are done; ``out`` is
+    finish_image of the partial bit for bit, for any thread count and after slabs in front; a non-finite
+    pixel is refused as finish_image refuses it."""
+    classification = data.draw(st.sampled_from(["post", "pre"]))
+    threads = data.draw(st.sampled_from([1, 2, 3]))
+    proj = data.draw(st.sampled_from(["orthographic", "perspective"]))
+    sc = scene(make_scene, volume, proj=proj, threads=threads, extra=f'classification = "{classification}"')
+    sel, views = from_files(sc)
+    setup = F.prepare(sel, views[0])
+    cut = data.draw(st.integers(0, len(views[0].order) - 1))
+    part = F.render_slab(setup, 0, cut)
+    out = np.full_like(part.img, np.nan)
+    F.render_slab(setup, cut, None, part, out)
+    assert np.array_equal(out, F.finish_image(part.img, views[0].background))
+    img, _ = F.render_frame(sel, views[0])
+    assert np.array_equal(img, out)
+    part = F.blank(setup)
+    part.img[data.draw(st.integers(0, part.img.shape[0] - 1)), 0, 3] = np.nan
+    with pytest.raises(IsplatError, match="non-finite"):
+        F.render_slab(setup, 0, None, part, np.empty_like(part.img))
+
+
+@given(data=st.data())
+@SLOW
 def test_slabs_rendered_apart_and_composited_in_order_are_the_one_pass_frame(make_scene, volume, data):
     """Early termination off, float64: 'over' is associative, so slabs rendered apart (as threads or Dask
     workers would) and composited in visibility order give the one-pass frame to rounding."""

@@ -69,7 +69,9 @@ only its slices; 0 otherwise)."""
 Classify = namedtuple("Classify", "alpha color shade use_gm use_shade")
 Classify.__doc__ = """``alpha`` float[256, G]: opacity per (density, gradient code), corrected for the slice's
 path length (orthographic) or as ``log1p(-alpha)`` (perspective); ``color`` float32[256, 3]; ``shade``
-float32[65536, 2 or 6]: Phong factors per normal code (:mod:`isplat.splat.shade`)."""
+float32[65536, 2 or 6]: Phong factors per normal code (:mod:`isplat.splat.shade`). Post-classified frames
+take float64 tables with each code's step to the next beside it, ``alpha`` [256, 2G] and ``color`` [256, 6]
+(:func:`isplat.splat.post.lerp_tables`)."""
 SliceGeometry = namedtuple("SliceGeometry", "coef steps qe persp inv_unit normal_off slice_step cuts eye")
 SliceGeometry.__doc__ = """``coef`` 16 floats (camera.Projection.coef); ``steps`` rows A, B, C (3 x 3 floats);
 ``qe`` volume origin minus eye (3 floats); tuples rather than arrays, so the per-voxel stages take no arrays; ``cuts`` rows (g0, ga, gb, gc), a voxel kept where ``g0 + a*ga + b*gb + c*gc >= 0``;

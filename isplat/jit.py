@@ -85,7 +85,8 @@ def _compiled(options: dict, fn):
     if not (_FAST_LOAD and options.get("cache")):
         return nb.jit(**options)(fn)
     disp = nb.jit(**{**options, "cache": False})(fn)
-    disp._cache = _CacheLoad(disp.py_func)
+    if hasattr(disp, "py_func"):        # NUMBA_DISABLE_JIT=1 gives back the plain function: nothing to cache
+        disp._cache = _CacheLoad(disp.py_func)
     return disp
 
 

@@ -386,6 +386,21 @@ def test_cached_kernels_load_without_numbas_registry_refresh(tmp_path):
     assert run(ISPLAT_NUMBA_STOCK_LOAD="1") == (expected, 1, True, [])
 
 
+def test_numba_disable_jit_still_imports_the_kernels():
+    """NUMBA_DISABLE_JIT=1 (numba's switch for debugging kernels as Python) leaves the functions plain: every
+    kernel module still imports, and a kernel runs as Python."""
+    code = ("import numpy as np\n"
+            "import isplat.frame, isplat.splat.post, isplat.splat.select, isplat.index.codec, isplat.augment\n"
+            "from isplat.splat.composite import finish\n"
+            "assert not hasattr(finish, 'py_func')\n"
+            "out = np.zeros((1, 1, 4), np.float32)\n"
+            "print(finish(np.array([[[0.5, 0, 0, 0.5]]], np.float32), np.zeros(4), out), out[0, 0, 0])\n")
+    out = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, NUMBA_DISABLE_JIT="1"),
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "1.0"]
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(h=st.integers(1, 40), w=st.integers(1, 9), threads=st.integers(1, 5), seed=st.integers(0, 2**31 - 1),
        bg=st.tuples(*[st.floats(0, 1)] * 4))

@@ -73,8 +73,9 @@ def counts(r, threads: int):
 def cpu_frame(r, view) -> dict:
     """One frame of ``view``: its wall time; the CPU time of the thread that made it outside the parallel parts
     (the serial part: set-up, binning); and per parallel part (each thread's kernel, then finishing its bands'
-    rows; a supersampled frame is finished in a part of its own) each thread's CPU time in it (``time.thread_time``, which does not count time a thread waits for a core: on a
-    shared machine the CPU times hold where wall times do not)."""
+    rows; a supersampled frame is finished in a part of its own) each thread's CPU time in it
+    (``time.thread_time``, which does not count time a thread waits for a core: on a shared machine the CPU
+    times hold where wall times do not)."""
     from isplat import frame as F
 
     parts, orig = [], F.run_parallel

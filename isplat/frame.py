@@ -257,10 +257,13 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
 
     ``finished`` (an image like the partial's; only for the frame's last slices, without supersampling): each
     thread then also finishes its bands' rows into it over the view's background (:func:`finish_image`'s
-    pixels) as soon as its slices are done, with no second round of the threads."""
+    pixels) as soon as its slices are done, with no second round of the threads; with nothing to render, the
+    partial is finished as it is."""
     part = blank(setup) if state is None else state
     slices = setup.sheets[start:stop]
     if setup.empty or slices.size == 0:
+        if finished is not None:
+            finished[...] = finish_image(part.img, setup.view.background, 1, setup.threads)
         return part
     et = part.img.dtype.type(setup.et)
     bg = np.asarray(setup.view.background, dtype=np.float64)
@@ -317,7 +320,7 @@ def render_frame(sel, view: View, et: float | None = None):
     slabs = slab_bounds(n, 20) if progress.enabled() and n >= 40 and not setup.empty else [(0, n)]
     part = blank(setup)
     # without supersampling the last slices' threads finish their own rows (render_slab's ``finished``)
-    out = np.empty_like(part.img) if view.render.supersample == 1 and not setup.empty and n > 0 else None
+    out = np.empty_like(part.img) if view.render.supersample == 1 else None
     for i, (start, stop) in enumerate(progress.bar(slabs, desc=f"slices ({n})", unit="slab",
                                                    disable=len(slabs) == 1)):
         render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None)

@@ -220,6 +220,9 @@ def test_threads_finishing_their_own_rows_give_finish_image(make_scene, volume, 
     assert np.array_equal(out, F.finish_image(part.img, views[0].background))
     img, _ = F.render_frame(sel, views[0])
     assert np.array_equal(img, out)
+    none = np.full_like(part.img, np.nan)                   # nothing left to render: the partial as it is
+    F.render_slab(setup, len(views[0].order), None, part, none)
+    assert np.array_equal(none, out)
     part = F.blank(setup)
     part.img[data.draw(st.integers(0, part.img.shape[0] - 1)), 0, 3] = np.nan
     with pytest.raises(IsplatError, match="non-finite"):

@@ -1,6 +1,7 @@
 """Frame times of isplat at several git revisions, in one process, frames interleaved (a developer's tool).
 
     python scripts/ab.py REV [REV ...] [--case "head translucent"] [--size 512] [--threads 1] [--rounds 15]
+                         [--set KEY=VALUE ...]
 
 This machine is shared, and the same frame's time differs by up to 1.5x between processes, so A/B runs in
 separate processes cannot show a change of a few percent. Here each revision's ``isplat/`` is extracted
@@ -67,6 +68,8 @@ def main(argv=None) -> None:
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a scene override after the case's, e.g. render.classification=\"pre\"")
     a = ap.parse_args(argv)
     if len(a.revs) < 3:
         ap.error("give a calibration revision, then at least two to compare")
@@ -78,7 +81,7 @@ def main(argv=None) -> None:
     path, ov0, _ = REF.CASES[sample]
     aug, idx = REF.sample_data(sample, shape)
     sets = [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={a.size}", f"image.height={a.size}",
-            *ov0, *P.UNSHADED, *ov, *REF.render_overrides({"threads": a.threads})]
+            *ov0, *P.UNSHADED, *ov, *REF.render_overrides({"threads": a.threads}), *a.set]
     names = [f"isplat_{i}" for i in range(len(a.revs))]
     runs = {n: load(n, extract(rev, n), sets, REF.REPO / path) for n, rev in zip(names, a.revs)}
     clock = time.thread_time if a.threads == 1 else time.perf_counter     # wall time when threads run

@@ -27,7 +27,7 @@ from . import progress
 from .augfile import create_augmented
 from .errors import IsplatError
 from .fileio import atomic_output, check_output, create_hdf5
-from .jit import jit
+from .jit import jit, stage
 from .normals import NO_NORMAL, _encode_one
 from .volume_io import Volume, read_volume
 
@@ -110,7 +110,7 @@ def _gradient_kernel(f, r0, nrows, kg0, nk, si, sj, sk, g):
                 g[2, rr, j, i] = gk
 
 
-@jit
+@stage
 def _magnitude(g, r, j, i):
     """|g| at (r, j, i) of a gradient slab ``g[3, ...]``, in float64."""
     a = np.float64(g[0, r, j, i])

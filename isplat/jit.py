@@ -20,8 +20,11 @@ if BOUNDSCHECK:
     os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(tempfile.gettempdir(), "isplat-numba-boundscheck"))
 
 import numba as nb  # noqa: E402  (after NUMBA_CACHE_DIR is settled)
+from numba.core.registry import CPUDispatcher  # noqa: E402
 
-OPTIONS = {"nopython": True, "nogil": True, "cache": True, "boundscheck": BOUNDSCHECK or None}
+# forceinline given (False unless asked for): numba would otherwise let a function first compiled from within
+# a forceinline one inherit it, so how a stage is compiled would depend on which caller compiled it first
+OPTIONS = {"nopython": True, "nogil": True, "cache": True, "boundscheck": BOUNDSCHECK or None, "forceinline": False}
 
 
 _ANNOUNCED = []
@@ -80,29 +83,78 @@ except ImportError:               # another numba layout: its own cache, refresh
     _FAST_LOAD = False
 
 
-def _compiled(options: dict, fn):
-    """``numba.jit(**options)(fn)``; with ``cache``, :class:`_CacheLoad` as its cache where numba allows."""
-    if not (_FAST_LOAD and options.get("cache")):
-        return nb.jit(**options)(fn)
-    disp = nb.jit(**{**options, "cache": False})(fn)
-    if hasattr(disp, "py_func"):        # NUMBA_DISABLE_JIT=1 gives back the plain function: nothing to cache
+INTERNAL = {"no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+STRICT = os.environ.get("ISPLAT_STRICT_STAGES", "") == "1"
+
+
+class _Stage(CPUDispatcher):
+    """A compiled function made without the wrappers that let Python call it (``INTERNAL``): numba makes
+    those for every compiled function, also one only ever called from compiled code, and making them took
+    about a fifth of a first run's compile (docs/startup.md). Without them numba's own call from Python would
+    jump to a null address, so a call from Python (the tests' reference checks) goes through a small compiled
+    function made for it, uncached; ``ISPLAT_STRICT_STAGES=1`` makes such a call an error instead (a test runs
+    the command line so, to show that isplat itself never calls a stage from Python)."""
+
+    def __call__(self, *args):
+        if STRICT:
+            raise RuntimeError(f"{self.py_func.__qualname__} is a compiled stage, called from Python")
+        calls = self.__dict__.setdefault("_python_calls", {})
+        if len(args) not in calls:
+            names = ", ".join(f"a{i}" for i in range(len(args)))
+            scope = {"stage": self}
+            exec(f"def call({names}):\n    return stage({names})\n", scope)
+            calls[len(args)] = nb.njit(scope["call"])
+        return calls[len(args)](*args)
+
+
+def _compiled(options: dict, fn, stage: bool = False):
+    """``numba.jit(**options)(fn)``; with ``cache``, :class:`_CacheLoad` as its cache where numba allows; a
+    ``stage`` (called from compiled code only) without Python's wrappers (:class:`_Stage`)."""
+    if stage:
+        options = {**options, **INTERNAL}
+    cached = _FAST_LOAD and options.get("cache")
+    disp = nb.jit(**{**options, "cache": options.get("cache") and not cached})(fn)
+    if not hasattr(disp, "py_func"):    # NUMBA_DISABLE_JIT=1 gives back the plain function: nothing to cache
+        return disp
+    if cached:
         disp._cache = _CacheLoad(disp.py_func)
+    if stage:
+        disp.__class__ = _Stage
     return disp
 
 
 def jit(fn=None, **extra):
-    """``numba.njit`` with isplat's options; ``@jit`` or ``@jit(inline="always")``."""
+    """``numba.njit`` with isplat's options, for a kernel called from Python; ``@jit`` or ``@jit(**options)``,
+    for example ``forceinline=True`` (LLVM inlines it wherever it is called)."""
     if fn is None:
         return lambda f: _compiled({**OPTIONS, **extra}, f)
     return _compiled(OPTIONS, fn)
 
 
+def stage(fn=None, **extra):
+    """``@jit`` for a function called only from other compiled functions (:class:`_Stage`)."""
+    if fn is None:
+        return lambda f: _compiled({**OPTIONS, **extra}, f, stage=True)
+    return _compiled(OPTIONS, fn, stage=True)
+
+
 def leaf(fn=None, **extra):
-    """``@jit`` for a small per-voxel stage that allocates nothing: compiled without numba's reference
+    """``@stage`` for a small per-voxel stage that allocates nothing: compiled without numba's reference
     counting, so the arrays it takes cost nothing per call (with it, each array handed to a function in the
     per-voxel loop costs an atomic increment and decrement, which made the staged kernel 2.4x slower than one
-    big function). LLVM then inlines such a stage into the loop that calls it, or (``@leaf(inline="always")``,
-    for a per-pixel stage with many arguments) numba does, before LLVM sees a call."""
+    big function). LLVM then inlines such a stage into the loop that calls it when it judges that cheap.
+
+    Two ways to make sure a stage is inlined, measured side by side (scripts/ab.py) for the first run's
+    compile and the frames' time:
+
+    * ``@leaf(forceinline=True)``: LLVM's ``alwaysinline``; the stage is compiled once, and inlined wherever
+      it is called;
+    * ``@leaf(inline="always")``: numba inlines the stage's IR at each call site before typing. numba copies
+      the IR for each call site, deep-copying all its variables once per block, so for a large stage this
+      costs seconds of a first run's compile (7 of 24 s when every such stage was inlined this way). The
+      frames were 3-5% faster with it only for the small per-pixel stages of the post-classified sample
+      (:mod:`isplat.splat.post`) and the occlusion test (:func:`isplat.splat.kernels._hidden`), which keep it.
+    """
     if fn is None:
-        return lambda f: _compiled({**OPTIONS, "_nrt": False, **extra}, f)
-    return _compiled({**OPTIONS, "_nrt": False}, fn)
+        return lambda f: _compiled({**OPTIONS, "_nrt": False, **extra}, f, stage=True)
+    return _compiled({**OPTIONS, "_nrt": False}, fn, stage=True)

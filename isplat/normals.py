@@ -21,17 +21,17 @@ import functools
 
 import numpy as np
 
-from .jit import jit
+from .jit import jit, stage
 
 NO_NORMAL = 0x8080
 
 
-@jit(inline="always")
+@stage(forceinline=True)
 def _sgn(x):
     return 1.0 if x >= 0.0 else -1.0
 
 
-@jit(inline="always")
+@stage(forceinline=True)
 def _decode_uv(cu, cv):
     """Unnormalised direction of the snorm8 pair (cu, cv) in -127..127."""
     x = cu / 127.0
@@ -42,7 +42,7 @@ def _decode_uv(cu, cv):
     return x, y, z
 
 
-@jit
+@stage
 def _encode_one(x, y, z):
     n1 = abs(x) + abs(y) + abs(z)
     if not (n1 > 0.0) or not np.isfinite(n1):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from conftest import write_volume
+from conftest import scene_text, write_volume
 from isplat import frame as F
 from isplat.errors import IsplatError
 from isplat.selection import Selection, select_from_files
@@ -387,6 +387,51 @@ def test_cached_kernels_load_without_numbas_registry_refresh(tmp_path):
     assert len(announced) == 1 and str(tmp_path / "cache") in announced[0]
     assert run() == (expected, 1, False, [])                 # loaded, no refresh, nothing said
     assert run(ISPLAT_NUMBA_STOCK_LOAD="1") == (expected, 1, True, [])
+
+
+def test_a_stage_called_from_python_computes_as_its_python(monkeypatch):
+    """A stage has no Python wrapper (isplat.jit._Stage): a call from Python goes through a small compiled
+    caller made for it and returns what the function computes as Python; ``ISPLAT_STRICT_STAGES=1`` makes such
+    a call an error."""
+    from isplat import jit as J
+    from isplat.normals import _sgn
+    from isplat.splat.kernels import footprint_box
+
+    assert type(_sgn) is J._Stage and type(footprint_box) is J._Stage
+    for x in (-2.5, 0.0, 3.0):
+        assert _sgn(x) == _sgn.py_func(x)
+    args = (10.3, 4.7, 2.2, 1.5, 0, 32, 40)
+    assert footprint_box(*args) == footprint_box.py_func(*args)
+    monkeypatch.setattr(J, "STRICT", True)
+    with pytest.raises(RuntimeError, match="footprint_box is a compiled stage"):
+        footprint_box(*args)
+
+
+def test_isplat_never_calls_a_stage_from_python(tmp_path):
+    """Every stage is reached from compiled code only (a stage called from Python would compile a caller in
+    every process, uncached): the whole pipeline, with every kind of frame, runs with ISPLAT_STRICT_STAGES=1."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST")}
+    env.update(ISPLAT_STRICT_STAGES="1", ISPLAT_PROGRESS="0")
+
+    def run(*args):
+        out = subprocess.run([sys.executable, "-m", "isplat", *args], cwd=tmp_path, env=env, capture_output=True,
+                             text=True, timeout=600)
+        assert out.returncode == 0, (args, out.stderr)
+
+    run("sample", "engine", "-o", "e.npy", "--shape", "24,20,16")
+    run("augment", "e.npy", "-o", "e.aug.h5")
+    run("index", "e.aug.h5", "-o", "e.idx.h5")
+    (tmp_path / "s.toml").write_text(scene_text("e.aug.h5", "e.idx.h5", image="width = 24\nheight = 20",
+                                                transfer="opacity = [[60, 0], [120, 0.6], [255, 0.9]]"))
+    for sets in ([], ["render.classification=\"pre\""], ["render.method=\"full\""],
+                 ["render.method=\"full\"", "render.classification=\"pre\""], ["camera.projection=\"perspective\""],
+                 ["camera.projection=\"perspective\"", "render.classification=\"pre\""],
+                 ["render.sheets=\"image\"", "render.classification=\"pre\""], ["render.supersample=2"],
+                 ["shading.enabled=false", "render.threads=3"]):
+        run("render", "s.toml", "-o", f"{len(os.listdir(tmp_path))}.png", *[f"--set={s}" for s in sets])
+    run("render", "s.toml", "-o", "slabs.png", "--slabs", "3")
+    run("render", "s.toml", "-o", "dask.png", "--slabs", "2", "--scheduler", "local:2")
+    run("stats", "e.aug.h5", "e.idx.h5", "--scene", "s.toml")
 
 
 def test_numba_disable_jit_still_imports_the_kernels():

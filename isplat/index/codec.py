@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import jit, leaf
+from ..jit import jit, leaf, stage
 
 # decoder status codes
 OK = 0
@@ -39,7 +39,7 @@ def escape_cost(escape_width: int) -> int:
     return 1 + 2 * escape_width
 
 
-@jit
+@stage
 def _slice_pos(coef, k, j, i):
     """(slice, in-slice position) of voxel (i, j, k); ``coef`` from :func:`isplat.grid.slice_coefficients`."""
     return (i * coef[0] + j * coef[1] + k * coef[2], i * coef[3] + j * coef[4] + k * coef[5])
@@ -118,7 +118,7 @@ def encode_slab(planes, k0, coef, indexed, n_a, escape_width, prev, cursor, out,
                 prev[s, d] = p
 
 
-@jit
+@stage
 def _escape_coords(buf, c, escape_width):
     """The explicit in-slice coordinates (a, b) after the escape byte at ``buf[c]``, little-endian."""
     if escape_width == 1:
@@ -127,7 +127,7 @@ def _escape_coords(buf, c, escape_width):
             np.int64(buf[c + 3]) | (np.int64(buf[c + 4]) << 8))
 
 
-@jit
+@stage
 def _next_position(buf, c, end, prev, n_a, n_b, n_pos, escape_width):
     """Read the position at ``buf[c]`` (an offset byte from ``prev``, or an escape; §2.3) without reading
     past ``end``; return ``(status, position, next c)``, status OK or the error found."""

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import jit
+from ..jit import jit, stage
 
 TILE = 8         # pixels per side of the tiles that answer "all saturated?" at once
 
 
-@jit
+@stage
 def composite_sheet(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et):
     """Composite the slice's sheet over the image front to back (premultiplied 'over') at the ``nd`` pixels
     the slice touched (``dirty``), clear them, and count pixels that crossed the early-termination opacity

@@ -48,7 +48,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..jit import jit, leaf
+from ..jit import jit, leaf, stage
 from .composite import TILE, composite_sheet
 from .select import BLOCK, CELL, KEYS, REGION
 
@@ -134,7 +134,7 @@ def render_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
                           geo, fp, buf, band)
 
 
-@jit
+@stage
 def full_scratch(n_a, n_b):
     """The full method's scratch for a slice of ``n_a`` x ``n_b`` voxels: the hierarchy's arrays (as
     :data:`IndexedVoxels` has them), the voxels' flat positions, every region's id and the regions wanted."""
@@ -147,7 +147,7 @@ def full_scratch(n_a, n_b):
     return hier, np.empty(m, np.int64), np.arange(ng), np.empty(ng, np.bool_)
 
 
-@jit
+@stage
 def full_slice_regions(c, vox, cls, geo, fp, buf, band, scratch):
     """Stage 1 of the full method for slice ``c`` and one band: every voxel of the regions whose footprints can
     reach the band's rows classified, those not transparent put in the hierarchy (``scratch``,
@@ -164,7 +164,7 @@ def full_slice_regions(c, vox, cls, geo, fp, buf, band, scratch):
     return _full_slice(c, vox, cls, hier, index, wanted)
 
 
-@jit
+@stage
 def _band(bi, bands, buf):
     """Band ``bi``'s state: (index, first row, end row, et, summed-area table of its whole tiles, first tile row)."""
     y0, y1 = bands.rows[bi, 0], bands.rows[bi, 1]
@@ -208,7 +208,7 @@ def _band_saturated(band):
     return satab[-1, -1] == (satab.shape[0] - 1) * (satab.shape[1] - 1)
 
 
-@jit
+@stage
 def _full_slice(c, vox, cls, hier, index, wanted):
     """Traversal of the full method: every voxel of slice ``c`` that is not transparent, in the regions
     ``wanted``, in the hierarchy (regions, blocks, cells) of the index's selection, into ``hier`` and
@@ -269,7 +269,7 @@ def _slice_bases(c, geo, cs):
             abs(geo.normal_off + c * geo.slice_step))
 
 
-@jit
+@stage
 def _render_slice(c, regions, p0, p1, hier, vals, n_a, n_b, cls, geo, fp, buf, band):
     """Stages 2-4 for slice ``c`` and one band: the regions ``regions[p0:p1]``, their blocks and cells tested
     for occlusion (stage 2, :func:`_visible_cells`), each voxel of the cells left classified, cut, projected
@@ -289,7 +289,7 @@ def _render_slice(c, regions, p0, p1, hier, vals, n_a, n_b, cls, geo, fp, buf, b
     buf.stats[bi, 3] += 1
 
 
-@jit(inline="always")
+@stage(forceinline=True)
 def _box_args(n_a, n_b, base, geo, fp, buf, band, et_on):
     """What :func:`_hidden` needs of a slice and a band (``et_on``: test saturation, not only the band)."""
     return (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1], band[1], band[2],
@@ -330,7 +330,7 @@ def _visible_cells(regions, p0, p1, hier, n_a, box_args, satab, sat, cells):
     return nc
 
 
-@jit
+@stage
 def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, band):
     """Stages 3 and 4 for the voxels of the cells ``cells[:nc]``; returns the sheet's touched-pixel count.
 
@@ -379,7 +379,7 @@ def _splat_cells(cells, nc, offset, dens, vals, base, cs, cls, geo, fp, buf, ban
     return nd
 
 
-@leaf(inline="always")
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _hidden(a0, b0, size, box_args, satab, sat, pixels):
     """Stage 2: True when the footprints of the voxels of the square ``[a0, a0 + size) x [b0, b0 + size)`` of
     the slice can reach no pixel of the band, or (early termination on) only saturated ones: whole tiles
@@ -399,7 +399,7 @@ def _hidden(a0, b0, size, box_args, satab, sat, pixels):
     return _tiles_whole(satab, ty0, gx0, gx1, gy0, gy1)
 
 
-@leaf(inline="always")
+@leaf(forceinline=True)
 def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
     """The pixel box ``(x0, x1, y0, y1)`` that the footprints of voxels in the rectangle [a0, a1] x [b0, b1]
     of the slice can reach: the hull of its corners' projections (:func:`rect_hull`) grown by the footprint's
@@ -412,7 +412,7 @@ def _rect_box(a0, a1, b0, b1, base, coef, persp, ex, ey):
                   int(math.ceil(cy0 - ey * smax)), int(math.floor(cy1 + ey * smax)))
 
 
-@leaf(inline="always")
+@leaf(forceinline=True)
 def rect_hull(a0, a1, b0, b1, base, coef, persp):
     """The pixel bounds ``(ok, x0, x1, y0, y1, largest perspective scale)`` of the rectangle [a0, a1] x [b0, b1]
     of the slice plane (the projection of a planar rectangle is the hull of its corners' projections); ``ok``
@@ -476,7 +476,7 @@ def bin_regions(order, vox, geo, ex, ey, rows, img_w):
     return ptr, regions
 
 
-@jit
+@stage
 def _bin_pass(order, vox, geo, ex, ey, rows, img_w, pos, ptr, regions, fill):
     """One pass of :func:`bin_regions`: count the regions per band and slice into ``ptr``, or (``fill``) put
     them at ``regions[pos[...]]``."""
@@ -584,7 +584,7 @@ def _path_alpha(L, a, b, base, steps, persp, inv_unit, coef, eye):
     return -math.expm1(r / cosang * L), r
 
 
-@leaf(inline="always")
+@leaf(forceinline=True)
 def _footprint_form(fpc, s):
     """The footprint's quadratic form in table units (q * tscale), with the voxel's perspective scale ``s``
     folded in: ``(A, B, C, T)``, the cut-off ``T``."""

@@ -35,7 +35,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..jit import jit, leaf
+from ..jit import jit, leaf, stage
 from .composite import TILE
 from .kernels import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, _band, _band_saturated, _box_args, _build_sat,
                       _cut_away, _path_alpha, _slice_bases, _visible_cells, full_scratch, full_slice_regions,
@@ -114,7 +114,7 @@ def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
                         per_slice)
 
 
-@jit
+@stage
 def _marks(n_a, n_b):
     """A slice's cell flags (zeroed), the list of flagged cells (see :func:`_mark_cells`), and the same for the
     squares that are scanned (cells, or squares of several cells, see :func:`scan_unit`)."""
@@ -122,7 +122,7 @@ def _marks(n_a, n_b):
     return np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8), np.empty(n, np.int64)
 
 
-@jit
+@stage
 def _slice_scratch(geo):
     """What :func:`_post_slice` fills per slice: the cut planes' offsets, and (samples composited, pixels newly
     saturated)."""
@@ -234,7 +234,7 @@ def _sample_squares(squares, ns, unit, mark, voxel, alpha, color, shade, use_gm,
                        img, sat, tile_sat, band, counts)
 
 
-@leaf(inline="always")
+@leaf(forceinline=True)
 def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img, sat,
                    tile_sat, band, counts):
     """Sample the quads of square ``sq`` (``unit`` voxels a side) that their cells' flags ask for, at the pixels
@@ -303,7 +303,7 @@ def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade
     counts[1] += newly
 
 
-@leaf(inline="always")
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _row_span(y, u0, u1, v0, v1, inv, x0, x1):
     """The pixels of row ``y`` (within [x0, x1]) whose point on the slice plane can lie in [u0, u1) x [v0, v1)
     (orthographic; SPAN_MARGIN pixels of margin on each side for rounding, the exact test is per pixel)."""
@@ -314,7 +314,7 @@ def _row_span(y, u0, u1, v0, v1, inv, x0, x1):
     return max(int(math.ceil(lo)), x0), min(int(math.floor(hi)), x1)
 
 
-@leaf(inline="always")
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _span(o, d, r, a, b, lo, hi):
     """[lo, hi] cut to the x where ``o + x d`` lies in [a, b) (``r = 1 / d``, 0 when d is about 0), with
     SPAN_MARGIN pixels of margin."""
@@ -327,7 +327,7 @@ def _span(o, d, r, a, b, lo, hi):
     return lo, hi
 
 
-@leaf(inline="always")
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo,
             img, sat, tile_sat, et):
     """One sample: the bilinear density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
@@ -389,7 +389,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     return 1
 
 
-@leaf(inline="always")
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _slice_point(x, y, base, coef):
     """The point (u, v) of the slice plane (in-slice voxel coordinates a, b) that pixel (x, y) sees in
     perspective: the §3 projection inverted; ``ok`` False when it is at or behind the near plane."""

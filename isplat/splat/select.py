@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import jit
+from ..jit import jit, stage
 
 CELL = 4         # voxels per side of a cell: the smallest group of a slice's voxels tested for occlusion
 BLOCK = 16       # voxels per side of a block (4 x 4 cells)
@@ -41,7 +41,7 @@ def flat_indices(slice_block_ptr, block_voxel_ptr, positions, n_a, strides):
     return out
 
 
-@jit
+@stage
 def _first_block(block_density, r0, r1, lo):
     """§2.2: binary search for the first block in rows r0:r1 with density >= lo."""
     while r0 < r1:
@@ -53,7 +53,7 @@ def _first_block(block_density, r0, r1, lo):
     return r0
 
 
-@jit
+@stage
 def _count_selected(slice_block_ptr, block_density, block_voxel_ptr, intervals, n_pos):
     """Voxels of all slices whose density lies in ``intervals``; raises on a slice listing more voxels than
     it has positions (a corrupt index, which would overrun the per-slice buffers)."""
@@ -71,7 +71,7 @@ def _count_selected(slice_block_ptr, block_density, block_voxel_ptr, intervals, 
     return total
 
 
-@jit
+@stage
 def _decode_slice(c, slice_block_ptr, block_density, block_voxel_ptr, positions, intervals, n_a, ta, tb, td, tsrc):
     """The voxels of slice ``c`` in ``intervals`` into ``ta, tb, td, tsrc`` (a, b, density, index in
     ``positions``), block by block; returns how many."""
@@ -99,7 +99,7 @@ def _decode_slice(c, slice_block_ptr, block_density, block_voxel_ptr, positions,
     return m
 
 
-@jit
+@stage
 def _voxel_key(a, b, nra):
     """The voxel's place in the hierarchy: region * KEYS + block position * 16 + cell position."""
     region = (b // REGION) * nra + a // REGION
@@ -108,7 +108,7 @@ def _voxel_key(a, b, nra):
     return region * KEYS + blk * 16 + cell
 
 
-@jit
+@stage
 def _emit_slice(m, nra, ta, tb, td, tsrc, count, n, hier, sel, tops):
     """Append one slice's ``m`` voxels to ``sel = (offset, density, source)`` from row ``n``, in the order of
     their keys (a stable counting sort, so each cell keeps the blocks' density order), and the regions, blocks

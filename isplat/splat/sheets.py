@@ -51,7 +51,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..jit import jit, leaf
+from ..jit import jit, leaf, stage
 from .composite import TILE, composite_sheet
 from .kernels import _shade, _splat, footprint_box, pixels_saturated
 from .select import BLOCK, CELL, REGION
@@ -106,7 +106,7 @@ def _keep(a, b, c, L, geo):
     return z
 
 
-@jit
+@stage
 def _place(first, n_slabs, src_a, src_b, src_c, src_row, src_d, nkeep):
     """Counting sort of the kept voxels (``first`` >= 0) by first slab into a SheetVoxels' arrays."""
     counts = np.zeros(n_slabs + 1, dtype=np.int64)
@@ -215,7 +215,7 @@ def render_image(order, o0, bins, vox, cls, geo, fp, buf, bands):
         _render_band(order, bi, (bands.rows[bi, 0], bands.rows[bi, 1], bands.et), vox, cls, geo, fp, buf)
 
 
-@jit
+@stage
 def _render_band(order, bi, band, vox, cls, geo, fp, buf):
     """The slabs ``order`` for the image rows ``band = (y0, y1, et)``; counters into ``buf.stats[bi]``
     (voxels examined, voxel visits past the depth test, voxels splatted, slabs)."""

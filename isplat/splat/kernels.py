@@ -464,45 +464,45 @@ def pixels_saturated(sat, x0, x1, y0, y1):
 def bin_regions(order, vox, geo, ex, ey, rows, img_w):
     """Per frame, before any slice: for every band (``rows``: image rows ``[y0, y1)``, all as high as the
     first but the last) the regions of each slice of ``order`` whose footprints can reach its rows; the
-    occlusion tests then run per band on only those. Returns :data:`Bins`' ``(ptr, regions)``."""
-    ptr = np.zeros((rows.shape[0], order.shape[0] + 1), dtype=np.int64)
-    _bin_pass(order, vox, geo, ex, ey, rows, img_w, ptr, ptr, np.empty(0, np.int64), False)
-    start = 0
-    for bi in range(rows.shape[0]):            # counts -> offsets, band after band
-        for oi in range(order.shape[0] + 1):
-            ptr[bi, oi], start = start, start + ptr[bi, oi]
-    regions = np.empty(start, dtype=np.int64)
-    _bin_pass(order, vox, geo, ex, ey, rows, img_w, ptr.copy(), ptr, regions, True)
-    return ptr, regions
-
-
-@stage
-def _bin_pass(order, vox, geo, ex, ey, rows, img_w, pos, ptr, regions, fill):
-    """One pass of :func:`bin_regions`: count the regions per band and slice into ``ptr``, or (``fill``) put
-    them at ``regions[pos[...]]``."""
+    occlusion tests then run per band on only those. Returns :data:`Bins`' ``(ptr, regions)``: two passes,
+    the first counts the regions per band and slice into ``ptr``, the second puts them at
+    ``regions[pos[...]]``. (One function: a stage called with ``fill`` False and True would be compiled twice,
+    for each literal.)"""
     band_h = rows[0, 1] - rows[0, 0]
     nbands = rows.shape[0]
     img_h = rows[nbands - 1, 1]
     nra = (vox.n_a + REGION - 1) // REGION
     cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
-    for oi in range(order.shape[0]):
-        c = order[oi]
-        base = _slice_bases(c, geo, cs)
-        for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
-            a0 = (vox.region_id[g] % nra) * REGION
-            b0 = (vox.region_id[g] // nra) * REGION
-            ok, box = _rect_box(a0, min(a0 + REGION, vox.n_a) - 1, b0, min(b0 + REGION, vox.n_b) - 1, base,
-                                geo.coef, geo.persp, ex, ey)
-            if ok and (box[1] < 0 or box[0] > img_w - 1 or box[3] < 0 or box[2] > img_h - 1):
-                continue
-            first = max(box[2], 0) // band_h if ok else 0
-            last = min(box[3], img_h - 1) // band_h if ok else nbands - 1
-            for bi in range(first, last + 1):
-                if fill:
-                    regions[pos[bi, oi]] = g
-                    pos[bi, oi] += 1
-                else:
-                    ptr[bi, oi] += 1
+    ptr = np.zeros((nbands, order.shape[0] + 1), dtype=np.int64)
+    pos = ptr
+    regions = np.empty(0, dtype=np.int64)
+    for fill in range(2):
+        if fill:
+            start = 0
+            for bi in range(nbands):            # counts -> offsets, band after band
+                for oi in range(order.shape[0] + 1):
+                    ptr[bi, oi], start = start, start + ptr[bi, oi]
+            regions = np.empty(start, dtype=np.int64)
+            pos = ptr.copy()
+        for oi in range(order.shape[0]):
+            c = order[oi]
+            base = _slice_bases(c, geo, cs)
+            for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
+                a0 = (vox.region_id[g] % nra) * REGION
+                b0 = (vox.region_id[g] // nra) * REGION
+                ok, box = _rect_box(a0, min(a0 + REGION, vox.n_a) - 1, b0, min(b0 + REGION, vox.n_b) - 1, base,
+                                    geo.coef, geo.persp, ex, ey)
+                if ok and (box[1] < 0 or box[0] > img_w - 1 or box[3] < 0 or box[2] > img_h - 1):
+                    continue
+                first = max(box[2], 0) // band_h if ok else 0
+                last = min(box[3], img_h - 1) // band_h if ok else nbands - 1
+                for bi in range(first, last + 1):
+                    if fill:
+                        regions[pos[bi, oi]] = g
+                        pos[bi, oi] += 1
+                    else:
+                        ptr[bi, oi] += 1
+    return ptr, regions
 
 
 @leaf

@@ -154,7 +154,7 @@ def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
     return unit
 
 
-@leaf
+@leaf(inline="always")
 def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, marks, scratch):
     """One slice and one band: the cells of interest left by the occlusion tests, the quads that touch their
     voxels sampled, classified and composited into the image."""
@@ -224,7 +224,7 @@ def _mark_squares(marked, nm, nca, unit, nsa, smark, squares):
     return ns
 
 
-@leaf
+@leaf(inline="always")
 def _sample_squares(squares, ns, unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
                     sat, tile_sat, band, counts):
     """Sample the squares ``squares[:ns]`` (:func:`_sample_square`). One call per slice: the per-square stage is

@@ -163,7 +163,6 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
         return Setup(view, None, (), None, None, None, rows, mine, None, _tile_pixels(H, W), *scratch, et_val,
                      threads, True)
     proj = cam_mod.projection(frame, geom, axis)
-    fp = make_footprint(proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, dtype)
     unit = sel.unit_distance or float(geom.spacing.min())
     ic = grid.SLICE_AXES[axis][2]
     coef, steps = _floats(proj.coef), tuple(_floats(row) for row in proj.steps)
@@ -188,9 +187,11 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
                           "selection was made for 'post' (make it with the pre-classified scene)")
     cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
     vox = sel.voxels(axis)
-    fpt = K.FootprintTable(fp.table, fp.params)
     kernel = K.render_full if sel.method == "full" else K.render_indexed
-    if ro.classification == "post":
+    if ro.classification == "pre":
+        fp = make_footprint(proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, dtype)
+        fpt = K.FootprintTable(fp.table, fp.params)
+    else:
         kernel, vox, fpt = _post_kernel(sel, axis, vox, proj, dtype)
         # the tables with their steps between codes (post.lerp_tables; the full method's search reads the
         # opacities, the first half of the columns)

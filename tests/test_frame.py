@@ -313,6 +313,30 @@ def test_progress_bar_slabs_draw_and_count_as_one_pass(make_scene, volume, monke
     assert figures[0][3] < len(view.order)        # early termination stopped the frame early
 
 
+def test_a_views_shading_table_is_made_once_and_only_for_that_view(make_scene, volume, monkeypatch):
+    """Frames of the same view (here another transfer function) take the table made for the first; another view
+    or other Phong terms make their own; each equals a table made afresh; only the last few are kept."""
+    from isplat.splat import shade as SH
+
+    monkeypatch.setattr(SH, "_KEPT", type(SH._KEPT)())
+    tables = {}
+    for az, specular, opacity in ((0, 0.3, 0.8), (0, 0.3, 0.5), (40, 0.3, 0.8), (0, 0.6, 0.8)):
+        sc = make_scene(volume[3], volume[4], camera=f"azimuth = {az}",
+                        transfer=f"opacity = [[50, 0.0], [60, {opacity}]]", shading=f"specular = {specular}")
+        view = F.views_for(sc, Selection.from_arrays(volume[0], sc, normal=volume[2]))[0]
+        table = tables[(az, specular, opacity)] = SH.shade_table(view.shading, view.frame, view.geom, threads=2)
+        with monkeypatch.context() as m:
+            m.setattr(SH, "_KEPT", type(SH._KEPT)())
+            assert np.array_equal(SH.shade_table(view.shading, view.frame, view.geom), table)
+    assert tables[(0, 0.3, 0.8)] is tables[(0, 0.3, 0.5)]
+    assert not np.array_equal(tables[(0, 0.3, 0.8)], tables[(40, 0.3, 0.8)])
+    assert not np.array_equal(tables[(0, 0.3, 0.8)], tables[(0, 0.6, 0.8)])
+    assert len(SH._KEPT) == 3
+    monkeypatch.setattr(SH, "_KEEP", 2)
+    SH.shade_table(view.shading, view.frame, view.geom, threads=2, dtype=np.float64)
+    assert len(SH._KEPT) == 2
+
+
 # ---------------------------------------------------------------------------------------------------------
 # the bounds-checking switch
 

@@ -1,10 +1,14 @@
-"""Shading: Phong terms for the 65,536 normal codes, one compiled pass per frame.
+"""Shading: Phong terms for the 65,536 normal codes, one compiled pass per view.
 
 Lights are given in camera space, normals in the volume's i, j, k axes; :func:`shade_table` turns the lights
-into volume axes once per frame and tabulates every code, so a voxel's shading is one table look-up.
+into volume axes once per frame and tabulates every code, so a voxel's shading is one table look-up. The last
+few tables are kept, so frames of the same view (another transfer function, another image size) reuse theirs.
 """
 
 from __future__ import annotations
+
+import threading
+from collections import OrderedDict
 
 import numpy as np
 
@@ -12,9 +16,17 @@ from ..jit import jit
 from ..threads import run_parallel
 
 
+_KEPT: OrderedDict = OrderedDict()      # the last few tables, keyed by everything they are made from
+_KEEP = 4                               # 1.5 MB each at most
+_LOCK = threading.Lock()
+
+
 def shade_table(shading, frame, geom, dtype=np.float32, threads: int = 1) -> np.ndarray:
     """Per normal code: (diffuse r, g, b, specular r, g, b) for this view's lights (Phong, infinite viewer),
-    or just (diffuse, specular) when every light is white; the codes are shared out between ``threads``."""
+    or just (diffuse, specular) when every light is white; the codes are shared out between ``threads``.
+
+    The table is shared with later calls for the same lights, view direction and Phong terms (one of the last
+    ``_KEEP``): do not write to it. (It stays writeable, as the kernels were compiled for.)"""
     from ..normals import decode_lut
 
     R = np.stack([frame.u, frame.v, frame.w])          # camera -> world: x*u + y*v + z*w
@@ -27,16 +39,25 @@ def shade_table(shading, frame, geom, dtype=np.float32, threads: int = 1) -> np.
         h /= max(np.linalg.norm(h), 1e-12)
         rows.append([*lv, *h, *(light.intensity * np.asarray(light.color, float))])
     lights = np.asarray(rows, dtype=np.float64).reshape(-1, 9)
+    args = (float(shading.ambient), float(shading.diffuse), float(shading.specular), float(shading.shininess),
+            bool(shading.two_sided))
+    key = (lights.tobytes(), args, np.dtype(dtype).str)
+    with _LOCK:
+        if key in _KEPT:
+            _KEPT.move_to_end(key)
+            return _KEPT[key]
     # white lights: r, g and b factors are equal, one diffuse and one specular factor per code will do
     white = bool(np.all(lights[:, 6:9] == lights[:, 6:7]))
     out = np.empty((65536, 2 if white else 6), dtype=dtype)
     normals = decode_lut()
-    args = (float(shading.ambient), float(shading.diffuse), float(shading.specular), float(shading.shininess),
-            bool(shading.two_sided))
     # the codes are independent: share them out between the threads (the kernel releases the GIL)
     cuts = np.linspace(0, normals.shape[0], max(1, threads) + 1).astype(int)
     parts = [(normals[a:b], out[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
     run_parallel(lambda p: shade_codes(p[0], lights, *args, p[1]), parts, threads)
+    with _LOCK:
+        _KEPT[key] = out
+        while len(_KEPT) > _KEEP:
+            _KEPT.popitem(last=False)
     return out
 
 

@@ -40,13 +40,46 @@ def _announce_compile(cache_path: str) -> None:
             f"numba's cache, {cache_path})")
 
 
+# Every module with compiled functions (a test checks the list). numba keeps a function's machine code while
+# its own file is unchanged, but a compiled function holds the code of the stages it calls from other files
+# (post's kernel inlines kernels.py's occlusion test): a cached kernel is fresh only while all of them are.
+KERNEL_SOURCES = ("jit.py", "augment.py", "normals.py", "samples.py", "index/codec.py", "splat/composite.py",
+                  "splat/kernels.py", "splat/post.py", "splat/select.py", "splat/shade.py", "splat/sheets.py")
+_STAMP: list = []
+
+
+def kernel_sources_stamp() -> tuple:
+    """(modification time, size) of each of ``KERNEL_SOURCES``, once per process: the freshness of every cached
+    kernel (numba's own stamp is its file's alone)."""
+    if not _STAMP:
+        root = os.path.dirname(os.path.abspath(__file__))
+        _STAMP.append(tuple((name, *((st.st_mtime, st.st_size) if (st := _stat(os.path.join(root, name))) else ()))
+                            for name in KERNEL_SOURCES))
+    return _STAMP[0]
+
+
+def _stat(path):
+    try:
+        return os.stat(path)
+    except OSError:
+        return None
+
+
 try:
     from numba.core.caching import FunctionCache
     from numba.core.runtime import rtsys
 
-    class _CacheLoad(FunctionCache):
-        """numba's cache of a function's machine code, made when first used and loaded without numba's
-        ``target_context.refresh()``.
+    class _Stamped(FunctionCache):
+        """numba's cache of a function's machine code, fresh while the function's file (numba's stamp) and every
+        file of compiled functions (:func:`kernel_sources_stamp`) are unchanged: a kernel holds the code of the
+        stages it calls from other files, which numba's stamp alone does not follow."""
+
+        def __init__(self, py_func):
+            super().__init__(py_func)
+            self._cache_file._source_stamp = (self._cache_file._source_stamp, kernel_sources_stamp())
+
+    class _CacheLoad(_Stamped):
+        """:class:`_Stamped`, made when first used and loaded without numba's ``target_context.refresh()``.
 
         * Before loading a cached kernel numba refreshes its target: it imports and installs every typing and
           lowering registry (the numpy, random, typed-container and datetime implementations), which only
@@ -58,13 +91,13 @@ try:
           70-odd compiled functions a frame calls about six from Python (the rest are compiled into those), so
           the cache is made on first use (``__getattr__`` runs only for attributes not yet set)."""
 
-        def __init__(self, py_func):            # noqa: D107 (FunctionCache.__init__ deferred)
+        def __init__(self, py_func):            # noqa: D107 (_Stamped.__init__ deferred)
             self._deferred = py_func
 
         def __getattr__(self, name):
             if name == "_deferred":
                 raise AttributeError(name)
-            FunctionCache.__init__(self, self._deferred)
+            _Stamped.__init__(self, self._deferred)
             return object.__getattribute__(self, name)
 
         def load_overload(self, sig, target_context):
@@ -76,11 +109,13 @@ try:
                 _announce_compile(self._cache_path)
             return found
 
-    # ISPLAT_NUMBA_STOCK_LOAD=1: numba's own cache object, refresh included (docs/startup.md measures both)
+    # ISPLAT_NUMBA_STOCK_LOAD=1: numba's own loading, refresh included (docs/startup.md measures both)
     _FAST_LOAD = (all(hasattr(FunctionCache, a) for a in ("_load_overload", "_guard_against_spurious_io_errors"))
                   and os.environ.get("ISPLAT_NUMBA_STOCK_LOAD", "") != "1")
+    _CACHE = _CacheLoad if _FAST_LOAD else _Stamped
 except ImportError:               # another numba layout: its own cache, refresh included
     _FAST_LOAD = False
+    _CACHE = None
 
 
 INTERNAL = {"no_cpython_wrapper": True, "no_cfunc_wrapper": True}
@@ -108,16 +143,16 @@ class _Stage(CPUDispatcher):
 
 
 def _compiled(options: dict, fn, stage: bool = False):
-    """``numba.jit(**options)(fn)``; with ``cache``, :class:`_CacheLoad` as its cache where numba allows; a
+    """``numba.jit(**options)(fn)``; with ``cache``, :class:`_CacheLoad` (or :class:`_Stamped`) as its cache; a
     ``stage`` (called from compiled code only) without Python's wrappers (:class:`_Stage`)."""
     if stage:
         options = {**options, **INTERNAL}
-    cached = _FAST_LOAD and options.get("cache")
+    cached = _CACHE is not None and options.get("cache")
     disp = nb.jit(**{**options, "cache": options.get("cache") and not cached})(fn)
     if not hasattr(disp, "py_func"):    # NUMBA_DISABLE_JIT=1 gives back the plain function: nothing to cache
         return disp
     if cached:
-        disp._cache = _CacheLoad(disp.py_func)
+        disp._cache = _CACHE(disp.py_func)
     if stage:
         disp.__class__ = _Stage
     return disp

@@ -458,6 +458,34 @@ def test_isplat_never_calls_a_stage_from_python(tmp_path):
     run("stats", "e.aug.h5", "e.idx.h5", "--scene", "s.toml")
 
 
+def test_a_cached_kernel_is_stale_when_any_file_of_compiled_functions_changes(tmp_path):
+    """A kernel's cache is fresh only while its own file and every file of isplat's compiled functions are
+    unchanged (post's kernel holds kernels.py's stages): the same stamp loads, another compiles again. And
+    ``KERNEL_SOURCES`` names every module that compiles functions."""
+    from pathlib import Path
+
+    import isplat
+    from isplat import jit as J
+
+    root = Path(isplat.__file__).parent
+    compiling = {str(p.relative_to(root)) for p in root.rglob("*.py")
+                 if "import jit" in p.read_text() or "import leaf" in p.read_text() or p.name == "jit.py"}
+    assert compiling == set(J.KERNEL_SOURCES)
+    (tmp_path / "mod").mkdir()
+    (tmp_path / "mod" / "cached_mod.py").write_text(CACHED)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("ISPLAT_NUMBA_STOCK_LOAD", None)
+    code = ("import sys\nimport isplat.jit as J\nJ._STAMP.append(sys.argv[2])\n" + CACHED_RUN)
+
+    def hits(stamp):
+        out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "mod"), stamp], env=env,
+                             capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        return int(out.stdout.split("] ")[1].split()[0])
+
+    assert [hits("a"), hits("a"), hits("b"), hits("b"), hits("a")] == [0, 1, 0, 1, 0]
+
+
 def test_numba_disable_jit_still_imports_the_kernels():
     """NUMBA_DISABLE_JIT=1 (numba's switch for debugging kernels as Python) leaves the functions plain: every
     kernel module still imports, and a kernel runs as Python."""

@@ -292,7 +292,7 @@ def _render_slice(c, regions, p0, p1, hier, vals, n_a, n_b, cls, geo, fp, buf, b
 @stage(forceinline=True)
 def _box_args(n_a, n_b, base, geo, fp, buf, band, et_on):
     """What :func:`_hidden` needs of a slice and a band (``et_on``: test saturation, not only the band)."""
-    return (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.sheet.shape[1], band[1], band[2],
+    return (n_a, n_b, base, geo.coef, geo.persp, fp.params[EX], fp.params[EY], buf.img.shape[1], band[1], band[2],
             band[5], et_on)
 
 

@@ -313,6 +313,48 @@ def test_progress_bar_slabs_draw_and_count_as_one_pass(make_scene, volume, monke
     assert figures[0][3] < len(view.order)        # early termination stopped the frame early
 
 
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(threads=st.integers(1, 4), az=st.floats(-180, 180), el=st.floats(-60, 60), zoom=st.floats(0.5, 3.0))
+def test_bin_regions_lists_the_regions_whose_box_meets_each_band(make_scene, tmp_path, threads, az, el, zoom):
+    """bin_regions (orthographic) against the obvious: per band and slice, in order, the regions of the slice
+    whose pixel box (the projected corners' hull grown by the reach, rounded outwards) meets the band's rows
+    and the image's columns; bands that do not tile the image from row 0 are refused."""
+    from isplat.splat import kernels as K
+
+    dens = rng_volume(3, (6, 150, 140))
+    aug, idx = tmp_path / "bins.aug.h5", tmp_path / "bins.idx.h5"
+    if not aug.exists():                                    # (one tmp_path for all the examples)
+        write_volume(tmp_path, dens, name="bins")
+    sc = make_scene(aug, idx, image="width = 70\nheight = 90", transfer="opacity = [[50, 0.0], [60, 0.8]]",
+                    camera=f"azimuth = {az}\nelevation = {el}\nzoom = {zoom}",
+                    render=f"threads = {threads}\nclassification = \"pre\"", shading="enabled = false")
+    sel = select_from_files(sc, "ijk")
+    view = F.views_for(sc, sel)[0]
+    setup = F.prepare(sel, view)
+    vox, coef, (ex, ey) = setup.vox, setup.geo.coef, setup.fp.params[[K.EX, K.EY]]
+    nra = -(-vox.n_a // K.REGION)
+    listed = 0
+    for oi, c in enumerate(view.order):
+        xs, ys = coef[K.X0] + c * coef[K.XC], coef[K.Y0] + c * coef[K.YC]
+        g = np.arange(vox.slice_ptr[c], vox.slice_ptr[c + 1])
+        a0, b0 = (vox.region_id[g] % nra) * K.REGION, (vox.region_id[g] // nra) * K.REGION
+        a1, b1 = np.minimum(a0 + K.REGION, vox.n_a) - 1, np.minimum(b0 + K.REGION, vox.n_b) - 1
+        px = np.stack([xs + a * coef[K.XA] + b * coef[K.XB] for a in (a0, a1) for b in (b0, b1)])
+        py = np.stack([ys + a * coef[K.YA] + b * coef[K.YB] for a in (a0, a1) for b in (b0, b1)])
+        x0, x1 = np.ceil(px.min(0) - ex), np.floor(px.max(0) + ex)
+        y0, y1 = np.ceil(py.min(0) - ey), np.floor(py.max(0) + ey)
+        for bi, (r0, r1) in enumerate(setup.rows):
+            meets = (x1 >= 0) & (x0 <= 69) & (y1 >= max(r0, 0)) & (y0 <= r1 - 1) & (y1 >= 0) & (y0 <= 89)
+            got = setup.bins.regions[setup.bins.ptr[bi, oi]:setup.bins.ptr[bi, oi + 1]]
+            assert np.array_equal(got, g[meets]), (oi, bi)
+            listed += got.size
+    assert listed > 0
+    rows = setup.rows.copy()
+    rows[0, 0] = 1
+    with pytest.raises(ValueError, match="bands must tile"):
+        K.bin_regions(view.order, vox, setup.geo, ex, ey, rows, 70)
+
+
 def test_a_views_shading_table_is_made_once_and_only_for_that_view(make_scene, volume, monkeypatch):
     """Frames of the same view (here another transfer function) take the table made for the first; another view
     or other Phong terms make their own; each equals a table made afresh; only the last few are kept."""

@@ -471,6 +471,11 @@ def bin_regions(order, vox, geo, ex, ey, rows, img_w):
     band_h = rows[0, 1] - rows[0, 0]
     nbands = rows.shape[0]
     img_h = rows[nbands - 1, 1]
+    for bi in range(nbands):    # a band is found as y // band_h: bands from row 0, one height but the last
+        if rows[bi, 0] != bi * band_h or rows[bi, 1] <= rows[bi, 0] or (bi < nbands - 1 and
+                                                                        rows[bi, 1] != (bi + 1) * band_h):
+            raise ValueError("bin_regions: the bands must tile the image's rows from 0, all as high as the first "
+                             "but the last (frame.image_bands)")
     nra = (vox.n_a + REGION - 1) // REGION
     cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
     ptr = np.zeros((nbands, order.shape[0] + 1), dtype=np.int64)

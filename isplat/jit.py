@@ -186,9 +186,11 @@ def leaf(fn=None, **extra):
       it is called;
     * ``@leaf(inline="always")``: numba inlines the stage's IR at each call site before typing. numba copies
       the IR for each call site, deep-copying all its variables once per block, so for a large stage this
-      costs seconds of a first run's compile (7 of 24 s when every such stage was inlined this way). The
-      frames were 3-5% faster with it only for the small per-pixel stages of the post-classified sample
-      (:mod:`isplat.splat.post`) and the occlusion test (:func:`isplat.splat.kernels._hidden`), which keep it.
+      costs seconds of a first run's compile (7 of 24 s when every such stage was inlined this way). With
+      LLVM's instead, frames were 3-5% slower for the small per-pixel helpers of the post-classified scan
+      (``_row_span``, ``_span``, ``_slice_point`` in :mod:`isplat.splat.post`) and the occlusion test
+      (:func:`isplat.splat.kernels._hidden`), which keep numba's (measured as a group, not one by one), and
+      as fast for the larger per-pixel sample (``_sample``) and per-square scan (``_sample_square``).
     """
     if fn is None:
         return lambda f: _compiled({**OPTIONS, "_nrt": False, **extra}, f, stage=True)

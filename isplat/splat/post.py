@@ -327,7 +327,7 @@ def _span(o, d, r, a, b, lo, hi):
     return lo, hi
 
 
-@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+@leaf(forceinline=True)
 def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo,
             img, sat, tile_sat, et):
     """One sample: the bilinear density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the

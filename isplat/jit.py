@@ -142,9 +142,15 @@ class _Stage(CPUDispatcher):
         return calls[len(args)](*args)
 
 
+# a stage's dispatcher becomes a _Stage (its class swapped): only where numba's is the CPUDispatcher it
+# subclasses; otherwise stages keep their wrappers
+_STAGES = type(nb.njit(lambda: 0)) is CPUDispatcher
+
+
 def _compiled(options: dict, fn, stage: bool = False):
     """``numba.jit(**options)(fn)``; with ``cache``, :class:`_CacheLoad` (or :class:`_Stamped`) as its cache; a
     ``stage`` (called from compiled code only) without Python's wrappers (:class:`_Stage`)."""
+    stage = stage and _STAGES
     if stage:
         options = {**options, **INTERNAL}
     cached = _CACHE is not None and options.get("cache")

@@ -5,8 +5,9 @@ BIN    := $(VENV)/bin
 ISPLAT := $(BIN)/isplat
 OUT    ?= out
 STAMP  := $(VENV)/.installed
+PREBUILT := isplat/_prebuilt/manifest.json
 
-.PHONY: demo test bench bench-check wheel-check data paper-table bench-peers accuracy reference stability clean venv readme-images presets-doc reliability fuzz-boundscheck
+.PHONY: demo prebuilt test bench bench-check wheel-check data paper-table bench-peers accuracy reference stability clean venv readme-images presets-doc reliability fuzz-boundscheck
 
 venv: $(STAMP)
 
@@ -20,8 +21,15 @@ $(STAMP): pyproject.toml
 test: $(STAMP)
 	$(BIN)/python -m pytest -q isplat tests
 
-demo: $(STAMP)
+demo: $(STAMP) $(PREBUILT)
 	OUT=$(OUT) ISPLAT=$(ISPLAT) bash scripts/demo.sh
+
+# The kernels compiled ahead of time for x86-64-v3 (isplat.prebuilt), so that no first run compiles; made again
+# when a source changes (a kernel's cache stamp covers every file of compiled functions).
+prebuilt: $(PREBUILT)
+
+$(PREBUILT): $(STAMP) $(wildcard isplat/*.py isplat/*/*.py)
+	$(BIN)/python -m isplat.prebuilt isplat/_prebuilt
 
 # The benchmarks live in benchmarks/ (not installed); each writes its page of docs/ with the command that made it.
 bench: $(STAMP)
@@ -37,7 +45,7 @@ wheel-check: $(STAMP)
 	$(BIN)/python scripts/check_wheel.py
 
 clean:
-	rm -rf $(VENV) $(OUT) build *.egg-info
+	rm -rf $(VENV) $(OUT) build *.egg-info isplat/_prebuilt
 
 data: $(STAMP)
 	$(BIN)/python scripts/fetch_data.py --out data --keep-going

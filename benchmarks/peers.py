@@ -658,25 +658,35 @@ def _timed(cmd, env=None) -> float:
     return dt
 
 
+def _cold(cmd, env) -> float:
+    """``cmd``'s time with an empty numba cache (a new machine)."""
+    with tempfile.TemporaryDirectory(prefix="numba-empty-") as cache:
+        return _timed(cmd, dict(env, NUMBA_CACHE_DIR=cache))
+
+
 def measure_process(name: str, size: int, quick: bool, repeats: int) -> dict:
     with tempfile.TemporaryDirectory(prefix="isplat-peers-") as tmp:
         tmp = Path(tmp)
         iso, vtk = process_commands(name, size, quick, tmp)
         env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}   # as installed: .pyc kept
+        env["ISPLAT_PREBUILT"] = "none"                 # kernels compiled for this CPU (cold_prebuilt: the others)
         _timed(iso, env)
         _timed(vtk, env)                                # warm: numba's cache, .pyc files, the OS's file cache
         t = {"isplat": [], "vtk": []}
         for rep in range(repeats):
             for who in (("isplat", "vtk") if rep % 2 == 0 else ("vtk", "isplat")):
                 t[who].append(_timed(iso if who == "isplat" else vtk, env))
-        cold = None
+        cold = cold_prebuilt = None
         if not quick:
-            cache = Path(tempfile.mkdtemp(prefix="numba-empty-"))
-            try:
-                cold = _timed(iso, dict(env, NUMBA_CACHE_DIR=str(cache)))
-            finally:
-                subprocess.run(["rm", "-rf", str(cache)])
+            cold = _cold(iso, env)
+            from isplat import prebuilt as PB
+
+            if PB.portable_here():
+                PB.build(str(tmp / "pre"))
+                cold_prebuilt = statistics.median(_cold(iso, dict(env, ISPLAT_PREBUILT=str(tmp / "pre")))
+                                                  for _ in range(3))
         return dict(isplat=statistics.median(t["isplat"]), vtk=statistics.median(t["vtk"]), cold=cold,
+                    cold_prebuilt=cold_prebuilt,
                     spread={k: (min(v), max(v)) for k, v in t.items()}, repeats=repeats,
                     command=shlex.join([Path(iso[0]).name] + iso[1:2] + ["examples/head.toml", "-o", "frame.png",
                                                                           "--set", "..."]))
@@ -799,7 +809,10 @@ def slower_text(results, mem, proc) -> list[str]:
                  f"VTK {proc['vtk']:.2f} s "
                  f"({proc['isplat'] / proc['vtk']:.2f}x)" +
                  (f"; the first isplat run with an empty numba cache (a new machine: everything compiles) "
-                  f"{proc['cold']:.1f} s." if proc["cold"] is not None else "."))
+                  f"{proc['cold']:.1f} s" if proc["cold"] is not None else "") +
+                 (f", or {proc['cold_prebuilt']:.2f} s with the kernels prebuilt for x86-64-v3 in the package "
+                  f"(`make prebuilt`, which `make demo` runs; median of 3; docs/startup.md)."
+                  if proc.get("cold_prebuilt") is not None else "."))
     better = [r for r in results if _pt(r, "isplat defaults")["err"]["rmse"] < _pt(r, "VTK 1")["err"]["rmse"]]
     L.append(f"- Image error against reference (a): isplat's defaults are closer than VTK at step 1 in {len(better)} "
              f"of {len(results)} cases (" + "; ".join(

@@ -8,9 +8,13 @@ Where the time of a one-frame ``isplat render`` process goes, and what the first
    ``isplat`` command does, or through Python's normal teardown; the parent times the whole process, so the
    teardown is the time after the last stamp. A third kind of run loads the kernels as numba does
    (``ISPLAT_NUMBA_STOCK_LOAD=1``: its target refreshed first). Repeated, the three interleaved.
-2. Cold (an empty ``NUMBA_CACHE_DIR``): the same child with numba's ``Dispatcher.compile`` timed per top-level
-   function, once at numba's default optimisation and once at ``NUMBA_OPT=0`` (how much of the compile time is
-   LLVM's optimiser).
+2. Cold (an empty ``NUMBA_CACHE_DIR``, no prebuilt kernels): the same child with numba's ``Dispatcher.compile``
+   timed per top-level function, once at numba's default optimisation and once at ``NUMBA_OPT=0`` (how much of
+   the compile time is LLVM's optimiser).
+3. Cold with the kernels prebuilt for x86-64-v3 (:mod:`isplat.prebuilt`, built into a temporary folder and
+   timed): the same child with an empty numba cache, repeated; and, interleaved with the warm runs, warm
+   children that take their kernels from the prebuilt folder, so the second frame of the portable kernels
+   compares with the second frame of kernels compiled for this CPU.
 
 Both with Python's bytecode cache on, as a package installed by pip has it.
 """
@@ -104,23 +108,43 @@ def run(out_dir: Path, quick: bool) -> Path:
     size = 64 if quick else SIZE
     args = [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={size}", f"image.height={size}"]
     repeats = 1 if quick else 5
-    _log("warm")
-    child_run(args, {})                                   # numba's cache and .pyc files made
-    warm = {"os": [], "normal": [], "stock": []}
-    env = {"os": {"STARTUP_EXIT": "os"}, "normal": {"STARTUP_EXIT": "normal"},
-           "stock": {"STARTUP_EXIT": "os", "ISPLAT_NUMBA_STOCK_LOAD": "1"}}
-    for i in range(repeats):
-        for how in (("os", "normal", "stock") if i % 2 == 0 else ("stock", "normal", "os")):
-            warm[how].append(child_run(args, env[how]))
-    cold = {}
-    for opt in ((None,) if quick else (None, "0")):
-        _log(f"cold, NUMBA_OPT={opt or 'default'}")
-        with tempfile.TemporaryDirectory(prefix="isplat-numba-empty-") as cache:
-            env = {"NUMBA_CACHE_DIR": cache, "STARTUP_COMPILES": "1", "STARTUP_EXIT": "os"}
-            if opt is not None:
-                env["NUMBA_OPT"] = opt
-            cold[opt or "default"] = child_run(args, env)
-    body = doc(warm, cold, size, quick, time.perf_counter() - t_start)
+    from isplat import prebuilt as PB
+
+    with tempfile.TemporaryDirectory(prefix="isplat-prebuilt-") as tmp:
+        pre = None
+        if not quick and PB.portable_here():
+            _log("prebuilt kernels (python -m isplat.prebuilt)")
+            t = time.perf_counter()
+            PB.build(str(Path(tmp) / "pre"))
+            pre = dict(build=time.perf_counter() - t, cold=[])
+        _log("warm")
+        host = {"ISPLAT_PREBUILT": "none"}
+        child_run(args, host)                                   # numba's cache and .pyc files made
+        warm = {"os": [], "normal": [], "stock": [], "prebuilt": []}
+        env = {"os": {"STARTUP_EXIT": "os", **host}, "normal": {"STARTUP_EXIT": "normal", **host},
+               "stock": {"STARTUP_EXIT": "os", "ISPLAT_NUMBA_STOCK_LOAD": "1", **host},
+               "prebuilt": {"STARTUP_EXIT": "os", "ISPLAT_PREBUILT": str(Path(tmp) / "pre"),
+                            "NUMBA_CACHE_DIR": str(Path(tmp) / "user")}}
+        kinds = ("os", "normal", "stock") + (("prebuilt",) if pre else ())
+        if pre:
+            child_run(args, env["prebuilt"])                    # what was not prebuilt (stages) compiled once
+        for i in range(repeats):
+            for how in (kinds if i % 2 == 0 else kinds[::-1]):
+                warm[how].append(child_run(args, env[how]))
+        cold = {}
+        for opt in ((None,) if quick else (None, "0")):
+            _log(f"cold, NUMBA_OPT={opt or 'default'}")
+            with tempfile.TemporaryDirectory(prefix="isplat-numba-empty-") as cache:
+                env = {"NUMBA_CACHE_DIR": cache, "STARTUP_COMPILES": "1", "STARTUP_EXIT": "os", **host}
+                if opt is not None:
+                    env["NUMBA_OPT"] = opt
+                cold[opt or "default"] = child_run(args, env)
+        for _ in range(repeats if pre else 0):
+            _log("cold, prebuilt kernels")
+            with tempfile.TemporaryDirectory(prefix="isplat-numba-empty-") as cache:
+                pre["cold"].append(child_run(args, {"NUMBA_CACHE_DIR": cache, "STARTUP_COMPILES": "1",
+                                                    "STARTUP_EXIT": "os", "ISPLAT_PREBUILT": str(Path(tmp) / "pre")}))
+    body = doc(warm, cold, size, quick, time.perf_counter() - t_start, pre)
     path = out_dir / "startup.md"
     path.write_text(body + "\n")
     return path
@@ -130,7 +154,7 @@ def _med(xs) -> float:
     return statistics.median(xs)
 
 
-def doc(warm, cold, size, quick, seconds) -> str:
+def doc(warm, cold, size, quick, seconds, pre=None) -> str:
     runs = warm["os"]
     names = [n for n, _ in runs[0]["steps"]]
     L = ["# Start-up: one frame as a process, and the first run on a machine", "",
@@ -181,4 +205,22 @@ def doc(warm, cold, size, quick, seconds) -> str:
     L += ["", "With `NUMBA_OPT=0` LLVM hardly optimises, so the difference between the columns is LLVM's share; "
           "the rest is numba's typing and lowering, which grows with the number of compiled functions and "
           "their argument types (each distinct set of argument types is compiled again)."]
-    return "\n".join(L)
+    return "\n".join(L + (_prebuilt_doc(warm, pre) if pre else []))
+
+
+def _prebuilt_doc(warm, pre) -> list[str]:
+    second = [n for n, _ in warm["os"][0]["steps"]].index("second frame (for comparison)")
+    frame = {k: [1e3 * r["steps"][second][1] for r in warm[k]] for k in ("os", "prebuilt")}
+    total = [r["total"] for r in pre["cold"]]
+    compiled = [sum(t for _, t in r["compiles"]) for r in pre["cold"]]
+    return ["", "## Cold with prebuilt kernels (`make prebuilt`; `make demo` makes them too)", "",
+            f"`python -m isplat.prebuilt` compiled the kernels for x86-64-v3 in {pre['build']:.0f} s. With them "
+            "in the package and an empty numba cache, the first run on a machine (medians of "
+            f"{len(total)}):", "", "| | s (median) | range |", "|---|---:|---:|",
+            f"| **whole process** | **{_med(total):.2f}** | {min(total):.2f}-{max(total):.2f} |",
+            f"| in numba's compile calls (loading the prebuilt kernels; compiling what was not prebuilt) | "
+            f"{_med(compiled):.2f} | {min(compiled):.2f}-{max(compiled):.2f} |",
+            "", "The portable kernels against kernels compiled for this CPU, the second frame of the warm runs above "
+            f"(interleaved): {_med(frame['prebuilt']):.1f} ms (range {min(frame['prebuilt']):.1f}-"
+            f"{max(frame['prebuilt']):.1f}) against {_med(frame['os']):.1f} ms ({min(frame['os']):.1f}-"
+            f"{max(frame['os']):.1f})."]

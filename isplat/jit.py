@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import tempfile
 
 BOUNDSCHECK = os.environ.get("ISPLAT_BOUNDSCHECK", "") == "1"
@@ -65,8 +66,59 @@ def _stat(path):
         return None
 
 
+_PREBUILT: list = []
+
+
+def prebuilt() -> dict | None:
+    """The package's kernels compiled ahead of time (:mod:`isplat.prebuilt`), once per process: their folder
+    (``ISPLAT_PREBUILT`` in the environment, else ``isplat/_prebuilt``; ``ISPLAT_PREBUILT=none``: not used),
+    the CPU description they were compiled for and the stamp of the sources they were compiled from, or None
+    when there are none, or they were made from other sources, another numba, llvmlite or Python, or for a
+    CPU this one is not, or bounds checks are on."""
+    if not _PREBUILT:
+        _PREBUILT.append(_read_prebuilt())
+    return _PREBUILT[0]
+
+
+def _read_prebuilt():
+    import json
+
+    folder = os.environ.get("ISPLAT_PREBUILT") or os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                                                               "_prebuilt")
+    if BOUNDSCHECK or os.environ.get("NUMBA_BOUNDSCHECK", "") == "1":
+        return None                     # compiled without bounds checks
+    try:
+        with open(os.path.join(folder, "manifest.json"), encoding="utf-8") as f:
+            m = json.load(f)
+        import llvmlite
+        import llvmlite.binding as ll
+
+        host = set(ll.get_host_cpu_features().flatten().split(","))
+        fits = (m["format"] == 1 and m["numba"] == nb.__version__ and m["llvmlite"] == llvmlite.__version__
+                and m["python"] == sys.implementation.cache_tag and m["triple"] == ll.get_process_triple()
+                and set(m["features"].split(",")) <= host and m["sources"] == kernel_sources_digest())
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not fits:
+        return None
+    return {"dir": folder, "magic": (m["triple"], m["cpu"], m["features"]), "stamp": ("prebuilt", m["sources"])}
+
+
+def kernel_sources_digest() -> str:
+    """SHA-256 of the contents of ``KERNEL_SOURCES``: what prebuilt kernels were compiled from (file times
+    change when a package is installed, contents do not)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    root = os.path.dirname(os.path.abspath(__file__))
+    for name in KERNEL_SOURCES:
+        with open(os.path.join(root, name), "rb") as f:
+            h.update(name.encode() + b"\0" + f.read() + b"\0")
+    return h.hexdigest()
+
+
 try:
-    from numba.core.caching import FunctionCache
+    from numba.core.caching import FunctionCache, IndexDataCacheFile
     from numba.core.runtime import rtsys
 
     class _Stamped(FunctionCache):
@@ -105,9 +157,24 @@ try:
             found = None
             with self._guard_against_spurious_io_errors():
                 found = self._load_overload(sig, target_context)
+                if found is None:
+                    found = self._load_prebuilt(sig, target_context)
             if found is None:
                 _announce_compile(self._cache_path)
             return found
+
+        def _load_prebuilt(self, sig, target_context):
+            """The kernel compiled ahead of time for a portable CPU level (:mod:`isplat.prebuilt`), when the
+            package holds it and it fits this install and this CPU."""
+            pre = prebuilt()
+            if pre is None:
+                return None
+            folder = os.path.join(pre["dir"], *self._py_func.__module__.split("."))
+            files = IndexDataCacheFile(cache_path=folder, filename_base=self._impl.filename_base,
+                                       source_stamp=pre["stamp"])
+            sig_key, _, code_key = self._index_key(sig, target_context.codegen())
+            data = files.load((sig_key, pre["magic"], code_key))
+            return None if data is None else self._impl.rebuild(target_context, data)
 
     # ISPLAT_NUMBA_STOCK_LOAD=1: numba's own loading, refresh included (docs/startup.md measures both)
     _FAST_LOAD = (all(hasattr(FunctionCache, a) for a in ("_load_overload", "_guard_against_spurious_io_errors"))

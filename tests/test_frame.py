@@ -528,6 +528,43 @@ def test_a_cached_kernel_is_stale_when_any_file_of_compiled_functions_changes(tm
     assert [hits("a"), hits("a"), hits("b"), hits("b"), hits("a")] == [0, 1, 0, 1, 0]
 
 
+def test_prebuilt_kernels_load_on_a_first_run_without_compiling(tmp_path):
+    """isplat.prebuilt compiles what a workload calls for x86-64-v3 into a folder with a manifest; a process
+    with an empty numba cache then loads the kernel from it (a cache hit, nothing compiled, the same values);
+    a manifest for other sources is ignored, and so is the folder when bounds checks are on."""
+    from isplat import prebuilt as PB
+
+    if not PB.portable_here():
+        pytest.skip("not an x86-64-v3 CPU")
+    mod = tmp_path / "mod"
+    mod.mkdir()
+    (mod / "cached_mod.py").write_text(CACHED)
+    (mod / "work_mod.py").write_text("import numpy as np\nimport cached_mod\n\n\ndef run():\n"
+                                     "    cached_mod.kernel(np.arange(3.0))\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(mod), os.environ.get("PYTHONPATH", "")]))
+    env.pop("ISPLAT_NUMBA_STOCK_LOAD", None)
+    built = subprocess.run([sys.executable, "-c", "import sys; from isplat.prebuilt import build; "
+                            "print(build(sys.argv[1], 'work_mod:run', ['cached_mod'])['kernels'])",
+                            str(tmp_path / "pre")], env=env, capture_output=True, text=True, timeout=300)
+    assert built.returncode == 0, built.stderr
+    assert built.stdout.split()[-1] == "1"
+
+    def run(cache, **extra):
+        env_run = dict(env, NUMBA_CACHE_DIR=str(tmp_path / cache), ISPLAT_PREBUILT=str(tmp_path / "pre"), **extra)
+        out = subprocess.run([sys.executable, "-c", CACHED_RUN, str(mod)], capture_output=True, text=True,
+                             env=env_run, timeout=300)
+        assert out.returncode == 0, out.stderr
+        hits = int(out.stdout.split("] ")[1].split()[0])
+        return out.stdout.split("] ")[0] + "]", hits, "compiling the kernels" in out.stderr
+
+    expected = repr([1.0, 3.0, 5.0, 7.0, 9.0, 10.0])
+    assert run("empty1") == (expected, 1, False)
+    assert run("empty2", ISPLAT_BOUNDSCHECK="1") == (expected, 0, True)
+    manifest = tmp_path / "pre" / "manifest.json"
+    manifest.write_text(manifest.read_text().replace('"sources": "', '"sources": "0'))
+    assert run("empty3") == (expected, 0, True)
+
+
 def test_numba_disable_jit_still_imports_the_kernels():
     """NUMBA_DISABLE_JIT=1 (numba's switch for debugging kernels as Python) leaves the functions plain: every
     kernel module still imports, and a kernel runs as Python."""

@@ -24,6 +24,11 @@ def test_benchmarks_tests_and_strays_are_named():
     assert cw.offenders(GOOD + strays) == strays
 
 
+def test_prebuilt_kernels_once_made_must_be_shipped():
+    assert cw.offenders(GOOD, prebuilt=True) == ["missing: isplat/_prebuilt/manifest.json"]
+    assert cw.offenders(GOOD + ["isplat/_prebuilt/manifest.json"], prebuilt=True) == []
+
+
 def test_a_missing_cli_is_named():
     assert cw.offenders([n for n in GOOD if n != "isplat/cli/main.py"]) == ["missing: isplat/cli/main.py"]
 
@@ -43,3 +48,18 @@ def test_tests_do_not_import_the_benchmarks():
     for path in [*(ROOT / "tests").glob("*.py"), *ROOT.glob("conftest.py")]:
         bench = {m for m in imported_modules(path) if m.split(".")[0] == "benchmarks" or m.startswith("isplat.bench")}
         assert not bench, (path.name, bench)
+
+
+def test_the_command_line_runs_without_the_editable_installs_imports():
+    """An installed wheel has no editable-install finder, which imports importlib.util as a side effect: the
+    command line must import what it uses itself (it failed with AttributeError: module 'importlib' has no
+    attribute 'util'). Here without site (-S): isplat and the libraries from PYTHONPATH only."""
+    import os
+    import site
+    import subprocess
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *site.getsitepackages()]))
+    out = subprocess.run([sys.executable, "-S", "-m", "isplat", "render", "--help"], env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "Usage: isplat render" in out.stdout

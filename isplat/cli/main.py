@@ -4,6 +4,7 @@ so ``isplat --help`` and a render start without importing every stage."""
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import logging
 import os
 import signal

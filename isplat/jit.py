@@ -6,7 +6,9 @@ run: an index outside an array then raises ``IndexError`` instead of reading str
 not tell apart code compiled with and without checks, so such a run keeps its cache in a folder of its own
 (``NUMBA_CACHE_DIR``, set here unless the caller set it).
 
-A kernel's cache is made when first used and loaded without numba's registry refresh (:class:`_CacheLoad`).
+A kernel's cache is made when first used and loaded without numba's registry refresh (:class:`_CacheLoad`);
+on a miss, from the kernels prebuilt for a portable CPU level when the package holds them (:mod:`isplat.prebuilt`).
+Functions called only from compiled code are made without Python's wrappers (:func:`stage`, :func:`leaf`).
 """
 
 from __future__ import annotations
@@ -191,11 +193,11 @@ STRICT = os.environ.get("ISPLAT_STRICT_STAGES", "") == "1"
 
 class _Stage(CPUDispatcher):
     """A compiled function made without the wrappers that let Python call it (``INTERNAL``): numba makes
-    those for every compiled function, also one only ever called from compiled code, and making them took
-    about a fifth of a first run's compile (docs/startup.md). Without them numba's own call from Python would
-    jump to a null address, so a call from Python (the tests' reference checks) goes through a small compiled
-    function made for it, uncached; ``ISPLAT_STRICT_STAGES=1`` makes such a call an error instead (a test runs
-    the command line so, to show that isplat itself never calls a stage from Python)."""
+    those for every compiled function, also one only ever called from compiled code, and making them is a good
+    part of a first run's compile (docs/design.md, "Compiling the kernels"). Without them numba's own call from
+    Python would jump to a null address, so a call from Python (the tests' reference checks) goes through a
+    small compiled function made for it, uncached; ``ISPLAT_STRICT_STAGES=1`` makes such a call an error instead
+    (a test runs the command line so, to show that isplat itself never calls a stage from Python)."""
 
     def __call__(self, *args):
         if STRICT:

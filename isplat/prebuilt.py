@@ -107,12 +107,16 @@ VARIANTS = ([], ['render.classification="pre"'], ['render.method="full"'],
             ['render.precision="float64"', 'render.classification="pre"'],
             ['render.precision="float64"', 'render.method="full"'],
             ['transfer.gradient_opacity=[[0, 0.2], [255, 1.0]]'],
+            ['transfer.gradient_opacity=[[0, 0.2], [255, 1.0]]', 'render.classification="pre"'],
+            ['shading.enabled=true', 'render.classification="pre"'],
+            ['render.method="full"', 'render.classification="pre"', 'render.sheets="image"'],
             ['shading.enabled=false', 'render.threads=1'])
 
 
 def isplat_workload() -> None:
-    """The commands a user runs, on a small sample: sample, augment, index, stats, and render in every kind of
-    frame (``VARIANTS``), in one process, so each kernel is compiled for the argument types they give it."""
+    """The commands a user runs, on a small sample: sample, augment, index, stats, render in every kind of frame
+    (``VARIANTS``), in slabs and on a local Dask cluster, and ``isplat.render`` on an array, in one process, so
+    each kernel is compiled for the argument types they give it."""
     from .cli.main import _run as run_cli
 
     def _run(args):
@@ -136,7 +140,12 @@ def isplat_workload() -> None:
         for i, sets in enumerate(VARIANTS):
             _run(["-q", "render", "s.toml", "-o", f"{i}.png", *[f"--set={s}" for s in sets]])
         _run(["-q", "render", "s.toml", "-o", "slabs.png", "--slabs", "3"])
+        _run(["-q", "render", "s.toml", "-o", "dask.png", "--slabs", "2", "--scheduler", "local:2"])
         _run(["-q", "stats", "e.aug.h5", "e.idx.h5", "--scene", "s.toml"])
+        import numpy as np
+
+        from . import render                                # the notebook call: a volume augmented in memory
+        render(np.load("c.npy"), preset="ct-bone", size=32)
     finally:
         os.chdir(tempfile.gettempdir())
         shutil.rmtree(here, ignore_errors=True)

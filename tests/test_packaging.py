@@ -27,6 +27,7 @@ def test_benchmarks_tests_and_strays_are_named():
 def test_prebuilt_kernels_once_made_must_be_shipped():
     assert cw.offenders(GOOD, prebuilt=True) == ["missing: isplat/_prebuilt/manifest.json"]
     assert cw.offenders(GOOD + ["isplat/_prebuilt/manifest.json"], prebuilt=True) == []
+    assert cw.offenders(GOOD + ["isplat/_prebuilt/manifest.json"]) == ["isplat/_prebuilt/manifest.json"]
 
 
 def test_a_missing_cli_is_named():

@@ -159,7 +159,7 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     n_cells = _max_cells(sel, axis)
     # the slice's sheet and its touched pixels: post-classified frames composite each sample at once, no sheet
     # (zeroing an unused 4 MB sheet was a fifth of a 512 x 512 frame's serial work)
-    sh, sw = (1, 1) if ro.classification == "post" and ro.sheets != "image" else (H, W)
+    sh, sw = (1, 1) if ro.classification == "post" else (H, W)
     scratch = (np.zeros((sh, sw, 4), dtype), np.zeros((sh, sw), np.uint8),
                [np.empty(band_px + 1, np.int64) for _ in mine], [np.empty((n_cells, 4), np.int64) for _ in mine])
     if sel.empty:

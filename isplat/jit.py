@@ -13,6 +13,7 @@ Functions called only from compiled code are made without Python's wrappers (:fu
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import sys
@@ -48,62 +49,22 @@ def _announce_compile(cache_path: str) -> None:
 # (post's kernel inlines kernels.py's occlusion test): a cached kernel is fresh only while all of them are.
 KERNEL_SOURCES = ("jit.py", "augment.py", "normals.py", "samples.py", "index/codec.py", "splat/composite.py",
                   "splat/kernels.py", "splat/post.py", "splat/select.py", "splat/shade.py", "splat/sheets.py")
-_STAMP: list = []
+_HERE = os.path.dirname(os.path.abspath(__file__))
 
 
+@functools.cache
 def kernel_sources_stamp() -> tuple:
     """(modification time, size) of each of ``KERNEL_SOURCES``, once per process: the freshness of every cached
     kernel (numba's own stamp is its file's alone)."""
-    if not _STAMP:
-        root = os.path.dirname(os.path.abspath(__file__))
-        _STAMP.append(tuple((name, *((st.st_mtime, st.st_size) if (st := _stat(os.path.join(root, name))) else ()))
-                            for name in KERNEL_SOURCES))
-    return _STAMP[0]
+    return tuple((name, *_file_stamp(os.path.join(_HERE, name))) for name in KERNEL_SOURCES)
 
 
-def _stat(path):
+def _file_stamp(path) -> tuple:
     try:
-        return os.stat(path)
+        st = os.stat(path)
     except OSError:
-        return None
-
-
-_PREBUILT: list = []
-
-
-def prebuilt() -> dict | None:
-    """The package's kernels compiled ahead of time (:mod:`isplat.prebuilt`), once per process: their folder
-    (``ISPLAT_PREBUILT`` in the environment, else ``isplat/_prebuilt``; ``ISPLAT_PREBUILT=none``: not used),
-    the CPU description they were compiled for and the stamp of the sources they were compiled from, or None
-    when there are none, or they were made from other sources, another numba, llvmlite or Python, or for a
-    CPU this one is not, or bounds checks are on."""
-    if not _PREBUILT:
-        _PREBUILT.append(_read_prebuilt())
-    return _PREBUILT[0]
-
-
-def _read_prebuilt():
-    import json
-
-    folder = os.environ.get("ISPLAT_PREBUILT") or os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                                                               "_prebuilt")
-    if BOUNDSCHECK or os.environ.get("NUMBA_BOUNDSCHECK", "") == "1":
-        return None                     # compiled without bounds checks
-    try:
-        with open(os.path.join(folder, "manifest.json"), encoding="utf-8") as f:
-            m = json.load(f)
-        import llvmlite
-        import llvmlite.binding as ll
-
-        host = set(ll.get_host_cpu_features().flatten().split(","))
-        fits = (m["format"] == 1 and m["numba"] == nb.__version__ and m["llvmlite"] == llvmlite.__version__
-                and m["python"] == sys.implementation.cache_tag and m["triple"] == ll.get_process_triple()
-                and set(m["features"].split(",")) <= host and m["sources"] == kernel_sources_digest())
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    if not fits:
-        return None
-    return {"dir": folder, "magic": (m["triple"], m["cpu"], m["features"]), "stamp": ("prebuilt", m["sources"])}
+        return ()
+    return st.st_mtime, st.st_size
 
 
 def kernel_sources_digest() -> str:
@@ -112,11 +73,46 @@ def kernel_sources_digest() -> str:
     import hashlib
 
     h = hashlib.sha256()
-    root = os.path.dirname(os.path.abspath(__file__))
     for name in KERNEL_SOURCES:
-        with open(os.path.join(root, name), "rb") as f:
+        with open(os.path.join(_HERE, name), "rb") as f:
             h.update(name.encode() + b"\0" + f.read() + b"\0")
     return h.hexdigest()
+
+
+def cpu_has(features: str) -> bool:
+    """True when this process runs on x86-64 with every LLVM feature of ``features`` ("+avx2,+fma,...")."""
+    import llvmlite.binding as ll
+
+    host = set(ll.get_host_cpu_features().flatten().split(","))
+    return ll.get_process_triple().startswith("x86_64") and set(features.split(",")) <= host
+
+
+@functools.cache
+def prebuilt() -> dict | None:
+    """The package's kernels compiled ahead of time (:mod:`isplat.prebuilt`), once per process: their folder
+    (``ISPLAT_PREBUILT`` in the environment, else ``isplat/_prebuilt``; ``ISPLAT_PREBUILT=none``: not used),
+    the CPU description they were compiled for and the stamp of the sources they were compiled from, or None
+    when there are none, or they were made from other sources, another numba, llvmlite or Python, or for a
+    CPU this one is not, or bounds checks are on."""
+    import json
+
+    folder = os.environ.get("ISPLAT_PREBUILT") or os.path.join(_HERE, "_prebuilt")
+    if BOUNDSCHECK or os.environ.get("NUMBA_BOUNDSCHECK", "") == "1":
+        return None                     # compiled without bounds checks
+    try:
+        with open(os.path.join(folder, "manifest.json"), encoding="utf-8") as f:
+            m = json.load(f)
+        import llvmlite
+        import llvmlite.binding as ll
+
+        fits = (m["format"] == 1 and m["numba"] == nb.__version__ and m["llvmlite"] == llvmlite.__version__
+                and m["python"] == sys.implementation.cache_tag and m["triple"] == ll.get_process_triple()
+                and cpu_has(m["features"]) and m["sources"] == kernel_sources_digest())
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not fits:
+        return None
+    return {"dir": folder, "magic": (m["triple"], m["cpu"], m["features"]), "stamp": ("prebuilt", m["sources"])}
 
 
 try:

@@ -153,10 +153,9 @@ def isplat_workload() -> None:
 
 def portable_here() -> bool:
     """True on an x86-64 CPU with every feature of the portable level (where the kernels can be built and run)."""
-    import llvmlite.binding as ll
+    from .jit import cpu_has
 
-    host = set(ll.get_host_cpu_features().flatten().split(","))
-    return ll.get_process_triple().startswith("x86_64") and set(PORTABLE_FEATURES.split(",")) <= host
+    return cpu_has(PORTABLE_FEATURES)
 
 
 def main(argv=None) -> None:

@@ -355,28 +355,30 @@ def test_bin_regions_lists_the_regions_whose_box_meets_each_band(make_scene, tmp
         K.bin_regions(view.order, vox, setup.geo, ex, ey, rows, 70)
 
 
-def test_a_views_shading_table_is_made_once_and_only_for_that_view(make_scene, volume, monkeypatch):
+def test_a_views_shading_table_is_made_once_and_only_for_that_view(make_scene, volume):
     """Frames of the same view (here another transfer function) take the table made for the first; another view
     or other Phong terms make their own; each equals a table made afresh; only the last few are kept."""
     from isplat.splat import shade as SH
 
-    monkeypatch.setattr(SH, "_KEPT", type(SH._KEPT)())
-    tables = {}
+    SH._table.cache_clear()
+    tables, views = {}, {}
     for az, specular, opacity in ((0, 0.3, 0.8), (0, 0.3, 0.5), (40, 0.3, 0.8), (0, 0.6, 0.8)):
         sc = make_scene(volume[3], volume[4], camera=f"azimuth = {az}",
                         transfer=f"opacity = [[50, 0.0], [60, {opacity}]]", shading=f"specular = {specular}")
-        view = F.views_for(sc, Selection.from_arrays(volume[0], sc, normal=volume[2]))[0]
-        table = tables[(az, specular, opacity)] = SH.shade_table(view.shading, view.frame, view.geom, threads=2)
-        with monkeypatch.context() as m:
-            m.setattr(SH, "_KEPT", type(SH._KEPT)())
-            assert np.array_equal(SH.shade_table(view.shading, view.frame, view.geom), table)
+        view = views[(az, specular, opacity)] = F.views_for(sc, Selection.from_arrays(volume[0], sc,
+                                                                                      normal=volume[2]))[0]
+        tables[(az, specular, opacity)] = SH.shade_table(view.shading, view.frame, view.geom, threads=2)
     assert tables[(0, 0.3, 0.8)] is tables[(0, 0.3, 0.5)]
     assert not np.array_equal(tables[(0, 0.3, 0.8)], tables[(40, 0.3, 0.8)])
     assert not np.array_equal(tables[(0, 0.3, 0.8)], tables[(0, 0.6, 0.8)])
-    assert len(SH._KEPT) == 3
-    monkeypatch.setattr(SH, "_KEEP", 2)
+    assert SH._table.cache_info().currsize == 3
+    SH._table.cache_clear()
+    for key, view in views.items():
+        fresh = SH.shade_table(view.shading, view.frame, view.geom)
+        assert fresh is not tables[key] and np.array_equal(fresh, tables[key])
     SH.shade_table(view.shading, view.frame, view.geom, threads=2, dtype=np.float64)
-    assert len(SH._KEPT) == 2
+    SH.shade_table(view.shading, view.frame, view.geom, threads=3, dtype=np.float64)
+    assert SH._table.cache_info().currsize == SH._table.cache_info().maxsize == 4
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -517,7 +519,7 @@ def test_a_cached_kernel_is_stale_when_any_file_of_compiled_functions_changes(tm
     (tmp_path / "mod" / "cached_mod.py").write_text(CACHED)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     env.pop("ISPLAT_NUMBA_STOCK_LOAD", None)
-    code = ("import sys\nimport isplat.jit as J\nJ._STAMP.append(sys.argv[2])\n" + CACHED_RUN)
+    code = ("import sys\nimport isplat.jit as J\nJ.kernel_sources_stamp = lambda: sys.argv[2]\n" + CACHED_RUN)
 
     def hits(stamp):
         out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "mod"), stamp], env=env,

@@ -7,8 +7,7 @@ few tables are kept, so frames of the same view (another transfer function, anot
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
+import functools
 
 import numpy as np
 
@@ -16,19 +15,13 @@ from ..jit import jit
 from ..threads import run_parallel
 
 
-_KEPT: OrderedDict = OrderedDict()      # the last few tables, keyed by everything they are made from
-_KEEP = 4                               # 1.5 MB each at most
-_LOCK = threading.Lock()
-
-
 def shade_table(shading, frame, geom, dtype=np.float32, threads: int = 1) -> np.ndarray:
     """Per normal code: (diffuse r, g, b, specular r, g, b) for this view's lights (Phong, infinite viewer),
     or just (diffuse, specular) when every light is white; the codes are shared out between ``threads``.
 
-    The table is shared with later calls for the same lights, view direction and Phong terms (one of the last
-    ``_KEEP``): do not write to it. (It stays writeable, as the kernels were compiled for.)"""
-    from ..normals import decode_lut
-
+    The table is shared with later calls for the same lights, view direction, Phong terms and threads (one of
+    the last four, :func:`_table`): do not write to it. (It stays writeable, as the kernels were compiled
+    for.)"""
     R = np.stack([frame.u, frame.v, frame.w])          # camera -> world: x*u + y*v + z*w
     view = geom.unit_axes @ frame.w                    # towards the viewer, volume axes
     rows = []
@@ -41,11 +34,15 @@ def shade_table(shading, frame, geom, dtype=np.float32, threads: int = 1) -> np.
     lights = np.asarray(rows, dtype=np.float64).reshape(-1, 9)
     args = (float(shading.ambient), float(shading.diffuse), float(shading.specular), float(shading.shininess),
             bool(shading.two_sided))
-    key = (lights.tobytes(), args, np.dtype(dtype).str)
-    with _LOCK:
-        if key in _KEPT:
-            _KEPT.move_to_end(key)
-            return _KEPT[key]
+    return _table(lights.tobytes(), args, np.dtype(dtype).str, threads)
+
+
+@functools.lru_cache(maxsize=4)         # 1.5 MB each at most
+def _table(lights_bytes: bytes, args: tuple, dtype: str, threads: int) -> np.ndarray:
+    """:func:`shade_table`'s table for ``lights`` rows (L, H, rgb) given as bytes, so that they can be a key."""
+    from ..normals import decode_lut
+
+    lights = np.frombuffer(lights_bytes, dtype=np.float64).reshape(-1, 9).copy()   # writeable, as compiled for
     # white lights: r, g and b factors are equal, one diffuse and one specular factor per code will do
     white = bool(np.all(lights[:, 6:9] == lights[:, 6:7]))
     out = np.empty((65536, 2 if white else 6), dtype=dtype)
@@ -54,10 +51,6 @@ def shade_table(shading, frame, geom, dtype=np.float32, threads: int = 1) -> np.
     cuts = np.linspace(0, normals.shape[0], max(1, threads) + 1).astype(int)
     parts = [(normals[a:b], out[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
     run_parallel(lambda p: shade_codes(p[0], lights, *args, p[1]), parts, threads)
-    with _LOCK:
-        _KEPT[key] = out
-        while len(_KEPT) > _KEEP:
-            _KEPT.popitem(last=False)
     return out
 
 

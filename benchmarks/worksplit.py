@@ -6,8 +6,9 @@
    the occlusion tests (not skipped with their region, block or cell of the slice), and the voxels splatted or
    samples composited.
    These are counts, not times: they do not depend on the machine's load.
-2. Threads: the image is cut into bands of rows (isplat.frame.image_bands), threads take every n-th band and
-   each band walks the slices on its own. The work that is repeated is that of cells that cross a band's edge
+2. Threads: the image is cut into bands of rows (isplat.frame.band_rows: evenly for a first frame, then where
+   the frames before found equal work), threads take every n-th band and each band walks the slices on its
+   own. The work that is repeated is that of cells that cross a band's edge
    (visited by both bands): counted for the bands that 1 to 64 threads use. The work that is serial is the
    calling thread's CPU time outside the kernels (set-up, finishing). From both, the speed-up on N cores is
    predicted (Amdahl's law with the repeated work added to the parallel part), and on this machine 2 threads
@@ -63,10 +64,12 @@ def on_threads(view, threads: int):
 
 
 def counts(r, threads: int):
-    """The frame's bands and counters on ``threads`` threads (the counts depend on the bands only)."""
+    """The frame's bands and counters on ``threads`` threads, on even bands (a first frame: the counts depend
+    on the bands only)."""
     from isplat import frame as F
 
     view = on_threads(r.views[0], threads)
+    r.selection.band_costs.clear()
     return len(F.image_bands(view.frame.height, threads)), F.render_frame(r.selection, view)[1]
 
 
@@ -105,15 +108,24 @@ def cpu_frame(r, view) -> dict:
 
 def timings(r, frames: int) -> dict:
     """Medians over interleaved frames on 1 and 2 threads: wall time, serial CPU time, the threads' CPU time in
-    the kernels (total and the busiest thread's); and the set-up alone (``prepare``)."""
+    the kernels (total and the busiest thread's); and the set-up alone (``prepare``). Frames "2" cut their
+    bands by the frames before them (``isplat.frame.band_rows``; the first frame, not counted, learns); frames
+    "2e" always take even bands, as a first frame does."""
     from isplat import frame as F
 
-    views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2)}
-    runs = {"1": [], "2": []}
+    views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2), "2e": on_threads(r.views[0], 2)}
+    runs = {key: [] for key in views}
     prep = []
+    learned = {}
     for _ in range(frames + 1):
         for key, view in views.items():
+            if key == "2e":                                         # nothing learned: even bands
+                learned = dict(r.selection.band_costs)
+                r.selection.band_costs.clear()
             runs[key].append(cpu_frame(r, view))
+            if key == "2e":
+                r.selection.band_costs.clear()
+                r.selection.band_costs.update(learned)
         t = time.perf_counter()
         F.prepare(r.selection, views["2"])
         prep.append(time.perf_counter() - t)
@@ -128,8 +140,9 @@ def timings(r, frames: int) -> dict:
         out[f"imbalance{key}"] = med(max(x["threads"]) * len(x["threads"]) / sum(x["threads"]) for x in rs)
         out[f"rest{key}"] = med(x["rest"] for x in rs)
         out[f"rest_busiest{key}"] = med(x["rest_busiest"] for x in rs)
-    out["cpu_speedup"] = (out["serial1"] + out["work1"] + out["rest1"]) / (out["serial2"] + out["busiest2"] +
-                                                                         out["rest_busiest2"])
+    for key in ("2", "2e"):
+        out[f"cpu_speedup{key}"] = (out["serial1"] + out["work1"] + out["rest1"]) / (
+            out[f"serial{key}"] + out[f"busiest{key}"] + out[f"rest_busiest{key}"])
     return out
 
 
@@ -191,13 +204,19 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "calling thread outside the parallel parts: the serial part) do not count waiting for a core, so the CPU "
           "speed-up is what 2 free cores would give, memory bandwidth aside.", "",
           "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | threads' CPU, 1 thread (ms) | threads' CPU, "
-          "2 threads: sum / busiest (ms) | imbalance | serial CPU, 2 threads (ms) | CPU speed-up |",
-          "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "2 threads: sum / busiest (ms) | imbalance | serial CPU, 2 threads (ms) | CPU speed-up | even bands: "
+          "2 threads (ms) | imbalance | CPU speed-up |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
                  f"{1e3 * (tm['work1'] + tm['rest1']):.1f} | {1e3 * (tm['work2'] + tm['rest2']):.1f} / "
                  f"{1e3 * (tm['busiest2'] + tm['rest_busiest2']):.1f} | {tm['imbalance2']:.2f} | "
-                 f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup']:.2f} |")
+                 f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup2']:.2f} | {1e3 * tm['2e']:.1f} | "
+                 f"{tm['imbalance2e']:.2f} | {tm['cpu_speedup2e']:.2f} |")
+    L += ["", "2 threads: each frame's bands cut where the frames before it found equal work "
+          "(``isplat.frame.band_rows``: the CPU time of each band, spread over its rows; the first frame, "
+          "not counted, cuts evenly). *Even bands*: frames that learn nothing, as the first frame of a process "
+          "is (bands of one height, threads taking every other one)."]
     L += ["", "| scene | ns per voxel of interest | ns per voxel splatted or sample | set-up per frame (ms) | "
           "serial share |", "|---|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
@@ -218,5 +237,6 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "(1 + repeated) / min(N, bands)): a band is rendered by one thread, and bands are at least "
           "4 tiles (32 rows) high, so a 256-row image keeps at most 8 threads busy and a 1024-row one 32. "
           "Not counted in the prediction: memory bandwidth, which all cores share, and load imbalance "
-          "between bands (threads take every n-th band to even it out; measured above for 2 threads)."]
+          "between threads (measured above for 2 threads, with even and with learned bands; learned bands "
+          "are narrower where the work is, so they repeat somewhat more than the even bands counted here)."]
     return "\n".join(L)

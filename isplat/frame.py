@@ -136,6 +136,11 @@ class Setup:
     threads: int
     empty: bool
     order: np.ndarray | None = None    # the frame's sheets front to back, when not the view's slices
+    band_seconds: np.ndarray | None = None  # float64[bands]: each band's CPU time so far (render_slab)
+
+    def __post_init__(self):
+        if self.band_seconds is None:
+            self.band_seconds = np.zeros(len(self.rows))
 
     @property
     def sheets(self) -> np.ndarray:
@@ -153,7 +158,7 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     threads = ro.threads or default_threads()
     axis = view.axis_sign[0]
     et_val = float(ro.early_termination if et is None else et)
-    rows = image_bands(H, threads)
+    rows = band_rows(sel, view, threads)
     mine = [np.arange(t, len(rows), threads, dtype=np.int64) for t in range(min(threads, len(rows)))]
     band_px = int((rows[:, 1] - rows[:, 0]).max()) * W
     n_cells = _max_cells(sel, axis)
@@ -275,11 +280,16 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
     def run(t):
         buf = K.Buffers(part.img, setup.sheet, part.sat, part.tile_sat, setup.tile_npix, setup.dirty_px,
                         setup.dirty[t], setup.cells[t], part.band_stats)
-        setup.kernel(slices, start, setup.bins or _NO_BINS, setup.vox, setup.cls, setup.geo, setup.fp, buf,
-                     K.Bands(setup.rows, setup.mine[t], et))
-        if finished is None:
-            return True
-        return all([finish(part.img[y0:y1], bg, finished[y0:y1]) for y0, y1 in setup.rows[setup.mine[t]]])
+        ok = True
+        for i, bi in enumerate(setup.mine[t]):      # band by band, each timed (band_rows balances by the times)
+            c0 = time.thread_time()
+            setup.kernel(slices, start, setup.bins or _NO_BINS, setup.vox, setup.cls, setup.geo, setup.fp, buf,
+                         K.Bands(setup.rows, setup.mine[t][i:i + 1], et))
+            if finished is not None:
+                y0, y1 = setup.rows[bi]
+                ok = finish(part.img[y0:y1], bg, finished[y0:y1]) and ok
+            setup.band_seconds[bi] += time.thread_time() - c0
+        return ok
 
     if not all(run_parallel(run, range(len(setup.mine)), setup.threads)):
         raise IsplatError(NON_FINITE)
@@ -328,6 +338,7 @@ def render_frame(sel, view: View, et: float | None = None):
     for i, (start, stop) in enumerate(progress.bar(slabs, desc=f"slices ({n})", unit="slab",
                                                    disable=len(slabs) == 1)):
         render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None)
+    learn_bands(sel, setup)
     if out is None:
         out = finish_image(part.img, view.background, view.render.supersample, setup.threads)
     return out, frame_stats(view, part, time.perf_counter() - t0)
@@ -403,13 +414,99 @@ def _tile_pixels(h: int, w: int, tile: int = TILE) -> np.ndarray:
 
 
 def image_bands(height: int, threads: int, tile: int = TILE) -> np.ndarray:
-    """The image's bands of rows, ``int64[bands, 2]`` of ``[y0, y1)``: whole tiles, all of one height but the
-    last, BANDS_PER_THREAD per thread (one for one thread), at least MIN_BAND_TILES tiles high. Each band walks
-    the slices on its own and tests only the regions that reach it (:func:`isplat.splat.kernels.bin_regions`);
-    a voxel whose footprint crosses a band's edge is tested by both bands, so more bands repeat more work,
-    and threads take every n-th band, so that the middle of the image, where the work is, is shared. The image
-    depends neither on the bands nor on which thread renders which."""
+    """The image's bands of rows cut evenly, ``int64[bands, 2]`` of ``[y0, y1)``: whole tiles, all of one height
+    but the last, BANDS_PER_THREAD per thread (one for one thread), at least MIN_BAND_TILES tiles high. Each
+    band walks the slices on its own and tests only the regions that reach it
+    (:func:`isplat.splat.kernels.bin_regions`); a voxel whose footprint crosses a band's edge is tested by both
+    bands, so more bands repeat more work, and threads take every n-th band, so that the middle of the image,
+    where the work is, is shared. A frame's bands are these, or as many cut by the work the frames before it
+    found (:func:`band_rows`). The image depends neither on the bands nor on which thread renders which."""
     n_tiles = -(-height // tile)
     per = max(MIN_BAND_TILES, -(-n_tiles // (1 if threads <= 1 else threads * BANDS_PER_THREAD)))
     y0 = np.arange(0, n_tiles, per) * tile
     return np.stack([y0, np.minimum(y0 + per * tile, height)], axis=1).astype(np.int64)
+
+
+def band_rows(sel, view: View, threads: int) -> np.ndarray:
+    """The frame's bands: :func:`image_bands`' count, cut where the frames of this selection before it (of the
+    same principal axis and direction, image size, threads and kind) found equal work (:func:`learn_bands`),
+    or evenly when there were none. Threads take every n-th band; the image does not depend on the bands."""
+    learned = sel.band_costs.get(_balance_key(view, threads))
+    return image_bands(view.frame.height, threads) if learned is None else learned[1]
+
+
+def _balance_key(view: View, threads: int) -> tuple:
+    ro = view.render
+    return view.axis_sign, view.frame.height, view.frame.width, threads, ro.classification, ro.sheets
+
+
+BALANCE_SLACK = 0.03    # learned bands are kept while the busiest thread is at most this much above the mean
+
+
+def learn_bands(sel, setup: Setup) -> None:
+    """Learn from the frame where the next frames' bands go (``sel.band_costs``: the work per tile row and the
+    bands). Each band's CPU time is spread over its tile rows in the proportions known so far (evenly at first;
+    a tenth of the band's mean is added to every row, so that a row once found idle can be found busy), so
+    bands cut at other rows refine the profile. The bands are kept while the busiest thread was at most
+    BALANCE_SLACK above the mean (timing noise does not move them), else cut anew (:func:`balanced_bands`) when
+    that is predicted to lower the busiest thread's work."""
+    if len(setup.rows) < 2 or setup.empty:
+        return
+    key = _balance_key(setup.view, setup.threads)
+    n_tiles = -(-setup.view.frame.height // TILE)
+    est = sel.band_costs[key][0].copy() if key in sel.band_costs else np.zeros(n_tiles)
+    tiles = np.stack([setup.rows[:, 0] // TILE, -(-setup.rows[:, 1] // TILE)], axis=1)
+    for (t0, t1), spent in zip(tiles, setup.band_seconds):
+        shape = est[t0:t1] + 0.1 * est[t0:t1].mean() + 1e-12
+        est[t0:t1] = spent * shape / shape.sum()
+    cum = np.concatenate([[0.0], np.cumsum(est)])
+
+    def per_thread(rows):
+        spent = cum[-(-rows[:, 1] // TILE)] - cum[rows[:, 0] // TILE]
+        return np.bincount(np.arange(len(rows)) % setup.threads, spent)
+
+    now = per_thread(setup.rows)                # (the band times themselves: est adds up to them)
+    cut = None if now.max() <= (1.0 + BALANCE_SLACK) * now.mean() else \
+        balanced_bands(est, len(setup.rows), setup.threads, setup.view.frame.height)
+    sel.band_costs[key] = est, setup.rows if cut is None or per_thread(cut).max() >= now.max() else cut
+
+
+def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, tile: int = TILE) -> np.ndarray:
+    """``n_bands`` bands of whole tiles of an image ``height`` rows high (``int64[bands, 2]`` of ``[y0, y1)``)
+    for a cost ``est`` per tile row, thread ``t`` taking bands ``t, t + threads, ...``: cut where the
+    cumulated cost reaches each n-th of the whole, then cuts moved a tile at a time while that lowers the
+    busiest thread's cost (or, as much, the sum of squares of the threads' costs). In plain Python: a few
+    bands, and numpy's calls cost more than the sums."""
+    n_tiles = len(est)
+    cum = np.concatenate([[0.0], np.cumsum(est)])
+    q = np.rint(np.interp(cum[-1] * np.arange(1, n_bands) / n_bands, cum, np.arange(n_tiles + 1)))
+    edges = [0, *np.clip(q, 1, n_tiles - 1).astype(int).tolist(), n_tiles]
+    for i in range(1, n_bands):                       # every band at least one tile, from the top ...
+        edges[i] = max(edges[i], edges[i - 1] + 1)
+    for i in range(n_bands - 1, 0, -1):               # ... and from the bottom
+        edges[i] = min(edges[i], edges[i + 1] - 1)
+    cum = cum.tolist()
+
+    def score(e):
+        per = [0.0] * threads
+        for b in range(n_bands):
+            per[b % threads] += cum[e[b + 1]] - cum[e[b]]
+        return max(per), sum(p * p for p in per)
+
+    best = score(edges)
+    for _ in range(2 * n_tiles):
+        moved = False
+        for i in range(1, n_bands):
+            for d in (-1, 1):
+                if edges[i - 1] < edges[i] + d < edges[i + 1]:
+                    edges[i] += d
+                    s = score(edges)
+                    if s < best:
+                        best, moved = s, True
+                    else:
+                        edges[i] -= d
+        if not moved:
+            break
+    rows = np.array(edges, np.int64) * tile
+    rows[-1] = height
+    return np.stack([rows[:-1], rows[1:]], axis=1)

@@ -140,6 +140,8 @@ class Selection:
     whole: WholeChannels | None = None
     report: LoadReport = field(default_factory=LoadReport)
     slab: tuple | None = None              # (axis, c0, c1): ``whole`` holds only these slices (post, a slab)
+    # per kind of frame, the work per image tile row its frames found (isplat.frame.learn_bands)
+    band_costs: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def empty(self) -> bool:

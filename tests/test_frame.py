@@ -314,11 +314,13 @@ def test_progress_bar_slabs_draw_and_count_as_one_pass(make_scene, volume, monke
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(threads=st.integers(1, 4), az=st.floats(-180, 180), el=st.floats(-60, 60), zoom=st.floats(0.5, 3.0))
-def test_bin_regions_lists_the_regions_whose_box_meets_each_band(make_scene, tmp_path, threads, az, el, zoom):
+@given(threads=st.integers(1, 4), az=st.floats(-180, 180), el=st.floats(-60, 60), zoom=st.floats(0.5, 3.0),
+       cuts=st.sets(st.integers(1, 11), max_size=5))
+def test_bin_regions_lists_the_regions_whose_box_meets_each_band(make_scene, tmp_path, threads, az, el, zoom, cuts):
     """bin_regions (orthographic) against the obvious: per band and slice, in order, the regions of the slice
     whose pixel box (the projected corners' hull grown by the reach, rounded outwards) meets the band's rows
-    and the image's columns; bands that do not tile the image from row 0 are refused."""
+    and the image's columns, for the frame's bands and for bands cut at any tile rows; bands that do not tile
+    the image from row 0 in whole tiles are refused."""
     from isplat.splat import kernels as K
 
     dens = rng_volume(3, (6, 150, 140))
@@ -332,6 +334,22 @@ def test_bin_regions_lists_the_regions_whose_box_meets_each_band(make_scene, tmp
     view = F.views_for(sc, sel)[0]
     setup = F.prepare(sel, view)
     vox, coef, (ex, ey) = setup.vox, setup.geo.coef, setup.fp.params[[K.EX, K.EY]]
+    edges = [0, *sorted(8 * c for c in cuts), 90]
+    uneven = np.stack([edges[:-1], edges[1:]], axis=1).astype(np.int64)
+    listed = 0
+    for rows, bins in ((setup.rows, setup.bins),
+                       (uneven, K.Bins(*K.bin_regions(view.order, vox, setup.geo, ex, ey, uneven, 70)))):
+        listed += _check_bins(view, vox, coef, ex, ey, rows, bins)
+    assert listed > 0
+    for bad in ([[1, 90]], [[0, 12], [12, 90]], [[0, 16], [24, 90]], [[0, 16], [16, 16], [16, 90]]):
+        with pytest.raises(ValueError, match="bands must tile"):
+            K.bin_regions(view.order, vox, setup.geo, ex, ey, np.array(bad, np.int64), 70)
+
+
+def _check_bins(view, vox, coef, ex, ey, rows, bins):
+    """Asserts bins (of the bands ``rows``) are the obvious regions; returns how many are listed."""
+    from isplat.splat import kernels as K
+
     nra = -(-vox.n_a // K.REGION)
     listed = 0
     for oi, c in enumerate(view.order):
@@ -343,16 +361,103 @@ def test_bin_regions_lists_the_regions_whose_box_meets_each_band(make_scene, tmp
         py = np.stack([ys + a * coef[K.YA] + b * coef[K.YB] for a in (a0, a1) for b in (b0, b1)])
         x0, x1 = np.ceil(px.min(0) - ex), np.floor(px.max(0) + ex)
         y0, y1 = np.ceil(py.min(0) - ey), np.floor(py.max(0) + ey)
-        for bi, (r0, r1) in enumerate(setup.rows):
+        for bi, (r0, r1) in enumerate(rows):
             meets = (x1 >= 0) & (x0 <= 69) & (y1 >= max(r0, 0)) & (y0 <= r1 - 1) & (y1 >= 0) & (y0 <= 89)
-            got = setup.bins.regions[setup.bins.ptr[bi, oi]:setup.bins.ptr[bi, oi + 1]]
+            got = bins.regions[bins.ptr[bi, oi]:bins.ptr[bi, oi + 1]]
             assert np.array_equal(got, g[meets]), (oi, bi)
             listed += got.size
-    assert listed > 0
-    rows = setup.rows.copy()
-    rows[0, 0] = 1
-    with pytest.raises(ValueError, match="bands must tile"):
-        K.bin_regions(view.order, vox, setup.geo, ex, ey, rows, 70)
+    return listed
+
+
+@settings(max_examples=200, deadline=None)
+@given(est=st.lists(st.floats(0, 1e3), min_size=2, max_size=14), threads=st.integers(2, 3), short=st.integers(0, 7))
+def test_balanced_bands_tile_the_image_and_come_within_a_tile_row_of_the_best_cut(est, threads, short):
+    """balanced_bands: bands of whole tiles (the last ending at the image's last row), each at least one tile,
+    and the busiest thread (thread t takes bands t, t + threads, ...) within the costliest tile row of the best
+    cut, found by trying every cut."""
+    import itertools
+    from isplat.splat.composite import TILE
+
+    est = np.array(est)
+    n, h = len(est), len(est) * TILE - short
+    nb = min(4, n)
+    rows = F.balanced_bands(est, nb, threads, h)
+    assert rows.shape == (nb, 2) and rows.dtype == np.int64 and rows[0, 0] == 0 and rows[-1, 1] == h
+    assert (rows[1:, 0] == rows[:-1, 1]).all() and (rows[:, 0] % TILE == 0).all() and (rows[:, 1] > rows[:, 0]).all()
+    cum = np.concatenate([[0.0], np.cumsum(est)])
+
+    def busiest(edges):
+        edges = np.asarray(edges)
+        return np.bincount(np.arange(nb) % threads, cum[edges[1:]] - cum[edges[:-1]], minlength=threads).max()
+
+    best = min(busiest((0, *c, n)) for c in itertools.combinations(range(1, n), nb - 1))
+    assert busiest(np.r_[rows[:, 0] // TILE, n]) <= best + est.max() + 1e-9 * cum[-1]
+
+
+def _frames_on(true_cost, threads, height, frames):
+    """``frames`` frames whose bands cost ``true_cost`` per tile row, each learning from the last (band_rows,
+    learn_bands); per frame the busiest thread's cost over the mean, and what was learned."""
+    from types import SimpleNamespace
+
+    sel = SimpleNamespace(band_costs={})
+    view = SimpleNamespace(frame=SimpleNamespace(height=height, width=64), axis_sign=("k", 1),
+                           render=SimpleNamespace(classification="post", sheets="slices"))
+    cum = np.concatenate([[0.0], np.cumsum(true_cost)])
+    out = []
+    for _ in range(frames):
+        rows = F.band_rows(sel, view, threads)
+        spent = cum[-(-rows[:, 1] // 8)] - cum[rows[:, 0] // 8]
+        per = np.bincount(np.arange(len(rows)) % threads, spent, minlength=threads)
+        F.learn_bands(sel, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads, empty=False))
+        est = sel.band_costs[F._balance_key(view, threads)][0]
+        for y0, y1, s in zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent):  # the band's time over its rows,
+            assert np.isclose(est[y0:y1].sum(), s) and (est[y0:y1] > 0).all()      # none of them left idle
+        out.append(per.max() / per.mean())
+    return out
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+@pytest.mark.parametrize("profile", ["bump", "step", "two bumps"])
+def test_bands_learned_from_the_frames_times_balance_the_threads(threads, profile):
+    """A frame's bands are cut by the work per tile row the frames before found: on a fixed cost profile (the
+    head's rows of bone, material in the upper rows only, two separate objects) even bands leave a thread
+    with a much larger share; after a few frames the busiest thread is within 8% of the mean."""
+    x = np.arange(64.0)
+    true = {"bump": np.exp(-((x - 20) / 5) ** 2) + 0.01, "step": (x < 24) + 0.01,
+            "two bumps": np.exp(-((x - 10) / 3) ** 2) + np.exp(-((x - 50) / 3) ** 2) + 0.001}[profile]
+    ratios = _frames_on(true, threads, 512, 6)
+    assert ratios[0] > 1.1                      # the first frame: even bands
+    assert min(ratios[-3:]) <= 1.08 and max(ratios[-3:]) < ratios[0]
+
+
+@pytest.mark.parametrize("classification", ["pre", "post"])
+@pytest.mark.parametrize("method", ["indexed", "full"])
+def test_frames_on_learned_or_any_bands_give_the_one_thread_image(make_scene, volume, monkeypatch, classification,
+                                                                   method):
+    """Frames on 2 threads, each cutting its bands by what the frames before it took, and a frame on bands cut
+    by a skewed cost, all give the one-thread image bit for bit."""
+    monkeypatch.setattr(F, "MIN_BAND_TILES", 1)
+    *_, aug, idx = volume
+
+    def sc(threads):
+        return make_scene(aug, idx, image="width = 40\nheight = 62", camera="azimuth = 30\nelevation = 20",
+                          transfer="opacity = [[50, 0.0], [60, 0.5], [130, 0.3], [200, 0.95]]",
+                          shading="enabled = true",
+                          render=f'method = "{method}"\nthreads = {threads}\nclassification = "{classification}"')
+
+    sel_1, views_1 = from_files(sc(1))
+    one = F.render_frame(sel_1, views_1[0])[0]
+    sel, views = from_files(sc(2))
+    key = F._balance_key(views[0], 2)
+    for _ in range(3):
+        assert np.array_equal(F.render_frame(sel, views[0])[0], one)
+    est, rows = sel.band_costs[key]
+    assert est.shape == (8,) and (est > 0).all() and len(rows) == 4
+    skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])
+    sel.band_costs[key] = skewed, F.balanced_bands(skewed, 4, 2, 62)
+    rows = F.prepare(sel, views[0]).rows
+    assert rows.tolist() == sel.band_costs[key][1].tolist() != F.image_bands(62, 2).tolist()
+    assert np.array_equal(F.render_frame(sel, views[0])[0], one)
 
 
 def test_a_views_shading_table_is_made_once_and_only_for_that_view(make_scene, volume):

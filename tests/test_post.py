@@ -91,9 +91,11 @@ def test_post_images_do_not_depend_on_threads_or_bands(tmp_path, make_scene, mon
     dens[:, :2, :] = 250
     aug, idx = write_volume(tmp_path, dens)
     images = []
-    for threads, per, least in [(1, 1, 1000), (2, 2, 1), (3, 2, 4), (3, 5, 1)]:
-        monkeypatch.setattr(F, "BANDS_PER_THREAD", per)
-        monkeypatch.setattr(F, "MIN_BAND_TILES", least)
+    for threads, per, least in [(1, 1, 1000), (2, 2, 1), (3, 2, 4), (3, 5, 1), (2, 0, 0)]:      # (per 0: bands cut unevenly, as learned ones are)
+        monkeypatch.setattr(F, "BANDS_PER_THREAD", per or 2)
+        monkeypatch.setattr(F, "MIN_BAND_TILES", least or 1)
+        if not per:
+            monkeypatch.setattr(F, "band_rows", lambda *_: np.array([[0, 8], [8, 16], [16, 48], [48, 72]], np.int64))
         sc = post_scene(make_scene, aug, idx, "azimuth = 4\nelevation = 3", image="width = 100\nheight = 72",
                         transfer="opacity = [[55, 0.0], [60, 0.6], [249, 0.6], [250, 1.0]]",
                         shading="enabled = false", render=f"threads = {threads}", et=0.9)

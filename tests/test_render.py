@@ -435,7 +435,8 @@ def test_hidden_regions_blocks_and_cells_skipped_exactly_for_any_bands_and_threa
     """A volume wider than a region (64 voxels), an opaque wall in front of random material, early termination
     on: the regions, blocks and cells behind the wall are skipped with one test each, and the image is that of
     the slow reference (which splats every voxel), bit for bit the same for 1, 2 or 3 threads and for bands
-    of one tile or of the whole image; hiding the material costs far fewer per-voxel tests than it has voxels."""
+    of one tile, of the whole image or cut unevenly; hiding the material costs far fewer per-voxel tests than it
+    has voxels."""
     from isplat import frame as F
     shape = (24, 10, 70)                                   # (k, j, i): slices of j are 70 x 24, 2 regions
     dens = rng_volume(5, shape)
@@ -447,9 +448,11 @@ def test_hidden_regions_blocks_and_cells_skipped_exactly_for_any_bands_and_threa
                     render=BIG_TABLE + "early_termination = 0.9")
     ref = reference_render(sc, et=0.9)
     images = []
-    for threads, per, least in [(1, 1, 1000), (1, 1, 1), (2, 2, 1), (3, 2, 4), (3, 5, 1)]:
-        monkeypatch.setattr(F, "BANDS_PER_THREAD", per)
-        monkeypatch.setattr(F, "MIN_BAND_TILES", least)
+    for threads, per, least in [(1, 1, 1000), (1, 1, 1), (2, 2, 1), (3, 2, 4), (3, 5, 1), (2, 0, 0)]:      # (per 0: bands cut unevenly, as learned ones are)
+        monkeypatch.setattr(F, "BANDS_PER_THREAD", per or 2)
+        monkeypatch.setattr(F, "MIN_BAND_TILES", least or 1)
+        if not per:
+            monkeypatch.setattr(F, "band_rows", lambda *_: np.array([[0, 8], [8, 16], [16, 48], [48, 72]], np.int64))
         sc_t = make_scene(aug, idx, image="width = 100\nheight = 72",
                           camera=f'projection = "{proj}"\nazimuth = 4\nelevation = 3\nzoom = 1.0',
                           transfer="opacity = [[55, 0.0], [60, 0.6], [249, 0.6], [250, 1.0]]",

@@ -18,9 +18,10 @@ Arrays in, arrays out, no I/O. A frame is cut into named stages, each a small co
 Within a slice contributions are summed into a sheet buffer, so both traversals give the same image up to
 float rounding (the order of the sums), and the speed-up measures indexing alone.
 
-Threads: the image is cut into bands of rows (:func:`isplat.frame.image_bands`); each band walks the slices on
-its own, visiting only the regions that :func:`bin_regions` found to reach its rows (once per frame), and a
-thread renders its bands one after the other. The image does not depend on the bands: a pixel is written by
+Threads: the image is cut into bands of rows of whole tiles (:func:`isplat.frame.band_rows`: where the frames
+before found equal work); each band walks the slices on its own, visiting only the regions that
+:func:`bin_regions` found to reach its rows (once per frame), and a thread renders its bands one after the other
+(one call per band, timed). The image does not depend on the bands: a pixel is written by
 one band, which sums the same voxels in the same order whatever the bands are.
 
 The kernels take a few grouped arguments, named tuples built by :mod:`isplat.frame`:
@@ -462,20 +463,21 @@ def pixels_saturated(sat, x0, x1, y0, y1):
 
 @jit
 def bin_regions(order, vox, geo, ex, ey, rows, img_w):
-    """Per frame, before any slice: for every band (``rows``: image rows ``[y0, y1)``, all as high as the
-    first but the last) the regions of each slice of ``order`` whose footprints can reach its rows; the
+    """Per frame, before any slice: for every band (``rows``: image rows ``[y0, y1)``, whole tiles, tiling the
+    image's rows from 0) the regions of each slice of ``order`` whose footprints can reach its rows; the
     occlusion tests then run per band on only those. Returns :data:`Bins`' ``(ptr, regions)``: two passes,
     the first counts the regions per band and slice into ``ptr``, the second puts them at
     ``regions[pos[...]]``. (One function: a stage called with ``fill`` False and True would be compiled twice,
     for each literal.)"""
-    band_h = rows[0, 1] - rows[0, 0]
     nbands = rows.shape[0]
     img_h = rows[nbands - 1, 1]
-    for bi in range(nbands):    # a band is found as y // band_h: bands from row 0, one height but the last
-        if rows[bi, 0] != bi * band_h or rows[bi, 1] <= rows[bi, 0] or (bi < nbands - 1 and
-                                                                        rows[bi, 1] != (bi + 1) * band_h):
-            raise ValueError("bin_regions: the bands must tile the image's rows from 0, all as high as the first "
-                             "but the last (frame.image_bands)")
+    of_tile = np.empty((img_h + TILE - 1) // TILE, dtype=np.int64)      # tile row -> its band
+    for bi in range(nbands):
+        if (rows[bi, 0] != (rows[bi - 1, 1] if bi else 0) or rows[bi, 1] <= rows[bi, 0] or rows[bi, 0] % TILE
+                or (bi < nbands - 1 and rows[bi, 1] % TILE)):
+            raise ValueError("bin_regions: the bands must tile the image's rows from 0 in whole tiles "
+                             "(frame.image_bands)")
+        of_tile[rows[bi, 0] // TILE:(rows[bi, 1] + TILE - 1) // TILE] = bi
     nra = (vox.n_a + REGION - 1) // REGION
     cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
     ptr = np.zeros((nbands, order.shape[0] + 1), dtype=np.int64)
@@ -499,8 +501,8 @@ def bin_regions(order, vox, geo, ex, ey, rows, img_w):
                                     geo.coef, geo.persp, ex, ey)
                 if ok and (box[1] < 0 or box[0] > img_w - 1 or box[3] < 0 or box[2] > img_h - 1):
                     continue
-                first = max(box[2], 0) // band_h if ok else 0
-                last = min(box[3], img_h - 1) // band_h if ok else nbands - 1
+                first = of_tile[max(box[2], 0) // TILE] if ok else 0
+                last = of_tile[min(box[3], img_h - 1) // TILE] if ok else nbands - 1
                 for bi in range(first, last + 1):
                     if fill:
                         regions[pos[bi, oi]] = g

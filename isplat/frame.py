@@ -428,11 +428,11 @@ def image_bands(height: int, threads: int, tile: int = TILE) -> np.ndarray:
 
 
 def band_rows(sel, view: View, threads: int) -> np.ndarray:
-    """The frame's bands: :func:`image_bands`' count, cut where the frames of this selection before it (of the
-    same principal axis and direction, image size, threads and kind) found equal work (:func:`learn_bands`),
-    or evenly when there were none. Threads take every n-th band; the image does not depend on the bands."""
+    """The frame's bands: :func:`image_bands` for the first frame of its kind (principal axis and direction,
+    image size, threads, classification, sheets) on this selection, then what the frames before it learned
+    (:func:`learn_bands`). Threads take every n-th band; the image does not depend on the bands."""
     learned = sel.band_costs.get(_balance_key(view, threads))
-    return image_bands(view.frame.height, threads) if learned is None else learned[1]
+    return image_bands(view.frame.height, threads) if learned is None else learned.rows
 
 
 def _balance_key(view: View, threads: int) -> tuple:
@@ -440,35 +440,58 @@ def _balance_key(view: View, threads: int) -> tuple:
     return view.axis_sign, view.frame.height, view.frame.width, threads, ro.classification, ro.sheets
 
 
-BALANCE_SLACK = 0.03    # learned bands are kept while the busiest thread is at most this much above the mean
+@dataclass
+class Learned:
+    """What the frames of one kind learned of their bands (:func:`learn_bands`): the work per tile row, the
+    next frame's bands, and for the last few bands used (by their first rows) the busiest thread's work over
+    the mean."""
+
+    est: np.ndarray
+    rows: np.ndarray
+    tried: dict
+
+
+BALANCE_SLACK = 0.05    # bands are kept while the busiest thread's work is at most this much above the mean
+TRIED = 4               # bands remembered with what they gave
 
 
 def learn_bands(sel, setup: Setup) -> None:
-    """Learn from the frame where the next frames' bands go (``sel.band_costs``: the work per tile row and the
-    bands). Each band's CPU time is spread over its tile rows in the proportions known so far (evenly at first;
-    a tenth of the band's mean is added to every row, so that a row once found idle can be found busy), so
-    bands cut at other rows refine the profile. The bands are kept while the busiest thread was at most
-    BALANCE_SLACK above the mean (timing noise does not move them), else cut anew (:func:`balanced_bands`) when
-    that is predicted to lower the busiest thread's work."""
+    """Learn from the frame where the next frames' bands go (``sel.band_costs``). Each band's CPU time is spread
+    over its tile rows in the proportions known so far (evenly at first; a tenth of the band's mean is added to
+    every row, so that a row once found idle can be found busy), so bands cut at other rows refine the profile.
+    The bands are kept while the busiest thread's work was at most BALANCE_SLACK above the mean (timing noise
+    does not move them), or one tile row's work (as close as bands of whole tiles may come); else one band per thread is cut where that profile says the work is equal
+    (:func:`balanced_bands`; fewer cuts through the busy rows than even bands make, each repeating work), or,
+    when those bands were tried lately or are not predicted better, the best of those tried is taken again (a
+    cut that cannot be balanced at whole tiles does not swing between two)."""
     if len(setup.rows) < 2 or setup.empty:
         return
-    key = _balance_key(setup.view, setup.threads)
-    n_tiles = -(-setup.view.frame.height // TILE)
-    est = sel.band_costs[key][0].copy() if key in sel.band_costs else np.zeros(n_tiles)
-    tiles = np.stack([setup.rows[:, 0] // TILE, -(-setup.rows[:, 1] // TILE)], axis=1)
-    for (t0, t1), spent in zip(tiles, setup.band_seconds):
-        shape = est[t0:t1] + 0.1 * est[t0:t1].mean() + 1e-12
-        est[t0:t1] = spent * shape / shape.sum()
+    key, height, threads = _balance_key(setup.view, setup.threads), setup.view.frame.height, setup.threads
+    old = sel.band_costs.get(key)
+    est = np.zeros(-(-height // TILE)) if old is None else old.est.copy()
+    for y0, y1, spent in zip(setup.rows[:, 0] // TILE, -(-setup.rows[:, 1] // TILE), setup.band_seconds):
+        shape = est[y0:y1] + 0.1 * est[y0:y1].mean() + 1e-12
+        est[y0:y1] = spent * shape / shape.sum()
     cum = np.concatenate([[0.0], np.cumsum(est)])
 
     def per_thread(rows):
-        spent = cum[-(-rows[:, 1] // TILE)] - cum[rows[:, 0] // TILE]
-        return np.bincount(np.arange(len(rows)) % setup.threads, spent)
+        return np.bincount(np.arange(len(rows)) % threads, cum[-(-rows[:, 1] // TILE)] - cum[rows[:, 0] // TILE])
 
     now = per_thread(setup.rows)                # (the band times themselves: est adds up to them)
-    cut = None if now.max() <= (1.0 + BALANCE_SLACK) * now.mean() else \
-        balanced_bands(est, len(setup.rows), setup.threads, setup.view.frame.height)
-    sel.band_costs[key] = est, setup.rows if cut is None or per_thread(cut).max() >= now.max() else cut
+    tried = {} if old is None else dict(old.tried)
+    tried.pop(starts := tuple(setup.rows[:, 0].tolist()), None)
+    tried[starts] = now.max() / now.mean()
+    while len(tried) > TRIED:
+        del tried[next(iter(tried))]
+    rows = setup.rows
+    if now.max() > now.mean() + max(BALANCE_SLACK * now.mean(), est.max()):
+        cut = balanced_bands(est, min(threads, len(est)), threads, height)
+        if tuple(cut[:, 0].tolist()) not in tried and per_thread(cut).max() < now.max():
+            rows = cut
+        else:
+            best = np.array(min(tried, key=tried.get), np.int64)
+            rows = np.stack([best, np.append(best[1:], height)], axis=1)
+    sel.band_costs[key] = Learned(est, rows, tried)
 
 
 def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, tile: int = TILE) -> np.ndarray:

@@ -109,20 +109,27 @@ def cpu_frame(r, view) -> dict:
 def timings(r, frames: int) -> dict:
     """Medians over interleaved frames on 1 and 2 threads: wall time, serial CPU time, the threads' CPU time in
     the kernels (total and the busiest thread's); and the set-up alone (``prepare``). Frames "2" cut their
-    bands by the frames before them (``isplat.frame.band_rows``; the first frame, not counted, learns); frames
-    "2e" always take even bands, as a first frame does."""
+    bands by the frames before them (``isplat.frame.band_rows``; the first round, not counted, learns); frames
+    "2e" always take even bands, as a first frame does. Each timed frame follows an untimed one of its kind, as
+    a run of frames does (a frame after one of another kind runs on caches that frame left: a 2-thread frame
+    after a 1-thread one took up to 8% longer), and the kinds take turns in both orders."""
     from isplat import frame as F
 
     views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2), "2e": on_threads(r.views[0], 2)}
     runs = {key: [] for key in views}
     prep = []
     learned = {}
-    for _ in range(frames + 1):
-        for key, view in views.items():
+    for i in range(frames + 1):
+        for key in (list(views) if i % 2 else list(views)[::-1]):
             if key == "2e":                                         # nothing learned: even bands
                 learned = dict(r.selection.band_costs)
-                r.selection.band_costs.clear()
-            runs[key].append(cpu_frame(r, view))
+            for timed in (False, True):   # after a frame of the same kind: not paying for the caches another left
+                if key == "2e":
+                    r.selection.band_costs.clear()
+                if timed:
+                    runs[key].append(cpu_frame(r, views[key]))
+                else:
+                    F.render_frame(r.selection, views[key])
             if key == "2e":
                 r.selection.band_costs.clear()
                 r.selection.band_costs.update(learned)
@@ -199,7 +206,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
             rep = st.voxels_tested / max(base, 1) - 1.0
             L.append(f"| {name} | {t} | {nb} | {st.voxels_tested:,} | {100 * rep:.1f}% | "
                      f"{predicted(serial, rep, t, nb):.2f} |")
-    L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames). Wall times suffer "
+    L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames, each timed frame after an untimed one of its kind, as in a run of frames). Wall times suffer "
           "when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
           "calling thread outside the parallel parts: the serial part) do not count waiting for a core, so the CPU "
           "speed-up is what 2 free cores would give, memory bandwidth aside.", "",

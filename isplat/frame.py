@@ -252,10 +252,12 @@ def eye_terms(frame, geom, ic: int, radius: float) -> tuple:
             -float(frame.v @ n), -float(frame.w @ n) * f, f * f)
 
 
-def blank(setup: Setup) -> Partial:
-    """An empty partial image (nothing in front): the state a frame starts from."""
+def blank(setup: Setup, zero: bool = True) -> Partial:
+    """An empty partial image (nothing in front): the state a frame starts from (``zero`` False: the image and
+    its saturation not zeroed yet; render_slab's threads zero their own rows)."""
     H, W = setup.view.frame.height, setup.view.frame.width
-    return Partial(np.zeros((H, W, 4), setup.sheet.dtype), np.zeros((H, W), np.uint8),
+    make = np.zeros if zero else np.empty
+    return Partial(make((H, W, 4), setup.sheet.dtype), make((H, W), np.uint8),
                    np.zeros(setup.tile_npix.shape, np.int32), np.zeros((len(setup.rows), 4), np.int64))
 
 
@@ -267,13 +269,14 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
     ``finished`` (an image like the partial's; only for the frame's last slices, without supersampling): each
     thread then also finishes its bands' rows into it over the view's background (:func:`finish_image`'s
     pixels) as soon as its slices are done, with no second round of the threads; with nothing to render, the
-    partial is finished as it is."""
-    part = blank(setup) if state is None else state
+    partial is finished as it is. A blank partial's rows are zeroed by the threads that render them."""
     slices = setup.sheets[start:stop]
     if setup.empty or slices.size == 0:
+        part = blank(setup) if state is None else state
         if finished is not None:
             finished[...] = finish_image(part.img, setup.view.background, 1, setup.threads)
         return part
+    part = blank(setup, zero=False) if state is None else state
     et = part.img.dtype.type(setup.et)
     bg = np.asarray(setup.view.background, dtype=np.float64)
 
@@ -283,6 +286,10 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
         ok = True
         for i, bi in enumerate(setup.mine[t]):      # band by band, each timed (band_rows balances by the times)
             c0 = time.thread_time()
+            if state is None:
+                y0, y1 = setup.rows[bi]
+                part.img[y0:y1] = 0
+                part.sat[y0:y1] = 0
             setup.kernel(slices, start, setup.bins or _NO_BINS, setup.vox, setup.cls, setup.geo, setup.fp, buf,
                          K.Bands(setup.rows, setup.mine[t][i:i + 1], et))
             if finished is not None:
@@ -332,12 +339,13 @@ def render_frame(sel, view: View, et: float | None = None):
     setup = prepare(sel, view, et)
     n = len(setup.sheets)
     slabs = slab_bounds(n, 20) if progress.enabled() and n >= 40 and not setup.empty else [(0, n)]
-    part = blank(setup)
+    part = None
     # without supersampling the last slices' threads finish their own rows (render_slab's ``finished``)
-    out = np.empty_like(part.img) if view.render.supersample == 1 else None
+    H, W = view.frame.height, view.frame.width
+    out = np.empty((H, W, 4), setup.sheet.dtype) if view.render.supersample == 1 else None
     for i, (start, stop) in enumerate(progress.bar(slabs, desc=f"slices ({n})", unit="slab",
                                                    disable=len(slabs) == 1)):
-        render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None)
+        part = render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None)
     learn_bands(sel, setup)
     if out is None:
         out = finish_image(part.img, view.background, view.render.supersample, setup.threads)
@@ -451,42 +459,48 @@ class Learned:
     tried: dict
 
 
-BALANCE_SLACK = 0.05    # bands are kept while the busiest thread's work is at most this much above the mean
+BALANCE_SLACK = 0.03    # bands are kept while the busiest thread's work is at most this much above the mean
 TRIED = 4               # bands remembered with what they gave
 
 
 def learn_bands(sel, setup: Setup) -> None:
     """Learn from the frame where the next frames' bands go (``sel.band_costs``). Each band's CPU time is spread
     over its tile rows in the proportions known so far (evenly at first; a tenth of the band's mean is added to
-    every row, so that a row once found idle can be found busy), so bands cut at other rows refine the profile.
-    The bands are kept while the busiest thread's work was at most BALANCE_SLACK above the mean (timing noise
-    does not move them), or one tile row's work (as close as bands of whole tiles may come); else one band per thread is cut where that profile says the work is equal
-    (:func:`balanced_bands`; fewer cuts through the busy rows than even bands make, each repeating work), or,
-    when those bands were tried lately or are not predicted better, the best of those tried is taken again (a
-    cut that cannot be balanced at whole tiles does not swing between two)."""
+    every row, so that a row once found idle can be found busy), so bands cut at other rows refine the profile,
+    and averaged with the profile known, so that one frame's timing noise counts for half. The bands are kept
+    while the busiest thread's work is at most BALANCE_SLACK above the mean (noise does not move them), or one
+    tile row's work (as close as bands of whole tiles may come); else one band per thread is cut where the
+    profile says the work is equal (:func:`balanced_bands`; fewer cuts through the busy rows than even bands
+    make, each repeating work), or, when those bands were tried lately or are not predicted better, the best of
+    those tried is taken again (a cut that cannot be balanced at whole tiles does not swing between two)."""
     if len(setup.rows) < 2 or setup.empty:
         return
     key, height, threads = _balance_key(setup.view, setup.threads), setup.view.frame.height, setup.threads
     old = sel.band_costs.get(key)
-    est = np.zeros(-(-height // TILE)) if old is None else old.est.copy()
-    for y0, y1, spent in zip(setup.rows[:, 0] // TILE, -(-setup.rows[:, 1] // TILE), setup.band_seconds):
-        shape = est[y0:y1] + 0.1 * est[y0:y1].mean() + 1e-12
-        est[y0:y1] = spent * shape / shape.sum()
+    est = np.zeros(-(-height // TILE)) if old is None else old.est
+    lo, hi = setup.rows[:, 0] // TILE, -(-setup.rows[:, 1] // TILE)
+    band = np.repeat(np.arange(len(lo)), hi - lo)              # tile row -> its band
+    shape = est + (0.1 * np.add.reduceat(est, lo) / (hi - lo) + 1e-12)[band]
+    est = (setup.band_seconds / np.add.reduceat(shape, lo))[band] * shape
+    if old is not None:                         # the mean with what was known: one frame's noise moves less
+        est = 0.5 * (est + old.est)
     cum = np.concatenate([[0.0], np.cumsum(est)])
 
     def per_thread(rows):
         return np.bincount(np.arange(len(rows)) % threads, cum[-(-rows[:, 1] // TILE)] - cum[rows[:, 0] // TILE])
 
-    now = per_thread(setup.rows)                # (the band times themselves: est adds up to them)
+    now = per_thread(setup.rows)
+    busiest, mean = float(now.max()), float(now.mean())
     tried = {} if old is None else dict(old.tried)
     tried.pop(starts := tuple(setup.rows[:, 0].tolist()), None)
-    tried[starts] = now.max() / now.mean()
+    tried[starts] = busiest / mean
     while len(tried) > TRIED:
         del tried[next(iter(tried))]
     rows = setup.rows
-    if now.max() > now.mean() + max(BALANCE_SLACK * now.mean(), est.max()):
+    if busiest > mean + max(BALANCE_SLACK * mean, 0.5 * float(est.max())):
         cut = balanced_bands(est, min(threads, len(est)), threads, height)
-        if tuple(cut[:, 0].tolist()) not in tried and per_thread(cut).max() < now.max():
+        pred = per_thread(cut)
+        if tuple(cut[:, 0].tolist()) not in tried and pred.max() < (min(tried.values()) - BALANCE_SLACK) * mean:
             rows = cut
         else:
             best = np.array(min(tried, key=tried.get), np.int64)

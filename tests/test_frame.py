@@ -403,15 +403,18 @@ def _frames_on(true_cost, threads, height, frames):
     view = SimpleNamespace(frame=SimpleNamespace(height=height, width=64), axis_sign=("k", 1),
                            render=SimpleNamespace(classification="post", sheets="slices"))
     cum = np.concatenate([[0.0], np.cumsum(true_cost)])
+    key = F._balance_key(view, threads)
     out = []
     for _ in range(frames):
         rows = F.band_rows(sel, view, threads)
         spent = cum[-(-rows[:, 1] // 8)] - cum[rows[:, 0] // 8]
         per = np.bincount(np.arange(len(rows)) % threads, spent, minlength=threads)
+        before = sel.band_costs[key].est if key in sel.band_costs else None
         F.learn_bands(sel, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads, empty=False))
-        est = sel.band_costs[F._balance_key(view, threads)].est
-        for y0, y1, s in zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent):  # the band's time over its rows,
-            assert np.isclose(est[y0:y1].sum(), s) and (est[y0:y1] > 0).all()      # none of them left idle
+        est = sel.band_costs[key].est
+        for y0, y1, s in zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent):  # the band's time over its rows
+            known = s if before is None else 0.5 * (s + before[y0:y1].sum())   # (averaged with what was known),
+            assert np.isclose(est[y0:y1].sum(), known) and (est[y0:y1] > 0).all()  # none of them left idle
         out.append(per.max() / per.mean())
     return out
 
@@ -422,15 +425,16 @@ def test_bands_learned_from_the_frames_times_balance_the_threads(threads, profil
     """A frame's bands are cut by the work per tile row the frames before found: on a fixed cost profile (the
     head's rows of bone, material in the upper rows only, two separate objects) even bands leave a thread
     with a larger share; after a few frames the busiest thread is within one tile row's work of the mean (or
-    BALANCE_SLACK), and the bands stay where they are."""
+    BALANCE_SLACK), and the bands stay where they are but for a cut tried now and then."""
     x = np.arange(64.0)
     true = {"bump": np.exp(-((x - 20) / 5) ** 2) + 0.01, "step": (x < 24) + 0.01,
             "two bumps": np.exp(-((x - 10) / 3) ** 2) + np.exp(-((x - 50) / 3) ** 2) + 0.001}[profile]
-    ratios = _frames_on(true, threads, 512, 12)
+    ratios = _frames_on(true, threads, 512, 16)
     bound = 1.0 + true.max() * threads / true.sum()         # one tile row's work above the mean
     assert ratios[0] > 1.1                                  # the first frame: even bands
-    assert max(ratios[-3:]) <= max(1.0 + F.BALANCE_SLACK, bound) and max(ratios[-3:]) < ratios[0]
-    assert np.ptp(ratios[-3:]) < 0.02                       # settled
+    last = ratios[-6:]
+    assert np.median(last) <= max(1.0 + F.BALANCE_SLACK, bound) and max(last) < ratios[0]
+    assert sum(abs(a - b) > 1e-3 for a, b in zip(last, last[1:])) <= 2     # settled (a cut tried at most once)
 
 
 @pytest.mark.parametrize("classification", ["pre", "post"])

@@ -454,7 +454,7 @@ class Learned:
     next frame's bands, and for the last few bands used (by their first rows) the busiest thread's work over
     the mean."""
 
-    est: np.ndarray
+    est: np.ndarray | None      # None after the first frame
     rows: np.ndarray
     tried: dict
 
@@ -464,48 +464,66 @@ TRIED = 4               # bands remembered with what they gave
 
 
 def learn_bands(sel, setup: Setup) -> None:
-    """Learn from the frame where the next frames' bands go (``sel.band_costs``). Each band's CPU time is spread
-    over its tile rows in the proportions known so far (evenly at first; a tenth of the band's mean is added to
-    every row, so that a row once found idle can be found busy), so bands cut at other rows refine the profile,
-    and averaged with the profile known, so that one frame's timing noise counts for half. The bands are kept
-    while the busiest thread's work is at most BALANCE_SLACK above the mean (noise does not move them), or one
-    tile row's work (as close as bands of whole tiles may come); else one band per thread is cut where the
-    profile says the work is equal (:func:`balanced_bands`; fewer cuts through the busy rows than even bands
-    make, each repeating work), or, when those bands were tried lately or are not predicted better, the best of
-    those tried is taken again (a cut that cannot be balanced at whole tiles does not swing between two)."""
+    """Learn from the frame where the next frames' bands go (``sel.band_costs``). The first frame of a kind
+    only marks it seen: its times hold one-time costs (fresh memory, cold caches) that bands cut by them would
+    follow. The second starts the profile of the work per tile row (:func:`_profile`), and the bands move
+    (:func:`_next_bands`) only on a profile of two frames or more, so that one frame's noise does not move them.
+    A frame whose busiest thread worked at most BALANCE_SLACK above the mean changes nothing."""
     if len(setup.rows) < 2 or setup.empty:
         return
-    key, height, threads = _balance_key(setup.view, setup.threads), setup.view.frame.height, setup.threads
+    key, threads = _balance_key(setup.view, setup.threads), setup.threads
     old = sel.band_costs.get(key)
-    est = np.zeros(-(-height // TILE)) if old is None else old.est
-    lo, hi = setup.rows[:, 0] // TILE, -(-setup.rows[:, 1] // TILE)
+    if old is None:
+        sel.band_costs[key] = Learned(None, setup.rows, {})
+        return
+    measured = np.bincount(np.arange(len(setup.rows)) % threads, setup.band_seconds).tolist()
+    if old.est is not None and max(measured) <= (1.0 + BALANCE_SLACK) * sum(measured) / len(measured):
+        return
+    est = _profile(old.est, setup.rows, setup.band_seconds, setup.view.frame.height)
+    sel.band_costs[key] = Learned(est, setup.rows, {}) if old.est is None else \
+        _next_bands(est, setup.rows, old.tried, threads, setup.view.frame.height)
+
+
+def _profile(est: np.ndarray | None, rows: np.ndarray, seconds: np.ndarray, height: int) -> np.ndarray:
+    """The work per tile row after a frame on bands ``rows`` that took ``seconds``: each band's time spread over
+    its rows in the proportions of ``est`` (evenly at first; a tenth of the band's mean is added to every row,
+    so that a row once found idle can be found busy), so that bands cut at other rows refine the profile, and
+    averaged with ``est``, so that one frame's noise counts for half."""
+    known = np.zeros(-(-height // TILE)) if est is None else est
+    lo, hi = rows[:, 0] // TILE, -(-rows[:, 1] // TILE)
     band = np.repeat(np.arange(len(lo)), hi - lo)              # tile row -> its band
-    shape = est + (0.1 * np.add.reduceat(est, lo) / (hi - lo) + 1e-12)[band]
-    est = (setup.band_seconds / np.add.reduceat(shape, lo))[band] * shape
-    if old is not None:                         # the mean with what was known: one frame's noise moves less
-        est = 0.5 * (est + old.est)
+    shape = known + (0.1 * np.add.reduceat(known, lo) / (hi - lo) + 1e-12)[band]
+    new = (seconds / np.add.reduceat(shape, lo))[band] * shape
+    return new if est is None else 0.5 * (new + est)
+
+
+def _next_bands(est: np.ndarray, rows: np.ndarray, tried: dict, threads: int, height: int) -> Learned:
+    """The bands after ``rows``: kept while the busiest thread's work (by the profile ``est``) is at most
+    BALANCE_SLACK or half a tile row's work (as close as bands of whole tiles may come) above the mean; else one
+    band per thread cut where the profile says the work is equal (:func:`balanced_bands`; fewer cuts through
+    the busy rows than even bands make, each repeating work) when that is predicted better than the best of the
+    last TRIED bands tried, by more than the slack, or else the best of those again (a cut that cannot be
+    balanced at whole tiles does not swing between two)."""
     cum = np.concatenate([[0.0], np.cumsum(est)])
 
-    def per_thread(rows):
-        return np.bincount(np.arange(len(rows)) % threads, cum[-(-rows[:, 1] // TILE)] - cum[rows[:, 0] // TILE])
+    def per_thread(r):
+        return np.bincount(np.arange(len(r)) % threads, cum[-(-r[:, 1] // TILE)] - cum[r[:, 0] // TILE])
 
-    now = per_thread(setup.rows)
+    now = per_thread(rows)
     busiest, mean = float(now.max()), float(now.mean())
-    tried = {} if old is None else dict(old.tried)
-    tried.pop(starts := tuple(setup.rows[:, 0].tolist()), None)
+    tried = dict(tried)
+    tried.pop(starts := tuple(rows[:, 0].tolist()), None)
     tried[starts] = busiest / mean
     while len(tried) > TRIED:
         del tried[next(iter(tried))]
-    rows = setup.rows
     if busiest > mean + max(BALANCE_SLACK * mean, 0.5 * float(est.max())):
         cut = balanced_bands(est, min(threads, len(est)), threads, height)
-        pred = per_thread(cut)
-        if tuple(cut[:, 0].tolist()) not in tried and pred.max() < (min(tried.values()) - BALANCE_SLACK) * mean:
-            rows = cut
-        else:
-            best = np.array(min(tried, key=tried.get), np.int64)
-            rows = np.stack([best, np.append(best[1:], height)], axis=1)
-    sel.band_costs[key] = Learned(est, rows, tried)
+        if tuple(cut[:, 0].tolist()) not in tried and \
+                per_thread(cut).max() < (min(tried.values()) - BALANCE_SLACK) * mean:
+            return Learned(est, cut, tried)
+        best = np.array(min(tried, key=tried.get), np.int64)
+        rows = np.stack([best, np.append(best[1:], height)], axis=1)
+    return Learned(est, rows, tried)
 
 
 def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, tile: int = TILE) -> np.ndarray:

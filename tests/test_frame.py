@@ -409,10 +409,12 @@ def _frames_on(true_cost, threads, height, frames):
         rows = F.band_rows(sel, view, threads)
         spent = cum[-(-rows[:, 1] // 8)] - cum[rows[:, 0] // 8]
         per = np.bincount(np.arange(len(rows)) % threads, spent, minlength=threads)
-        before = sel.band_costs[key].est if key in sel.band_costs else None
+        first = key not in sel.band_costs
+        before = None if first else sel.band_costs[key].est
         F.learn_bands(sel, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads, empty=False))
         est = sel.band_costs[key].est
-        for y0, y1, s in zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent):  # the band's time over its rows
+        assert (est is None) == first              # the first frame (cold caches) only marks the kind seen
+        for y0, y1, s in [] if first else zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent):  # the band's time over its rows
             known = s if before is None else 0.5 * (s + before[y0:y1].sum())   # (averaged with what was known),
             assert np.isclose(est[y0:y1].sum(), known) and (est[y0:y1] > 0).all()  # none of them left idle
         out.append(per.max() / per.mean())

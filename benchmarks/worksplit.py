@@ -245,6 +245,6 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "4 tiles (32 rows) high, so a 256-row image keeps at most 8 threads busy and a 1024-row one 32. "
           "Not counted in the prediction: memory bandwidth, which all cores share, and load imbalance "
           "between threads (measured above for 2 threads, with even and with learned bands; learned bands "
-          "are one per thread, cut once through the busy rows where even bands cut up to three times, so they "
-          "repeat less than the even bands counted here)."]
+          "are one per thread, n - 1 cuts against the even bands' 2n - 1, so they repeat less than the even "
+          "bands counted here)."]
     return "\n".join(L)

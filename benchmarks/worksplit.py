@@ -112,7 +112,7 @@ def timings(r, frames: int) -> dict:
     bands by the frames before them (``isplat.frame.band_rows``; the first round, not counted, learns); frames
     "2e" always take even bands, as a first frame does. Each timed frame follows an untimed one of its kind, as
     a run of frames does (a frame after one of another kind runs on caches that frame left: a 2-thread frame
-    after a 1-thread one took up to 8% longer), and the kinds take turns in both orders."""
+    after a 1-thread one took measurably longer), and the kinds take turns in both orders."""
     from isplat import frame as F
 
     views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2), "2e": on_threads(r.views[0], 2)}

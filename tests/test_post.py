@@ -107,6 +107,72 @@ def test_post_images_do_not_depend_on_threads_or_bands(tmp_path, make_scene, mon
     assert np.abs(images[0] - post_reference(sc, et=0.9)).max() <= 2e-4
 
 
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), nca=st.integers(1, 13), ncb=st.integers(1, 13), unit=st.sampled_from([4, 8, 16]),
+       density=st.floats(0.0, 1.0))
+def test_plan_squares_against_the_obvious(seed, nca, ncb, unit, density):
+    """_mark_squares and _plan_squares (called from Python through their compiled callers) against the obvious:
+    the squares of ``unit`` voxels holding flagged cells, in the order their first flagged cell comes, each
+    scanned whole when enough of its cells are flagged (all 4 of 2 x 2 cells, half of 4 x 4), else its flagged
+    cells one by one, row by row; every flagged cell is in exactly one thing scanned."""
+    from isplat.splat import post
+
+    rng = np.random.default_rng(seed)
+    mark = np.where(rng.random(nca * ncb) < density, rng.integers(1, 16, nca * ncb), 0).astype(np.uint8)
+    marked = rng.permutation(np.flatnonzero(mark)).astype(np.int64)       # _mark_cells lists them in any order
+    per, nsa = unit // 4, -(-nca * 4 // unit)
+    smark, squares = np.zeros(mark.size, np.uint8), np.empty(mark.size, np.int64)
+    ns = post._mark_squares(marked, marked.size, nca, unit, nsa, smark, squares)
+    todo = np.empty((mark.size, 2), np.int64)
+    nt = post._plan_squares(squares, ns, smark, mark, nca, ncb, unit, nsa, todo)
+    order, want = [], []
+    for q in marked:
+        sq = (q // nca // per) * nsa + (q % nca) // per
+        if sq not in order:
+            order.append(sq)
+    for sq in order:
+        cells = [cb * nca + ca for cb in range(sq // nsa * per, min(sq // nsa * per + per, ncb))
+                 for ca in range(sq % nsa * per, min(sq % nsa * per + per, nca))]
+        n = int((mark[cells] != 0).sum())
+        assert smark[sq] == n
+        if n >= (per * per if per <= 2 else per * per // 2):
+            want.append((sq, unit))
+        else:
+            want += [(q, 4) for q in cells if mark[q]]
+    assert squares[:ns].tolist() == order
+    assert [tuple(r) for r in todo[:nt].tolist()] == want
+
+
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_squares_of_any_side_give_the_reference_image(tmp_path, make_scene, monkeypatch, proj):
+    """Voxels far smaller than pixels (squares of 16 voxels scanned, of which an opaque wall in front leaves a
+    few cells visible, scanned one by one): the image is the slow reference's, and bit for bit the one
+    scanned with squares of 8 voxels and with single cells."""
+    from isplat.splat import post
+
+    shape = (24, 10, 96)
+    dens = rng_volume(7, shape)
+    dens[:, :2, 10:90] = 250                               # a wall with open sides, seen from -y
+    aug, idx = write_volume(tmp_path, dens)
+    sc = post_scene(make_scene, aug, idx, "azimuth = 3\nelevation = 2", proj, image="width = 40\nheight = 30",
+                    transfer="opacity = [[55, 0.0], [60, 0.6], [249, 0.6], [250, 1.0]]", shading="enabled = false",
+                    et=0.9)
+    images = []
+    for side in (None, 8, 4):
+        if side:
+            monkeypatch.setattr(post, "scan_unit", lambda jac, side=side: side)
+        images.append(render(sc, et=0.9)[0])
+    monkeypatch.undo()
+    from isplat import frame as F
+    from isplat.camera import projection
+
+    view = Renderer(sc).views[0]
+    assert post.scan_unit(projection(view.frame, view.geom, view.axis_sign[0]).jac) == 16
+    assert all(np.array_equal(images[0], im) for im in images[1:])
+    assert np.abs(images[0] - post_reference(sc, et=0.9)).max() <= 2e-4
+    del F
+
+
 def test_uniform_block_gives_the_closed_form_opacity_without_lattice_ripple(tmp_path, make_scene):
     """A uniform block seen head-on at 4 pixels per voxel: every pixel inside sees n slices of opacity alpha,
     1 - (1 - alpha)^n, exactly (the bilinear density is constant), where a Gaussian splat ripples."""

@@ -116,10 +116,12 @@ def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
 
 @stage
 def _marks(n_a, n_b):
-    """A slice's cell flags (zeroed), the list of flagged cells (see :func:`_mark_cells`), and the same for the
-    squares that are scanned (cells, or squares of several cells, see :func:`scan_unit`)."""
+    """A slice's cell flags (zeroed), the list of flagged cells (see :func:`_mark_cells`), the flagged cells per
+    square of :func:`scan_unit` (zeroed) and the list of those squares, and what is scanned (rows of square or
+    cell and its side, see :func:`_plan_squares`)."""
     n = ((n_a + CELL - 1) // CELL) * ((n_b + CELL - 1) // CELL)
-    return np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8), np.empty(n, np.int64)
+    return (np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8), np.empty(n, np.int64),
+            np.empty((n, 2), np.int64))
 
 
 @stage
@@ -168,13 +170,15 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, 
     nc = _visible_cells(regions, p0, p1, hier, whole.n_a, box_args, satab, buf.sat, cells)
     for k in range(nc):
         buf.stats[bi, 1] += cells[k, 1] - cells[k, 0]
-    mark, marked, smark, squares = marks
+    mark, marked, smark, squares, todo = marks
     nca = (whole.n_a + CELL - 1) // CELL
+    nsa = (whole.n_a + unit - 1) // unit
     nm = _mark_cells(cells, nc, nca, mark, marked)
-    ns = _mark_squares(marked, nm, nca, unit, (whole.n_a + unit - 1) // unit, smark, squares)
+    ns = _mark_squares(marked, nm, nca, unit, nsa, smark, squares)
+    nt = _plan_squares(squares, ns, smark, mark, nca, (whole.n_b + CELL - 1) // CELL, unit, nsa, todo)
     voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c)
     inv = _ortho_inverse(base, geo.coef)
-    _sample_squares(squares, ns, unit, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
+    _sample_squares(todo, nt, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
                     cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts)
     for t in range(nm):
         mark[marked[t]] = 0
@@ -211,27 +215,55 @@ def _mark_cells(cells, nc, nca, mark, marked):
 @leaf
 def _mark_squares(marked, nm, nca, unit, nsa, smark, squares):
     """The squares of ``unit`` voxels that hold the flagged cells ``marked[:nm]``, each listed once in
-    ``squares``; returns their number."""
+    ``squares``, with the number of its flagged cells in ``smark``; returns their number."""
     per = unit // CELL
     ns = 0
     for t in range(nm):
         q = marked[t]
         s = ((q // nca) // per) * nsa + (q % nca) // per
         if smark[s] == 0:
-            smark[s] = 1
             squares[ns] = s
             ns += 1
+        smark[s] += 1
     return ns
 
 
-@leaf(inline="always")
-def _sample_squares(squares, ns, unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
-                    sat, tile_sat, band, counts):
-    """Sample the squares ``squares[:ns]`` (:func:`_sample_square`). One call per slice: the per-square stage is
-    inlined here, since handing a stage this many arrays costs more than a small square."""
+@leaf
+def _plan_squares(squares, ns, smark, mark, nca, ncb, unit, nsa, todo):
+    """What is scanned, as rows ``(index, side)`` of ``todo``; returns their number. A square of ``unit`` voxels
+    with enough of its cells flagged (all 4 of a square of 2 x 2 cells, half of one of 4 x 4) is scanned whole,
+    its per-square costs shared by many pixels; one with fewer, its flagged cells one by one, so as not to visit
+    the pixels of cells none of whose quads is sampled (most of them where an opaque surface in front has
+    saturated the pixels around a few visible cells). The thresholds are measured (docs/design.md)."""
+    per = unit // CELL
+    need = per * per if per <= 2 else per * per // 2
+    nt = 0
     for t in range(ns):
-        _sample_square(squares[t], unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv,
-                       img, sat, tile_sat, band, counts)
+        s = squares[t]
+        if smark[s] >= need:
+            todo[nt, 0] = s
+            todo[nt, 1] = unit
+            nt += 1
+            continue
+        ca0 = (s % nsa) * per
+        cb0 = (s // nsa) * per
+        for cb in range(cb0, min(cb0 + per, ncb)):
+            for ca in range(ca0, min(ca0 + per, nca)):
+                if mark[cb * nca + ca] != 0:
+                    todo[nt, 0] = cb * nca + ca
+                    todo[nt, 1] = CELL
+                    nt += 1
+    return nt
+
+
+@leaf(inline="always")
+def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
+                    sat, tile_sat, band, counts):
+    """Sample the squares and cells ``todo[:nt]`` (:func:`_sample_square`). One call per slice: the per-square
+    stage is inlined here, since handing a stage this many arrays costs more than a small square."""
+    for t in range(nt):
+        _sample_square(todo[t, 0], todo[t, 1], mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo,
+                       inv, img, sat, tile_sat, band, counts)
 
 
 @leaf(forceinline=True)

@@ -716,3 +716,50 @@ def test_finish_image_by_row_blocks_is_the_whole_and_the_obvious_formula(h, w, t
     img[rng.integers(h), rng.integers(w), rng.integers(4)] = np.nan
     with pytest.raises(IsplatError, match="non-finite"):
         F.finish_image(img, bg, threads=threads)
+
+
+@settings(max_examples=150, deadline=None)
+@given(a=st.tuples(st.integers(-5, 300), st.integers(0, 40)), b=st.tuples(st.integers(-5, 300), st.integers(0, 40)),
+       base=st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3)),
+       terms=st.tuples(*[st.floats(-3, 3, allow_subnormal=False)] * 4), fractional=st.booleans())
+def test_rect_hull_orthographic_is_the_hull_of_the_corners_bit_for_bit(a, b, base, terms, fractional):
+    """rect_hull (orthographic) takes each bound from the least or greatest terms in a and in b; against the
+    obvious hull of the four corners' projections, computed as the perspective branch and the pixel map do
+    (``(x0 + a Xa) + b Xb``): the same floats, bit for bit (rounding is monotonic)."""
+    from isplat.splat import kernels as K
+
+    a0, a1 = a[0], a[0] + a[1]
+    b0, b1 = b[0], b[0] + b[1]
+    if fractional:                                  # _cell_pixels passes the square's bounds as floats
+        a0, a1, b0, b1 = a0 - 0.5, a1 + 0.25, b0 - 0.5, b1 + 0.25
+    coef = [0.0] * 16
+    coef[K.XA], coef[K.XB], coef[K.YA], coef[K.YB] = terms
+    xs, ys = base
+    xs_c = [(xs + ka * coef[K.XA]) + kb * coef[K.XB] for ka in (a0, a1) for kb in (b0, b1)]
+    ys_c = [(ys + ka * coef[K.YA]) + kb * coef[K.YB] for ka in (a0, a1) for kb in (b0, b1)]
+    got = K.rect_hull(a0, a1, b0, b1, np.array([xs, ys, 0.0]), tuple(coef), False)
+    assert got == (True, min(xs_c), max(xs_c), min(ys_c), max(ys_c), 1.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), h=st.integers(1, 40), w=st.integers(1, 40), p=st.floats(0, 1), data=st.data())
+def test_occlusion_look_ups_against_the_obvious(seed, h, w, p, data):
+    """_tiles_whole (the summed-area table of whole tiles, _build_sat) and pixels_saturated against numpy on a
+    random saturation mask: whether every tile a box touches is whole, whether every pixel in it is set."""
+    from isplat.splat import kernels as K
+    from isplat.splat.composite import TILE
+
+    sat = (np.random.default_rng(seed).random((h, w)) < p).astype(np.uint8)
+    npix = F._tile_pixels(h, w)
+    tile_sat = np.zeros(npix.shape, np.int32)
+    np.add.at(tile_sat, (np.arange(h)[:, None] // TILE, np.arange(w)[None, :] // TILE), sat)
+    ty0 = data.draw(st.integers(0, npix.shape[0] - 1))
+    satab = np.zeros((npix.shape[0] - ty0 + 1, npix.shape[1] + 1), np.int32)
+    K._build_sat(tile_sat, npix, ty0, satab)
+    y0 = data.draw(st.integers(ty0 * TILE, h - 1))
+    y1 = data.draw(st.integers(y0, h - 1))
+    x0 = data.draw(st.integers(0, w - 1))
+    x1 = data.draw(st.integers(x0, w - 1))
+    whole = tile_sat >= npix
+    assert K._tiles_whole(satab, ty0, x0, x1, y0, y1) == whole[y0 // TILE:y1 // TILE + 1, x0 // TILE:x1 // TILE + 1].all()
+    assert K.pixels_saturated(sat, x0, x1, y0, y1) == sat[y0:y1 + 1, x0:x1 + 1].all()

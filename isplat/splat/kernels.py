@@ -192,12 +192,12 @@ def _build_sat(tile_sat, tile_npix, ty0, satab):
 @leaf
 def _tiles_whole(satab, ty0, x0, x1, y0, y1):
     """True when every tile the pixel box [x0, x1] x [y0, y1] (inside the band) touches is whole."""
-    tx0 = x0 // TILE
-    tx1 = x1 // TILE + 1
-    r0 = y0 // TILE - ty0
-    r1 = y1 // TILE - ty0 + 1
+    tx0 = np.uint64(x0) // np.uint64(TILE)          # unsigned: all >= 0 here, no wrap-around or sign fix-ups
+    tx1 = np.uint64(x1) // np.uint64(TILE) + np.uint64(1)
+    r0 = np.uint64(y0) // np.uint64(TILE) - np.uint64(ty0)
+    r1 = np.uint64(y1) // np.uint64(TILE) - np.uint64(ty0) + np.uint64(1)
     whole = satab[r1, tx1] - satab[r0, tx1] - satab[r1, tx0] + satab[r0, tx0]
-    return whole == (r1 - r0) * (tx1 - tx0)
+    return whole == np.int64((r1 - r0) * (tx1 - tx0))
 
 
 @leaf
@@ -419,6 +419,13 @@ def rect_hull(a0, a1, b0, b1, base, coef, persp):
     of the slice plane (the projection of a planar rectangle is the hull of its corners' projections); ``ok``
     False when a corner is at or behind the near plane."""
     xs, ys, ws = base[0], base[1], base[2]
+    if not persp:       # x and y are sums of a term in a and one in b, and rounding is monotonic: each bound is
+        xa0, xa1 = a0 * coef[XA], a1 * coef[XA]     # that of the corner with the least (greatest) terms, as below
+        xb0, xb1 = b0 * coef[XB], b1 * coef[XB]
+        ya0, ya1 = a0 * coef[YA], a1 * coef[YA]
+        yb0, yb1 = b0 * coef[YB], b1 * coef[YB]
+        return (True, xs + min(xa0, xa1) + min(xb0, xb1), xs + max(xa0, xa1) + max(xb0, xb1),
+                ys + min(ya0, ya1) + min(yb0, yb1), ys + max(ya0, ya1) + max(yb0, yb1), 1.0)
     cx0 = 1e300
     cx1 = -1e300
     cy0 = 1e300
@@ -455,8 +462,9 @@ def _covered(satab, ty0, sat, x0, x1, y0, y1):
 def pixels_saturated(sat, x0, x1, y0, y1):
     """True when every pixel of the box [x0, x1] x [y0, y1] is marked in the byte mask ``sat``."""
     for y in range(y0, y1 + 1):
+        row = np.uint64(y)
         for x in range(x0, x1 + 1):
-            if sat[y, x] == 0:
+            if sat[row, np.uint64(x)] == 0:     # unsigned: no negative-index wrap-around (x, y >= 0 here)
                 return False
     return True
 

@@ -87,12 +87,16 @@ def renderer(aug, idx, *extra):
 
 
 def interleaved(renderers: dict, frames: int) -> dict:
-    """Median, min and max frame seconds of each renderer, rendered round-robin after one warm-up each."""
+    """Median, min and max frame seconds of each renderer, rendered round-robin after one warm-up each; each
+    timed frame follows an untimed one of the same renderer, as in a run of frames (a frame after another
+    renderer's runs on the caches that one left: the indexed frame after the full method's, which streams the
+    whole volume, took measurably longer)."""
     for r in renderers.values():
         r.render_view(0)
     times = {k: [] for k in renderers}
     for _ in range(frames):
         for k, r in renderers.items():
+            r.render_view(0)
             t = time.perf_counter()
             r.render_view(0)
             times[k].append(time.perf_counter() - t)
@@ -193,7 +197,8 @@ def doc(main, st, pv, orb, e2e, rss, scaling, r0, quick, seconds) -> str:
         f"termination at 0.99) at {SIZE} x {SIZE}, orthographic, from the front (principal axis "
         f"{'+' if st.sign > 0 else '-'}{st.axis}). Warm: numba's cache present, data loaded; a frame is "
         "`Renderer.render_view` (classification tables, shading table, splatting, compositing, the final "
-        "image). Medians of several frames with the settings compared interleaved in one run.",
+        "image). Medians of several frames with the settings compared interleaved in one run, each timed frame "
+        "after an untimed one of the same settings (as in a run of frames).",
         "",
         f"Voxels of interest (density in the transfer function's non-zero intervals): {st.voxels_examined:,} "
         f"of {int(np.prod(r0.geom.shape)):,}; " + (f"splatted after early termination: {st.voxels_splatted:,}."

@@ -148,7 +148,8 @@ def lerp_tables(alpha, color) -> tuple[np.ndarray, np.ndarray]:
 def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
     """The side, in voxels, of the squares of the slice whose pixels are scanned together: a cell (4 voxels) when
     a cell covers at least ``target`` pixels, else 8 or 16, so that the per-square costs (its projected box,
-    its rows' spans) are shared by enough pixels when voxels are smaller than pixels."""
+    its rows' spans) are shared by enough pixels when voxels are smaller than pixels (a square with few cells
+    flagged is scanned cell by cell all the same, :func:`_plan_squares`)."""
     area = abs(float(jac[0][0]) * float(jac[1][1]) - float(jac[0][1]) * float(jac[1][0]))   # pixels per voxel
     unit = CELL
     while unit < BLOCK and unit * unit * area < target:

@@ -110,36 +110,50 @@ def test_post_images_do_not_depend_on_threads_or_bands(tmp_path, make_scene, mon
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 10 ** 6), nca=st.integers(1, 13), ncb=st.integers(1, 13), unit=st.sampled_from([4, 8, 16]),
        density=st.floats(0.0, 1.0))
-def test_plan_squares_against_the_obvious(seed, nca, ncb, unit, density):
-    """_mark_squares and _plan_squares (called from Python through their compiled callers) against the obvious:
-    the squares of ``unit`` voxels holding flagged cells, in the order their first flagged cell comes, each
-    scanned whole when enough of its cells are flagged (all 4 of 2 x 2 cells, half of 4 x 4), else its flagged
-    cells one by one, row by row; every flagged cell is in exactly one thing scanned."""
+def test_marks_and_plan_against_the_obvious(seed, nca, ncb, unit, density):
+    """_mark_cells and _plan_squares (called from Python through their compiled callers) against the obvious,
+    for visible cells in any order: each visible cell flags itself (1) and its neighbours at -a (2), -b (4) and
+    -a-b (8); the squares of ``unit`` voxels holding flagged cells come in the order of their first flagged cell,
+    each scanned whole when enough of its cells are flagged (all 4 of 2 x 2 cells, half of 4 x 4), else its
+    flagged cells one by one, row by row; every flagged cell is in exactly one thing scanned."""
     from isplat.splat import post
 
     rng = np.random.default_rng(seed)
-    mark = np.where(rng.random(nca * ncb) < density, rng.integers(1, 16, nca * ncb), 0).astype(np.uint8)
-    marked = rng.permutation(np.flatnonzero(mark)).astype(np.int64)       # _mark_cells lists them in any order
+    visible = rng.permutation(np.flatnonzero(rng.random(nca * ncb) < density))
+    cells = np.zeros((max(visible.size, 1), 4), np.int64)
+    cells[:visible.size, 2], cells[:visible.size, 3] = visible % nca * 4, visible // nca * 4
     per, nsa = unit // 4, -(-nca * 4 // unit)
-    smark, squares = np.zeros(mark.size, np.uint8), np.empty(mark.size, np.int64)
-    ns = post._mark_squares(marked, marked.size, nca, unit, nsa, smark, squares)
-    todo = np.empty((mark.size, 2), np.int64)
-    nt = post._plan_squares(squares, ns, smark, mark, nca, ncb, unit, nsa, todo)
-    order, want = [], []
-    for q in marked:
+    n = nca * ncb
+    mark, marked, smark = np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8)
+    squares, todo = np.empty((n, 3), np.int64), np.empty((n, 4), np.int64)
+    nm, ns = post._mark_cells(cells, visible.size, nca, unit, nsa, mark, marked, smark, squares)
+    nt = post._plan_squares(squares, ns, smark, mark, nca, ncb, unit, todo)
+    flags, order = np.zeros(n, np.uint8), []
+    for v in visible:
+        for da in (0, 1):
+            for db in (0, 1):
+                if v % nca - da >= 0 and v // nca - db >= 0:
+                    q = v - db * nca - da
+                    if flags[q] == 0:
+                        order.append(q)
+                    flags[q] |= 1 << (da + 2 * db)
+    assert np.array_equal(mark, flags) and marked[:nm].tolist() == order
+    sq_order, want = [], []
+    for q in order:
         sq = (q // nca // per) * nsa + (q % nca) // per
-        if sq not in order:
-            order.append(sq)
-    for sq in order:
-        cells = [cb * nca + ca for cb in range(sq // nsa * per, min(sq // nsa * per + per, ncb))
-                 for ca in range(sq % nsa * per, min(sq % nsa * per + per, nca))]
-        n = int((mark[cells] != 0).sum())
-        assert smark[sq] == n
-        if n >= (per * per if per <= 2 else per * per // 2):
-            want.append((sq, unit))
+        if sq not in sq_order:
+            sq_order.append(sq)
+    for sq in sq_order:
+        sa, sb = sq % nsa, sq // nsa
+        inside = [cb * nca + ca for cb in range(sb * per, min(sb * per + per, ncb))
+                  for ca in range(sa * per, min(sa * per + per, nca))]
+        k = int((flags[inside] != 0).sum())
+        assert smark[sq] == k
+        if k >= (per * per if per <= 2 else per * per // 2):
+            want.append((sq, unit, sa * unit, sb * unit))
         else:
-            want += [(q, 4) for q in cells if mark[q]]
-    assert squares[:ns].tolist() == order
+            want += [(q, 4, q % nca * 4, q // nca * 4) for q in inside if flags[q]]
+    assert [tuple(r) for r in squares[:ns].tolist()] == [(sq, sq % nsa, sq // nsa) for sq in sq_order]
     assert [tuple(r) for r in todo[:nt].tolist()] == want
 
 

@@ -116,12 +116,12 @@ def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
 
 @stage
 def _marks(n_a, n_b):
-    """A slice's cell flags (zeroed), the list of flagged cells (see :func:`_mark_cells`), the flagged cells per
-    square of :func:`scan_unit` (zeroed) and the list of those squares, and what is scanned (rows of square or
-    cell and its side, see :func:`_plan_squares`)."""
+    """A slice's cell flags (zeroed), the list of flagged cells, the flagged cells per square of
+    :func:`scan_unit` (zeroed) and the list of those squares (see :func:`_mark_cells`), and what is scanned
+    (see :func:`_plan_squares`)."""
     n = ((n_a + CELL - 1) // CELL) * ((n_b + CELL - 1) // CELL)
-    return (np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8), np.empty(n, np.int64),
-            np.empty((n, 2), np.int64))
+    return (np.zeros(n, np.uint8), np.empty(n, np.int64), np.zeros(n, np.uint8), np.empty((n, 3), np.int64),
+            np.empty((n, 4), np.int64))
 
 
 @stage
@@ -174,9 +174,8 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, 
     mark, marked, smark, squares, todo = marks
     nca = (whole.n_a + CELL - 1) // CELL
     nsa = (whole.n_a + unit - 1) // unit
-    nm = _mark_cells(cells, nc, nca, mark, marked)
-    ns = _mark_squares(marked, nm, nca, unit, nsa, smark, squares)
-    nt = _plan_squares(squares, ns, smark, mark, nca, (whole.n_b + CELL - 1) // CELL, unit, nsa, todo)
+    nm, ns = _mark_cells(cells, nc, nca, unit, nsa, mark, marked, smark, squares)
+    nt = _plan_squares(squares, ns, smark, mark, nca, (whole.n_b + CELL - 1) // CELL, unit, todo)
     voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c)
     inv = _ortho_inverse(base, geo.coef)
     _sample_squares(todo, nt, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
@@ -184,7 +183,7 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, 
     for t in range(nm):
         mark[marked[t]] = 0
     for t in range(ns):
-        smark[squares[t]] = 0
+        smark[squares[t, 0]] = 0
     buf.stats[bi, 2] += counts[0]
     if counts[1] > 0:
         _build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
@@ -192,12 +191,16 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, 
 
 
 @leaf
-def _mark_cells(cells, nc, nca, mark, marked):
+def _mark_cells(cells, nc, nca, unit, nsa, mark, marked, smark, squares):
     """Flag the cells whose quads touch a voxel of a visible cell: bit 1 the cell itself, bit 2 its neighbour
     at +a, bit 4 at +b, bit 8 at +a+b (a quad is the square from its voxel to the next along a and b, so the
-    cells at -a, -b and -a-b hold quads that reach this cell's voxels). Returns the number of flagged cells,
-    listed in ``marked``."""
+    cells at -a, -b and -a-b hold quads that reach this cell's voxels), listed in ``marked``; and the squares
+    of ``unit`` voxels that hold them, listed once each as rows ``(index, column, row)`` of ``squares`` in the
+    order of their first flagged cell, with their number of flagged cells in ``smark``. Returns the numbers of
+    flagged cells and of squares. (No division: a square is found by shifting its cell's column and row.)"""
+    shift = 0 if unit == CELL else (1 if unit == 2 * CELL else 2)
     nm = 0
+    ns = 0
     for k in range(nc):
         ci = cells[k, 2] // CELL
         cj = cells[k, 3] // CELL
@@ -209,50 +212,48 @@ def _mark_cells(cells, nc, nca, mark, marked):
                 if mark[q] == 0:
                     marked[nm] = q
                     nm += 1
+                    sa = (ci - da) >> shift
+                    sb = (cj - db) >> shift
+                    s = sb * nsa + sa
+                    if smark[s] == 0:
+                        squares[ns, 0] = s
+                        squares[ns, 1] = sa
+                        squares[ns, 2] = sb
+                        ns += 1
+                    smark[s] += 1
                 mark[q] |= 1 << (da + 2 * db)
-    return nm
+    return nm, ns
 
 
 @leaf
-def _mark_squares(marked, nm, nca, unit, nsa, smark, squares):
-    """The squares of ``unit`` voxels that hold the flagged cells ``marked[:nm]``, each listed once in
-    ``squares``, with the number of its flagged cells in ``smark``; returns their number."""
-    per = unit // CELL
-    ns = 0
-    for t in range(nm):
-        q = marked[t]
-        s = ((q // nca) // per) * nsa + (q % nca) // per
-        if smark[s] == 0:
-            squares[ns] = s
-            ns += 1
-        smark[s] += 1
-    return ns
-
-
-@leaf
-def _plan_squares(squares, ns, smark, mark, nca, ncb, unit, nsa, todo):
-    """What is scanned, as rows ``(index, side)`` of ``todo``; returns their number. A square of ``unit`` voxels
-    with enough of its cells flagged (all 4 of a square of 2 x 2 cells, half of one of 4 x 4) is scanned whole,
-    its per-square costs shared by many pixels; one with fewer, its flagged cells one by one, so as not to visit
-    the pixels of cells none of whose quads is sampled (most of them where an opaque surface in front has
-    saturated the pixels around a few visible cells). The thresholds are measured (docs/design.md)."""
+def _plan_squares(squares, ns, smark, mark, nca, ncb, unit, todo):
+    """What is scanned, as rows ``(index, side, a0, b0)`` of ``todo`` (a square of ``unit`` voxels or a cell,
+    and its first voxel); returns their number. A square with enough of its cells flagged (all 4 of a square of
+    2 x 2 cells, half of one of 4 x 4) is scanned whole, its per-square costs shared by many pixels; one with
+    fewer, its flagged cells one by one, so as not to visit the pixels of cells none of whose quads is sampled
+    (most of them where an opaque surface in front has saturated the pixels around a few visible cells). The
+    thresholds are measured (docs/design.md)."""
     per = unit // CELL
     need = per * per if per <= 2 else per * per // 2
     nt = 0
     for t in range(ns):
-        s = squares[t]
+        s = squares[t, 0]
         if smark[s] >= need:
             todo[nt, 0] = s
             todo[nt, 1] = unit
+            todo[nt, 2] = squares[t, 1] * unit
+            todo[nt, 3] = squares[t, 2] * unit
             nt += 1
             continue
-        ca0 = (s % nsa) * per
-        cb0 = (s // nsa) * per
+        ca0 = squares[t, 1] * per
+        cb0 = squares[t, 2] * per
         for cb in range(cb0, min(cb0 + per, ncb)):
             for ca in range(ca0, min(ca0 + per, nca)):
                 if mark[cb * nca + ca] != 0:
                     todo[nt, 0] = cb * nca + ca
                     todo[nt, 1] = CELL
+                    todo[nt, 2] = ca * CELL
+                    todo[nt, 3] = cb * CELL
                     nt += 1
     return nt
 
@@ -263,23 +264,21 @@ def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shad
     """Sample the squares and cells ``todo[:nt]`` (:func:`_sample_square`). One call per slice: the per-square
     stage is inlined here, since handing a stage this many arrays costs more than a small square."""
     for t in range(nt):
-        _sample_square(todo[t, 0], todo[t, 1], mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo,
-                       inv, img, sat, tile_sat, band, counts)
+        _sample_square(todo[t, 0], todo[t, 1], todo[t, 2], todo[t, 3], mark, voxel, alpha, color, shade, use_gm,
+                       use_shade, base, cs, geo, inv, img, sat, tile_sat, band, counts)
 
 
 @leaf(forceinline=True)
-def _sample_square(sq, unit, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img, sat,
-                   tile_sat, band, counts):
-    """Sample the quads of square ``sq`` (``unit`` voxels a side) that their cells' flags ask for, at the pixels
+def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
+                   sat, tile_sat, band, counts):
+    """Sample the quads of square ``sq`` (``unit`` voxels a side, from voxel (a0, b0); a cell's index when
+    ``unit`` is a cell) that their cells' flags ask for, at the pixels
     whose point on the slice plane lies in them (each pixel of the slice falls in one quad), and composite the
     samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`)."""
     density, gm, nrm, strides, n_a, n_b, c = voxel
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp
     nca = (n_a + CELL - 1) // CELL
-    nsa = (n_a + unit - 1) // unit
-    a0 = (sq % nsa) * unit
-    b0 = (sq // nsa) * unit
     # the square's part of the slice plane: its quads [a0, a0 + unit) (the first from -0.5, the last to n - 0.5),
     # or a cell's last column or row only, when just a neighbour's voxels need them
     u0 = -0.5 if a0 == 0 else float(a0)

@@ -117,22 +117,19 @@ def timings(r, frames: int) -> dict:
 
     views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2), "2e": on_threads(r.views[0], 2)}
     runs = {key: [] for key in views}
+    learned = {key: {} for key in views}      # what each kind's frames learned of their bands ("2e": nothing)
     prep = []
-    learned = {}
     for i in range(frames + 1):
         for key in (list(views) if i % 2 else list(views)[::-1]):
-            if key == "2e":                                         # nothing learned: even bands
-                learned = dict(r.selection.band_costs)
             for timed in (False, True):   # after a frame of the same kind: not paying for the caches another left
                 if key == "2e":
-                    r.selection.band_costs.clear()
+                    learned[key].clear()                            # even bands, as a first frame
+                r.selection.band_costs = learned[key]
                 if timed:
                     runs[key].append(cpu_frame(r, views[key]))
                 else:
                     F.render_frame(r.selection, views[key])
-            if key == "2e":
-                r.selection.band_costs.clear()
-                r.selection.band_costs.update(learned)
+        r.selection.band_costs = learned["2"]
         t = time.perf_counter()
         F.prepare(r.selection, views["2"])
         prep.append(time.perf_counter() - t)
@@ -206,8 +203,8 @@ def doc(rows, quick: bool, seconds: float) -> str:
             rep = st.voxels_tested / max(base, 1) - 1.0
             L.append(f"| {name} | {t} | {nb} | {st.voxels_tested:,} | {100 * rep:.1f}% | "
                      f"{predicted(serial, rep, t, nb):.2f} |")
-    L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames, each timed frame after an untimed one of its kind, as in a run of frames). Wall times suffer "
-          "when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
+    L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames, each timed frame after "
+          "an untimed one of its kind, as in a run of frames). Wall times suffer when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
           "calling thread outside the parallel parts: the serial part) do not count waiting for a core, so the CPU "
           "speed-up is what 2 free cores would give, memory bandwidth aside.", "",
           "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | threads' CPU, 1 thread (ms) | threads' CPU, "

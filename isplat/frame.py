@@ -286,14 +286,13 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
         ok = True
         for i, bi in enumerate(setup.mine[t]):      # band by band, each timed (band_rows balances by the times)
             c0 = time.thread_time()
+            y0, y1 = setup.rows[bi]
             if state is None:
-                y0, y1 = setup.rows[bi]
                 part.img[y0:y1] = 0
                 part.sat[y0:y1] = 0
             setup.kernel(slices, start, setup.bins or _NO_BINS, setup.vox, setup.cls, setup.geo, setup.fp, buf,
                          K.Bands(setup.rows, setup.mine[t][i:i + 1], et))
             if finished is not None:
-                y0, y1 = setup.rows[bi]
                 ok = finish(part.img[y0:y1], bg, finished[y0:y1]) and ok
             setup.band_seconds[bi] += time.thread_time() - c0
         return ok
@@ -476,12 +475,17 @@ def learn_bands(sel, setup: Setup) -> None:
     if old is None:
         sel.band_costs[key] = Learned(None, setup.rows, {})
         return
-    measured = np.bincount(np.arange(len(setup.rows)) % threads, setup.band_seconds).tolist()
-    if old.est is not None and max(measured) <= (1.0 + BALANCE_SLACK) * sum(measured) / len(measured):
+    measured = _thread_sums(setup.band_seconds, threads)
+    if old.est is not None and measured.max() <= (1.0 + BALANCE_SLACK) * measured.mean():
         return
     est = _profile(old.est, setup.rows, setup.band_seconds, setup.view.frame.height)
     sel.band_costs[key] = Learned(est, setup.rows, {}) if old.est is None else \
         _next_bands(est, setup.rows, old.tried, threads, setup.view.frame.height)
+
+
+def _thread_sums(per_band: np.ndarray, threads: int) -> np.ndarray:
+    """Each thread's share of ``per_band`` (thread t takes bands t, t + threads, ...)."""
+    return np.bincount(np.arange(len(per_band)) % threads, per_band)
 
 
 def _profile(est: np.ndarray | None, rows: np.ndarray, seconds: np.ndarray, height: int) -> np.ndarray:
@@ -507,7 +511,7 @@ def _next_bands(est: np.ndarray, rows: np.ndarray, tried: dict, threads: int, he
     cum = np.concatenate([[0.0], np.cumsum(est)])
 
     def per_thread(r):
-        return np.bincount(np.arange(len(r)) % threads, cum[-(-r[:, 1] // TILE)] - cum[r[:, 0] // TILE])
+        return _thread_sums(cum[-(-r[:, 1] // TILE)] - cum[r[:, 0] // TILE], threads)
 
     now = per_thread(rows)
     busiest, mean = float(now.max()), float(now.mean())

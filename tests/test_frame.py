@@ -414,7 +414,8 @@ def _frames_on(true_cost, threads, height, frames):
         F.learn_bands(sel, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads, empty=False))
         est = sel.band_costs[key].est
         assert (est is None) == first              # the first frame (cold caches) only marks the kind seen
-        for y0, y1, s in [] if first else zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent):  # the band's time over its rows
+        bands = [] if first else zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent)
+        for y0, y1, s in bands:                         # the band's time over its rows
             known = s if before is None else 0.5 * (s + before[y0:y1].sum())   # (averaged with what was known),
             assert np.isclose(est[y0:y1].sum(), known) and (est[y0:y1] > 0).all()  # none of them left idle
         out.append(per.max() / per.mean())
@@ -761,5 +762,6 @@ def test_occlusion_look_ups_against_the_obvious(seed, h, w, p, data):
     x0 = data.draw(st.integers(0, w - 1))
     x1 = data.draw(st.integers(x0, w - 1))
     whole = tile_sat >= npix
-    assert K._tiles_whole(satab, ty0, x0, x1, y0, y1) == whole[y0 // TILE:y1 // TILE + 1, x0 // TILE:x1 // TILE + 1].all()
+    touched = whole[y0 // TILE:y1 // TILE + 1, x0 // TILE:x1 // TILE + 1]
+    assert K._tiles_whole(satab, ty0, x0, x1, y0, y1) == touched.all()
     assert K.pixels_saturated(sat, x0, x1, y0, y1) == sat[y0:y1 + 1, x0:x1 + 1].all()

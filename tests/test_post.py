@@ -177,14 +177,12 @@ def test_squares_of_any_side_give_the_reference_image(tmp_path, make_scene, monk
             monkeypatch.setattr(post, "scan_unit", lambda jac, side=side: side)
         images.append(render(sc, et=0.9)[0])
     monkeypatch.undo()
-    from isplat import frame as F
     from isplat.camera import projection
 
     view = Renderer(sc).views[0]
     assert post.scan_unit(projection(view.frame, view.geom, view.axis_sign[0]).jac) == 16
     assert all(np.array_equal(images[0], im) for im in images[1:])
     assert np.abs(images[0] - post_reference(sc, et=0.9)).max() <= 2e-4
-    del F
 
 
 def test_uniform_block_gives_the_closed_form_opacity_without_lattice_ripple(tmp_path, make_scene):

@@ -198,7 +198,7 @@ def _mark_cells(cells, nc, nca, unit, nsa, mark, marked, smark, squares):
     of ``unit`` voxels that hold them, listed once each as rows ``(index, column, row)`` of ``squares`` in the
     order of their first flagged cell, with their number of flagged cells in ``smark``. Returns the numbers of
     flagged cells and of squares. (No division: a square is found by shifting its cell's column and row.)"""
-    shift = 0 if unit == CELL else (1 if unit == 2 * CELL else 2)
+    shift = 0 if unit == CELL else (1 if unit == 2 * CELL else 2)     # scan_unit: 1, 2 or 4 cells a side
     nm = 0
     ns = 0
     for k in range(nc):

@@ -14,19 +14,43 @@ from pathlib import Path
 
 
 def machine_line() -> str:
-    """One line describing the machine the numbers come from."""
+    """One line describing the machine the numbers come from: the CPU's name with its family, model and widest
+    vector unit (a cloud CPU's name alone, "AMD EPYC", covers generations a factor 2 apart in speed), the cores
+    this process may use, and Python's version."""
     import os
 
-    cpu = "unknown CPU"
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
+        text = Path("/proc/cpuinfo").read_text()
     except OSError:
-        pass
+        text = ""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return f"{cpu}, {cores} cores usable, Python {platform.python_version()}"
+    return f"{cpu_description(text)}, {cores} cores usable, Python {platform.python_version()}"
+
+
+def cpu_description(cpuinfo: str) -> str:
+    r"""The first processor of a Linux ``/proc/cpuinfo`` text in a few words.
+
+    >>> cpu_description("model name\t: AMD EPYC\ncpu family\t: 26\nmodel\t\t: 2\nflags\t\t: sse avx2 avx512f\n")
+    'AMD EPYC (family 26 model 2, AVX-512)'
+    >>> cpu_description("model name\t: Some CPU\nflags\t\t: sse2 avx2\n")
+    'Some CPU (AVX2)'
+    >>> cpu_description("")
+    'unknown CPU'
+    """
+    fields = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            break                                   # the first processor's block only
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    if "model name" not in fields:
+        return "unknown CPU"
+    flags = set(fields.get("flags", "").split())
+    simd = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "SSE" if flags else ""
+    gen = f"family {fields['cpu family']} model {fields['model']}" if "cpu family" in fields and "model" in fields \
+        else ""
+    detail = ", ".join(x for x in (gen, simd) if x)
+    return fields["model name"] + (f" ({detail})" if detail else "")
 
 
 def git_rev() -> str:

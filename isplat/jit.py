@@ -266,3 +266,39 @@ def leaf(fn=None, **extra):
     if fn is None:
         return lambda f: _compiled({**OPTIONS, "_nrt": False, **extra}, f, stage=True)
     return _compiled({**OPTIONS, "_nrt": False}, fn, stage=True)
+
+
+def _prefetch_intrinsic():
+    """:func:`prefetch` as numba compiles it: LLVM's ``llvm.prefetch`` (read, keep in every cache level, data),
+    which x86 compiles to one PREFETCHT0."""
+    from llvmlite import ir
+    from numba import types
+    from numba.core import cgutils
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def prefetch(typingctx, arr, i):
+        if not (isinstance(arr, types.Array) and arr.ndim == 1 and isinstance(i, types.Integer)):
+            return None
+
+        def codegen(context, builder, sig, args):
+            data = context.make_array(sig.args[0])(context, builder, args[0]).data
+            byte = ir.IntType(8).as_pointer()
+            i32 = ir.IntType(32)
+            fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [byte, i32, i32, i32]),
+                                                "llvm.prefetch." + byte.intrinsic_name)
+            builder.call(fn, [builder.bitcast(builder.gep(data, [args[1]]), byte), i32(0), i32(3), i32(1)])
+            return context.get_dummy_value()
+
+        return types.void(arr, i), codegen
+
+    return prefetch
+
+
+def _prefetch_python(arr, i):
+    """:func:`prefetch` run as Python (``NUMBA_DISABLE_JIT=1``): nothing to do."""
+
+
+# prefetch(arr, i), in compiled code: ask the CPU to bring element i of the 1-D array arr into its caches, so that
+# a later load of it does not wait for memory. A hint only: it changes no value and never faults, whatever i is.
+prefetch = _prefetch_python if nb.config.DISABLE_JIT else _prefetch_intrinsic()

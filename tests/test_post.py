@@ -265,3 +265,55 @@ def test_lerp_tables_give_the_lerp_between_codes_bit_for_bit(seed, levels, k, f)
         n = t.shape[1]
         assert np.array_equal(lerped[:, :n], t) and not lerped[255, n:].any()
         assert np.array_equal(lerped[k, :n] + f * lerped[k, n:], t[k] + f * (t[k + 1] - t[k]))
+
+
+def test_prefetch_compiles_to_a_hint_that_changes_nothing():
+    """isplat.jit.prefetch in compiled code is one PREFETCHT0 (on x86-64) and changes no value, also for an
+    index far outside the array (a prefetch never faults)."""
+    import numba
+    import platform
+
+    from isplat.jit import prefetch
+
+    @numba.njit
+    def total(a, ahead):
+        s = 0
+        for i in range(a.size):
+            prefetch(a, np.uint64(i + ahead))
+            s += a[i]
+        return s
+
+    a = np.arange(1000, dtype=np.uint8)
+    assert total(a, 3) == total(a, 1 << 40) == int(a.sum())
+    if platform.machine() == "x86_64":
+        asm = total.inspect_asm(total.signatures[0])
+        assert "prefetcht0" in asm
+
+
+@settings(max_examples=200, deadline=None)
+@given(unit=st.sampled_from([4, 8, 16]), n_a=st.integers(1, 40), n_b=st.integers(1, 40), sa=st.integers(1, 70),
+       extra=st.integers(0, 70), c=st.integers(0, 3), data=st.data())
+def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, extra, c, data):
+    """_prefetch_square (run as Python, its prefetches recorded) asks for every 64-byte line of every channel
+    that the square's quads read: voxels a0 .. a0 + unit and b0 .. b0 + unit (the quads reach the next voxel),
+    within the slice; so no sample of the square waits for memory that could have been fetched."""
+    from isplat.splat import post
+
+    a0 = data.draw(st.integers(0, n_a - 1)) // 4 * 4
+    b0 = data.draw(st.integers(0, n_b - 1)) // 4 * 4
+    sb = sa * n_a + extra                          # a slice's rows: any step along b past a row along a
+    sc = sb * n_b
+    size = sc * 4
+    offset = data.draw(st.integers(-c * sc, 0))    # a slab's channels: a negative offset for its first slice
+    size = size + offset
+    density, gm, nrm = np.zeros(size, np.uint8), np.zeros(size, np.uint8), np.zeros(size, np.uint16)
+    asked = {id(density): set(), id(gm): set(), id(nrm): set()}
+    strides = np.array([sa, sb, sc, offset], np.int64)
+    voxel = (density, gm, nrm, strides, n_a, n_b, c)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(post, "prefetch", lambda arr, i: asked[id(arr)].add(int(i) * arr.itemsize // 64))
+        post._prefetch_square.py_func(unit, a0, b0, voxel, True, True)
+    for arr in (density, gm, nrm):
+        read = {(c * sc + offset + a * sa + b * sb) * arr.itemsize // 64
+                for a in range(a0, min(a0 + unit, n_a - 1) + 1) for b in range(b0, min(b0 + unit, n_b - 1) + 1)}
+        assert read <= asked[id(arr)]

@@ -35,7 +35,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..jit import jit, leaf, stage
+from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
 from .kernels import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, _band, _band_saturated, _box_args, _build_sat,
                       _cut_away, _path_alpha, _slice_bases, _visible_cells, full_scratch, full_slice_regions,
@@ -47,6 +47,7 @@ SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (sca
 # inverse map of each pixel round differently (about 1e-12 of the pixel coordinates); far more than that, far
 # less than a pixel, so the scan visits hardly a pixel outside the square
 SPAN_MARGIN = 1e-4
+AHEAD = 1                 # squares prefetched ahead of the one sampled (_sample_squares; 2 measured alike)
 
 PostVoxels = namedtuple("PostVoxels", "index whole unit")
 PostVoxels.__doc__ = """``index``: the selection's hierarchy (:data:`isplat.splat.kernels.IndexedVoxels`; None
@@ -263,9 +264,37 @@ def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shad
                     sat, tile_sat, band, counts):
     """Sample the squares and cells ``todo[:nt]`` (:func:`_sample_square`). One call per slice: the per-square
     stage is inlined here, since handing a stage this many arrays costs more than a small square."""
+    for t in range(min(nt, AHEAD)):
+        _prefetch_square(todo[t, 1], todo[t, 2], todo[t, 3], voxel, use_gm, use_shade)
     for t in range(nt):
+        if t + AHEAD < nt:          # the voxels of squares ahead come from memory while this one is sampled
+            _prefetch_square(todo[t + AHEAD, 1], todo[t + AHEAD, 2], todo[t + AHEAD, 3], voxel, use_gm, use_shade)
         _sample_square(todo[t, 0], todo[t, 1], todo[t, 2], todo[t, 3], mark, voxel, alpha, color, shade, use_gm,
                        use_shade, base, cs, geo, inv, img, sat, tile_sat, band, counts)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
+    """Ask the CPU to fetch the cache lines of the voxels that the quads of the square of ``unit`` voxels from
+    (a0, b0) read (its voxels and the next along a and b), in the channels the samples read. A slice's rows
+    along b lie a plane or a row of the volume apart, so each row of the square is lines of its own that the
+    CPU's own prefetchers do not foresee: without this the samples wait for memory (most of a frame's time on a
+    volume larger than the caches, docs/design.md)."""
+    density, gm, nrm, strides, n_a, n_b, c = voxel
+    sa, sb = strides[0], strides[1]
+    a1 = min(a0 + unit, n_a - 1)
+    b1 = min(b0 + unit, n_b - 1)
+    da = max(1, 32 // sa)           # voxels along a in half a 64-byte line (a slice's a steps 1 or a row)
+    cbase = c * strides[2] + strides[3]
+    for b in range(b0, b1 + 1):
+        row = cbase + b * sb
+        for a in range(a0, a1 + da, da):
+            i = np.uint64(row + min(a, a1) * sa)
+            prefetch(density, i)
+            if use_shade:
+                prefetch(nrm, i)    # 2 bytes a voxel: hence the half lines
+            if use_gm:
+                prefetch(gm, i)
 
 
 @leaf(forceinline=True)

@@ -5,7 +5,9 @@ writes the section ``peers`` of ``performance.md``, ``peers.csv`` and ``img/peer
 
 * frame time: ``vtkFixedPointVolumeRayCastMapper`` (offscreen, the same thread count) at sample distances 2, 1
   (its default), 0.5 and 0.25 voxel, and isplat at its defaults and its speed knobs, all rendered in turn, round
-  after round, in one process (interleaved), on the head sample at 256, 512 and 1024 pixels with an opaque and a
+  after round, in one process (interleaved), each timed frame right after one of the same renderer and settings
+  (as in a run of frames; the first of the two, right after the other renderer's frames, gives the cold-cache
+  ratio beside it), on the head sample at 256, 512 and 1024 pixels with an opaque and a
   translucent transfer function, an oblique view, the engine, and the hidden-material case (the head sampled at
   512^3, opacity 0 up to 99, 0.1 at 130, 0.5 at 200, 0.7 at 255: skin and soft tissue semi-opaque in front of
   bone); medians and the median of the per-round ratios;
@@ -473,6 +475,7 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
         sel[HIDDEN_REMOVED] = (r_vis.selection, views_for(r_vis.scene, r_vis.selection)[0])
         labels.append(HIDDEN_REMOVED)
     times = {lab: [] for lab in labels}
+    cold = {lab: [] for lab in labels}          # the untimed-as-such frame: right after another renderer's
     imgs, stats = {}, {}
 
     def job(lab, keep):
@@ -493,7 +496,8 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
             job(lab, False)
     for rnd in range(frames):
         order = labels[rnd % len(labels):] + labels[:rnd % len(labels)]
-        for lab in order:
+        for lab in order:           # each timed frame right after one of its own, as in a run of frames
+            cold[lab].append(job(lab, False))
             times[lab].append(job(lab, rnd == frames - 1))
     pts = []
     for lab in labels:
@@ -502,6 +506,7 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
                             err=REF.errors(imgs[lab], ref)))
     iso, v1, v05 = "isplat defaults", "VTK 1", "VTK 0.5"
     paired = {s: statistics.median(a / b for a, b in zip(times[iso], times[s])) for s in (v1, v05)}
+    paired["VTK 1, cold"] = statistics.median(a / b for a, b in zip(cold[iso], cold[v1]))
     st = stats[iso]
     hid = None
     if removed is not None:
@@ -763,6 +768,13 @@ def slower_text(results, mem, proc) -> list[str]:
                                                       for r in slow) if slow else "") +
              (". Not slower in: " + "; ".join(f"{r['case']} {r['size']} px {r['paired']['VTK 1']:.2f}x"
                                              for r in fast) if fast else "") + ".")
+    cold = [r for r in results if "VTK 1, cold" in r["paired"]]
+    slow_cold = [r for r in cold if r["paired"]["VTK 1, cold"] > 1.0]
+    if cold:
+        L.append(f"- With cold caches (each frame right after the other renderer's), slower in {len(slow_cold)} of "
+                 f"{len(cold)} cases" + (": " + "; ".join(f"{r['case']} {r['size']} px "
+                                                          f"{r['paired']['VTK 1, cold']:.2f}x" for r in slow_cold)
+                                         if slow_cold else "") + ".")
     by_case = {}
     for r in results:
         by_case.setdefault(r["case"], {})[r["size"]] = r
@@ -838,21 +850,25 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
          f"(`vtkFixedPointVolumeRayCastMapper`, offscreen through `{window_cls}`). Generated: every number and "
          "sentence below comes from this run; rerun the command after changing the renderer.", "",
          f"Orthographic, unshaded emission-absorption, black background, square images. Per case and size every "
-         f"renderer draws {frames} frames after {WARMUP} warm-up frames, all in turn, round after round, in one "
-         "process (interleaved); times are medians, and *isplat / VTK* is the median of the per-round ratios "
-         "(frames of a round run back to back, so the ratio is less sensitive to other load on this shared machine "
-         "than the absolute times). isplat: `Renderer.render_view` (loading not timed), threads = all cores; "
+         f"renderer draws {frames} timed frames after {WARMUP} warm-up frames, all in turn, round after round, in one "
+         "process (interleaved), each timed frame right after one of the same renderer and settings (as in a run "
+         "of frames: an orbit, a transfer-function edit); times are medians, and *isplat / VTK* is the median of "
+         "the per-round ratios (frames of a round run back to back, so the ratio is less sensitive to other load "
+         "on this shared machine than the absolute times). *cold*: the same ratio for the first frame of each "
+         "pair, which finds the caches as the other renderer's frames left them (each renderer's data pushed out "
+         "by the other's), a use neither renderer has on its own. isplat: `Renderer.render_view` (loading not timed), threads = all cores; "
          "VTK: `renderWindow.Render()` with the same thread count. Error: RMSE and PSNR over RGB in [0, 1] against "
          "reference (a) (docs/reference.md: the converged float64 ray integral of the same 8-bit densities, "
          "trilinear, transfer function after interpolation, step 0.05 voxel), which is neither renderer; VTK's "
          "image is read back as 8 bits.", "",
-         "| case | pixels | isplat ms | VTK step 1 ms | isplat / VTK 1 | VTK step 0.5 ms | isplat / VTK 0.5 | "
-         "PSNR (a) isplat | PSNR (a) VTK 1 | PSNR (a) VTK 0.5 | PSNR isplat vs VTK 1 |",
-         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+         "| case | pixels | isplat ms | VTK step 1 ms | isplat / VTK 1 | isplat / VTK 1, cold | VTK step 0.5 ms | "
+         "isplat / VTK 0.5 | PSNR (a) isplat | PSNR (a) VTK 1 | PSNR (a) VTK 0.5 | PSNR isplat vs VTK 1 |",
+         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results:
         i, v1, v05 = _pt(r, "isplat defaults"), _pt(r, "VTK 1"), _pt(r, "VTK 0.5")
+        cold = r["paired"].get("VTK 1, cold")
         L.append(f"| {r['case']} | {r['size']} | {i['ms']:.1f} | {v1['ms']:.1f} | {r['paired']['VTK 1']:.2f} | "
-                 f"{v05['ms']:.1f} | {r['paired']['VTK 0.5']:.2f} | {_psnr(i['err'])} | {_psnr(v1['err'])} | "
+                 f"{'' if cold is None else f'{cold:.2f}'} | {v05['ms']:.1f} | {r['paired']['VTK 0.5']:.2f} | {_psnr(i['err'])} | {_psnr(v1['err'])} | "
                  f"{_psnr(v05['err'])} | {_psnr(r['between'])} |")
     L += ["", "#### Where isplat is slower, and why", ""] + slower_text(results, mem, proc) + [""]
     L += ["#### Every point", "",

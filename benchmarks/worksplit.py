@@ -106,22 +106,42 @@ def cpu_frame(r, view) -> dict:
                 rest=sum(map(sum, parts[1:])), rest_busiest=sum(max(p, default=0.0) for p in parts[1:]))
 
 
-def timings(r, frames: int) -> dict:
+def pair_frame(copies, views) -> float:
+    """Wall seconds of two one-thread frames at once, one per renderer of ``copies`` (independent copies of the
+    same work, nothing shared): what this machine's two cores give two programs that need no coordination."""
+    from isplat import frame as F
+    from isplat.threads import run_parallel
+
+    t = time.perf_counter()
+    run_parallel(lambda k: F.render_frame(copies[k].selection, views[k]), [0, 1], 2)
+    return time.perf_counter() - t
+
+
+def timings(r, frames: int, twin=None) -> dict:
     """Medians over interleaved frames on 1 and 2 threads: wall time, serial CPU time, the threads' CPU time in
     the kernels (total and the busiest thread's); and the set-up alone (``prepare``). Frames "2" cut their
     bands by the frames before them (``isplat.frame.band_rows``; the first round, not counted, learns); frames
     "2e" always take even bands, as a first frame does. Each timed frame follows an untimed one of its kind, as
     a run of frames does (a frame after one of another kind runs on caches that frame left: a 2-thread frame
-    after a 1-thread one took measurably longer), and the kinds take turns in both orders."""
+    after a 1-thread one took measurably longer), and the kinds take turns in both orders. With ``twin`` (a
+    second renderer of the same scene), "pair": two one-thread frames at once, one of each (:func:`pair_frame`)."""
     from isplat import frame as F
 
     views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2), "2e": on_threads(r.views[0], 2)}
     runs = {key: [] for key in views}
     learned = {key: {} for key in views}      # what each kind's frames learned of their bands ("2e": nothing)
-    prep = []
+    prep, pairs = [], []
+    pair_views = None if twin is None else (views["1"], on_threads(twin.views[0], 1))
+    kinds = list(views) + ([] if twin is None else ["pair"])
     for i in range(frames + 1):
-        for key in (list(views) if i % 2 else list(views)[::-1]):
+        for key in (kinds if i % 2 else kinds[::-1]):
             for timed in (False, True):   # after a frame of the same kind: not paying for the caches another left
+                if key == "pair":
+                    r.selection.band_costs = learned["1"]
+                    dt = pair_frame((r, twin), pair_views)
+                    if timed:
+                        pairs.append(dt)
+                    continue
                 if key == "2e":
                     learned[key].clear()                            # even bands, as a first frame
                 r.selection.band_costs = learned[key]
@@ -135,6 +155,8 @@ def timings(r, frames: int) -> dict:
         prep.append(time.perf_counter() - t)
     med = statistics.median
     out = {"prepare": med(prep[1:])}
+    if pairs:
+        out["pair"] = med(pairs[1:])
     for key, rs in runs.items():
         rs = rs[1:]
         out[key] = med(x["wall"] for x in rs)
@@ -163,7 +185,7 @@ def run(out_dir: Path, quick: bool) -> Path:
         _log(name)
         r = _renderer(scene, aug, idx, size, *extra)
         per = {t: counts(r, t) for t in THREADS}
-        tm = timings(r, 3 if quick else 11)
+        tm = timings(r, 3 if quick else 11, _renderer(scene, aug, idx, size, *extra))
         rows.append((name, size, per, tm, r.selection.axes[per[1][1].axis].n_voxels))
     body = doc(rows, quick, time.perf_counter() - t0)
     path = out_dir / "worksplit.md"
@@ -206,17 +228,25 @@ def doc(rows, quick: bool, seconds: float) -> str:
     L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames, each timed frame after "
           "an untimed one of its kind, as in a run of frames). Wall times suffer when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
           "calling thread outside the parallel parts: the serial part) do not count waiting for a core, so the CPU "
-          "speed-up is what 2 free cores would give, memory bandwidth aside.", "",
+          "speed-up is what 2 free cores would give, memory bandwidth aside. But this machine's two vCPUs do not "
+          "always give twice the work of one, even when no other job is seen and no steal time is reported: "
+          "between runs of this benchmark the CPU speed-ups differ widely, the threads' CPU times inflated "
+          "when both run (the host's load, which the guest does not see). So each run also measures what the machine gives two programs that share nothing: "
+          "*two copies*, two one-thread frames of the same view at once, one per renderer of its own (its gain: "
+          "twice the one-thread frame's wall time over the pair's), and *of that*: the 2-thread frame's wall "
+          "speed-up over that gain, which is what isplat makes of the cores the machine gives.", "",
           "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | threads' CPU, 1 thread (ms) | threads' CPU, "
           "2 threads: sum / busiest (ms) | imbalance | serial CPU, 2 threads (ms) | CPU speed-up | even bands: "
-          "2 threads (ms) | imbalance | CPU speed-up |",
-          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "2 threads (ms) | imbalance | CPU speed-up | two copies: gain | wall speed-up, of that |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
                  f"{1e3 * (tm['work1'] + tm['rest1']):.1f} | {1e3 * (tm['work2'] + tm['rest2']):.1f} / "
                  f"{1e3 * (tm['busiest2'] + tm['rest_busiest2']):.1f} | {tm['imbalance2']:.2f} | "
                  f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup2']:.2f} | {1e3 * tm['2e']:.1f} | "
-                 f"{tm['imbalance2e']:.2f} | {tm['cpu_speedup2e']:.2f} |")
+                 f"{tm['imbalance2e']:.2f} | {tm['cpu_speedup2e']:.2f} | " + (
+                     f"{2 * tm['1'] / tm['pair']:.2f} | {tm['1'] / tm['2'] / (2 * tm['1'] / tm['pair']):.2f} |"
+                     if "pair" in tm else " | |"))
     L += ["", "2 threads: each frame's bands cut where the frames before it found equal work "
           "(``isplat.frame.band_rows``: the CPU time of each band, spread over its rows; the first frame, "
           "not counted, cuts evenly). *Even bands*: frames that learn nothing, as the first frame of a process "

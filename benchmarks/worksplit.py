@@ -81,9 +81,9 @@ def cpu_frame(r, view) -> dict:
     times hold where wall times do not)."""
     from isplat import frame as F
 
-    parts, orig = [], F.run_parallel
+    parts, orig, overlapped = [], F.run_parallel, []
 
-    def timed(fn, items, threads):
+    def timed(fn, items, threads, meanwhile=None):
         part = []
         parts.append(part)
 
@@ -92,7 +92,12 @@ def cpu_frame(r, view) -> dict:
             out = fn(x)
             part.append(time.thread_time() - t)
             return out
-        return orig(one, items, threads)
+
+        def aside():                # learning the bands of the frame before, while the threads render
+            t = time.thread_time()
+            meanwhile()
+            overlapped.append(time.thread_time() - t)
+        return orig(one, items, threads, None if meanwhile is None else aside)
 
     F.run_parallel = timed
     try:
@@ -102,7 +107,9 @@ def cpu_frame(r, view) -> dict:
     finally:
         F.run_parallel = orig
     inline = view.render.threads <= 1                 # one thread: the parallel parts ran in this thread
-    return dict(wall=wall, serial=main - (sum(map(sum, parts)) if inline else 0.0), threads=parts[0],
+    # the calling thread's work while the threads render is not serial (with one thread it is: it runs after)
+    aside = 0.0 if inline else sum(overlapped)
+    return dict(wall=wall, serial=main - aside - (sum(map(sum, parts)) if inline else 0.0), threads=parts[0],
                 rest=sum(map(sum, parts[1:])), rest_busiest=sum(max(p, default=0.0) for p in parts[1:]))
 
 

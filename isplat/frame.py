@@ -23,6 +23,7 @@ with early termination off, see docs/design.md for the bound with it on).
 from __future__ import annotations
 
 import time
+from collections import namedtuple
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
@@ -262,16 +263,19 @@ def blank(setup: Setup, zero: bool = True) -> Partial:
 
 
 def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Partial | None = None,
-                finished: np.ndarray | None = None) -> Partial:
+                finished: np.ndarray | None = None, meanwhile=None) -> Partial:
     """Render the slices ``order[start:stop]`` of the frame (front to back) over ``state`` (the partial image
     of the slices in front, updated in place; a blank one when None) and return it.
 
     ``finished`` (an image like the partial's; only for the frame's last slices, without supersampling): each
     thread then also finishes its bands' rows into it over the view's background (:func:`finish_image`'s
     pixels) as soon as its slices are done, with no second round of the threads; with nothing to render, the
-    partial is finished as it is. A blank partial's rows are zeroed by the threads that render them."""
+    partial is finished as it is. A blank partial's rows are zeroed by the threads that render them.
+    ``meanwhile()``, if given, runs in this thread while the frame's threads render (:func:`run_parallel`)."""
     slices = setup.sheets[start:stop]
     if setup.empty or slices.size == 0:
+        if meanwhile is not None:
+            meanwhile()
         part = blank(setup) if state is None else state
         if finished is not None:
             finished[...] = finish_image(part.img, setup.view.background, 1, setup.threads)
@@ -297,7 +301,7 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
             setup.band_seconds[bi] += time.thread_time() - c0
         return ok
 
-    if not all(run_parallel(run, range(len(setup.mine)), setup.threads)):
+    if not all(run_parallel(run, range(len(setup.mine)), setup.threads, meanwhile)):
         raise IsplatError(NON_FINITE)
     return part
 
@@ -344,8 +348,11 @@ def render_frame(sel, view: View, et: float | None = None):
     out = np.empty((H, W, 4), setup.sheet.dtype) if view.render.supersample == 1 else None
     for i, (start, stop) in enumerate(progress.bar(slabs, desc=f"slices ({n})", unit="slab",
                                                    disable=len(slabs) == 1)):
-        part = render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None)
-    learn_bands(sel, setup)
+        # what the frames before this one found of their bands is learned while this one's threads render
+        part = render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None,
+                           meanwhile=(lambda: learn_pending(sel)) if i == 0 else None)
+    sel.band_learning.append((sel.band_costs, BandTimes(setup.rows, setup.band_seconds, view, setup.threads,
+                                                        setup.empty)))
     if out is None:
         out = finish_image(part.img, view.background, view.render.supersample, setup.threads)
     return out, frame_stats(view, part, time.perf_counter() - t0)
@@ -462,24 +469,42 @@ BALANCE_SLACK = 0.03    # bands are kept while the busiest thread's work is at m
 TRIED = 4               # bands remembered with what they gave
 
 
-def learn_bands(sel, setup: Setup) -> None:
-    """Learn from the frame where the next frames' bands go (``sel.band_costs``). The first frame of a kind
-    only marks it seen: its times hold one-time costs (fresh memory, cold caches) that bands cut by them would
-    follow. The second starts the profile of the work per tile row (:func:`_profile`), and the bands move
+BandTimes = namedtuple("BandTimes", "rows band_seconds view threads empty")
+BandTimes.__doc__ = """What :func:`learn_bands` takes of a frame's :class:`Setup` (and keeps, unlike the set-up's
+buffers, until the next frame learns from it)."""
+
+
+def learn_pending(sel) -> None:
+    """Learn from the frames rendered since the last call (``sel.band_learning``: each frame's band costs and
+    :data:`BandTimes`, :func:`learn_bands`), oldest first. :func:`render_frame` calls it while the next frame's threads
+    render, so that the learning (Python, a few tenths of a millisecond) is not a serial part of any frame;
+    the bands then follow the frames before the last one."""
+    while True:
+        try:
+            costs, setup = sel.band_learning.pop(0)     # one caller learns each frame, also from two threads
+        except IndexError:
+            return
+        learn_bands(costs, setup)
+
+
+def learn_bands(costs: dict, setup: Setup) -> None:
+    """Learn from the frame (``setup``: its bands' rows and times, view and threads) where the next frames'
+    bands go (``costs``: a selection's ``band_costs``). The first frame of a kind only marks it seen: its times
+    hold one-time costs (fresh memory, cold caches) that bands cut by them would follow. The second starts the profile of the work per tile row (:func:`_profile`), and the bands move
     (:func:`_next_bands`) only on a profile of two frames or more, so that one frame's noise does not move them.
     A frame whose busiest thread worked at most BALANCE_SLACK above the mean changes nothing."""
     if len(setup.rows) < 2 or setup.empty:
         return
     key, threads = _balance_key(setup.view, setup.threads), setup.threads
-    old = sel.band_costs.get(key)
+    old = costs.get(key)
     if old is None:
-        sel.band_costs[key] = Learned(None, setup.rows, {})
+        costs[key] = Learned(None, setup.rows, {})
         return
     measured = _thread_sums(setup.band_seconds, threads)
     if old.est is not None and measured.max() <= (1.0 + BALANCE_SLACK) * measured.mean():
         return
     est = _profile(old.est, setup.rows, setup.band_seconds, setup.view.frame.height)
-    sel.band_costs[key] = Learned(est, setup.rows, {}) if old.est is None else \
+    costs[key] = Learned(est, setup.rows, {}) if old.est is None else \
         _next_bands(est, setup.rows, old.tried, threads, setup.view.frame.height)
 
 

@@ -411,7 +411,8 @@ def _frames_on(true_cost, threads, height, frames):
         per = np.bincount(np.arange(len(rows)) % threads, spent, minlength=threads)
         first = key not in sel.band_costs
         before = None if first else sel.band_costs[key].est
-        F.learn_bands(sel, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads, empty=False))
+        F.learn_bands(sel.band_costs, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads,
+                                                      empty=False))
         est = sel.band_costs[key].est
         assert (est is None) == first              # the first frame (cold caches) only marks the kind seen
         bands = [] if first else zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent)
@@ -462,12 +463,67 @@ def test_frames_on_learned_or_any_bands_give_the_one_thread_image(make_scene, vo
     for _ in range(3):
         assert np.array_equal(F.render_frame(sel, views[0])[0], one)
     learned = sel.band_costs[key]
-    assert learned.est.shape == (8,) and (learned.est > 0).all()       # (from frames 2 and 3)
+    assert learned.est.shape == (8,) and (learned.est > 0).all()       # (frame 2's, learned during frame 3)
     skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])
     sel.band_costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {})
     rows = F.prepare(sel, views[0]).rows
     assert rows.tolist() == sel.band_costs[key].rows.tolist() != F.image_bands(62, 2).tolist()
     assert np.array_equal(F.render_frame(sel, views[0])[0], one)
+
+
+def test_bands_are_learned_while_the_next_frame_renders(make_scene, volume, monkeypatch):
+    """A frame's band times are learned (learn_bands) during the next frame, while its threads render, from the
+    calling thread: after frame 1 nothing is learned yet; after frame 2 frame 1 has marked its kind seen;
+    after frame 3 frame 2 has started the profile. Each frame is learned once, in order."""
+    import threading
+
+    *_, aug, idx = volume
+    sel, views = from_files(make_scene(aug, idx, image="width = 40\nheight = 64", render="threads = 2",
+                                       transfer="opacity = [[50, 0.0], [60, 0.5], [200, 0.95]]"))
+    key = F._balance_key(views[0], 2)
+    calls, orig = [], F.learn_bands
+    monkeypatch.setattr(F, "learn_bands", lambda costs, t: calls.append((threading.current_thread().name,
+                                                                             t.band_seconds.copy())) or orig(costs, t))
+    F.render_frame(sel, views[0])
+    assert key not in sel.band_costs and len(sel.band_learning) == 1 and calls == []
+    F.render_frame(sel, views[0])
+    assert sel.band_costs[key].est is None and len(sel.band_learning) == 1
+    F.render_frame(sel, views[0])
+    assert sel.band_costs[key].est is not None and len(sel.band_learning) == 1
+    assert [name for name, _ in calls] == [threading.current_thread().name] * 2
+    assert not np.array_equal(calls[0][1], calls[1][1])          # two frames' times, not one twice
+
+
+def test_run_parallel_runs_meanwhile_while_the_items_run_and_waits_for_them():
+    """run_parallel's ``meanwhile`` runs in the calling thread while the pool's items run (here the items wait
+    for it), and the items are all done when run_parallel returns or raises what ``meanwhile`` raised."""
+    import threading
+    import time
+
+    from isplat.threads import run_parallel
+
+    started, done = threading.Event(), []
+
+    def item(x):
+        assert started.wait(10)
+        time.sleep(0.05)
+        done.append(x)
+        return x * x
+
+    assert run_parallel(item, range(3), 3, meanwhile=started.set) == [0, 1, 4]
+
+    def fail():
+        started.set()
+        raise RuntimeError("meanwhile failed")
+
+    started.clear()
+    done.clear()
+    with pytest.raises(RuntimeError, match="meanwhile failed"):
+        run_parallel(item, range(3), 3, meanwhile=fail)
+    assert sorted(done) == [0, 1, 2]
+    seen = []
+    assert run_parallel(lambda x: seen.append(x) or x, range(2), 1, meanwhile=lambda: seen.append("after")) == [0, 1]
+    assert seen == [0, 1, "after"]                               # one thread: after the items
 
 
 def test_a_views_shading_table_is_made_once_and_only_for_that_view(make_scene, volume):

@@ -179,21 +179,42 @@ def timings(r, frames: int, twin=None) -> dict:
     return out
 
 
+def over_passes(passes: list[dict]) -> dict:
+    """The median over passes of each of :func:`timings`' figures, and each CPU speed-up's range over them.
+
+    >>> over_passes([{"a": 1.0, "cpu_speedup2": 1.5}, {"a": 3.0, "cpu_speedup2": 1.9}, {"a": 2.0, "cpu_speedup2": 1.8}])
+    {'a': 2.0, 'cpu_speedup2': 1.8, 'cpu_speedup2_range': (1.5, 1.9)}
+    """
+    out = {key: statistics.median(p[key] for p in passes) for key in passes[0]}
+    for key in [k for k in out if k.startswith("cpu_speedup")]:
+        out[f"{key}_range"] = (min(p[key] for p in passes), max(p[key] for p in passes))
+    return out
+
+
 def predicted(serial: float, repeated: float, n: int, bands: int) -> float:
     """Speed-up on ``n`` cores: the serial share stays, the rest (with its repeated work) is shared out between
     at most ``bands`` threads (a band is one thread's)."""
     return 1.0 / (serial + (1.0 - serial) * (1.0 + repeated) / min(n, bands))
 
 
+PASSES = 3     # the timings of every scene, measured this many times, a pass over all scenes after another
+
+
 def run(out_dir: Path, quick: bool) -> Path:
     t0 = time.perf_counter()
-    rows = []
+    scenes = []
     for name, scene, aug, idx, size, extra in cases(quick):
         _log(name)
         r = _renderer(scene, aug, idx, size, *extra)
         per = {t: counts(r, t) for t in THREADS}
-        tm = timings(r, 3 if quick else 11, _renderer(scene, aug, idx, size, *extra))
-        rows.append((name, size, per, tm, r.selection.axes[per[1][1].axis].n_voxels))
+        scenes.append((name, size, per, r, _renderer(scene, aug, idx, size, *extra)))
+    passes = [[] for _ in scenes]
+    for k in range(1 if quick else PASSES):     # the host's load changes over seconds: passes spread over them
+        for (name, _, _, r, twin), got in zip(scenes, passes):
+            _log(f"timings, pass {k + 1}: {name}")
+            got.append(timings(r, 3 if quick else 11, twin))
+    rows = [(name, size, per, over_passes(got), r.selection.axes[per[1][1].axis].n_voxels)
+            for (name, size, per, r, _), got in zip(scenes, passes)]
     body = doc(rows, quick, time.perf_counter() - t0)
     path = out_dir / "worksplit.md"
     path.write_text(body + "\n")
@@ -233,7 +254,9 @@ def doc(rows, quick: bool, seconds: float) -> str:
             L.append(f"| {name} | {t} | {nb} | {st.voxels_tested:,} | {100 * rep:.1f}% | "
                      f"{predicted(serial, rep, t, nb):.2f} |")
     L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames, each timed frame after "
-          "an untimed one of its kind, as in a run of frames). Wall times suffer when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
+          "an untimed one of its kind, as in a run of frames; every scene measured in "
+          f"{1 if quick else PASSES} passes over all the scenes, one after another, and the median of the passes "
+          "given, with the CPU speed-up's range over them in the last column). Wall times suffer when other jobs take a core; CPU times (``time.thread_time`` of each rendering thread, and of the "
           "calling thread outside the parallel parts: the serial part) do not count waiting for a core, so the CPU "
           "speed-up is what 2 free cores would give, memory bandwidth aside. But this machine's two vCPUs do not "
           "always give twice the work of one, even when no other job is seen and no steal time is reported: "
@@ -244,8 +267,9 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "speed-up over that gain, which is what isplat makes of the cores the machine gives.", "",
           "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | threads' CPU, 1 thread (ms) | threads' CPU, "
           "2 threads: sum / busiest (ms) | imbalance | serial CPU, 2 threads (ms) | CPU speed-up | even bands: "
-          "2 threads (ms) | imbalance | CPU speed-up | two copies: gain | wall speed-up, of that |",
-          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "2 threads (ms) | imbalance | CPU speed-up | two copies: gain | wall speed-up, of that | CPU speed-up, "
+          "passes: least-most |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
                  f"{1e3 * (tm['work1'] + tm['rest1']):.1f} | {1e3 * (tm['work2'] + tm['rest2']):.1f} / "
@@ -253,7 +277,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
                  f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup2']:.2f} | {1e3 * tm['2e']:.1f} | "
                  f"{tm['imbalance2e']:.2f} | {tm['cpu_speedup2e']:.2f} | " + (
                      f"{2 * tm['1'] / tm['pair']:.2f} | {tm['1'] / tm['2'] / (2 * tm['1'] / tm['pair']):.2f} |"
-                     if "pair" in tm else " | |"))
+                     if "pair" in tm else " | |") + " {:.2f}-{:.2f} |".format(*tm["cpu_speedup2_range"]))
     L += ["", "2 threads: each frame's bands cut where the frames before it found equal work "
           "(``isplat.frame.band_rows``: the CPU time of each band, spread over its rows; the first frame, "
           "not counted, cuts evenly). *Even bands*: frames that learn nothing, as the first frame of a process "

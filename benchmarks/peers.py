@@ -856,8 +856,9 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
          "the per-round ratios (frames of a round run back to back, so the ratio is less sensitive to other load "
          "on this shared machine than the absolute times). *cold*: the same ratio for the first frame of each "
          "pair, which finds the caches as the other renderer's frames left them (each renderer's data pushed out "
-         "by the other's), a use neither renderer has on its own. isplat: `Renderer.render_view` (loading not timed), threads = all cores; "
-         "VTK: `renderWindow.Render()` with the same thread count. Error: RMSE and PSNR over RGB in [0, 1] against "
+         "by the other's), a use neither renderer has on its own. isplat: `Renderer.render_view` (loading not "
+         "timed), threads = all cores; VTK: `renderWindow.Render()` with the same thread count. Error: RMSE and "
+         "PSNR over RGB in [0, 1] against "
          "reference (a) (docs/reference.md: the converged float64 ray integral of the same 8-bit densities, "
          "trilinear, transfer function after interpolation, step 0.05 voxel), which is neither renderer; VTK's "
          "image is read back as 8 bits.", "",
@@ -868,7 +869,8 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
         i, v1, v05 = _pt(r, "isplat defaults"), _pt(r, "VTK 1"), _pt(r, "VTK 0.5")
         cold = r["paired"].get("VTK 1, cold")
         L.append(f"| {r['case']} | {r['size']} | {i['ms']:.1f} | {v1['ms']:.1f} | {r['paired']['VTK 1']:.2f} | "
-                 f"{'' if cold is None else f'{cold:.2f}'} | {v05['ms']:.1f} | {r['paired']['VTK 0.5']:.2f} | {_psnr(i['err'])} | {_psnr(v1['err'])} | "
+                 f"{'' if cold is None else f'{cold:.2f}'} | {v05['ms']:.1f} | {r['paired']['VTK 0.5']:.2f} | "
+                 f"{_psnr(i['err'])} | {_psnr(v1['err'])} | "
                  f"{_psnr(v05['err'])} | {_psnr(r['between'])} |")
     L += ["", "#### Where isplat is slower, and why", ""] + slower_text(results, mem, proc) + [""]
     L += ["#### Every point", "",

@@ -476,9 +476,9 @@ buffers, until the next frame learns from it)."""
 
 def learn_pending(sel) -> None:
     """Learn from the frames rendered since the last call (``sel.band_learning``: each frame's band costs and
-    :data:`BandTimes`, :func:`learn_bands`), oldest first. :func:`render_frame` calls it while the next frame's threads
-    render, so that the learning (Python, a few tenths of a millisecond) is not a serial part of any frame;
-    the bands then follow the frames before the last one."""
+    :data:`BandTimes`, :func:`learn_bands`), oldest first. :func:`render_frame` calls it while the next
+    frame's threads render, so that the learning (Python, a few tenths of a millisecond) is not a serial part
+    of any frame; the bands then follow the frames before the last one."""
     while True:
         try:
             costs, setup = sel.band_learning.pop(0)     # one caller learns each frame, also from two threads
@@ -490,9 +490,10 @@ def learn_pending(sel) -> None:
 def learn_bands(costs: dict, setup: Setup) -> None:
     """Learn from the frame (``setup``: its bands' rows and times, view and threads) where the next frames'
     bands go (``costs``: a selection's ``band_costs``). The first frame of a kind only marks it seen: its times
-    hold one-time costs (fresh memory, cold caches) that bands cut by them would follow. The second starts the profile of the work per tile row (:func:`_profile`), and the bands move
-    (:func:`_next_bands`) only on a profile of two frames or more, so that one frame's noise does not move them.
-    A frame whose busiest thread worked at most BALANCE_SLACK above the mean changes nothing."""
+    hold one-time costs (fresh memory, cold caches) that bands cut by them would follow. The second starts the
+    profile of the work per tile row (:func:`_profile`), and the bands move (:func:`_next_bands`) only on a
+    profile of two frames or more, so that one frame's noise does not move them. A frame whose busiest thread
+    worked at most BALANCE_SLACK above the mean changes nothing."""
     if len(setup.rows) < 2 or setup.empty:
         return
     key, threads = _balance_key(setup.view, setup.threads), setup.threads

@@ -36,11 +36,11 @@ _ANNOUNCED = []
 
 def _announce_compile(cache_path: str) -> None:
     """Say once per process, as an INFO log line (shown by the command line unless ``-q``), that kernels are
-    being compiled: the first run on a machine spends 15-30 s there before any output."""
+    being compiled: the first run on a machine spends 10-20 s there before any output (docs/startup.md)."""
     if not _ANNOUNCED:
         _ANNOUNCED.append(cache_path)
         logging.getLogger(__name__).info(
-            f"isplat: compiling the kernels for this machine, once (15-30 s; later runs load them from "
+            f"isplat: compiling the kernels for this machine, once (10-20 s; later runs load them from "
             f"numba's cache, {cache_path})")
 
 

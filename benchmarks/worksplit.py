@@ -124,22 +124,22 @@ def pair_frame(copies, views) -> float:
     return time.perf_counter() - t
 
 
-def timings(r, frames: int, twin=None) -> dict:
+def timings(r, twin, frames: int) -> dict:
     """Medians over interleaved frames on 1 and 2 threads: wall time, serial CPU time, the threads' CPU time in
     the kernels (total and the busiest thread's); and the set-up alone (``prepare``). Frames "2" cut their
     bands by the frames before them (``isplat.frame.band_rows``; the first round, not counted, learns); frames
     "2e" always take even bands, as a first frame does. Each timed frame follows an untimed one of its kind, as
     a run of frames does (a frame after one of another kind runs on caches that frame left: a 2-thread frame
-    after a 1-thread one took measurably longer), and the kinds take turns in both orders. With ``twin`` (a
-    second renderer of the same scene), "pair": two one-thread frames at once, one of each (:func:`pair_frame`)."""
+    after a 1-thread one took measurably longer), and the kinds take turns in both orders. "pair": two one-thread
+    frames at once, one of ``r`` and one of ``twin`` (a second renderer of the same scene, :func:`pair_frame`)."""
     from isplat import frame as F
 
     views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2), "2e": on_threads(r.views[0], 2)}
     runs = {key: [] for key in views}
     learned = {key: {} for key in views}      # what each kind's frames learned of their bands ("2e": nothing)
     prep, pairs = [], []
-    pair_views = None if twin is None else (views["1"], on_threads(twin.views[0], 1))
-    kinds = list(views) + ([] if twin is None else ["pair"])
+    pair_views = (views["1"], on_threads(twin.views[0], 1))
+    kinds = [*views, "pair"]
     for i in range(frames + 1):
         for key in (kinds if i % 2 else kinds[::-1]):
             for timed in (False, True):   # after a frame of the same kind: not paying for the caches another left
@@ -161,9 +161,7 @@ def timings(r, frames: int, twin=None) -> dict:
         F.prepare(r.selection, views["2"])
         prep.append(time.perf_counter() - t)
     med = statistics.median
-    out = {"prepare": med(prep[1:])}
-    if pairs:
-        out["pair"] = med(pairs[1:])
+    out = {"prepare": med(prep[1:]), "pair": med(pairs[1:])}
     for key, rs in runs.items():
         rs = rs[1:]
         out[key] = med(x["wall"] for x in rs)
@@ -212,7 +210,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     for k in range(1 if quick else PASSES):     # the host's load changes over seconds: passes spread over them
         for (name, _, _, r, twin), got in zip(scenes, passes):
             _log(f"timings, pass {k + 1}: {name}")
-            got.append(timings(r, 3 if quick else 11, twin))
+            got.append(timings(r, twin, 3 if quick else 11))
     rows = [(name, size, per, over_passes(got), r.selection.axes[per[1][1].axis].n_voxels)
             for (name, size, per, r, _), got in zip(scenes, passes)]
     body = doc(rows, quick, time.perf_counter() - t0)
@@ -277,9 +275,9 @@ def doc(rows, quick: bool, seconds: float) -> str:
                  f"{1e3 * (tm['work1'] + tm['rest1']):.1f} | {1e3 * (tm['work2'] + tm['rest2']):.1f} / "
                  f"{1e3 * (tm['busiest2'] + tm['rest_busiest2']):.1f} | {tm['imbalance2']:.2f} | "
                  f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup2']:.2f} | {1e3 * tm['2e']:.1f} | "
-                 f"{tm['imbalance2e']:.2f} | {tm['cpu_speedup2e']:.2f} | " + (
-                     f"{2 * tm['1'] / tm['pair']:.2f} | {tm['1'] / tm['2'] / (2 * tm['1'] / tm['pair']):.2f} |"
-                     if "pair" in tm else " | |") + " {:.2f}-{:.2f} |".format(*tm["cpu_speedup2_range"]))
+                 f"{tm['imbalance2e']:.2f} | {tm['cpu_speedup2e']:.2f} | {2 * tm['1'] / tm['pair']:.2f} | "
+                 f"{tm['1'] / tm['2'] / (2 * tm['1'] / tm['pair']):.2f} | "
+                 "{:.2f}-{:.2f} |".format(*tm["cpu_speedup2_range"]))
     L += ["", "2 threads: each frame's bands cut where the frames before it found equal work "
           "(``isplat.frame.band_rows``: the CPU time of each band, spread over its rows; the first frame, "
           "not counted, cuts evenly). *Even bands*: frames that learn nothing, as the first frame of a process "

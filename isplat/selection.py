@@ -142,7 +142,7 @@ class Selection:
     slab: tuple | None = None              # (axis, c0, c1): ``whole`` holds only these slices (post, a slab)
     # per kind of frame, the work per image tile row its frames found (isplat.frame.learn_bands)
     band_costs: dict = field(default_factory=dict, init=False, repr=False, compare=False)
-    # frames whose bands are still to be learned from: (band_costs, set-up) (isplat.frame.learn_pending)
+    # frames whose bands are still to be learned from: (band_costs, frame.BandTimes) (frame.learn_pending)
     band_learning: list = field(default_factory=list, init=False, repr=False, compare=False)
 
     @property

@@ -175,12 +175,84 @@ try:
             return None if data is None else self._impl.rebuild(target_context, data)
 
     # ISPLAT_NUMBA_STOCK_LOAD=1: numba's own loading, refresh included (docs/startup.md measures both)
-    _FAST_LOAD = (all(hasattr(FunctionCache, a) for a in ("_load_overload", "_guard_against_spurious_io_errors"))
-                  and os.environ.get("ISPLAT_NUMBA_STOCK_LOAD", "") != "1")
-    _CACHE = _CacheLoad if _FAST_LOAD else _Stamped
+    _CACHE = _CacheLoad
 except ImportError:               # another numba layout: its own cache, refresh included
-    _FAST_LOAD = False
     _CACHE = None
+
+
+# numba's private cache API that _Stamped and _CacheLoad use, as (owner, attribute, its parameters); tested on
+# the numba versions pyproject.toml admits (tests/test_frame.py: test_numba_cache_internals_are_as_tested)
+_PRIVATE_API = (
+    ("numba.core.caching.FunctionCache", "__init__", ("self", "py_func")),
+    ("numba.core.caching.FunctionCache", "_load_overload", ("self", "sig", "target_context")),
+    ("numba.core.caching.FunctionCache", "_guard_against_spurious_io_errors", ("self",)),
+    ("numba.core.caching.FunctionCache", "_index_key", ("self", "sig", "codegen")),
+    ("numba.core.caching.FunctionCache", "_impl_class", None),
+    ("numba.core.caching.FunctionCache", "_cache_path", None),
+    ("numba.core.caching.FunctionCache", "_cache_file", None),
+    ("numba.core.caching.CompileResultCacheImpl", "rebuild", ("self", "target_context", "payload")),
+    ("numba.core.caching.CompileResultCacheImpl", "filename_base", None),
+    ("numba.core.caching.IndexDataCacheFile", "__init__", ("self", "cache_path", "filename_base", "source_stamp")),
+    ("numba.core.caching.IndexDataCacheFile", "load", ("self", "key")),
+    ("numba.core.caching.IndexDataCacheFile", "_source_stamp", None),
+    ("numba.core.runtime.rtsys", "initialize", ("ctx",)),
+)
+
+
+def private_api_problem() -> str | None:
+    """What of numba's private cache API (``_PRIVATE_API``) is not as isplat was tested on, or None. When not
+    None, kernels load through numba's own cache object (registries refreshed: a slower start, the same
+    code), and :func:`_compiled` says so once as a log line."""
+    import importlib
+    import inspect
+
+    for owner, attr, params in _PRIVATE_API:
+        mod, _, name = owner.rpartition(".")
+        try:
+            obj = getattr(importlib.import_module(mod), name)
+        except (ImportError, AttributeError):
+            return f"{owner} is missing"
+        if not hasattr(obj, attr) and f"self.{attr} =" not in _init_source(obj):     # set in __init__
+            return f"{owner}.{attr} is missing"
+        if params is not None:
+            try:
+                got = tuple(inspect.signature(getattr(obj, attr)).parameters)
+            except (TypeError, ValueError):
+                return f"{owner}.{attr} has no signature"
+            if got != params:
+                return f"{owner}.{attr} takes ({', '.join(got)}), not ({', '.join(params)})"
+    return None
+
+
+def _init_source(cls) -> str:
+    """The source of ``cls.__init__`` (an attribute set there, like ``filename_base``, is not on the class)."""
+    import inspect
+
+    try:
+        return inspect.getsource(cls.__init__)
+    except (OSError, TypeError):
+        return ""
+
+
+_MOVED = private_api_problem() if _CACHE is not None else "numba.core.caching is missing"
+_FAST_LOAD = _MOVED is None and os.environ.get("ISPLAT_NUMBA_STOCK_LOAD", "") != "1"
+if _MOVED is not None:
+    _CACHE = None                   # numba's own cache (its own stamp: a changed stage's callers may stay stale)
+elif not _FAST_LOAD:
+    _CACHE = _Stamped
+_SAID_MOVED = []
+
+
+def _say_moved() -> None:
+    """One log line per process when numba's internals are not as tested (:func:`private_api_problem`)."""
+    if _MOVED is not None and not _SAID_MOVED:
+        _SAID_MOVED.append(True)
+        import numba
+
+        logging.getLogger(__name__).warning(
+            f"isplat: numba {numba.__version__}'s cache internals are not those isplat was tested on ({_MOVED}); "
+            f"kernels load through numba's own cache (a slower start). pyproject.toml lists the numba "
+            f"versions tested")
 
 
 INTERNAL = {"no_cpython_wrapper": True, "no_cfunc_wrapper": True}
@@ -216,6 +288,7 @@ def _compiled(options: dict, fn, stage: bool = False):
     """``numba.jit(**options)(fn)``; with ``cache``, :class:`_CacheLoad` (or :class:`_Stamped`) as its cache; a
     ``stage`` (called from compiled code only) without Python's wrappers (:class:`_Stage`)."""
     stage = stage and _STAGES
+    _say_moved()
     if stage:
         options = {**options, **INTERNAL}
     cached = _CACHE is not None and options.get("cache")

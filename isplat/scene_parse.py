@@ -21,7 +21,7 @@ from .scene_schema import (CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS, D
                            DEFAULT_PATH_FRAMES, FOV_MAX, IMAGE_KEYS, KEYS_SINCE, LIGHT_KEYS, ORTHONORMAL_TOLERANCE,
                            PARALLEL_TOLERANCE, RENDER_KEYS, SCENE_VERSION, SHADING_KEYS, SUPERSAMPLE_MAX, TOP_KEYS,
                            TRANSFER_KEYS, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light, RenderOptions,
-                           Scene, Shading, Transfer, Vec3, Volume, _unit, default_for, defaults, spacing_problem)
+                           Scene, Shading, Transfer, Vec3, Volume, default_for, defaults, spacing_problem, unit)
 from .scene_validate import Ctx, Table, dotted, fmt, kind
 
 __all__ = ["build_scene", "DensityWindow", "WindowUnavailable", "NO_WINDOW"]
@@ -127,11 +127,11 @@ def _axes(path: tuple, raw: Any, ctx: Ctx) -> tuple[Vec3, Vec3, Vec3]:
     if worst > ORTHONORMAL_TOLERANCE:
         ctx.fail(path, raw, f"{expected}; off by {worst:.3g} (tolerance {ORTHONORMAL_TOLERANCE:g})")
     # Gram-Schmidt in i, j, k order removes the rounding of typed-in values
-    i = _unit(vecs[0])
-    j = _unit(_sub(vecs[1], tuple(_dot(vecs[1], i) * x for x in i)))
+    i = unit(vecs[0])
+    j = unit(_sub(vecs[1], tuple(_dot(vecs[1], i) * x for x in i)))
     k = vecs[2]
     k = _sub(k, tuple(_dot(k, i) * x for x in i))
-    k = _unit(_sub(k, tuple(_dot(k, j) * x for x in j)))
+    k = unit(_sub(k, tuple(_dot(k, j) * x for x in j)))
     return (i, j, k)
 
 
@@ -224,7 +224,7 @@ def _paper(t: Table, cam: Camera) -> Camera:
     if _sin_angle(v, view_plane_normal) < PARALLEL_TOLERANCE:
         t.fail("view_up", "must not be parallel to view_plane_normal")
     # v is taken in the view plane (its component along w removed), as PHIGS does with the view-up vector
-    view_up = _unit(_sub(v, tuple(_dot(v, view_plane_normal) * x for x in view_plane_normal)))
+    view_up = unit(_sub(v, tuple(_dot(v, view_plane_normal) * x for x in view_plane_normal)))
     eye = None
     if cam.projection == "perspective":
         if "eye" not in t:

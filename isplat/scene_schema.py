@@ -37,7 +37,8 @@ SUPERSAMPLE_MAX = 8
 DEFAULT_LIGHT_DIRECTION = (-0.4, 0.6, 1.0)   # towards the light, camera space; normalised as typed-in ones are
 
 
-def _unit(a) -> Vec3:
+def unit(a) -> Vec3:
+    """``a`` scaled to length 1."""
     n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
     return (a[0] / n, a[1] / n, a[2] / n)
 
@@ -108,7 +109,7 @@ class Transfer:
 
 @dataclass(frozen=True)
 class Light:
-    direction: Vec3 = _unit(DEFAULT_LIGHT_DIRECTION)
+    direction: Vec3 = unit(DEFAULT_LIGHT_DIRECTION)
     intensity: float = 1.0
     color: Vec3 = (1.0, 1.0, 1.0)
 

@@ -103,6 +103,15 @@ def test_window_provider_is_asked_once_and_only_for_data_units(tmp_path, monkeyp
     assert str(info.value) == 's.toml:6: transfer.units = "data": no window here'
 
 
+def test_scene_reader_imports_no_hdf5():
+    """Only isplat.scene.augmented_window opens the augmented file, and imports its reader when called."""
+    import subprocess
+    import sys
+
+    code = "import sys, isplat.scene; print(sorted(m for m in ('h5py', 'isplat.augfile') if m in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout == "[]\n"
+
+
 def test_preset_overridable_key_by_key(tmp_path):
     base = _scene(tmp_path, 'preset = "ct-bone"', window=(-1024, 3071)).transfer
     over = _scene(tmp_path, 'preset = "ct-bone"\nopacity = [[500, 0], [600, 1]]', window=(-1024, 3071)).transfer

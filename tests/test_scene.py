@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 
 from isplat.errors import IsplatError
 from isplat.scene import (CAMERA_KEYS, CUT_KEYS, DATA_KEYS, IMAGE_KEYS, LIGHT_KEYS, RENDER_KEYS, SHADING_KEYS,
-                          TOP_KEYS, TRANSFER_KEYS, VIEWS_KEYS, VOLUME_KEYS, Camera, Scene, load_scene, locate_keys,
-                          parse_scene, scene_to_dict)
+                          TOP_KEYS, TRANSFER_KEYS, VIEWS_KEYS, VOLUME_KEYS, Camera, Image, RenderOptions, Scene,
+                          Shading, Transfer, Volume, load_scene, locate_keys, parse_scene, scene_to_dict)
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "formats" / "examples" / "scene"
@@ -113,6 +113,16 @@ def test_defaults():
     assert (r.method, r.early_termination, r.footprint_radius, r.footprint_sigma, r.footprint_table, r.precision,
             r.threads) == ("indexed", 0.99, 2.5, 0.7, 1024, "float32", 0)
     assert s.views == (s.camera,)
+
+
+def test_defaults_are_the_dataclass_defaults():
+    """Each default is written once, on the schema's dataclass: an absent key gives the field's default."""
+    s = parse(BASE)
+    assert (s.image, s.volume, s.camera, s.shading, s.render) == (Image(), Volume(), Camera(), Shading(),
+                                                                  RenderOptions())
+    assert s.transfer == Transfer(s.transfer.opacity) and s.fps == 12.0
+    assert parse("version = 3\n" + BASE).render == RenderOptions(classification="pre")
+    assert parse(BASE + '[render]\nsheets = "image"\n').render == RenderOptions(sheets="image", classification="pre")
 
 
 def test_types_are_python_floats_and_tuples():

@@ -70,6 +70,48 @@ def test_data_units_converted_through_the_recorded_window(tmp_path):
     assert t.opacity == ((10, 0), (20, 1)) and t.density_window is None
 
 
+def test_window_provider_is_asked_once_and_only_for_data_units(tmp_path, monkeypatch):
+    """The parser opens no file: the window comes from the caller, a provider asked lazily (once per scene)."""
+    import isplat.augfile
+    from isplat.scene import DensityWindow, WindowUnavailable
+
+    def no_io(*args):
+        raise AssertionError("the parser opened a file")
+
+    monkeypatch.setattr(isplat.augfile, "open_augmented", no_io)
+    calls = []
+
+    def provider(data):
+        calls.append(data.written)
+        return DensityWindow((-1024.0, 3071.0), "ct.aug.h5", "ct.nii", "HU")
+
+    data = ('units = "data"\nopacity = [[300, 0], [1000, 1]]\ncolor = [[300, 1, 1, 1]]\n'
+            'gradient_opacity = [[0, 0], [9, 1]]')
+    for transfer, n in (("opacity = [[10, 0], [20, 1]]", 0), ('preset = "mri-t1-head"', 0), (data, 1),
+                        ('preset = "ct-bone"', 1)):
+        calls.clear()
+        t = _scene(tmp_path, transfer, window=provider).transfer
+        assert calls == ["v.aug.h5"] * n and t.density_window == ((-1024.0, 3071.0) if n else None)
+    with pytest.raises(IsplatError, match=r"of ct\.aug\.h5; re-augment .*isplat augment ct\.nii "):
+        _scene(tmp_path, 'units = "data"\nopacity = [[300, 0], [5000, 1]]', window=provider)
+
+    def unavailable(data):
+        raise WindowUnavailable("no window here")
+
+    with pytest.raises(IsplatError) as info:
+        _scene(tmp_path, 'units = "data"\nopacity = [[300, 0], [1000, 1]]', window=unavailable)
+    assert str(info.value) == 's.toml:6: transfer.units = "data": no window here'
+
+
+def test_scene_reader_imports_no_hdf5():
+    """Only isplat.scene.augmented_window opens the augmented file, and imports its reader when called."""
+    import subprocess
+    import sys
+
+    code = "import sys, isplat.scene; print(sorted(m for m in ('h5py', 'isplat.augfile') if m in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout == "[]\n"
+
+
 def test_preset_overridable_key_by_key(tmp_path):
     base = _scene(tmp_path, 'preset = "ct-bone"', window=(-1024, 3071)).transfer
     over = _scene(tmp_path, 'preset = "ct-bone"\nopacity = [[500, 0], [600, 1]]', window=(-1024, 3071)).transfer

@@ -1,0 +1,220 @@
+"""The scene schema: its frozen dataclasses (the contract with the renderer) with every default written once, as
+the field's default, the known keys of each table, the version table and the limits the checks use.
+
+The reader (isplat.scene_parse) takes an absent key's value from :func:`defaults` of the dataclass; the few
+defaults that depend on other keys or on the file's ``version`` are said next to the field and in
+:data:`DEFAULTS_BEFORE`. formats/scene.md is the user's copy of this.
+
+>>> defaults(RenderOptions)["early_termination"], defaults(Image)["background"]
+(0.99, (0.0, 0.0, 0.0, 1.0))
+>>> [default_for(v, RenderOptions, "render", "classification") for v in (3, 4, None)]
+['pre', 'post', 'post']
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import MISSING, dataclass, fields
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "Scene", "Data", "Image", "Volume", "Camera", "Transfer",
+    "Shading", "Light", "Cut", "RenderOptions", "defaults", "default_for", "spacing_problem",
+]
+
+SCENE_VERSION = 4
+# keys added by each version after 1: a file that says an older version must not use them
+KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
+              ("views", "fps"): 2, ("render", "sheets"): 3,
+              ("render", "classification"): 4, ("render", "supersample"): 4}
+# defaults a version changed: (table, key) -> (that version, the default of a file that says an older one)
+DEFAULTS_BEFORE = {("render", "classification"): (4, "pre")}
+
+Vec3 = tuple[float, float, float]
+SUPERSAMPLE_MAX = 8
+DEFAULT_LIGHT_DIRECTION = (-0.4, 0.6, 1.0)   # towards the light, camera space; normalised as typed-in ones are
+
+
+def unit(a) -> Vec3:
+    """``a`` scaled to length 1."""
+    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    return (a[0] / n, a[1] / n, a[2] / n)
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Output dataclasses (the contract with the renderer); a field's default is the value of an absent key
+
+@dataclass(frozen=True)
+class Data:
+    augmented: Path | None       # None: a scene for a volume in memory (parse_scene(data_required=False))
+    index: Path | None
+
+    @property
+    def written(self) -> str:
+        """The augmented path for messages: as written in the scene (set by the reader), else resolved."""
+        return self.__dict__.get("_written", str(self.augmented))
+
+
+@dataclass(frozen=True)
+class Image:
+    width: int = 256
+    height: int = 256
+    background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)   # an RGB one gets alpha 1
+    bit_depth: int = 8
+
+
+@dataclass(frozen=True)
+class Volume:
+    spacing: Vec3 | None = None   # None: the augmented file's
+    origin: Vec3 | None = None
+    axes: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class Camera:
+    projection: str = "orthographic"
+    mode: str = "orbit"           # absent: the mode whose keys are given (isplat.scene_parse._camera_mode)
+    azimuth: float = 0.0
+    elevation: float = 0.0
+    distance: float | None = None
+    roll: float = 0.0
+    target: Vec3 | None = None
+    up: Vec3 = (0.0, 0.0, 1.0)
+    position: Vec3 | None = None
+    look_at: Vec3 | None = None
+    reference_point: Vec3 | None = None
+    view_up: Vec3 | None = None
+    view_plane_normal: Vec3 | None = None
+    eye: Vec3 | None = None
+    zoom: float = 1.0
+    fov: float = 30.0
+    near: float = 0.0
+
+
+@dataclass(frozen=True)
+class Transfer:
+    """Always in density codes (0..255) for the renderer; ``units``, ``preset`` and ``density_window`` record
+    what the scene said and the window its data-unit points were converted through (None for codes only)."""
+
+    opacity: tuple[tuple[float, float], ...]   # required, unless a preset gives it
+    color: tuple[tuple[float, float, float, float], ...] = ((0.0, 1.0, 1.0, 1.0),)   # white; a preset's
+    gradient_opacity: tuple[tuple[float, float], ...] = ()
+    unit_distance: float = 0.0    # 0 = renderer default; a preset's
+    units: str = "code"           # "data" with a preset
+    preset: str | None = None
+    density_window: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class Light:
+    direction: Vec3 = unit(DEFAULT_LIGHT_DIRECTION)
+    intensity: float = 1.0
+    color: Vec3 = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Shading:
+    enabled: bool = True
+    ambient: float = 0.25
+    diffuse: float = 0.75
+    specular: float = 0.3
+    shininess: float = 24.0
+    two_sided: bool = True
+    lights: tuple[Light, ...] = (Light(),)   # without [[shading.light]]; none when shading is off
+
+
+@dataclass(frozen=True)
+class Cut:
+    point: Vec3 = (0.0, 0.0, 0.0)
+    normal: Vec3 = (1.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    method: str = "indexed"
+    early_termination: float = 0.99
+    footprint_radius: float = 2.5
+    footprint_sigma: float = 0.7
+    footprint_table: int = 1024
+    precision: str = "float32"
+    threads: int = 0
+    sheets: str = "axis"          # "axis": a sheet per slice; "image": slabs parallel to the image plane
+    classification: str = "post"  # "pre": each voxel classified, then splatted; "post": density splatted,
+                                  # then classified (isplat.splat.post). "pre" for image sheets and files that
+                                  # say version < 4 (DEFAULTS_BEFORE)
+    supersample: int = 1          # render at N times the width and height, box-filtered down
+
+
+@dataclass(frozen=True)
+class Scene:
+    path: Path | None
+    data: Data
+    image: Image
+    volume: Volume
+    camera: Camera
+    transfer: Transfer
+    shading: Shading
+    cuts: tuple[Cut, ...]
+    render: RenderOptions
+    views: tuple[Camera, ...]
+    fps: float = 12.0            # frames per second of a GIF or MP4 of the views
+
+
+@cache
+def defaults(cls: type) -> dict[str, Any]:
+    """The field defaults of a schema dataclass: the values of absent keys."""
+    return {f.name: f.default for f in fields(cls) if f.default is not MISSING}
+
+
+def default_for(version: Any, cls: type, table: str, key: str) -> Any:
+    """``cls``'s default for ``key``, or the older default for a file whose ``version`` predates a change."""
+    since, older = DEFAULTS_BEFORE.get((table, key), (None, None))
+    if since is not None and isinstance(version, int) and version < since:
+        return older
+    return defaults(cls)[key]
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Known keys per table, and the limits of the checks
+
+TOP_KEYS = ("version", "data", "image", "volume", "camera", "transfer", "shading", "cut", "render", "views")
+DATA_KEYS = ("augmented", "index")
+IMAGE_KEYS = ("width", "height", "background", "bit_depth")
+VOLUME_KEYS = ("spacing", "origin", "axes")
+CAMERA_COMMON_KEYS = ("projection", "mode", "up", "roll", "zoom", "fov", "near")
+CAMERA_MODE_KEYS = {
+    "orbit": ("azimuth", "elevation", "distance", "target"),
+    "look_at": ("position", "look_at"),
+    "paper": ("reference_point", "view_up", "view_plane_normal", "eye"),
+}
+CAMERA_KEYS = CAMERA_COMMON_KEYS + tuple(k for keys in CAMERA_MODE_KEYS.values() for k in keys)
+TRANSFER_KEYS = ("opacity", "color", "gradient_opacity", "unit_distance", "units", "preset")
+SHADING_KEYS = ("enabled", "ambient", "diffuse", "specular", "shininess", "two_sided", "light")
+LIGHT_KEYS = ("direction", "intensity", "color")
+CUT_KEYS = ("point", "normal")
+RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
+               "precision", "threads", "sheets", "classification", "supersample")
+VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
+DEFAULT_ORBIT_STEPS = 0      # views.orbit_steps: 0 = no orbit
+DEFAULT_PATH_FRAMES = 60     # views.frames of a views.path
+
+ORTHONORMAL_TOLERANCE = 1e-3
+# sin of the smallest angle accepted between an up vector and the viewing direction
+PARALLEL_TOLERANCE = 1e-6
+MAX_SPACING_RATIO = 1e6       # beyond it the thin axis's voxels project to nothing (docs/reliability.md)
+SPACING_RANGE = (1e-30, 1e30)  # beyond it world coordinates lose the precision the camera needs
+FOV_MAX = 180.0 * (1 - 1e-3)  # a wider field of view (within 1e-3 of 180, relative) leaves nothing visible
+
+
+def spacing_problem(spacing) -> str | None:
+    """Why a voxel spacing cannot give a visible image (None when it can): degenerate ratios or magnitudes."""
+    lo, hi = min(spacing), max(spacing)
+    if not (SPACING_RANGE[0] <= lo and hi <= SPACING_RANGE[1]):
+        return (f"spacing outside {SPACING_RANGE[0]:g}..{SPACING_RANGE[1]:g} world units loses the precision "
+                f"the camera needs; rescale the units")
+    if hi / lo > MAX_SPACING_RATIO:
+        return (f"spacing ratio {hi / lo:.3g} exceeds {MAX_SPACING_RATIO:g}: the volume is flat to within a "
+                f"pixel and renders as nothing")
+    return None

@@ -6,6 +6,14 @@ import pytest
 
 os.environ.setdefault("ISPLAT_PROGRESS", "0")
 
+# Property tests draw the same examples on every run (CI included), so a red run is repeatable and a green one
+# is not luck; HYPOTHESIS_PROFILE=explore draws new ones (and keeps what fails in .hypothesis/).
+from hypothesis import settings  # noqa: E402
+
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
+
 
 def write_volume(tmp: Path, density, spacing=(1.0, 1.0, 1.0), name="v", gm=None, normal=None, gscale=1.0,
                  index=True):

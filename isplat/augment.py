@@ -394,17 +394,25 @@ def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None) -> dict:
 
 
 def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, dtype=None,
-                 byte_order="little", header_bytes=0, level=None, series=None, thin_slices=None) -> dict:
+                 byte_order="little", header_bytes=0, level=None, series=None, thin_slices=None,
+                 orientation=None) -> dict:
     """Augment the volume at ``inp`` (see :func:`isplat.volume_io.read_volume`) into ``out`` atomically.
 
     ``thin_slices``: a ratio (e.g. :data:`isplat.resample.THICK_RATIO`): axes whose spacing exceeds it times
     the smallest are first refined by linear interpolation (:func:`isplat.resample.thin_slices`; the volume
-    is then held in memory). Returns a summary dict (shape, window, gradient scale, sha256).
+    is then held in memory). ``orientation``: a code such as ``LPS`` (:mod:`isplat.orientation`) giving the
+    patient directions of i, j, k, over the file's. Returns a summary dict (shape, window, gradient scale,
+    sha256, ``axes_lps`` or None, and where spacing and orientation came from).
     """
     check_output(out, force)  # fail before any work
     vol = read_volume(inp, shape=shape, dtype=dtype, byte_order=byte_order, header_bytes=header_bytes,
                       spacing=spacing, level=level, series=series, stream=True)
     name = str(inp)
+    if orientation is not None:
+        from .orientation import axes_from_code
+
+        vol.meta["axes_lps"] = axes_from_code(orientation, "--orientation")
+        vol.meta["orientation_source"] = "--orientation"
     if thin_slices:
         from .resample import thin_volume
 
@@ -415,6 +423,9 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
              "density_window_method": sl.method}
     if sl.method.startswith("Hounsfield") or vol.meta.get("hounsfield"):
         extra["density_units"] = "HU"
+    axes = vol.meta.get("axes_lps")
+    if axes is not None:
+        extra["axes_lps"] = np.asarray(axes, dtype="<f8")
     log.debug(f"isplat augment: read {name} ({extra['source_format']}, {extra['source_dtype']}, NI,NJ,NK="
               f"{','.join(map(str, vol.array.shape[::-1]))}); window {sl.lo:g},{sl.hi:g} "
               f"({sl.method}); {len(sl.ranges)} slabs")
@@ -431,4 +442,7 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
                     f["normal"][k0:k1] = nrm
     return {"shape_ijk": tuple(reversed(vol.array.shape)), "spacing_ijk": (sl.si, sl.sj, sl.sk),
             "density_window": (sl.lo, sl.hi), "gradient_magnitude_scale": gmax / 255.0, "density_sha256": sha,
-            "density_window_method": sl.method, "clipped": _clipped_shares(sl)}
+            "density_window_method": sl.method, "clipped": _clipped_shares(sl), "axes_lps": axes,
+            "source_format": extra["source_format"], "density_units": extra.get("density_units"),
+            "spacing_source": vol.meta.get("spacing_source", "the file"),
+            "orientation_source": vol.meta.get("orientation_source", f"the {extra['source_format']} header")}

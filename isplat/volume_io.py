@@ -260,7 +260,33 @@ def _read_nrrd(p):
         sp = [float(x) for x in header["spacings"]]
         if len(sp) == 3 and all(np.isfinite(sp)):
             spacing, source = tuple(sp), "NRRD 'spacings'"
-    return Volume(data, spacing, {"format": "nrrd", "source_dtype": data.dtype.name, "spacing_source": source})
+    meta = {"format": "nrrd", "source_dtype": data.dtype.name, "spacing_source": source}
+    _set_axes(meta, p, lambda: _nrrd_axes(header))
+    return Volume(data, spacing, meta)
+
+
+def _nrrd_axes(header):
+    """LPS axes from 'space directions' and a patient 'space' (RAS, LAS or LPS); None otherwise."""
+    from .orientation import in_lps
+
+    space, dirs = header.get("space"), header.get("space directions")
+    if space is None or dirs is None or str(space).lower() not in (
+            "left-posterior-superior", "right-anterior-superior", "left-anterior-superior"):
+        return None
+    rows = [r for r in dirs if r is not None]
+    return in_lps(rows, space, "NRRD 'space directions'") if len(rows) == 3 else None
+
+
+def _set_axes(meta, p, compute):
+    """``meta["axes_lps"]`` from ``compute()`` (None: no orientation); a degenerate matrix is one error line."""
+    try:
+        axes = compute()
+    except IsplatError as exc:
+        raise IsplatError(f"{p}: {exc}") from None
+    except (TypeError, ValueError, IndexError) as exc:
+        raise IsplatError(f"{p}: orientation unreadable ({_short(exc)})") from None
+    if axes is not None:
+        meta["axes_lps"] = axes
 
 
 # --- NIfTI -----------------------------------------------------------------------------------------------------
@@ -272,6 +298,9 @@ def _read_nifti(p):
         data = np.asanyarray(img.dataobj)
         zooms = img.header.get_zooms()
         inter = getattr(img.dataobj, "inter", None)
+        # NIfTI method 1 (both codes 0) has no orientation; else nibabel's best affine (sform, then qform)
+        coded = int(img.header.get("sform_code", 0)) > 0 or int(img.header.get("qform_code", 0)) > 0
+        affine = np.asarray(img.affine, dtype=np.float64) if coded else None
     except Exception as exc:
         raise IsplatError(f"{p}: not a readable NIfTI file ({_short(exc)})") from None
     if data.ndim == 4 and data.shape[3] == 1:
@@ -280,10 +309,18 @@ def _read_nifti(p):
         raise IsplatError(f"{p}: NIfTI data has shape {data.shape}; expected a 3-D volume")
     # NIfTI stores [x, y, z] with x fastest on disk; isplat indexes [k, j, i] = [z, y, x]
     arr = data.transpose(2, 1, 0)
-    return Volume(arr, tuple(float(z) for z in zooms[:3]),
-                  {"format": "nifti", "source_dtype": arr.dtype.name, "spacing_source": "NIfTI pixdim (zooms)",
-                   # dcm2niix and ITK store CT as stored values plus the scanner's rescale intercept
-                   "hounsfield": inter is not None and float(inter) in HOUNSFIELD_INTERCEPTS})
+    meta = {"format": "nifti", "source_dtype": arr.dtype.name, "spacing_source": "NIfTI pixdim (zooms)",
+            # dcm2niix and ITK store CT as stored values plus the scanner's rescale intercept
+            "hounsfield": inter is not None and float(inter) in HOUNSFIELD_INTERCEPTS}
+    # the affine's columns x, y, z (= i, j, k) are in RAS
+    _set_axes(meta, p, lambda: None if affine is None else _in_lps(affine[:3, :3].T, "ras", "NIfTI affine"))
+    return Volume(arr, tuple(float(z) for z in zooms[:3]), meta)
+
+
+def _in_lps(rows, space, what):
+    from .orientation import in_lps
+
+    return in_lps(rows, space, what)
 
 
 # --- TIFF ------------------------------------------------------------------------------------------------------
@@ -431,9 +468,12 @@ def _read_dicom(files, p, series=None):
     if len(ps) != 2:
         raise IsplatError(f"{f0}: PixelSpacing has {len(ps)} values, expected 2")
     hounsfield = str(d0.get("Modality", "")).upper() == "CT" and ("RescaleIntercept" in d0 or rescale)
-    return Volume(arr, (ps[1], ps[0], step), {"format": "dicom", "source_dtype": str(first.dtype),
-                                               "spacing_source": "DICOM PixelSpacing and slice positions",
-                                               "hounsfield": hounsfield})
+    meta = {"format": "dicom", "source_dtype": str(first.dtype),
+            "spacing_source": "DICOM PixelSpacing and slice positions", "hounsfield": hounsfield}
+    # i along a row (IOP's first vector), j down a column, k the slice normal: positions are sorted along it
+    if "ImageOrientationPatient" in d0:
+        _set_axes(meta, f0, lambda: _in_lps([iop[:3], iop[3:], normal], "lps", "ImageOrientationPatient"))
+    return Volume(arr, (ps[1], ps[0], step), meta)
 
 
 # --- MetaImage (.mha/.mhd) through SimpleITK ---------------------------------------------------------------------
@@ -468,8 +508,11 @@ def _read_metaimage(p):
         raise IsplatError(f"{p}: MetaImage has {img.GetDimension()} dimensions and "
                           f"{img.GetNumberOfComponentsPerPixel()} components per voxel; expected a 3-D scalar volume")
     arr = sitk.GetArrayFromImage(img)  # [z, y, x] = [k, j, i]
-    return Volume(arr, tuple(float(s) for s in img.GetSpacing()),
-                  {"format": "metaimage", "source_dtype": arr.dtype.name, "spacing_source": "MetaImage ElementSpacing"})
+    meta = {"format": "metaimage", "source_dtype": arr.dtype.name, "spacing_source": "MetaImage ElementSpacing"}
+    # ITK's direction: row-major, its columns the x, y, z (= i, j, k) axes in LPS
+    direction = np.asarray(img.GetDirection(), dtype=np.float64).reshape(3, 3)
+    _set_axes(meta, p, lambda: _in_lps(direction.T, "lps", "MetaImage TransformMatrix"))
+    return Volume(arr, tuple(float(s) for s in img.GetSpacing()), meta)
 
 
 # --- VTK image data (.vti) through VTK's own XML reader --------------------------------------------------------

@@ -34,14 +34,18 @@ log = logging.getLogger(__name__)
               help="OME-Zarr input: multiscale level to read (0 = full resolution, the default).")
 @click.option("--series", metavar="UID", default=None,
               help="DICOM folder with several series: the SeriesInstanceUID to read (an error lists them).")
+@click.option("--orientation", metavar="CODE", default=None,
+              help="Where i, j, k point in the patient, three letters (LPS: i to the patient's left, j posterior, "
+                   "k superior; RAS: NIfTI's identity): for input without an orientation (.npy, raw, TIFF, Zarr), "
+                   "or to override the file's. Recorded as axes_lps for named views.")
 @click.option("--index", "with_index", is_flag=True,
               help="Also build the index beside OUT (NAME.aug.h5 -> NAME.idx.h5), as `isplat index` would.")
 @click.option("--thin-slices", "thin", is_flag=True,
               help="Interpolate (linearly) along an axis whose spacing is more than twice the smallest, before "
                    "augmenting: thick CT/MR slices then render without streaks (the volume is held in memory).")
 @quiet_option
-def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, with_index,
-            thin):
+def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, orientation,
+            with_index, thin):
     """Augment INPUT into 4-byte voxels: density, gradient magnitude, octahedral normal (formats/augmented.md).
 
     INPUT is a .npy array [k,j,i], a .nrrd/.nhdr, a .nii/.nii.gz, a multi-page .tif/.tiff, a folder of
@@ -69,7 +73,8 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     shp = parse_triple(shape, "--shape", int) if shape else None
     info = augment_file(input, out, force=force, window=win, spacing=sp, shape=shp, dtype=dtype,
                         byte_order=byte_order, header_bytes=header_bytes, level=level, series=series,
-                        thin_slices=THICK_RATIO if thin else None)
+                        thin_slices=THICK_RATIO if thin else None, orientation=orientation)
+    log.info(f"isplat augment: {orientation_line(info)}")
     sp_out = info["spacing_ijk"]
     if not thin and max(sp_out) > THICK_RATIO * min(sp_out):
         log.info(f"isplat augment: spacing {','.join(f'{s:g}' for s in sp_out)}: slices "
@@ -91,3 +96,13 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
 def index_path(out: str) -> str:
     """NAME.aug.h5 -> NAME.idx.h5 (else OUT + .idx.h5)."""
     return out[: -len(".aug.h5")] + ".idx.h5" if out.endswith(".aug.h5") else out + ".idx.h5"
+
+
+def orientation_line(info: dict) -> str:
+    """The orientation recorded, and from where; or that there is none and what that means."""
+    from ..orientation import describe
+
+    if info["axes_lps"] is None:
+        return (f"no orientation in {info['source_format']} input: named views (anterior, left, ...) are not "
+                "available and the volume keeps voxel index space; give one with --orientation, e.g. LPS")
+    return f"{describe(info['axes_lps'])} (from {info['orientation_source']})"

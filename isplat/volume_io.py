@@ -1,5 +1,5 @@
 """Read a scalar volume from .npy, raw binary (file or stdin), NRRD, NIfTI, TIFF, a DICOM series, MetaImage
-(.mha/.mhd), VTK image data (.vti) or a Zarr / OME-Zarr store.
+(.mha/.mhd), VTK image data (.vti), an InVesalius project (.inv3) or a Zarr / OME-Zarr store.
 
 Every reader returns ``Volume(array[k, j, i], spacing_ijk, meta)``. Memory-mappable inputs (.npy, raw
 files) are mapped, never copied, and Zarr stores are read lazily chunk by chunk (:class:`LazyZarr`), so a
@@ -145,9 +145,11 @@ def _read_any(path, shape, dtype, byte_order, header_bytes, level, series, strea
             vol = _read_metaimage(p)
         elif low.endswith(".vti"):
             vol = _read_vti(p)
+        elif low.endswith(".inv3"):
+            vol = _read_inv3(p)
         else:
             raise IsplatError(f"{p}: unknown input format; expected .npy, .nrrd, .nhdr, .nii, .nii.gz, .tif, "
-                              ".tiff, .mha, .mhd, .vti, a TIFF or DICOM folder, a Zarr / OME-Zarr folder, "
+                              ".tiff, .mha, .mhd, .vti, .inv3, a TIFF or DICOM folder, a Zarr / OME-Zarr folder, "
                               "or raw data with --shape and --dtype")
     return vol
 
@@ -546,6 +548,50 @@ def _read_vti(p):
     arr = vtk_to_numpy(scalars).reshape(nk, nj, ni)  # VTK point order: x fastest
     return Volume(arr, tuple(float(s) for s in img.GetSpacing()),
                   {"format": "vti", "source_dtype": arr.dtype.name, "spacing_source": "VTK ImageData Spacing"})
+
+
+# --- InVesalius project (.inv3): a tar (gzip or plain) of main.plist and the raw array it names -----------------
+
+def _read_inv3(p):
+    """The image of an InVesalius 3 project: main.plist's ``matrix`` (``filename``, ``shape`` [z, y, x] =
+    [k, j, i], ``dtype``; native little-endian) and ``spacing`` (x, y, z = i, j, k). Masks and surfaces are
+    ignored; the orientation is not recorded (InVesalius keeps its own reoriented matrix)."""
+    import plistlib
+    import tarfile
+
+    try:
+        with tarfile.open(p, "r:*") as tar:
+            members = {m.name.rsplit("/", 1)[-1]: m for m in tar.getmembers() if m.isfile()}
+            if "main.plist" not in members:
+                raise IsplatError(f"{p}: InVesalius project without main.plist")
+            plist = plistlib.loads(tar.extractfile(members["main.plist"]).read())
+            name, dt, kji = _inv3_matrix(p, plist)
+            m = members.get(name)
+            need = int(np.prod(kji)) * dt.itemsize
+            if m is None or m.size != need:
+                raise IsplatError(f"{p}: InVesalius matrix {name!r} " + ("is missing" if m is None else
+                                  f"has {m.size} bytes; shape {list(kji)} of {dt.name} needs {need}"))
+            arr = np.frombuffer(tar.extractfile(m).read(), dtype=dt).reshape(kji)
+    except IsplatError:
+        raise
+    except Exception as exc:  # tarfile, gzip, zlib and plistlib raise many types for damaged files
+        raise IsplatError(f"{p}: not a readable InVesalius project ({_short(exc)})") from None
+    sp = plist.get("spacing")
+    return Volume(arr, sp if sp is not None else (1.0, 1.0, 1.0),
+                  {"format": "inv3", "source_dtype": dt.name, "spacing_source": "InVesalius project spacing"
+                   if sp is not None else "default 1,1,1 (no spacing in the InVesalius project)"})
+
+
+def _inv3_matrix(p, plist):
+    mat = plist.get("matrix") if isinstance(plist, dict) else None
+    try:
+        name, shape, dtype = str(mat["filename"]), tuple(int(n) for n in mat["shape"]), str(mat["dtype"])
+    except (TypeError, KeyError, ValueError):
+        raise IsplatError(f"{p}: main.plist has no valid 'matrix' (filename, shape, dtype)") from None
+    if dtype not in RAW_DTYPES or len(shape) != 3 or min(shape) < 1:
+        raise IsplatError(f"{p}: InVesalius matrix of shape {list(shape)} and dtype {dtype!r}; expected a 3-D "
+                          f"volume of {', '.join(RAW_DTYPES)}")
+    return name.rsplit("/", 1)[-1], np.dtype(dtype).newbyteorder("<"), shape
 
 
 # --- Zarr and OME-Zarr, read lazily --------------------------------------------------------------------------------

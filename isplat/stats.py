@@ -81,6 +81,7 @@ def augmented_section(aug) -> dict:
         "density_sha256": aug.density_sha256,
         "source": aug.attrs.get("source"),
         "source_format": aug.attrs.get("source_format"),
+        "axes_lps": None if aug.axes_lps is None else aug.axes_lps.tolist(),
         "channel_bytes": channel_bytes,
         "bytes": int(sum(channel_bytes.values())),
         "bytes_per_voxel": int(sum(np.dtype(t).itemsize for t in CHANNELS.values())),
@@ -334,6 +335,10 @@ def format_table(s: dict) -> str:
     row("density window", f"{lo:g} .. {hi:g} -> 0 .. 255 ({a['density_step']:g} input units per density code)")
     if a.get("source"):
         row("source", f"{a['source']} ({a.get('source_format') or '?'})")
+    from .orientation import describe
+
+    row("orientation", describe(a.get("axes_lps")).removeprefix("orientation ") +
+        ("" if a.get("axes_lps") is not None else " (no axes_lps: named views unavailable)"))
     for c, nb in a["channel_bytes"].items():
         row(f"channel {c}", _b(nb))
     row("channels total", f"{_b(a['bytes'])}, {a['bytes_per_voxel']} B/voxel")

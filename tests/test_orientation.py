@@ -203,6 +203,11 @@ def test_augmented_file_keeps_orientation(tmp_path):
     assert open_augmented(tmp_path / "n.aug.h5").axes_lps is None               # .npy: orientation unknown
     augment_file(tmp_path / "v.npy", tmp_path / "c.aug.h5", window=(0, 3), orientation="RAS")
     assert code_of(open_augmented(tmp_path / "c.aug.h5").axes_lps) == "RAS"
+    from isplat.stats import collect, format_table
+
+    assert "orientation                 RAS: i, j, k point to the patient's right, anterior, superior" in \
+        format_table(collect(tmp_path / "c.aug.h5"))
+    assert collect(tmp_path / "n.aug.h5")["augmented"]["axes_lps"] is None
 
 
 @pytest.mark.parametrize("value,what", [(np.eye(3) * 2, "orthonormal"), (np.eye(3)[:2], "shape"),

@@ -55,7 +55,7 @@ def code_of(axes_lps) -> str:
 
 
 def orthonormal(m, what: str = "orientation") -> np.ndarray:
-    """The orthonormal matrix nearest ``m`` (rows), same handedness; None-free: raises on a singular ``m``."""
+    """The orthonormal matrix nearest ``m`` (rows), same handedness; one error line for a singular ``m``."""
     a = np.asarray(m, dtype=np.float64)
     if a.shape != (3, 3) or not np.all(np.isfinite(a)):
         raise IsplatError(f"{what} {np.asarray(m).tolist()} is not a finite 3 x 3 matrix")

@@ -10,6 +10,7 @@ The format libraries are optional extras; a missing one gives one error line nam
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import sys
@@ -21,6 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import IsplatError
+
+log = logging.getLogger(__name__)
 
 RAW_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 BYTE_ORDERS = {"little": "<", "big": ">"}
@@ -275,18 +278,21 @@ def _nrrd_axes(header):
     if space is None or dirs is None or str(space).lower() not in (
             "left-posterior-superior", "right-anterior-superior", "left-anterior-superior"):
         return None
-    rows = [r for r in dirs if r is not None]
-    return in_lps(rows, space, "NRRD 'space directions'") if len(rows) == 3 else None
+    rows = [np.asarray(r, dtype=np.float64) for r in dirs if r is not None]
+    if len(rows) != 3 or not all(np.all(np.isfinite(r)) and r.shape == (3,) for r in rows):
+        return None
+    return in_lps(rows, space, "NRRD 'space directions'")
 
 
 def _set_axes(meta, p, compute):
-    """``meta["axes_lps"]`` from ``compute()`` (None: no orientation); a degenerate matrix is one error line."""
+    """``meta["axes_lps"]`` from ``compute()`` (None: no orientation). A degenerate or unreadable matrix does not
+    stop the read: one warning line, and the orientation is unknown."""
     try:
         axes = compute()
     except IsplatError as exc:
-        raise IsplatError(f"{p}: {exc}") from None
+        axes = log.warning(f"isplat: warning: {p}: {exc}; the orientation is taken as unknown")
     except (TypeError, ValueError, IndexError) as exc:
-        raise IsplatError(f"{p}: orientation unreadable ({_short(exc)})") from None
+        axes = log.warning(f"isplat: warning: {p}: orientation unreadable ({_short(exc)}); taken as unknown")
     if axes is not None:
         meta["axes_lps"] = axes
 

@@ -242,3 +242,15 @@ def test_named_view_azimuth_elevation(code, view, az, el):
     assert np.isclose(w @ up0, np.sin(np.radians(el)))            # elevation lifts towards the view's up
     g, _ = named_view(view, a, az, el)                           # grid world: the same vector, mapped
     assert np.allclose(g, a @ w)
+
+
+def test_singular_nifti_affine_is_a_warning_not_an_error(tmp_path, caplog):
+    nib = pytest.importorskip("nibabel")
+    hdr = nib.Nifti1Header()
+    hdr.set_data_shape((4, 5, 6))
+    hdr.set_data_dtype(np.int16)
+    hdr["sform_code"], hdr["qform_code"] = 1, 0
+    hdr["srow_x"], hdr["srow_y"], hdr["srow_z"] = [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 0]   # z collapses
+    nib.save(nib.Nifti1Image(np.zeros((4, 5, 6), np.int16), None, header=hdr), str(tmp_path / "s.nii"))
+    v = read_volume(tmp_path / "s.nii")
+    assert "axes_lps" not in v.meta and "orientation is taken as unknown" in caplog.text

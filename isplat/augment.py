@@ -465,7 +465,8 @@ def _file_attrs(vol: Volume, sl: _Slabber, name: str, hounsfield) -> dict:
 def hounsfield_reason(window, method: str, arr, meta, name="input") -> str | None:
     """Why the data are taken as Hounsfield units, whatever window was chosen, or None: the default window
     found them so, the reader says so, the values look so (:func:`looks_hounsfield`), or ``window`` is one of
-    the named CT windows (which are in Hounsfield units)."""
+    the named CT windows (which are in Hounsfield units). Unless the window or the reader already decided, this
+    reads the strided subsample of :func:`resolve_window` (at most 64 values per axis)."""
     if method.startswith("Hounsfield data ("):
         return method.split(": ")[0][len("Hounsfield data ("):-1]
     if meta.get("hounsfield"):
@@ -492,8 +493,8 @@ def clipped_note(side: str, edge: float, hounsfield: bool) -> str:
     """
     if not hounsfield:
         if side == "above":
-            return (f"all map to density 255: small bright parts such as wires or metal? --window=LO,p100 keeps "
-                    f"them apart")
+            return ("all map to density 255: small bright parts such as wires or metal? --window=LO,p100 keeps "
+                    "them apart")
         return "all map to density 0"
     if side == "above":
         first = next(name for top, name in HU_CLASSES if top > edge)

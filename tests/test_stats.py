@@ -152,8 +152,8 @@ def test_json_keys(vol, capsys):
     assert out.count("\n") == 1
     assert set(s) == {"stats_version", "augmented", "index", "scene"}
     assert {"path", "file_bytes", "shape_ijk", "voxels", "spacing_ijk", "density_window", "density_step",
-            "gradient_magnitude_scale", "density_sha256", "source", "source_format", "axes_lps", "channel_bytes", "bytes",
-            "bytes_per_voxel"} == set(s["augmented"])
+            "gradient_magnitude_scale", "density_sha256", "source", "source_format", "axes_lps", "channel_bytes",
+            "bytes", "bytes_per_voxel"} == set(s["augmented"])
     assert {"path", "file_bytes", "axes", "density_ranges", "voxels_indexed", "bytes", "bytes_per_voxel",
             "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range", "format_version",
             "values"} == set(s["index"])

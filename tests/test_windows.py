@@ -111,7 +111,8 @@ def test_spacing_said_once_with_its_source(capsys, tmp_path):
                                   "the scan's with --spacing SX,SY,SZ in i, j, k order (i the fastest axis: the last "
                                   "of a .npy's [k, j, i] shape)")
     code, _, err = run(capsys, "augment", str(p), "-o", str(tmp_path / "b.aug.h5"), "--spacing", "0.5,0.6,2.5")
-    assert code == 0 and _lines(err, "augment: spacing")[0] == "isplat augment: spacing 0.5,0.6,2.5 (i, j, k): from --spacing"
+    assert code == 0
+    assert _lines(err, "augment: spacing")[0] == "isplat augment: spacing 0.5,0.6,2.5 (i, j, k): from --spacing"
     nrrd = pytest.importorskip("nrrd")
     nrrd.write(str(tmp_path / "c.nrrd"), _ct(), {"space directions": np.diag([0.7, 0.8, 0.9]),
                                                   "space": "left-posterior-superior"}, index_order="C")

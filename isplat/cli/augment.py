@@ -55,8 +55,8 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
 
     INPUT is a .npy array [k,j,i], a .nrrd/.nhdr, a .nii/.nii.gz, a multi-page .tif/.tiff, a folder of
     TIFF slices or of DICOM files (--series picks one of several), a MetaImage .mha/.mhd, VTK image
-    data .vti, an InVesalius project .inv3, a Zarr array or OME-Zarr store (read lazily, --level picks the resolution), or raw data
-    (a file, or - for stdin) with --shape and --dtype.
+    data .vti, an InVesalius project .inv3, a Zarr array or OME-Zarr store (read lazily, --level picks
+    the resolution), or raw data (a file, or - for stdin) with --shape and --dtype.
     Densities are 8-bit through --window; gradients are central differences of the windowed density in
     physical units (spacing-aware).
 

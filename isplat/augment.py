@@ -471,6 +471,8 @@ def hounsfield_reason(window, method: str, arr, meta, name="input") -> str | Non
         return method.split(": ")[0][len("Hounsfield data ("):-1]
     if meta.get("hounsfield"):
         return f"{meta.get('format', 'file')} rescale"
+    if window is None:
+        return None                                   # the default window looked at the values already
     why = looks_hounsfield(_subsample(arr, name), meta)
     if why:
         return why

@@ -23,6 +23,7 @@ import numpy as np
 from .errors import IsplatError
 from .fileio import (ReadCounter, attr_array, attr_string, check_checked_dataset, check_string_attrs,
                      create_checked_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
+from .orientation import check_axes_lps
 
 FORMAT_NAME = "isplat-augmented"
 FORMAT_VERSION = 2
@@ -55,6 +56,7 @@ class AugmentedVolume:
     attrs: dict = field(default_factory=dict)
     bytes_read: int = 0                          # bytes of the channel slabs requested
     io: ReadCounter = field(default_factory=ReadCounter)   # what HDF5 read from the file (opening included)
+    axes_lps: np.ndarray | None = None           # rows: LPS unit vectors of i, j, k; None = orientation unknown
 
     @property
     def n_voxels(self) -> int:
@@ -111,8 +113,9 @@ def open_augmented(path) -> AugmentedVolume:
             if ds.dtype != np.dtype(dt):
                 raise IsplatError(f"{p}: dataset {name!r} has dtype {ds.dtype}, expected {np.dtype(dt)}")
             check_checked_dataset(f"{p}: dataset {name!r}", ds)
+        axes = check_axes_lps(p, attr_array(p, a, "axes_lps", "f", (3, 3))) if "axes_lps" in a else None
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
-    return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs, io=counter)
+    return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs, io=counter, axes_lps=axes)
 
 
 def write_augmented(path, density, gradient_magnitude, normal, spacing_ijk, density_window,

@@ -358,13 +358,15 @@ def _second_pass(sl: _Slabber, gmax, bar):
         yield k0, k1, d, mag, nrm
 
 
-def _prepare(vol: Volume, window, name):
+def _prepare(vol: Volume, window, name, method=None):
+    """The slabber of ``vol`` with its window: ``window`` resolved here, or already resolved (numbers) when
+    ``method`` says how it was chosen."""
     arr = vol.array
     if arr.ndim != 3:
         raise IsplatError(f"{name}: data has shape {arr.shape}; expected a 3-D volume [k, j, i]")
     if arr.dtype.kind not in "uif":
         raise IsplatError(f"{name}: data type {arr.dtype} is not supported; expected integers or floats")
-    win, method = resolve_window(window, arr, vol.meta, name)
+    win, method = resolve_window(window, arr, vol.meta, name) if method is None else (tuple(window), method)
     sl = _Slabber(arr, vol.spacing_ijk, win, name)
     sl.method = method
     return sl
@@ -394,27 +396,37 @@ def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None) -> dict:
 
 
 def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, dtype=None,
-                 byte_order="little", header_bytes=0, level=None, series=None, thin_slices=None) -> dict:
+                 byte_order="little", header_bytes=0, level=None, series=None, thin_slices=None,
+                 orientation=None) -> dict:
     """Augment the volume at ``inp`` (see :func:`isplat.volume_io.read_volume`) into ``out`` atomically.
 
     ``thin_slices``: a ratio (e.g. :data:`isplat.resample.THICK_RATIO`): axes whose spacing exceeds it times
     the smallest are first refined by linear interpolation (:func:`isplat.resample.thin_slices`; the volume
-    is then held in memory). Returns a summary dict (shape, window, gradient scale, sha256).
+    is then held in memory); the window is chosen on the scan as read, so it is the one the scan gets without
+    them. ``orientation``: a code such as ``LPS`` (:mod:`isplat.orientation`) giving the patient directions
+    of i, j, k, over the file's. Returns a summary dict (shape, window, gradient scale, sha256, ``axes_lps``
+    or None, ``hounsfield`` (why the data are taken as Hounsfield units, or None), and where spacing and
+    orientation came from).
     """
     check_output(out, force)  # fail before any work
+    axes = None
+    if orientation is not None:
+        from .orientation import axes_from_code
+
+        axes = axes_from_code(orientation, "--orientation")   # before reading: a bad code costs nothing
     vol = read_volume(inp, shape=shape, dtype=dtype, byte_order=byte_order, header_bytes=header_bytes,
                       spacing=spacing, level=level, series=series, stream=True)
     name = str(inp)
+    if axes is not None:
+        vol.meta.update(axes_lps=axes, orientation_source="--orientation")
+    win, method = resolve_window(window, vol.array, vol.meta, name)
+    hounsfield = hounsfield_reason(window, method, vol.array, vol.meta, name)
     if thin_slices:
         from .resample import thin_volume
 
         vol = thin_volume(vol, thin_slices, name)
-    sl = _prepare(vol, window, name)
-    extra = {"source": name, "source_format": vol.meta.get("format", "unknown"),
-             "source_dtype": str(vol.meta.get("source_dtype", vol.array.dtype.name)),
-             "density_window_method": sl.method}
-    if sl.method.startswith("Hounsfield") or vol.meta.get("hounsfield"):
-        extra["density_units"] = "HU"
+    sl = _prepare(vol, win, name, method)
+    extra = _file_attrs(vol, sl, name, hounsfield)
     log.debug(f"isplat augment: read {name} ({extra['source_format']}, {extra['source_dtype']}, NI,NJ,NK="
               f"{','.join(map(str, vol.array.shape[::-1]))}); window {sl.lo:g},{sl.hi:g} "
               f"({sl.method}); {len(sl.ranges)} slabs")
@@ -431,4 +443,66 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
                     f["normal"][k0:k1] = nrm
     return {"shape_ijk": tuple(reversed(vol.array.shape)), "spacing_ijk": (sl.si, sl.sj, sl.sk),
             "density_window": (sl.lo, sl.hi), "gradient_magnitude_scale": gmax / 255.0, "density_sha256": sha,
-            "density_window_method": sl.method, "clipped": _clipped_shares(sl)}
+            "density_window_method": sl.method, "clipped": _clipped_shares(sl), "hounsfield": hounsfield,
+            "axes_lps": vol.meta.get("axes_lps"), "source_format": extra["source_format"],
+            "spacing_source": vol.meta.get("spacing_source", "the file"),
+            "orientation_source": vol.meta.get("orientation_source", f"the {extra['source_format']} header"),
+            "thinned_from": vol.meta.get("thinned_from")}
+
+
+def _file_attrs(vol: Volume, sl: _Slabber, name: str, hounsfield) -> dict:
+    """The optional attributes of the augmented file (formats/augmented.md §3) but the clipped shares."""
+    extra = {"source": name, "source_format": vol.meta.get("format", "unknown"),
+             "source_dtype": str(vol.meta.get("source_dtype", vol.array.dtype.name)),
+             "density_window_method": sl.method}
+    if hounsfield:
+        extra["density_units"] = "HU"
+    if vol.meta.get("axes_lps") is not None:
+        extra["axes_lps"] = np.asarray(vol.meta["axes_lps"], dtype="<f8")
+    return extra
+
+
+def hounsfield_reason(window, method: str, arr, meta, name="input") -> str | None:
+    """Why the data are taken as Hounsfield units, whatever window was chosen, or None: the default window
+    found them so, the reader says so, the values look so (:func:`looks_hounsfield`), or ``window`` is one of
+    the named CT windows (which are in Hounsfield units). Unless the window or the reader already decided, this
+    reads the strided subsample of :func:`resolve_window` (at most 64 values per axis)."""
+    if method.startswith("Hounsfield data ("):
+        return method.split(": ")[0][len("Hounsfield data ("):-1]
+    if meta.get("hounsfield"):
+        return f"{meta.get('format', 'file')} rescale"
+    if window is None:
+        return None                                   # the default window looked at the values already
+    why = looks_hounsfield(_subsample(arr, name), meta)
+    if why:
+        return why
+    if isinstance(window, str) and window.strip() in NAMED_WINDOWS:
+        return f"--window {window.strip()} is in Hounsfield units"
+    return None
+
+
+# what lies beyond a Hounsfield window's ends: (upper bound in HU, tissue) in increasing order
+HU_CLASSES = ((-950.0, "air"), (-200.0, "lung"), (-20.0, "fat"), (100.0, "soft tissue or fluid"),
+              (400.0, "contrast or spongy bone"), (1900.0, "bone"), (3000.0, "teeth, dense bone or contrast"),
+              (math.inf, "metal"))
+
+
+def clipped_note(side: str, edge: float, hounsfield: bool) -> str:
+    """What the voxels clipped below (``side="below"``) or above a window end ``edge`` probably are.
+
+    >>> clipped_note("above", 2000, True), clipped_note("below", -160, True)
+    ('teeth, dense bone or contrast, or metal?', 'fat, lung or air?')
+    """
+    if not hounsfield:
+        if side == "above":
+            return ("all map to density 255: small bright parts such as wires or metal? --window=LO,p100 keeps "
+                    "them apart")
+        return "all map to density 0"
+    if side == "above":
+        first = next(name for top, name in HU_CLASSES if top > edge)
+        return "metal?" if first == "metal" else f"{first}, or metal?"
+    lows = [name for (bottom, _), (_, name) in zip(((-math.inf, ""),) + HU_CLASSES, HU_CLASSES) if bottom < edge]
+    if lows == ["air"]:
+        return "air or padding outside the scan?"
+    lows = lows[::-1]
+    return (", ".join(lows[:-1]) + " or " + lows[-1] + "?") if len(lows) > 1 else f"{lows[0]}?"

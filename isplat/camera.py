@@ -259,3 +259,55 @@ def project_points(frame: ViewFrame, points: np.ndarray) -> np.ndarray:
         x -= d_img * pc[0] / -pc[2]
         y -= d_img * pc[1] / -pc[2]
     return np.stack([cx + x / frame.pixel_size, cy - y / frame.pixel_size], axis=1)
+
+
+# --- named anatomical views ---------------------------------------------------------------------------------------
+
+# named view -> (towards the viewer, up), in patient LPS coordinates (isplat.orientation): the four side views
+# have superior up; superior (from above) and inferior (from the feet, radiology's axial display) have anterior up
+NAMED_VIEWS = {
+    "anterior": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+    "posterior": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "left": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "right": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "superior": ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),
+    "inferior": ((0.0, 0.0, -1.0), (0.0, -1.0, 0.0)),
+}
+
+
+def patient_to_world(axes_lps, unit_axes=None) -> np.ndarray:
+    """3 x 3 matrix taking a patient (LPS) vector to world space, for a volume whose grid axes i, j, k are the
+    rows of ``axes_lps`` in the patient and the rows of ``unit_axes`` (the scene's ``volume.axes``; default the
+    identity) in the world. With ``unit_axes = axes_lps`` world space is patient space (the identity)."""
+    a = np.asarray(axes_lps, dtype=np.float64)
+    w = np.eye(3) if unit_axes is None else np.asarray(unit_axes, dtype=np.float64)
+    # a patient vector p has grid coordinates c with a.T @ c = p; the world vector is w.T @ c
+    return w.T @ np.linalg.solve(a.T, np.eye(3))
+
+
+def named_view(view: str, axes_lps, azimuth: float = 0.0, elevation: float = 0.0,
+               unit_axes=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(w, up)`` in world space for a named anatomical view of a volume oriented by ``axes_lps``.
+
+    ``view`` is a key of :data:`NAMED_VIEWS`. ``w`` is the unit vector from the target towards the eye (the
+    camera looks along ``-w``), ``up`` the frame's view-up (perpendicular to ``w``). ``azimuth`` turns the camera
+    about the view's up (90 from ``anterior`` moves it to the patient's left), ``elevation`` lifts it towards
+    the up (90 from ``anterior`` looks down from superior), as the orbit camera does about ``camera.up``.
+    ``unit_axes`` are the world axes of i, j, k (see :func:`patient_to_world`): with the identity, a left-handed
+    ``axes_lps`` shows the patient mirrored (no rotation undoes a mirror); place the volume with
+    ``volume_geometry(..., axes=axes_lps)`` to see it as it is.
+    """
+    if view not in NAMED_VIEWS:
+        raise IsplatError(f"camera.view = {view!r}: expected one of {', '.join(NAMED_VIEWS)}")
+    if axes_lps is None:
+        raise IsplatError(f"camera.view = {view!r} needs the scan's orientation, and the augmented file records "
+                          "none (a .npy or raw input: augment it with --orientation, e.g. --orientation LPS)")
+    m = patient_to_world(axes_lps, unit_axes)
+    back, up = (np.asarray(x) for x in NAMED_VIEWS[view])
+    # the third axis is taken in the patient, so azimuth 90 is the same side of the patient in a mirrored world
+    e1, up, e2 = (_unit(m @ x, "view direction") for x in (back, up, np.cross(up, back)))
+    az, el = math.radians(azimuth), math.radians(elevation)
+    h = math.cos(az) * e1 + math.sin(az) * e2
+    w = math.cos(el) * h + math.sin(el) * up
+    v = -math.sin(el) * h + math.cos(el) * up
+    return w / np.linalg.norm(w), v / np.linalg.norm(v)

@@ -33,6 +33,10 @@ DEFAULT_SHAPES = {  # (n_i, n_j, n_k), as the paper quotes sizes
     "mr-head": (256, 256, 225),
 }
 NAMES = tuple(DEFAULT_SHAPES)
+# the samples that stand for a patient, as a DICOM series with the identity orientation would be: i towards the
+# patient's left, j posterior (the face at -j), k superior (isplat.orientation; `isplat sample` records it in .nrrd
+# and prints `--orientation LPS` in the augment command of a .npy or .raw)
+ORIENTATIONS = {"head": "LPS", "ct-head": "LPS", "ct-chest": "LPS", "mr-head": "LPS"}
 DTYPES = {"head": "uint16", "engine": "uint8", "marschner-lobb": "float32", "sphere": "float32",
           "two-density-cube": "uint8", "ct-head": "int16", "ct-chest": "int16", "mr-head": "uint16"}
 

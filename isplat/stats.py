@@ -81,6 +81,7 @@ def augmented_section(aug) -> dict:
         "density_sha256": aug.density_sha256,
         "source": aug.attrs.get("source"),
         "source_format": aug.attrs.get("source_format"),
+        "axes_lps": None if aug.axes_lps is None else aug.axes_lps.tolist(),
         "channel_bytes": channel_bytes,
         "bytes": int(sum(channel_bytes.values())),
         "bytes_per_voxel": int(sum(np.dtype(t).itemsize for t in CHANNELS.values())),
@@ -334,6 +335,10 @@ def format_table(s: dict) -> str:
     row("density window", f"{lo:g} .. {hi:g} -> 0 .. 255 ({a['density_step']:g} input units per density code)")
     if a.get("source"):
         row("source", f"{a['source']} ({a.get('source_format') or '?'})")
+    from .orientation import describe
+
+    row("orientation", describe(a.get("axes_lps")).removeprefix("orientation ") +
+        ("" if a.get("axes_lps") is not None else " (no axes_lps: named views unavailable)"))
     for c, nb in a["channel_bytes"].items():
         row(f"channel {c}", _b(nb))
     row("channels total", f"{_b(a['bytes'])}, {a['bytes_per_voxel']} B/voxel")
@@ -413,3 +418,113 @@ def format_table(s: dict) -> str:
         else:
             lines.append(f"  {k.ljust(width)}{v}")
     return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------------------------- histogram
+
+HISTOGRAM_PERCENTILES = (1, 5, 25, 50, 75, 95, 99)
+
+
+def code_edges(window, codes) -> np.ndarray:
+    """Data values where the density codes ``codes`` begin (and where the next one begins after the last):
+    code ``d`` holds the values that round to it, ``LO + (d - 0.5) * step`` up to ``LO + (d + 0.5) * step``
+    (code 0 and 255 also hold the values clipped below LO and above HI)."""
+    lo, hi = window
+    return lo + (np.asarray(codes, dtype=np.float64) - 0.5) * ((hi - lo) / 255.0)
+
+
+def histogram_section(aug, bins: int = 32) -> dict:
+    """The density histogram in data units: ``bins`` bins of ``256 / bins`` codes each, every code's count,
+    and percentiles (the data value ``LO + d * step`` of the first code ``d`` whose cumulative share reaches
+    them: numpy's ``inverted_cdf`` percentile of the codes' values)."""
+    if bins not in (1, 2, 4, 8, 16, 32, 64, 128, 256):
+        raise IsplatError(f"--bins {bins} invalid; expected a power of two from 1 to 256 (each bin holds "
+                          f"256/N density codes)")
+    codes = density_histogram(aug)
+    per = 256 // bins
+    counts = codes.reshape(bins, per).sum(axis=1)
+    n = int(codes.sum())
+    cum = np.cumsum(codes) / max(1, n)
+    lo, hi = aug.density_window
+    pct = {f"p{q:g}": float(lo + int(np.searchsorted(cum, q / 100.0)) * (hi - lo) / 255.0)
+           for q in HISTOGRAM_PERCENTILES}
+    clipped = aug.attrs.get("density_clipped_fraction")
+    return {"units": "HU" if aug.attrs.get("density_units") == "HU" else "input units",
+            "density_window": list(aug.density_window), "bins": bins, "codes_per_bin": per,
+            "edges": code_edges(aug.density_window, np.arange(0, 257, per)).tolist(),
+            "counts": counts.tolist(), "code_counts": codes.tolist(), "voxels": n, "percentiles": pct,
+            "clipped_fraction": None if clipped is None else [float(x) for x in np.asarray(clipped)]}
+
+
+def format_histogram(h: dict) -> str:
+    """The histogram as text: one line per bin, its data-unit range, voxels, share and a bar."""
+    lo, hi = h["density_window"]
+    unit = h["units"]
+    clip = h["clipped_fraction"]
+    lines = [f"density histogram ({unit}; window {lo:g} .. {hi:g}, {h['bins']} bins of {h['codes_per_bin']} "
+             f"density codes; the first and last bins also hold the voxels outside the window"
+             + (f": {_pct(clip[0])} below, {_pct(clip[1])} above" if clip else "") + ")"]
+    top = max(1, max(h["counts"]))
+    n = max(1, h["voxels"])
+    width = max(len(f"{x:.6g}") for x in h["edges"])
+    for a, b, c in zip(h["edges"], h["edges"][1:], h["counts"]):
+        bar = "#" * int(round(40 * c / top))
+        lines.append(f"  {a:>{width}.6g} .. {b:>{width}.6g}  {c:>12,}  {100 * c / n:6.2f}%  {bar}")
+    lines.append("  percentiles: " + ", ".join(f"{k} {v:.6g}" for k, v in h["percentiles"].items()))
+    return "\n".join(lines) + "\n"
+
+
+def preset_ramps(h: dict) -> dict:
+    """Opacity ramps of the presets that apply to the data, in data units: the CT presets (Hounsfield units)
+    for Hounsfield data, else the window presets (fractions of the window). {name: (values, opacities)}."""
+    from .presets import PRESETS
+
+    lo, hi = h["density_window"]
+    want = "data" if h["units"] == "HU" else "window"
+    out = {}
+    for p in PRESETS.values():
+        if p.units != want:
+            continue
+        xs = np.array([r[0] for r in p.opacity], dtype=np.float64)
+        out[p.name] = ((lo + xs * (hi - lo) if want == "window" else xs).tolist(), [r[1] for r in p.opacity])
+    return out
+
+
+def plot_histogram(h: dict, path, force: bool = False, title: str = "") -> None:
+    """Write the histogram (log counts, data units) with the presets' opacity ramps over it as an image."""
+    from .fileio import atomic_output, check_output
+
+    try:
+        import matplotlib
+    except ImportError:
+        raise IsplatError(f"{path}: --plot needs matplotlib: pip install 'isplat[plot]'") from None
+    check_output(path, force)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=100)
+    suffix = Path(str(path)).suffix.lstrip(".").lower()
+    if suffix not in fig.canvas.get_supported_filetypes():
+        plt.close(fig)
+        raise IsplatError(f"{path}: --plot writes {', '.join(sorted(fig.canvas.get_supported_filetypes()))} "
+                          f"(by the extension), not {suffix or 'a file without an extension'}")
+    codes = np.asarray(h["code_counts"], dtype=np.float64)
+    ax.stairs(np.maximum(codes, 0.5), code_edges(h["density_window"], np.arange(257)), fill=True,
+              color="0.6", label="voxels per density code", baseline=0.5)
+    ax.set_yscale("log")
+    ax.set_xlabel(f"value ({h['units']})")
+    ax.set_ylabel("voxels")
+    ax.set_title(title, fontsize=9)
+    op = ax.twinx()
+    for name, (xs, ys) in preset_ramps(h).items():
+        op.plot(xs, ys, lw=1.2, label=name)
+    op.set_ylim(0, 1.05)
+    op.set_ylabel("preset opacity")
+    ax.set_xlim(*code_edges(h["density_window"], [0, 256]))
+    hands = [*ax.get_legend_handles_labels()[0], *op.get_legend_handles_labels()[0]]
+    op.legend(hands, [x.get_label() for x in hands], fontsize=7, loc="upper right")
+    fig.tight_layout()
+    with atomic_output(path, force) as tmp:
+        with open(tmp, "wb") as fh:
+            fig.savefig(fh, format=suffix)
+    plt.close(fig)

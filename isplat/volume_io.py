@@ -1,5 +1,5 @@
 """Read a scalar volume from .npy, raw binary (file or stdin), NRRD, NIfTI, TIFF, a DICOM series, MetaImage
-(.mha/.mhd), VTK image data (.vti) or a Zarr / OME-Zarr store.
+(.mha/.mhd), VTK image data (.vti), an InVesalius project (.inv3) or a Zarr / OME-Zarr store.
 
 Every reader returns ``Volume(array[k, j, i], spacing_ijk, meta)``. Memory-mappable inputs (.npy, raw
 files) are mapped, never copied, and Zarr stores are read lazily chunk by chunk (:class:`LazyZarr`), so a
@@ -10,6 +10,7 @@ The format libraries are optional extras; a missing one gives one error line nam
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import sys
@@ -21,6 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import IsplatError
+
+log = logging.getLogger(__name__)
 
 RAW_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 BYTE_ORDERS = {"little": "<", "big": ">"}
@@ -145,9 +148,11 @@ def _read_any(path, shape, dtype, byte_order, header_bytes, level, series, strea
             vol = _read_metaimage(p)
         elif low.endswith(".vti"):
             vol = _read_vti(p)
+        elif low.endswith(".inv3"):
+            vol = _read_inv3(p)
         else:
             raise IsplatError(f"{p}: unknown input format; expected .npy, .nrrd, .nhdr, .nii, .nii.gz, .tif, "
-                              ".tiff, .mha, .mhd, .vti, a TIFF or DICOM folder, a Zarr / OME-Zarr folder, "
+                              ".tiff, .mha, .mhd, .vti, .inv3, a TIFF or DICOM folder, a Zarr / OME-Zarr folder, "
                               "or raw data with --shape and --dtype")
     return vol
 
@@ -260,7 +265,36 @@ def _read_nrrd(p):
         sp = [float(x) for x in header["spacings"]]
         if len(sp) == 3 and all(np.isfinite(sp)):
             spacing, source = tuple(sp), "NRRD 'spacings'"
-    return Volume(data, spacing, {"format": "nrrd", "source_dtype": data.dtype.name, "spacing_source": source})
+    meta = {"format": "nrrd", "source_dtype": data.dtype.name, "spacing_source": source}
+    _set_axes(meta, p, lambda: _nrrd_axes(header))
+    return Volume(data, spacing, meta)
+
+
+def _nrrd_axes(header):
+    """LPS axes from 'space directions' and a patient 'space' (RAS, LAS or LPS); None otherwise."""
+    from .orientation import in_lps
+
+    space, dirs = header.get("space"), header.get("space directions")
+    if space is None or dirs is None or str(space).lower() not in (
+            "left-posterior-superior", "right-anterior-superior", "left-anterior-superior"):
+        return None
+    rows = [np.asarray(r, dtype=np.float64) for r in dirs if r is not None]
+    if len(rows) != 3 or not all(np.all(np.isfinite(r)) and r.shape == (3,) for r in rows):
+        return None
+    return in_lps(rows, space, "NRRD 'space directions'")
+
+
+def _set_axes(meta, p, compute):
+    """``meta["axes_lps"]`` from ``compute()`` (None: no orientation). A degenerate or unreadable matrix does not
+    stop the read: one warning line, and the orientation is unknown."""
+    try:
+        axes = compute()
+    except IsplatError as exc:
+        axes = log.warning(f"isplat: warning: {p}: {exc}; the orientation is taken as unknown")
+    except (TypeError, ValueError, IndexError) as exc:
+        axes = log.warning(f"isplat: warning: {p}: orientation unreadable ({_short(exc)}); taken as unknown")
+    if axes is not None:
+        meta["axes_lps"] = axes
 
 
 # --- NIfTI -----------------------------------------------------------------------------------------------------
@@ -272,6 +306,9 @@ def _read_nifti(p):
         data = np.asanyarray(img.dataobj)
         zooms = img.header.get_zooms()
         inter = getattr(img.dataobj, "inter", None)
+        # NIfTI method 1 (both codes 0) has no orientation; else nibabel's best affine (sform, then qform)
+        coded = int(img.header.get("sform_code", 0)) > 0 or int(img.header.get("qform_code", 0)) > 0
+        affine = np.asarray(img.affine, dtype=np.float64) if coded else None
     except Exception as exc:
         raise IsplatError(f"{p}: not a readable NIfTI file ({_short(exc)})") from None
     if data.ndim == 4 and data.shape[3] == 1:
@@ -280,10 +317,18 @@ def _read_nifti(p):
         raise IsplatError(f"{p}: NIfTI data has shape {data.shape}; expected a 3-D volume")
     # NIfTI stores [x, y, z] with x fastest on disk; isplat indexes [k, j, i] = [z, y, x]
     arr = data.transpose(2, 1, 0)
-    return Volume(arr, tuple(float(z) for z in zooms[:3]),
-                  {"format": "nifti", "source_dtype": arr.dtype.name, "spacing_source": "NIfTI pixdim (zooms)",
-                   # dcm2niix and ITK store CT as stored values plus the scanner's rescale intercept
-                   "hounsfield": inter is not None and float(inter) in HOUNSFIELD_INTERCEPTS})
+    meta = {"format": "nifti", "source_dtype": arr.dtype.name, "spacing_source": "NIfTI pixdim (zooms)",
+            # dcm2niix and ITK store CT as stored values plus the scanner's rescale intercept
+            "hounsfield": inter is not None and float(inter) in HOUNSFIELD_INTERCEPTS}
+    # the affine's columns x, y, z (= i, j, k) are in RAS
+    _set_axes(meta, p, lambda: None if affine is None else _in_lps(affine[:3, :3].T, "ras", "NIfTI affine"))
+    return Volume(arr, tuple(float(z) for z in zooms[:3]), meta)
+
+
+def _in_lps(rows, space, what):
+    from .orientation import in_lps
+
+    return in_lps(rows, space, what)
 
 
 # --- TIFF ------------------------------------------------------------------------------------------------------
@@ -431,9 +476,12 @@ def _read_dicom(files, p, series=None):
     if len(ps) != 2:
         raise IsplatError(f"{f0}: PixelSpacing has {len(ps)} values, expected 2")
     hounsfield = str(d0.get("Modality", "")).upper() == "CT" and ("RescaleIntercept" in d0 or rescale)
-    return Volume(arr, (ps[1], ps[0], step), {"format": "dicom", "source_dtype": str(first.dtype),
-                                               "spacing_source": "DICOM PixelSpacing and slice positions",
-                                               "hounsfield": hounsfield})
+    meta = {"format": "dicom", "source_dtype": str(first.dtype),
+            "spacing_source": "DICOM PixelSpacing and slice positions", "hounsfield": hounsfield}
+    # i along a row (IOP's first vector), j down a column, k the slice normal: positions are sorted along it
+    if "ImageOrientationPatient" in d0:
+        _set_axes(meta, f0, lambda: _in_lps([iop[:3], iop[3:], normal], "lps", "ImageOrientationPatient"))
+    return Volume(arr, (ps[1], ps[0], step), meta)
 
 
 # --- MetaImage (.mha/.mhd) through SimpleITK ---------------------------------------------------------------------
@@ -468,8 +516,11 @@ def _read_metaimage(p):
         raise IsplatError(f"{p}: MetaImage has {img.GetDimension()} dimensions and "
                           f"{img.GetNumberOfComponentsPerPixel()} components per voxel; expected a 3-D scalar volume")
     arr = sitk.GetArrayFromImage(img)  # [z, y, x] = [k, j, i]
-    return Volume(arr, tuple(float(s) for s in img.GetSpacing()),
-                  {"format": "metaimage", "source_dtype": arr.dtype.name, "spacing_source": "MetaImage ElementSpacing"})
+    meta = {"format": "metaimage", "source_dtype": arr.dtype.name, "spacing_source": "MetaImage ElementSpacing"}
+    # ITK's direction: row-major, its columns the x, y, z (= i, j, k) axes in LPS
+    direction = np.asarray(img.GetDirection(), dtype=np.float64).reshape(3, 3)
+    _set_axes(meta, p, lambda: _in_lps(direction.T, "lps", "MetaImage TransformMatrix"))
+    return Volume(arr, tuple(float(s) for s in img.GetSpacing()), meta)
 
 
 # --- VTK image data (.vti) through VTK's own XML reader --------------------------------------------------------
@@ -503,6 +554,50 @@ def _read_vti(p):
     arr = vtk_to_numpy(scalars).reshape(nk, nj, ni)  # VTK point order: x fastest
     return Volume(arr, tuple(float(s) for s in img.GetSpacing()),
                   {"format": "vti", "source_dtype": arr.dtype.name, "spacing_source": "VTK ImageData Spacing"})
+
+
+# --- InVesalius project (.inv3): a tar (gzip or plain) of main.plist and the raw array it names -----------------
+
+def _read_inv3(p):
+    """The image of an InVesalius 3 project: main.plist's ``matrix`` (``filename``, ``shape`` [z, y, x] =
+    [k, j, i], ``dtype``; native little-endian) and ``spacing`` (x, y, z = i, j, k). Masks and surfaces are
+    ignored; the orientation is not recorded (InVesalius keeps its own reoriented matrix)."""
+    import plistlib
+    import tarfile
+
+    try:
+        with tarfile.open(p, "r:*") as tar:
+            members = {m.name.rsplit("/", 1)[-1]: m for m in tar.getmembers() if m.isfile()}
+            if "main.plist" not in members:
+                raise IsplatError(f"{p}: InVesalius project without main.plist")
+            plist = plistlib.loads(tar.extractfile(members["main.plist"]).read())
+            name, dt, kji = _inv3_matrix(p, plist)
+            m = members.get(name)
+            need = int(np.prod(kji)) * dt.itemsize
+            if m is None or m.size != need:
+                raise IsplatError(f"{p}: InVesalius matrix {name!r} " + ("is missing" if m is None else
+                                  f"has {m.size} bytes; shape {list(kji)} of {dt.name} needs {need}"))
+            arr = np.frombuffer(tar.extractfile(m).read(), dtype=dt).reshape(kji)
+    except IsplatError:
+        raise
+    except Exception as exc:  # tarfile, gzip, zlib and plistlib raise many types for damaged files
+        raise IsplatError(f"{p}: not a readable InVesalius project ({_short(exc)})") from None
+    sp = plist.get("spacing")
+    return Volume(arr, sp if sp is not None else (1.0, 1.0, 1.0),
+                  {"format": "inv3", "source_dtype": dt.name, "spacing_source": "InVesalius project spacing"
+                   if sp is not None else "default 1,1,1 (no spacing in the InVesalius project)"})
+
+
+def _inv3_matrix(p, plist):
+    mat = plist.get("matrix") if isinstance(plist, dict) else None
+    try:
+        name, shape, dtype = str(mat["filename"]), tuple(int(n) for n in mat["shape"]), str(mat["dtype"])
+    except (TypeError, KeyError, ValueError):
+        raise IsplatError(f"{p}: main.plist has no valid 'matrix' (filename, shape, dtype)") from None
+    if dtype not in RAW_DTYPES or len(shape) != 3 or min(shape) < 1:
+        raise IsplatError(f"{p}: InVesalius matrix of shape {list(shape)} and dtype {dtype!r}; expected a 3-D "
+                          f"volume of {', '.join(RAW_DTYPES)}")
+    return name.rsplit("/", 1)[-1], np.dtype(dtype).newbyteorder("<"), shape
 
 
 # --- Zarr and OME-Zarr, read lazily --------------------------------------------------------------------------------

@@ -224,6 +224,7 @@ def test_valid_example_decodes_to_expected_values():
         assert aug.read(ch).tolist() == exp[ch]
     assert np.allclose(N.decode(aug.read("normal")), exp["normal_decoded"], atol=1e-6)
     assert density_sha256(aug.read("density")) == exp["density_sha256"]
+    assert aug.axes_lps.tolist() == exp["axes_lps"]
     assert exp["normal"][0][0][0] == N.NO_NORMAL
 
 
@@ -231,7 +232,8 @@ def test_valid_example_decodes_to_expected_values():
                                        ("invalid-wrong-format.aug.h5", "'format'"),
                                        ("invalid-missing-normal.aug.h5", "'normal' is missing"),
                                        ("invalid-version-1.aug.h5", "no checksums, rebuild it: isplat augment"),
-                                       ("invalid-flipped-bit.aug.h5", "'normal'.*Fletcher-32")])
+                                       ("invalid-flipped-bit.aug.h5", "'normal'.*Fletcher-32"),
+                                       ("invalid-axes-lps.aug.h5", "'axes_lps'.*orthonormal")])
 def test_invalid_examples_refused(name, what):
     with pytest.raises(IsplatError, match=what):
         aug = open_augmented(EXAMPLES / name)

@@ -78,6 +78,25 @@ def test_sample_formats_round_trip(capsys, tmp_path):
 
     data, hdr = nrrd.read(str(tmp_path / "h.nrrd"), index_order="C")
     assert data.dtype == np.uint16 and data.shape == (8, 8, 8) and np.allclose(np.diag(hdr["space directions"]), 1)
+    assert hdr["space"] == "left-posterior-superior"
+
+
+@pytest.mark.parametrize("ext", ["npy", "nrrd", "raw"])
+def test_clinical_samples_carry_lps(capsys, tmp_path, ext):
+    f = tmp_path / f"ct.{ext}"
+    code, so, _ = run(capsys, "sample", "ct-head", "-o", str(f), "--shape", "12,10,8", "-q")
+    assert code == 0 and ("--orientation LPS" in so) == (ext != "nrrd")
+    code, _, se = run(capsys, *so.split()[1:])
+    assert code == 0, se
+    assert "orientation LPS" in se and "i, j, k point to the patient's left, posterior, superior" in se
+    assert open_augmented(tmp_path / "ct.aug.h5").axes_lps.tolist() == np.eye(3).tolist()
+
+
+def test_npy_without_orientation_says_so_once(capsys, tmp_path, head):
+    code, _, se = run(capsys, "augment", str(head[0]), "-o", str(tmp_path / "o.aug.h5"))
+    assert code == 0 and se.count("no orientation in npy input") == 1
+    code, _, se = run(capsys, "augment", str(head[0]), "-o", str(tmp_path / "p.aug.h5"), "--orientation", "LPX")
+    _one_error(code, se, "--orientation 'LPX' invalid")
 
 
 def _bad_cases(tmp_path, head):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from isplat.errors import IsplatError
+from isplat.cli.main import main
 from isplat.volume_io import LazyZarr, read_volume
 
 from test_volume_io import _write_dicom
@@ -258,3 +259,56 @@ def test_ome_zarr_0_4_in_zarr_format_2(tmp_path, vol):
     assert (tmp_path / "v2.zarr" / ".zgroup").exists()
     v = read_volume(tmp_path / "v2.zarr")
     assert np.array_equal(v.array[1:4], vol[1:4]) and v.spacing_ijk == (0.5, 0.7, 2.0)
+
+
+# --- InVesalius .inv3 --------------------------------------------------------------------------------------------
+
+def _inv3(path, vol, mode="w:gz", spacing=(0.5, 0.6, 2.0), matrix=None, data=None):
+    """An InVesalius-style project: a tar of a folder holding main.plist and matrix.dat (the raw [z, y, x] array)."""
+    import io
+    import plistlib
+    import tarfile
+
+    plist = {"format_version": 2, "modality": "CT", "orientation": "AXIAL", "spacing": list(spacing),
+             "window_width": 400.0, "window_level": 40.0, "scalar_range": [0, 1000],
+             "matrix": matrix or {"filename": "matrix.dat", "shape": list(vol.shape), "dtype": str(vol.dtype)}}
+    with tarfile.open(path, mode) as tar:
+        for name, blob in (("main.plist", plistlib.dumps(plist)),
+                           ("matrix.dat", vol.astype(vol.dtype.newbyteorder("<")).tobytes() if data is None else data)):
+            info = tarfile.TarInfo(f"tmpa1b2c3/{name}")
+            info.size = len(blob)
+            tar.addfile(info, io.BytesIO(blob))
+    return path
+
+
+@pytest.mark.parametrize("mode", ["w:gz", "w"])
+def test_inv3_project(tmp_path, vol, mode):
+    p = _inv3(tmp_path / "case.inv3", vol.astype(np.int16) - 1024, mode)
+    v = read_volume(p)
+    assert v.array.dtype == np.int16 and np.array_equal(v.array, vol.astype(np.int16) - 1024)
+    assert v.spacing_ijk == (0.5, 0.6, 2.0) and v.meta["format"] == "inv3"
+    assert v.meta["spacing_source"] == "InVesalius project spacing" and "axes_lps" not in v.meta
+
+
+def test_inv3_bad_projects_one_line(tmp_path, vol):
+    cases = [(_inv3(tmp_path / "a.inv3", vol, data=b"\0" * 10), "has 10 bytes"),
+             (_inv3(tmp_path / "b.inv3", vol, matrix={"filename": "m.dat", "shape": [3, 4], "dtype": "int16"}),
+              "expected a 3-D volume"),
+             (_inv3(tmp_path / "c.inv3", vol, matrix={"filename": "other.dat", "shape": [3, 4, 5],
+                                                      "dtype": "uint16"}), "'other.dat' is missing"),
+             (_inv3(tmp_path / "d.inv3", vol, matrix={"shape": [3, 4, 5]}), "no valid 'matrix'")]
+    (tmp_path / "e.inv3").write_bytes(b"\x1f\x8b not really gzip")
+    cases.append((tmp_path / "e.inv3", "not a readable InVesalius project"))
+    for p, needle in cases:
+        with pytest.raises(IsplatError, match=needle) as e:
+            read_volume(p)
+        assert "\n" not in str(e.value)
+
+
+def test_inv3_through_augment_cli(capsys, tmp_path, vol):
+    p = _inv3(tmp_path / "case.inv3", vol.astype(np.int16) - 1024)
+    with pytest.raises(SystemExit) as e:
+        main(["augment", str(p), "-o", str(tmp_path / "c.aug.h5")])
+    err = capsys.readouterr().err
+    assert e.value.code == 0 and "spacing 0.5,0.6,2 (i, j, k): from InVesalius project spacing" in err
+    assert "no orientation in inv3 input" in err

@@ -152,8 +152,8 @@ def test_json_keys(vol, capsys):
     assert out.count("\n") == 1
     assert set(s) == {"stats_version", "augmented", "index", "scene"}
     assert {"path", "file_bytes", "shape_ijk", "voxels", "spacing_ijk", "density_window", "density_step",
-            "gradient_magnitude_scale", "density_sha256", "source", "source_format", "channel_bytes", "bytes",
-            "bytes_per_voxel"} == set(s["augmented"])
+            "gradient_magnitude_scale", "density_sha256", "source", "source_format", "axes_lps", "channel_bytes",
+            "bytes", "bytes_per_voxel"} == set(s["augmented"])
     assert {"path", "file_bytes", "axes", "density_ranges", "voxels_indexed", "bytes", "bytes_per_voxel",
             "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range", "format_version",
             "values"} == set(s["index"])
@@ -235,3 +235,93 @@ def test_bad_input(vol, capsys):
     one_error(*run(capsys, aug, idx, "--scene", write_scene(folder), "--view", "3", "-q"), "--view")
     bad = write_scene(folder, name="bad.toml", opacity="[[100, 2.0]]")
     one_error(*run(capsys, aug, idx, "--scene", bad, "-q"), "bad.toml", "opacity")
+
+
+# --- the density histogram (--histogram, --plot) ----------------------------------------------------------------
+
+def _scan_file(folder, seed, window=(-50.0, 400.0), hu=True):
+    """A float scan with values below, inside and above the window, augmented; returns (values, path)."""
+    from isplat.augment import augment_array
+
+    rng = np.random.default_rng(seed)
+    x = rng.normal(150, 120, (5, 6, 7)).astype(np.float64)
+    a = augment_array(x, (1, 1, 1), window)
+    p = folder / f"h{seed}.aug.h5"
+    extra = {"density_units": "HU"} if hu else {}
+    extra["density_clipped_fraction"] = np.asarray(a["clipped"], dtype="<f8")
+    write_augmented(p, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"], a["density_window"],
+                    a["gradient_magnitude_scale"], extra)
+    return x, a, p
+
+
+@pytest.mark.parametrize("seed,bins", [(0, 256), (1, 32), (2, 16), (3, 1)])
+def test_histogram_counts_equal_numpy(tmp_path, seed, bins):
+    from isplat.augfile import open_augmented
+    from isplat.stats import histogram_section
+
+    x, a, p = _scan_file(tmp_path, seed)
+    h = histogram_section(open_augmented(p), bins)
+    assert h["code_counts"] == np.bincount(a["density"].ravel(), minlength=256).tolist()
+    lo, hi = a["density_window"]
+    # in data units: numpy's histogram of the values (clipped to the window as the density is) over the edges
+    counts, _ = np.histogram(np.clip(x, lo, hi), bins=np.asarray(h["edges"]))
+    assert h["counts"] == counts.tolist() and h["voxels"] == x.size
+    assert h["edges"][0] == pytest.approx(lo - 0.5 * (hi - lo) / 255)
+    assert h["clipped_fraction"] == pytest.approx([np.mean(x < lo), np.mean(x > hi)])
+    # percentiles: numpy's inverted-CDF percentiles of the codes' data values
+    values = lo + a["density"].astype(np.float64) * ((hi - lo) / 255)
+    for q in (1, 5, 25, 50, 75, 95, 99):
+        assert h["percentiles"][f"p{q}"] == pytest.approx(np.percentile(values, q, method="inverted_cdf"))
+
+
+def test_histogram_cli_text_json_and_plot(capsys, tmp_path):
+    x, a, p = _scan_file(tmp_path, 4)
+    code, out, err = run(capsys, p, "--histogram", "--bins", "8")
+    assert code == 0, err
+    text = out.split("density histogram (HU; window -50 .. 400, 8 bins of 32 density codes")[1]
+    assert len([ln for ln in text.splitlines() if "%" in ln and ".." in ln]) == 8 and "percentiles: p1" in text
+    code, out, _ = run(capsys, p, "--histogram", "--json")
+    assert code == 0 and sum(json.loads(out)["histogram"]["counts"]) == x.size
+    code, out, _ = run(capsys, p, "--json")
+    assert "histogram" not in json.loads(out)
+    code, _, err = run(capsys, p, "--histogram", "--bins", "3")
+    assert code == 2 and err.count("\n") == 1 and "--bins 3 invalid" in err
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "h.png"
+    code, _, err = run(capsys, p, "--plot", png, "-q")
+    assert code == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    code, _, err = run(capsys, p, "--plot", png)
+    assert code == 2 and "--force" in err and err.count("\n") == 1
+    code, _, err = run(capsys, p, "--plot", tmp_path / "h.xyz")
+    assert code == 2 and "--plot writes" in err and not (tmp_path / "h.xyz").exists()
+
+
+def test_plot_ramps_fit_the_data(tmp_path):
+    from isplat.augfile import open_augmented
+    from isplat.stats import histogram_section, preset_ramps
+
+    _, _, p = _scan_file(tmp_path, 5, hu=True)
+    assert "ct-bone" in preset_ramps(histogram_section(open_augmented(p))) and \
+        "mri-t1-head" not in preset_ramps(histogram_section(open_augmented(p)))
+    _, _, q = _scan_file(tmp_path, 6, window=(0.0, 1000.0), hu=False)
+    ramps = preset_ramps(histogram_section(open_augmented(q)))
+    assert set(ramps) == {"mri-t1-head", "micro-ct"}
+    assert ramps["micro-ct"][0][0] == pytest.approx(250.0)          # 0.25 of the window 0..1000
+
+
+def test_plot_without_matplotlib_is_one_line(capsys, tmp_path, monkeypatch):
+    import builtins
+
+    _, _, p = _scan_file(tmp_path, 7)
+    real = builtins.__import__
+
+    def fake(name, *args, **kw):
+        if name == "matplotlib" or name.startswith("matplotlib."):
+            raise ImportError(name)
+        return real(name, *args, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", fake)
+    code, _, err = run(capsys, p, "--plot", tmp_path / "h.png")
+    assert code == 2 and err.strip() == f"isplat: error: {tmp_path / 'h.png'}: --plot needs matplotlib: " \
+                                         "pip install 'isplat[plot]'"
+    assert not (tmp_path / "h.png").exists()

@@ -24,6 +24,8 @@ HERE = Path(__file__).resolve().parent / "augmented"
 SHAPE_IJK = (4, 3, 2)
 SPACING_IJK = (1.0, 2.0, 0.5)
 WINDOW = (0.0, 100.0)
+# i to the patient's right, j anterior, k superior (NIfTI's identity affine), in LPS: a flipped, non-identity example
+AXES_LPS = ((-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0))
 
 
 def example_volume() -> np.ndarray:
@@ -39,7 +41,8 @@ def build(out_dir: Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     aug = augment_array(example_volume(), SPACING_IJK, WINDOW)
     extra = {"source": "formats/examples/make_augmented_examples.py", "source_format": "npy",
-             "source_dtype": "float32", "density_window_method": "given"}
+             "source_dtype": "float32", "density_window_method": "given",
+             "axes_lps": np.asarray(AXES_LPS, dtype="<f8")}
     args = (aug["density"], aug["gradient_magnitude"], aug["normal"], aug["spacing_ijk"],
             aug["density_window"], aug["gradient_magnitude_scale"])
     valid = out_dir / "valid.aug.h5"
@@ -83,6 +86,11 @@ def build(out_dir: Path) -> list[Path]:
     data[at + 3] ^= 0x04
     flipped.write_bytes(bytes(data))
 
+    bad_axes = out_dir / "invalid-axes-lps.aug.h5"    # an orientation whose rows are not orthonormal
+    write_augmented(bad_axes, *args, extra_attrs=dict(extra, axes_lps=np.diag([1.0, 1.0, 2.0]).astype("<f8")))
+    with h5py.File(bad_axes, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+
     nrm = aug["normal"]
     expected = {
         "file": "valid.aug.h5",
@@ -91,6 +99,7 @@ def build(out_dir: Path) -> list[Path]:
         "density_window": list(aug["density_window"]),
         "gradient_magnitude_scale": aug["gradient_magnitude_scale"],
         "density_sha256": aug["density_sha256"],
+        "axes_lps": [list(r) for r in AXES_LPS],
         "density": aug["density"].tolist(),
         "gradient_magnitude": aug["gradient_magnitude"].tolist(),
         "normal": nrm.tolist(),
@@ -101,11 +110,12 @@ def build(out_dir: Path) -> list[Path]:
             "invalid-missing-normal.aug.h5": "normal",
             "invalid-version-1.aug.h5": "format_version",
             "invalid-flipped-bit.aug.h5": "Fletcher-32",
+            "invalid-axes-lps.aug.h5": "axes_lps",
         },
     }
     exp = out_dir / "valid.expected.json"
     exp.write_text(json.dumps(expected, indent=1) + "\n")
-    return [valid, wrong_version, wrong_name, missing, old, flipped, exp]
+    return [valid, wrong_version, wrong_name, missing, old, flipped, bad_axes, exp]
 
 
 if __name__ == "__main__":

@@ -23,7 +23,11 @@ log = logging.getLogger(__name__)
                    "ct-soft-tissue (W400/L40), ct-lung (W1500/L-600), ct-brain (W80/L40). Default: ct-full for "
                    "Hounsfield data (a CT rescale in the file, or values starting at -1024, -2048 or about "
                    "-1000), else the 0.1 and 99.9 percentiles.")
-@click.option("--spacing", metavar="SX,SY,SZ", help="Voxel spacing along i, j, k; overrides the file's.")
+@click.option("--spacing", metavar="SX,SY,SZ",
+              help="Voxel spacing along i, j, k, in that order: i is the fastest axis (NI of --shape, the last "
+                   "axis of a .npy's [k, j, i] shape), k the slices; e.g. --spacing 0.7,0.7,2.5 for 0.7 mm pixels "
+                   "and 2.5 mm slices. Overrides the file's; without it, the file's, or 1,1,1 for .npy, raw and "
+                   "TIFF (the spacing used and its source are printed).")
 @click.option("--shape", metavar="NI,NJ,NK", help="Raw input: volume size, i fastest.")
 @click.option("--dtype", metavar="TYPE", help=f"Raw input: voxel type, one of {', '.join(RAW_DTYPES)}.")
 @click.option("--byte-order", type=click.Choice(sorted(BYTE_ORDERS)), default="little", show_default=True,
@@ -34,20 +38,25 @@ log = logging.getLogger(__name__)
               help="OME-Zarr input: multiscale level to read (0 = full resolution, the default).")
 @click.option("--series", metavar="UID", default=None,
               help="DICOM folder with several series: the SeriesInstanceUID to read (an error lists them).")
+@click.option("--orientation", metavar="CODE", default=None,
+              help="Where i, j, k point in the patient, three letters (LPS: i to the patient's left, j posterior, "
+                   "k superior; RAS: NIfTI's identity): for input without an orientation (.npy, raw, TIFF, Zarr), "
+                   "or to override the file's. Recorded as axes_lps for named views.")
 @click.option("--index", "with_index", is_flag=True,
               help="Also build the index beside OUT (NAME.aug.h5 -> NAME.idx.h5), as `isplat index` would.")
 @click.option("--thin-slices", "thin", is_flag=True,
               help="Interpolate (linearly) along an axis whose spacing is more than twice the smallest, before "
-                   "augmenting: thick CT/MR slices then render without streaks (the volume is held in memory).")
+                   "augmenting: thick CT/MR slices then render without streaks (the volume is held in memory). "
+                   "The window is the one given, or the one the scan gets without --thin-slices.")
 @quiet_option
-def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, with_index,
-            thin):
+def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, orientation,
+            with_index, thin):
     """Augment INPUT into 4-byte voxels: density, gradient magnitude, octahedral normal (formats/augmented.md).
 
     INPUT is a .npy array [k,j,i], a .nrrd/.nhdr, a .nii/.nii.gz, a multi-page .tif/.tiff, a folder of
     TIFF slices or of DICOM files (--series picks one of several), a MetaImage .mha/.mhd, VTK image
-    data .vti, a Zarr array or OME-Zarr store (read lazily, --level picks the resolution), or raw data
-    (a file, or - for stdin) with --shape and --dtype.
+    data .vti, an InVesalius project .inv3, a Zarr array or OME-Zarr store (read lazily, --level picks
+    the resolution), or raw data (a file, or - for stdin) with --shape and --dtype.
     Densities are 8-bit through --window; gradients are central differences of the windowed density in
     physical units (spacing-aware).
 
@@ -55,6 +64,7 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     Example:
       isplat sample head -o head.npy
       isplat augment head.npy -o head.aug.h5
+      isplat augment chest.npy -o chest.aug.h5 --spacing 0.7,0.7,2.5   # i, j, k: 2.5 mm slices along k
       cat scan.raw | isplat augment - -o scan.aug.h5 --shape 256,256,225 --dtype uint16 --byte-order big
     """
     from ..augment import augment_file  # numba import only when the command runs
@@ -69,18 +79,15 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     shp = parse_triple(shape, "--shape", int) if shape else None
     info = augment_file(input, out, force=force, window=win, spacing=sp, shape=shp, dtype=dtype,
                         byte_order=byte_order, header_bytes=header_bytes, level=level, series=series,
-                        thin_slices=THICK_RATIO if thin else None)
+                        thin_slices=THICK_RATIO if thin else None, orientation=orientation)
+    for line in (spacing_line(info), orientation_line(info), window_line(info)):
+        log.info(f"isplat augment: {line}")
     sp_out = info["spacing_ijk"]
     if not thin and max(sp_out) > THICK_RATIO * min(sp_out):
-        log.info(f"isplat augment: spacing {','.join(f'{s:g}' for s in sp_out)}: slices "
-                    f"{max(sp_out) / min(sp_out):.1f} times thicker than the smallest spacing render with streaks; "
-                    "--thin-slices interpolates them first")
-    lo, hi = info["density_window"]
-    below, above = info["clipped"]
-    log.info(f"isplat augment: window {lo:g},{hi:g} ({info['density_window_method']}); clipped "
-             f"{100 * below:.2f}% of voxels below {lo:g}, {100 * above:.2f}% above {hi:g}")
+        log.info(f"isplat augment: slices {max(sp_out) / min(sp_out):.1f} times thicker than the smallest spacing "
+                 "render with streaks; --thin-slices interpolates them first")
     log.info(f"isplat augment: wrote {out} (NI,NJ,NK={','.join(map(str, info['shape_ijk']))}, "
-             f"window {lo:g},{hi:g}, gradient scale {info['gradient_magnitude_scale']:g}/code)")
+             f"gradient scale {info['gradient_magnitude_scale']:g}/code)")
     if idx is not None:
         from ..index import build_index_file
 
@@ -91,3 +98,44 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
 def index_path(out: str) -> str:
     """NAME.aug.h5 -> NAME.idx.h5 (else OUT + .idx.h5)."""
     return out[: -len(".aug.h5")] + ".idx.h5" if out.endswith(".aug.h5") else out + ".idx.h5"
+
+
+def spacing_line(info: dict) -> str:
+    """The spacing used, in i, j, k order, and where it came from (the file, --spacing or the default 1)."""
+    sp = ",".join(f"{s:g}" for s in info["spacing_ijk"])
+    src = info["spacing_source"]
+    default = src.startswith("default")
+    line = f"spacing {sp} (i, j, k): " + (f"the default{src[len('default 1,1,1'):]}" if default else f"from {src}")
+    thin = info.get("thinned_from")
+    if thin:
+        line += f", refined by --thin-slices from {','.join(f'{s:g}' for s in thin['spacing_ijk'])}"
+    if default:
+        line += ("; give the scan's with --spacing SX,SY,SZ in i, j, k order (i the fastest axis: the last of a "
+                 ".npy's [k, j, i] shape)")
+    return line
+
+
+def window_line(info: dict) -> str:
+    """The window, how it was chosen, and the shares clipped at each end with what they probably are."""
+    from ..augment import clipped_note
+
+    lo, hi = info["density_window"]
+    hu = info.get("hounsfield")
+    method = info["density_window_method"]
+    if hu and not method.startswith("Hounsfield"):
+        method += f"; Hounsfield data: {hu}"
+    parts = []
+    for side, share, edge in (("below", info["clipped"][0], lo), ("above", info["clipped"][1], hi)):
+        note = f" ({clipped_note(side, edge, bool(hu)).replace('LO,', f'{lo:g},')})" if share > 0 else ""
+        parts.append(f"{100 * share:.2f}%{' of voxels' if side == 'below' else ''} {side} {edge:g}{note}")
+    return f"window {lo:g},{hi:g}{' HU' if hu else ''} ({method}); clipped {', '.join(parts)}"
+
+
+def orientation_line(info: dict) -> str:
+    """The orientation recorded, and from where; or that there is none and what that means."""
+    from ..orientation import describe
+
+    if info["axes_lps"] is None:
+        return (f"no orientation in {info['source_format']} input: named views (anterior, left, ...) are not "
+                "available and the volume keeps voxel index space; give one with --orientation, e.g. LPS")
+    return f"{describe(info['axes_lps'])} (from {info['orientation_source']})"

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import IsplatError
 from ..fileio import atomic_output, check_output
-from ..samples import DEFAULT_SHAPES, DTYPES, NAMES, make_sample
+from ..samples import DEFAULT_SHAPES, DTYPES, NAMES, ORIENTATIONS, make_sample
 from ..volume_io import parse_triple
 from .options import force_option, quiet_option
 
@@ -23,8 +23,11 @@ def _fmt(x: float) -> str:
     return f"{x:.17g}"
 
 
-def write_sample(arr: np.ndarray, spacing_ijk, out: str, force: bool) -> str:
-    """Write ``arr[k, j, i]`` to ``out`` (.npy, .nrrd or .raw) atomically; return the augment command for it."""
+def write_sample(arr: np.ndarray, spacing_ijk, out: str, force: bool, orientation: str | None = None) -> str:
+    """Write ``arr[k, j, i]`` to ``out`` (.npy, .nrrd or .raw) atomically; return the augment command for it.
+
+    ``orientation`` (a code such as ``LPS``, :mod:`isplat.orientation`): written into a .nrrd as its patient
+    space and directions, else added to the command as ``--orientation``."""
     low = out.lower()
     if not low.endswith((".npy", ".nrrd", ".raw")):
         raise IsplatError(f"{out}: unknown output extension; expected .npy, .nrrd or .raw")
@@ -43,6 +46,12 @@ def write_sample(arr: np.ndarray, spacing_ijk, out: str, force: bool) -> str:
                 raise IsplatError(f"{out}: writing .nrrd needs pynrrd: pip install 'isplat[nrrd]'") from None
             header = {"space dimension": 3, "space directions": np.diag(np.asarray(spacing_ijk, dtype=float)),
                       "space origin": np.zeros(3), "encoding": "raw", "endian": "little"}
+            if orientation:
+                from ..orientation import axes_from_code
+
+                header.pop("space dimension")
+                header["space"] = "left-posterior-superior"
+                header["space directions"] = axes_from_code(orientation) * np.asarray(spacing_ijk, float)[:, None]
             nrrd.write(str(tmp), np.ascontiguousarray(arr), header, index_order="C")
         else:
             a = np.ascontiguousarray(arr, dtype=arr.dtype.newbyteorder("<"))
@@ -50,6 +59,8 @@ def write_sample(arr: np.ndarray, spacing_ijk, out: str, force: bool) -> str:
             nk, nj, ni = arr.shape
             cmd += ["--shape", f"{ni},{nj},{nk}", "--dtype", arr.dtype.name, "--byte-order", "little",
                     "--spacing", sp]
+    if orientation and not low.endswith(".nrrd"):
+        cmd += ["--orientation", orientation]
     return shlex.join(cmd)
 
 
@@ -75,7 +86,9 @@ def sample(name, out, shape, seed, dtype, force):
     marschner-lobb  Marschner & Lobb (1994) test signal, fM=6, alpha=0.25 on [-1,1]^3
     sphere, two-density-cube   small shapes for tests
 
-    The printed command goes to stdout (pipe it to sh); log lines go to stderr.
+    The head, ct-head, ct-chest and mr-head samples stand for a patient in the LPS orientation (i towards
+    the patient's left, j posterior, k superior): a .nrrd records it, and the command printed for a .npy or
+    .raw passes --orientation LPS. The printed command goes to stdout (pipe it to sh); log lines go to stderr.
 
     \b
     Example:
@@ -84,7 +97,7 @@ def sample(name, out, shape, seed, dtype, force):
     """
     shp = parse_triple(shape, "--shape", int) if shape else None
     arr, spacing = make_sample(name, shp, seed, dtype)
-    cmd = write_sample(arr, spacing, out, force)
+    cmd = write_sample(arr, spacing, out, force, ORIENTATIONS.get(name))
     log.info(f"isplat sample: wrote {out} ({name}, {arr.dtype}, NI,NJ,NK={','.join(map(str, arr.shape[::-1]))}, "
              f"spacing {','.join(_fmt(s) for s in spacing)})")
     click.echo(cmd)

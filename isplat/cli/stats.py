@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from .options import quiet_option
+from .options import force_option, quiet_option
 
 
 @click.command("stats")
@@ -21,8 +21,16 @@ from .options import quiet_option
 @click.option("--view", "view", type=int, default=0, show_default=True, metavar="N",
               help="Which view of the scene's batch to render.")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object (keys: docs/stats.md).")
+@click.option("--histogram", is_flag=True,
+              help="Also print the density histogram in data units (Hounsfield units for CT) and percentiles.")
+@click.option("--bins", type=int, default=32, show_default=True, metavar="N",
+              help="Histogram bins: a power of two up to 256 (each holds 256/N density codes).")
+@click.option("--plot", "plot", metavar="HIST.png", default=None,
+              help="Write the histogram (log scale) with the presets' opacity ramps drawn over it: PNG, SVG or "
+                   "PDF by the extension (needs matplotlib: pip install 'isplat[plot]').")
+@force_option
 @quiet_option
-def stats(augmented, index, scene_file, overrides, view, as_json):
+def stats(augmented, index, scene_file, overrides, view, as_json, histogram, bins, plot, force):
     """Report the figures of the paper's Figure 5 for AUG.h5 (and its index IDX.h5, and a scene).
 
     Without a scene: dimensions, voxel count, spacing, density window, bytes per channel; the index's
@@ -34,18 +42,25 @@ def stats(augmented, index, scene_file, overrides, view, as_json):
     error; an index the scene does not name is taken from IDX.h5, and one it names is reported when
     IDX.h5 is not given.
 
+    --histogram adds the density histogram: each bin's range in data units (through the file's density
+    window), its voxels and share, and percentiles; --plot draws it, with the opacity ramps of the presets
+    that apply (CT presets on Hounsfield data, the window presets always), to find thresholds.
+
     \b
     Examples:
       isplat stats head.aug.h5
+      isplat stats ct.aug.h5 --histogram --bins 64 --plot ct-hist.png
       isplat stats head.aug.h5 head.idx.h5 --scene head.toml
       isplat stats head.aug.h5 head.idx.h5 --scene head.toml --set 'transfer.opacity=[[100,0],[255,1]]' --json
     """
     from ..errors import IsplatError
-    from ..stats import collect, format_table
+    from ..stats import collect, format_histogram, format_table
 
     if overrides and scene_file is None:
         raise IsplatError("--set needs --scene SCENE.toml")
     figures = collect(augmented, index, scene=scene_file, overrides=list(overrides), view=view)
+    if histogram or plot:
+        _histogram(figures, augmented, bins, plot, force, histogram)
     if as_json:
         try:
             text = json.dumps(figures, sort_keys=False, allow_nan=False)     # strict JSON: no NaN, no Infinity
@@ -55,3 +70,24 @@ def stats(augmented, index, scene_file, overrides, view, as_json):
         sys.stdout.write("\n")
     else:
         sys.stdout.write(format_table(figures))
+        if figures.get("histogram"):
+            sys.stdout.write("\n" + format_histogram(figures["histogram"]))
+
+
+def _histogram(figures, augmented, bins, plot, force, keep):
+    """Add the histogram to ``figures`` (when ``keep``) and write its plot (when ``plot``)."""
+    import logging
+
+    from ..augfile import open_augmented
+    from ..stats import histogram_section, plot_histogram
+
+    if plot:
+        from ..fileio import check_output
+
+        check_output(plot, force)                                # before reading the volume
+    h = histogram_section(open_augmented(augmented), bins)
+    if keep:
+        figures["histogram"] = h
+    if plot:
+        plot_histogram(h, plot, force, title=f"{augmented}: density histogram and preset opacity ramps")
+        logging.getLogger(__name__).info(f"isplat stats: wrote {plot}")

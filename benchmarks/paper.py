@@ -27,6 +27,10 @@ import numpy as np
 
 from . import _doc
 
+SECTION = "paper"        # the section of its page this benchmark writes
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "isplat/stats.py", "benchmarks/paper.py"))
+
 ROOT = Path(__file__).resolve().parents[1]
 IMAGE = 256
 FRAMES, FRAMES_QUICK = 15, 3

@@ -57,6 +57,10 @@ from isplat.threads import default_threads
 
 from . import _doc
 
+STAMPS_ITSELF = True     # run() stamps its section (it may skip without writing)
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "isplat/prebuilt.py", "isplat/cli/**", "examples/head.toml", "examples/engine.toml", "tests/ray_reference.py", "benchmarks/reference.py", "benchmarks/peers.py"))
+
 
 def _unit(renderer) -> float:
     """The opacity unit distance the renderer uses: the scene's, else the smallest spacing."""
@@ -931,8 +935,10 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
         plot(d["results"], out_dir / "img" / "peers_pareto.png")
         mem = {tuple(k.split("|")): v for k, v in d["mem"].items()}
         mem = {(k[0], int(k[1])): v for k, v in mem.items()}
-        return _doc.update_section(doc, SECTION, body(d["results"], mem, d["proc"], command, cls, ver, d["frames"],
-                                                      out_dir, quick), title="Performance")
+        _doc.update_section(doc, SECTION, body(d["results"], mem, d["proc"], command, cls, ver, d["frames"],
+                                               out_dir, quick), title="Performance")
+        return _doc.put_stamp(doc, _doc.stamp(SECTION, command + " --report-only", TECHNIQUES, SOURCES,
+                                              commit=d.get("commit")), SECTION)
     t0 = time.time()
     frames = 2 if quick else 7
     results = []
@@ -957,12 +963,13 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
     proc = measure_process("head opaque", 48 if quick else 512, quick, 1 if quick else 5)
     raw.parent.mkdir(parents=True, exist_ok=True)
     raw.write_text(json.dumps(dict(results=results, mem={f"{k[0]}|{k[1]}": v for k, v in mem.items()}, proc=proc,
-                                   frames=frames), default=float))
+                                   frames=frames, commit=_doc.git_rev()), default=float))
     write_csv(results, out_dir / "peers.csv")
     plot(results, out_dir / "img" / "peers_pareto.png")
     print(f"[peers] done in {time.time() - t0:.0f} s", file=sys.stderr)
-    return _doc.update_section(doc, SECTION, body(results, mem, proc, command, cls, ver, frames, out_dir, quick),
-                               title="Performance")
+    _doc.update_section(doc, SECTION, body(results, mem, proc, command, cls, ver, frames, out_dir, quick),
+                        title="Performance")
+    return _doc.put_stamp(doc, _doc.stamp(SECTION, command, TECHNIQUES, SOURCES), SECTION)
 
 
 def main(argv=None) -> int:

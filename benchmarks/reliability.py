@@ -27,6 +27,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from fuzzlab import (SHAPE_IJK, make_fixture, run_cli, mutate, check_mutant, fuzz, corrupt, _rewrite_unchecked)  # noqa: E402
 
+from . import _doc  # noqa: E402
+
+SECTION = "reliability"        # the section of its page this benchmark writes
+STAMPS_ITSELF = True     # write_report stamps its section
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(("isplat/**", "formats/examples/**", "tests/fuzzlab.py", "benchmarks/reliability.py"))
+
+
 
 def chunk_rounding(idx_path: Path, interval=(170, 255)) -> dict:
     """Bytes a bone-interval load requests from the index, and the bytes of the chunks HDF5 reads (and checks)
@@ -284,7 +292,7 @@ def _md(text: str) -> str:
     return text.replace("|", "\\|").replace("\n", " ")
 
 
-def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
+def write_report(out: Path, cat: list[dict], fz: list, cost: dict, quick: bool = False) -> Path:
     from ._doc import git_rev, machine_line, update_section
 
     c = cost
@@ -348,8 +356,10 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
     for n, r in enumerate(cat, 1):
         body.append(f"| {n} | {_md(r['input'])} | {r['command']} | {r['result']} | {_md(r['message'])[:400]} |")
     out.mkdir(parents=True, exist_ok=True)
-    return update_section(out / "reliability.md", "reliability", "\n".join(body), title="Reliability: bad input, "
+    path = update_section(out / "reliability.md", SECTION, "\n".join(body), title="Reliability: bad input, "
                           "corrupted files, interruptions")
+    command = "python -m benchmarks.reliability --out docs" + (" --quick" if quick else "") + " (make reliability)"
+    return _doc.put_stamp(path, _doc.stamp(SECTION, command, TECHNIQUES, SOURCES), SECTION)
 
 
 def run(out: Path, quick: bool = False, fuzz_seconds: float | None = None, seed: int = 0) -> Path:
@@ -360,7 +370,7 @@ def run(out: Path, quick: bool = False, fuzz_seconds: float | None = None, seed:
         cat = catalogue(fx, w)
         cost = checksum_cost(w, (64, 64, 48) if quick else (256, 256, 160), 3 if quick else 7)
     fz = [("in process", fuzz_figures(secs, seed)), ("child process", fuzz_boundscheck(secs, seed))]
-    return write_report(Path(out), cat, fz, cost)
+    return write_report(Path(out), cat, fz, cost, quick)
 
 
 def main(argv=None) -> int:

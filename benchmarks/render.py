@@ -26,6 +26,10 @@ import numpy as np
 
 from . import _doc
 
+SECTION = "render"        # the section of its page this benchmark writes
+TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "examples/head.toml", "benchmarks/render.py"))
+
 ROOT = Path(__file__).resolve().parents[1]
 WORK = ROOT / "out" / "bench"
 SCENE = ROOT / "examples" / "head.toml"

@@ -32,6 +32,9 @@ import numpy as np
 
 from . import _doc
 
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.READ, _doc.AUGMENT, _doc.SAMPLES, ("isplat/scene.py", "isplat/frame.py", "benchmarks/paper.py", "benchmarks/selective_read.py"))
+
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS, REPEATS_QUICK = 7, 2
 OLD_CHUNKS = {"TABLE_CHUNK": 1 << 14, "BYTES_CHUNK": 1 << 16, "PTR_CHUNK": 1 << 14}   # before version 3

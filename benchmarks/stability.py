@@ -30,6 +30,9 @@ import numpy as np
 
 from . import _doc
 
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, ("isplat/augment.py", "tests/ray_reference.py", "benchmarks/reference.py", "benchmarks/stability.py"))
+
 FINE = 'footprint_radius = 4\nfootprint_table = 1048576\nearly_termination = 1.0\n'
 DEFAULT_KNOBS = 'early_termination = 1.0\n'
 

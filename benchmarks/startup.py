@@ -31,6 +31,9 @@ import time
 from pathlib import Path
 
 from . import _doc
+
+TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(("isplat/**", "examples/head.toml", "benchmarks/startup.py"))
 from .render import ROOT, SCENE, ensure_head
 
 SIZE = 512

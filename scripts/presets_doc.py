@@ -7,6 +7,8 @@ engine (micro-CT stand-in, --window p0.5,p99.9). Each preset is rendered with th
 DOCS_DIR/img/preset-NAME.png, and its values and source are written into DOCS_DIR/presets.md.
 """
 
+import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -21,6 +23,11 @@ from isplat.samples import make_sample
 from isplat.scene import load_scene
 
 SIZE = (160, 160, 140)
+# the page's stamp (benchmarks/_doc.py; make docs-check): the technique of its pictures and what they depend on
+TECHNIQUES = ["pre"]          # the scene below says version = 1: the paper's pre-classified splatting
+SOURCES = ["isplat/presets.py", "isplat/units.py", "isplat/augment.py", "isplat/samples.py", "isplat/frame.py",
+           "isplat/renderer.py", "isplat/selection.py", "isplat/splat/**", "isplat/transfer.py", "isplat/scene.py",
+           "isplat/output.py", "scripts/presets_doc.py"]
 SAMPLE = {"ct-bone": "ct-head", "slicer-ct-bone": "ct-head", "ct-skin": "ct-head", "ct-soft-tissue": "ct-chest",
           "ct-angio": "ct-chest", "ct-lung": "ct-chest", "slicer-ct-lung": "ct-chest", "mri-t1-head": "mr-head",
           "micro-ct": "engine"}
@@ -103,7 +110,10 @@ def main(out: str, docs: str) -> None:
     for name in PRESETS:
         render(out_p, docs_p / "img", name, files[SAMPLE[name]])
         print(f"presets_doc: {docs_p}/img/preset-{name}.png", file=sys.stderr)
-    (docs_p / "presets.md").write_text(markdown(SIZE))
+    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    stamp = {"section": "presets", "commit": rev or "unknown", "command": "make presets-doc", "techniques": TECHNIQUES,
+             "sources": SOURCES}
+    (docs_p / "presets.md").write_text(f"<!-- isplat-stamp: {json.dumps(stamp)} -->\n" + markdown(SIZE))
     print(f"presets_doc: {docs_p}/presets.md", file=sys.stderr)
 
 

@@ -89,7 +89,8 @@ presets-doc: $(STAMP)
 reliability: $(STAMP)
 	$(BIN)/python -m benchmarks reliability --out docs
 
-# The fuzz test with numba bounds checking on; a fresh cache, since numba reuses kernels compiled without it.
+# The fuzz test with numba bounds checking on (every mutant rendered with both techniques, so both techniques'
+# kernels are checked); a fresh cache, since numba reuses kernels compiled without it.
 FUZZ_SECONDS ?= 300
 fuzz-boundscheck: $(STAMP)
 	cache=$$(mktemp -d) && NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$$cache ISPLAT_FUZZ_SECONDS=$(FUZZ_SECONDS) \

@@ -30,7 +30,8 @@ import numpy as np
 from . import _doc
 
 TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(_doc.RENDER, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml", "tests/ray_reference.py", "benchmarks/reference.py", "benchmarks/accuracy.py"))
+SOURCES = _doc.sources(_doc.RENDER, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml",
+                       "tests/ray_reference.py", "benchmarks/reference.py", "benchmarks/accuracy.py"))
 from . import reference as REF
 from .reference import errors, make_scene
 

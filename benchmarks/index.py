@@ -19,7 +19,8 @@ import numpy as np
 from . import _doc
 
 TECHNIQUES = []     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(("isplat/index/**", "isplat/augfile.py", "isplat/fileio.py", "isplat/augment.py"), _doc.SAMPLES, ("benchmarks/index.py",))
+SOURCES = _doc.sources(("isplat/index/**", "isplat/augfile.py", "isplat/fileio.py", "isplat/augment.py"),
+                       _doc.SAMPLES, ("benchmarks/index.py",))
 
 
 # density ranges of the augmented `head` sample (default window 0..2327 -> 0..255): air 0-1 with its noise

@@ -28,7 +28,8 @@ from . import _doc
 
 SECTION = "outofcore"        # the section of its page this benchmark writes
 TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.AUGMENT, _doc.SAMPLES, ("isplat/slabs.py", "isplat/memory.py", "isplat/cli/**", "examples/head.toml", "benchmarks/outofcore.py"))
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.AUGMENT, _doc.SAMPLES, ("isplat/slabs.py", "isplat/memory.py",
+                       "isplat/cli/**", "examples/head.toml", "benchmarks/outofcore.py"))
 from .render import ROOT
 
 LIMIT = 2 << 30

@@ -59,7 +59,9 @@ from . import _doc
 
 STAMPS_ITSELF = True     # run() stamps its section (it may skip without writing)
 TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "isplat/prebuilt.py", "isplat/cli/**", "examples/head.toml", "examples/engine.toml", "tests/ray_reference.py", "benchmarks/reference.py", "benchmarks/peers.py"))
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "isplat/prebuilt.py",
+                       "isplat/cli/**", "examples/head.toml", "examples/engine.toml", "tests/ray_reference.py",
+                       "benchmarks/reference.py", "benchmarks/peers.py"))
 
 
 def _unit(renderer) -> float:

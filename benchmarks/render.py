@@ -28,7 +28,8 @@ from . import _doc
 
 SECTION = "render"        # the section of its page this benchmark writes
 TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "examples/head.toml", "benchmarks/render.py"))
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "examples/head.toml",
+                       "benchmarks/render.py"))
 
 ROOT = Path(__file__).resolve().parents[1]
 WORK = ROOT / "out" / "bench"

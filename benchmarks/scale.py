@@ -30,7 +30,8 @@ from . import _doc
 
 SECTION = "scale"        # the section of its page this benchmark writes
 TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/distributed.py", "isplat/slabs.py", "isplat/augment.py", "examples/head.toml", "benchmarks/scale.py"))
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/distributed.py", "isplat/slabs.py",
+                       "isplat/augment.py", "examples/head.toml", "benchmarks/scale.py"))
 from .render import ROOT, ensure_head
 
 SCENE = ROOT / "examples" / "head.toml"

@@ -28,7 +28,9 @@ import numpy as np
 from . import _doc
 
 TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(_doc.RENDER, _doc.SAMPLES, ("isplat/augment.py", "examples/head.toml", "examples/engine.toml", "tests/ray_reference.py", "benchmarks/reference.py", "benchmarks/sheets.py"))
+SOURCES = _doc.sources(_doc.RENDER, _doc.SAMPLES, ("isplat/augment.py", "examples/head.toml",
+                       "examples/engine.toml", "tests/ray_reference.py", "benchmarks/reference.py",
+                       "benchmarks/sheets.py"))
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / "bench-out"

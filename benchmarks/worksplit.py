@@ -25,7 +25,8 @@ from pathlib import Path
 from . import _doc
 
 TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml", "benchmarks/worksplit.py"))
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml",
+                       "benchmarks/worksplit.py"))
 from .render import ROOT, SCENE, ensure_head, overrides
 
 SEMI = "transfer.opacity=[[0,0],[99,0],[130,0.1],[200,0.5],[255,0.7]]"

@@ -146,8 +146,23 @@ def stamp_re():
 
 
 def put_stamp(path: Path, line: str, section: str | None = None) -> Path:
-    """Put the stamp ``line`` into ``path``: as the first line inside section ``section`` (between its BEGIN and
-    END markers), or as the page's first line when ``section`` is None; an older stamp there is replaced."""
+    r"""Put the stamp ``line`` into ``path``: as the first line inside section ``section`` (between its BEGIN and
+    END markers), or as the page's first line when ``section`` is None; an older stamp there is replaced.
+
+    >>> import tempfile
+    >>> page = Path(tempfile.mkdtemp()) / "p.md"
+    >>> _ = page.write_text("# P\n\n<!-- BEGIN a -->\nrows\n<!-- END a -->\n")
+    >>> for commit in ("1111111", "2222222"):
+    ...     _ = put_stamp(page, stamp("a", "cmd", ["post"], ["src/**"], commit=commit), "a")
+    >>> print(page.read_text().replace('"sources": ["src/**"]', '...'))
+    # P
+    <BLANKLINE>
+    <!-- BEGIN a -->
+    <!-- isplat-stamp: {"section": "a", "commit": "2222222", "command": "cmd", "techniques": ["post"], ...} -->
+    rows
+    <!-- END a -->
+    <BLANKLINE>
+    """
     path = Path(path)
     text = path.read_text()
     if section is None:

@@ -368,7 +368,7 @@ def render_doc(rows, quick: bool, repeats: int, seconds: float) -> str:
                  f"{_rss(r['rss_after'])}, {r['build_after']:.1f} |")
     L += [
         "",
-        "## The alternatives, measured on the same scenes",
+        "## The alternatives, measured on the same scenes (what pre reads)",
         "",
         "*Chunk sizes*: version 3 written in version 2's chunk sizes (16 KiB tables, 64 KiB blocks and values) "
         "reads more around each range, which matters for a small scene. *Bricks*: no index values at all, but "

@@ -24,7 +24,7 @@ from isplat.scene import load_scene
 
 SIZE = (160, 160, 140)
 # the page's stamp (benchmarks/_doc.py; make docs-check): the technique of its pictures and what they depend on
-TECHNIQUES = ["pre"]          # the scene below says version = 1: the paper's pre-classified splatting
+TECHNIQUES = ["post"]         # the scene below: the default technique, post-classification, written out
 SOURCES = ["isplat/presets.py", "isplat/units.py", "isplat/augment.py", "isplat/samples.py", "isplat/frame.py",
            "isplat/renderer.py", "isplat/selection.py", "isplat/splat/**", "isplat/transfer.py", "isplat/scene.py",
            "isplat/output.py", "scripts/presets_doc.py"]
@@ -32,7 +32,7 @@ SAMPLE = {"ct-bone": "ct-head", "slicer-ct-bone": "ct-head", "ct-skin": "ct-head
           "ct-angio": "ct-chest", "ct-lung": "ct-chest", "slicer-ct-lung": "ct-chest", "mri-t1-head": "mr-head",
           "micro-ct": "engine"}
 WINDOW = {"engine": "p0.5,p99.9"}
-SCENE = """version = 1
+SCENE = """version = 4
 [data]
 augmented = "{aug}"
 index = "{idx}"
@@ -50,6 +50,8 @@ unit_distance = 1.0
 ambient = 0.25
 specular = 0.3
 shininess = 30
+[render]
+classification = "post"
 """
 
 
@@ -84,7 +86,9 @@ def markdown(sizes) -> str:
              "holds them all); MRI and micro-CT values have no calibrated unit, so those presets are in fractions "
              "of the window (shown here as density codes, fraction x 255). Each picture is the preset on a "
              f"synthetic scan ({'x'.join(map(str, sizes))} voxels, `isplat sample`), made by "
-             "`make presets-doc` (scripts/presets_doc.py), which also writes this page.", "",
+             "`make presets-doc` (scripts/presets_doc.py), which also writes this page; every picture is "
+             "rendered with isplat's default technique, post-classification (`render.classification = \"post\"`).",
+             "",
              "| preset | shows | sample | opacity `[value, opacity]` | colour `[value, r, g, b]` | source | picture |",
              "|---|---|---|---|---|---|---|"]
     for p in PRESETS.values():

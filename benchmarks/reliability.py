@@ -313,8 +313,8 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict, quick: bool =
 
     c = cost
     body = [
-        "Made by `python -m benchmarks.reliability --out docs` (`make reliability`) at commit "
-        f"{git_rev()} on {machine_line()}. Every figure below is measured by that command.",
+        f"Made by `python -m benchmarks.reliability --out docs{' --quick' if quick else ''}` (`make reliability`) "
+        f"at commit {git_rev()} on {machine_line()}. Every figure below is measured by that command.",
         "",
         "## Fuzzing",
         "",

@@ -7,7 +7,7 @@ OUT    ?= out
 STAMP  := $(VENV)/.installed
 PREBUILT := isplat/_prebuilt/manifest.json
 
-.PHONY: demo prebuilt test bench bench-check wheel-check data paper-table bench-peers accuracy reference stability clean venv readme-images presets-doc reliability fuzz-boundscheck
+.PHONY: demo prebuilt test bench bench-check wheel-check data paper-table bench-peers accuracy reference stability clean venv readme-images presets-doc reliability fuzz-boundscheck docs-check
 
 venv: $(STAMP)
 
@@ -39,6 +39,12 @@ bench: $(STAMP)
 bench-check: $(STAMP)
 	$(BIN)/python -m pytest -q --doctest-modules benchmarks
 	$(BIN)/python -m benchmarks all --quick --out $(OUT)/bench-check
+
+# The generated pages and sections of docs/ whose measured sources changed since the commit in their stamp
+# (scripts/docs_check.py); DOCS_CHECK=--strict fails on a stale or unstamped one.
+DOCS_CHECK ?=
+docs-check: $(STAMP)
+	$(BIN)/python scripts/docs_check.py $(DOCS_CHECK)
 
 # The wheel holds isplat/ (library and CLI) only.
 wheel-check: $(STAMP)
@@ -83,7 +89,8 @@ presets-doc: $(STAMP)
 reliability: $(STAMP)
 	$(BIN)/python -m benchmarks reliability --out docs
 
-# The fuzz test with numba bounds checking on; a fresh cache, since numba reuses kernels compiled without it.
+# The fuzz test with numba bounds checking on (every mutant rendered with both techniques, so both techniques'
+# kernels are checked); a fresh cache, since numba reuses kernels compiled without it.
 FUZZ_SECONDS ?= 300
 fuzz-boundscheck: $(STAMP)
 	cache=$$(mktemp -d) && NUMBA_BOUNDSCHECK=1 NUMBA_CACHE_DIR=$$cache ISPLAT_FUZZ_SECONDS=$(FUZZ_SECONDS) \

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import benchmarks as pkg
+from benchmarks import _doc
 
 
 # not part of `all`: compares two versions of isplat, run as `python benchmarks/commits.py --old REV`
@@ -32,7 +33,10 @@ def main(argv=None):
     a.out.mkdir(parents=True, exist_ok=True)
     for n in todo:
         print(f"[bench] {n}", file=sys.stderr)
-        path = importlib.import_module(f"benchmarks.{n}").run(a.out, a.quick)
+        mod = importlib.import_module(f"benchmarks.{n}")
+        path = mod.run(a.out, a.quick)
+        if not getattr(mod, "STAMPS_ITSELF", False):
+            _doc.stamp_output(path, mod, f"python -m benchmarks {n}" + (" --quick" if a.quick else ""))
         print(f"[bench] wrote {path}", file=sys.stderr)
     return 0
 

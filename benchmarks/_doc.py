@@ -3,14 +3,36 @@
 Several benchmarks share a page (docs/performance.md holds the render benchmark and the paper's
 Figure 5 table); each owns the text between ``<!-- BEGIN name -->`` and ``<!-- END name -->``, and rerunning
 one replaces only its own section.
+
+Every generated page or section carries a stamp (:func:`stamp`), one HTML comment line that Markdown does not show:
+
+    <!-- isplat-stamp: {"section": "paper", "commit": "ad6551e", "command": "python -m benchmarks paper",
+         "techniques": ["pre", "post"], "sources": ["isplat/frame.py", "isplat/splat/**", ...]} -->
+
+(on one line): the commit measured, the command that made it, the render techniques its rows used
+(``render.classification``: "pre", the paper's splatting, or "post", the default from scene version 4; empty when
+nothing is rendered) and the source paths (git globs) whose change makes it stale. ``make docs-check``
+(scripts/docs_check.py) lists the stamps whose sources changed since their commit. A hand-written page or
+section that is deliberately not regenerated says so with ``{"section": ..., "historical": "why"}``.
 """
 
 from __future__ import annotations
 
+import json
 import platform
 import statistics
 import subprocess
 from pathlib import Path
+
+STAMP_TAG = "isplat-stamp"
+
+# Source globs (git pathspec globs, relative to the repository root) shared by the benchmarks' SOURCES: what a
+# measurement of reading, of rendering or of augmenting depends on.
+READ = ("isplat/index/**", "isplat/augfile.py", "isplat/fileio.py", "isplat/selection.py")
+RENDER = ("isplat/frame.py", "isplat/renderer.py", "isplat/selection.py", "isplat/splat/**", "isplat/camera.py",
+          "isplat/transfer.py", "isplat/scene.py", "isplat/jit.py", "isplat/threads.py", "isplat/normals.py")
+AUGMENT = ("isplat/augment.py", "isplat/augfile.py", "isplat/normals.py", "isplat/volume_io.py", "isplat/fileio.py")
+SAMPLES = ("isplat/samples.py",)
 
 
 def machine_line() -> str:
@@ -61,6 +83,35 @@ def git_rev() -> str:
         return "unknown"
 
 
+def sources(*groups) -> list[str]:
+    """The union of source globs, in order, without repeats.
+
+    >>> sources(("a.py", "b/**"), ["b/**", "c.py"])
+    ['a.py', 'b/**', 'c.py']
+    """
+    return list(dict.fromkeys(s for g in groups for s in g))
+
+
+def stamp(section: str, command: str, techniques, sources, commit: str | None = None, **extra) -> str:
+    """The stamp line of a generated page or section (see the module's docstring).
+
+    >>> stamp("paper", "python -m benchmarks paper", ["pre", "post"], ["benchmarks/paper.py"], commit="ad6551e")
+    '<!-- isplat-stamp: {"section": "paper", "commit": "ad6551e", "command": "python -m benchmarks paper", \
+"techniques": ["pre", "post"], "sources": ["benchmarks/paper.py"]} -->'
+    """
+    bad = [t for t in techniques if t not in ("pre", "post")]
+    if bad:
+        raise ValueError(f"unknown techniques {bad}: expected 'pre' or 'post'")
+    d = {"section": section, "commit": commit or git_rev(), "command": command, "techniques": list(techniques),
+         "sources": list(sources), **extra}
+    return f"<!-- {STAMP_TAG}: {json.dumps(d)} -->"
+
+
+def historical(section: str, why: str) -> str:
+    """The stamp of a page or section that is deliberately not regenerated, with the reason."""
+    return f"<!-- {STAMP_TAG}: {json.dumps({'section': section, 'historical': why})} -->"
+
+
 def median_ms(seconds) -> float:
     return 1000.0 * statistics.median(seconds)
 
@@ -79,3 +130,60 @@ def update_section(path: Path, name: str, body: str, title: str | None = None) -
         text = text.rstrip("\n") + "\n\n" + block
     path.write_text(text)
     return path
+
+
+_STAMP_RE = None
+
+
+def stamp_re():
+    """The regular expression of a stamp line: group 1 is its JSON."""
+    import re
+
+    global _STAMP_RE
+    if _STAMP_RE is None:
+        _STAMP_RE = re.compile(r"^<!-- " + STAMP_TAG + r": (\{.*\}) -->[ \t]*$", re.M)
+    return _STAMP_RE
+
+
+def put_stamp(path: Path, line: str, section: str | None = None) -> Path:
+    r"""Put the stamp ``line`` into ``path``: as the first line inside section ``section`` (between its BEGIN and
+    END markers), or as the page's first line when ``section`` is None; an older stamp there is replaced.
+
+    >>> import tempfile
+    >>> page = Path(tempfile.mkdtemp()) / "p.md"
+    >>> _ = page.write_text("# P\n\n<!-- BEGIN a -->\nrows\n<!-- END a -->\n")
+    >>> for commit in ("1111111", "2222222"):
+    ...     _ = put_stamp(page, stamp("a", "cmd", ["post"], ["src/**"], commit=commit), "a")
+    >>> print(page.read_text().replace('"sources": ["src/**"]', '...'))
+    # P
+    <BLANKLINE>
+    <!-- BEGIN a -->
+    <!-- isplat-stamp: {"section": "a", "commit": "2222222", "command": "cmd", "techniques": ["post"], ...} -->
+    rows
+    <!-- END a -->
+    <BLANKLINE>
+    """
+    path = Path(path)
+    text = path.read_text()
+    if section is None:
+        lo, hi = 0, len(text)
+    else:
+        begin, end = f"<!-- BEGIN {section} -->\n", f"<!-- END {section} -->"
+        if begin not in text or end not in text:
+            raise ValueError(f"{path}: no section {section!r}")
+        lo = text.index(begin) + len(begin)
+        hi = text.index(end, lo)
+    body = text[lo:hi]
+    first = body.split("\n", 1)[0]
+    if stamp_re().match(first):
+        body = body.split("\n", 1)[1] if "\n" in body else ""
+    path.write_text(text[:lo] + line + "\n" + body + text[hi:])
+    return path
+
+
+def stamp_output(path: Path, module, command: str) -> Path:
+    """Stamp what benchmark ``module`` wrote at ``path``: its section (``module.SECTION``) or the whole page, with
+    its ``TECHNIQUES`` and ``SOURCES``."""
+    section = getattr(module, "SECTION", None)
+    line = stamp(section or Path(path).stem, command, module.TECHNIQUES, module.SOURCES)
+    return put_stamp(path, line, section)

@@ -28,6 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from . import _doc
+
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml",
+                       "tests/ray_reference.py", "benchmarks/reference.py", "benchmarks/accuracy.py"))
 from . import reference as REF
 from .reference import errors, make_scene
 
@@ -161,14 +165,16 @@ def pareto(points, tol: float = 0.0):
 
 
 def _label(row):
+    """A row's setting, its technique first for isplat's rows ("post, ET 0.95", "pre, radius 2.0")."""
     if row["knob"] == "defaults":
-        return "defaults"
+        return "post, defaults"
     if row["renderer"] == "VTK":
         return f"VTK {row['value']:g}"
     short = {"early_termination": "ET", "footprint_radius": "pre, radius", "footprint_table": "pre, table",
              "footprint_sigma": "pre, sigma", "precision": "", "threads": "threads", "method": "",
              "sheets": "pre, sheets", "classification": ""}
-    return f"{short[row['knob']]} {row['value']}".strip()
+    label = f"{short[row['knob']]} {row['value']}".strip()
+    return label if label.startswith("pre") else "post, " + label
 
 
 def plot(rows_by_case, path: Path, conv=None):

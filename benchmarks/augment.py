@@ -15,6 +15,12 @@ import numpy as np
 
 from isplat.samples import make_sample
 
+from . import _doc
+
+TECHNIQUES = []     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.AUGMENT, _doc.SAMPLES, ("isplat/cli/**", "benchmarks/augment.py"))
+
+
 
 def _run(cmd):
     """Run ``cmd``; return (seconds, max RSS of the child in bytes or None)."""

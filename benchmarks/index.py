@@ -16,6 +16,13 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from . import _doc
+
+TECHNIQUES = []     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(("isplat/index/**", "isplat/augfile.py", "isplat/fileio.py", "isplat/augment.py"),
+                       _doc.SAMPLES, ("benchmarks/index.py",))
+
+
 # density ranges of the augmented `head` sample (default window 0..2327 -> 0..255): air 0-1 with its noise
 # tail 2-111, CSF/eyes/brain/lesion 112-118, soft tissue 119-123 (1100 -> 120.5; the sample does not
 # separate skin from muscle), partial-volume ramp soft/brain-to-bone 124-239, bone 240-242 (2200 -> 241),

@@ -9,6 +9,12 @@ import numpy as np
 
 from isplat import normals as N
 
+from . import _doc
+
+TECHNIQUES = []     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(("isplat/normals.py", "benchmarks/normals.py"))
+
+
 
 def _errors(v):
     d = N.decode(N.encode(v)).astype(np.float64)

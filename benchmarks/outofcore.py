@@ -25,6 +25,11 @@ import time
 from pathlib import Path
 
 from . import _doc
+
+SECTION = "outofcore"        # the section of its page this benchmark writes
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.AUGMENT, _doc.SAMPLES, ("isplat/slabs.py", "isplat/memory.py",
+                       "isplat/cli/**", "examples/head.toml", "benchmarks/outofcore.py"))
 from .render import ROOT
 
 LIMIT = 2 << 30
@@ -109,16 +114,19 @@ def run(out_dir: Path, quick: bool) -> Path:
 
     def line(r):
         name, ok, dt, rss, err, again, auto = r
+        shown = name                            # every row about rendering names its technique
+        if name.startswith("render") and "post-classified" not in name:
+            shown = name + ", pre-classified"
         if name == ONE_PASS:
-            return f"| {name} | not limited | {dt:.1f} s | {gib(rss)} | {'' if ok else 'fails: `' + err[:160] + '`'} |"
+            return f"| {shown} | not limited | {dt:.1f} s | {gib(rss)} | {'' if ok else 'fails: `' + err[:160] + '`'} |"
         if ok:
             note = f"in {auto} slabs, chosen by itself (the selection does not fit)" if auto else ""
-            return f"| {name} | ok | {dt:.1f} s | {gib(rss)} | {note} |"
+            return f"| {shown} | ok | {dt:.1f} s | {gib(rss)} | {note} |"
         note = f"fails: `{err[:160]}`"
         if again:
             note += (f"; without the limit {again[1]:.1f} s, peak RSS {gib(again[2])}" if again[0]
                      else f"; fails without the limit too: `{again[3][:120]}`")
-        return f"| {name} | **no** | {dt:.1f} s | {gib(rss)} | {note} |"
+        return f"| {shown} | **no** | {dt:.1f} s | {gib(rss)} | {note} |"
     body = f"""```
 python -m benchmarks outofcore{' --quick' if quick else ''}
 ```

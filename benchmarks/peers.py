@@ -57,6 +57,12 @@ from isplat.threads import default_threads
 
 from . import _doc
 
+STAMPS_ITSELF = True     # run() stamps its section (it may skip without writing)
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "isplat/prebuilt.py",
+                       "isplat/cli/**", "examples/head.toml", "examples/engine.toml", "tests/ray_reference.py",
+                       "benchmarks/reference.py", "benchmarks/peers.py"))
+
 
 def _unit(renderer) -> float:
     """The opacity unit distance the renderer uses: the scene's, else the smallest spacing."""
@@ -348,6 +354,17 @@ CASES = {
                         "soft tissue semi-opaque in front of bone"),
 }
 HIDDEN_REMOVED = "isplat defaults, hidden voxels removed"
+
+
+def _who(who: str) -> str:
+    """A point's renderer with isplat's technique named (every row about rendering names its technique).
+
+    >>> _who("isplat defaults"), _who("isplat pre, radius 2"), _who("VTK 1")
+    ('isplat post, defaults', 'isplat pre, radius 2', 'VTK 1')
+    """
+    if not who.startswith("isplat ") or who.startswith("isplat pre"):
+        return who
+    return "isplat post, " + who[len("isplat "):]
 ISPLAT_POINTS = [("defaults", {}), ("ET 0.95", {"early_termination": 0.95}),
                  ("pre", {"classification": "pre"}),
                  ("pre, radius 2", {"classification": "pre", "footprint_radius": 2.0})]
@@ -862,7 +879,7 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
          "reference (a) (docs/reference.md: the converged float64 ray integral of the same 8-bit densities, "
          "trilinear, transfer function after interpolation, step 0.05 voxel), which is neither renderer; VTK's "
          "image is read back as 8 bits.", "",
-         "| case | pixels | isplat ms | VTK step 1 ms | isplat / VTK 1 | isplat / VTK 1, cold | VTK step 0.5 ms | "
+         "| case | pixels | isplat (post, its default) ms | VTK step 1 ms | isplat / VTK 1 | isplat / VTK 1, cold | VTK step 0.5 ms | "
          "isplat / VTK 0.5 | PSNR (a) isplat | PSNR (a) VTK 1 | PSNR (a) VTK 0.5 | PSNR isplat vs VTK 1 |",
          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results:
@@ -884,7 +901,7 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
             e = p["err"]
             rmse = "" if e is None else f"{e['rmse']:.4f}"
             psnr = "" if e is None else _psnr(e)
-            L.append(f"| {r['case']} | {r['size']} | {p['who']} | {p['ms']:.1f} | {rmse} | {psnr} |")
+            L.append(f"| {r['case']} | {r['size']} | {_who(p['who'])} | {p['ms']:.1f} | {rmse} | {psnr} |")
     L += ["", "![error against time](img/peers_pareto.png)", "",
           "`img/peers_pareto.png`: RMSE against reference (a) over median frame time, both renderers' points, one "
           "panel per case at 512 pixels.", "", "Cases:", ""]
@@ -931,8 +948,10 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
         plot(d["results"], out_dir / "img" / "peers_pareto.png")
         mem = {tuple(k.split("|")): v for k, v in d["mem"].items()}
         mem = {(k[0], int(k[1])): v for k, v in mem.items()}
-        return _doc.update_section(doc, SECTION, body(d["results"], mem, d["proc"], command, cls, ver, d["frames"],
-                                                      out_dir, quick), title="Performance")
+        _doc.update_section(doc, SECTION, body(d["results"], mem, d["proc"], command, cls, ver, d["frames"],
+                                               out_dir, quick), title="Performance")
+        return _doc.put_stamp(doc, _doc.stamp(SECTION, command + " --report-only", TECHNIQUES, SOURCES,
+                                              commit=d.get("commit")), SECTION)
     t0 = time.time()
     frames = 2 if quick else 7
     results = []
@@ -957,12 +976,13 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
     proc = measure_process("head opaque", 48 if quick else 512, quick, 1 if quick else 5)
     raw.parent.mkdir(parents=True, exist_ok=True)
     raw.write_text(json.dumps(dict(results=results, mem={f"{k[0]}|{k[1]}": v for k, v in mem.items()}, proc=proc,
-                                   frames=frames), default=float))
+                                   frames=frames, commit=_doc.git_rev()), default=float))
     write_csv(results, out_dir / "peers.csv")
     plot(results, out_dir / "img" / "peers_pareto.png")
     print(f"[peers] done in {time.time() - t0:.0f} s", file=sys.stderr)
-    return _doc.update_section(doc, SECTION, body(results, mem, proc, command, cls, ver, frames, out_dir, quick),
-                               title="Performance")
+    _doc.update_section(doc, SECTION, body(results, mem, proc, command, cls, ver, frames, out_dir, quick),
+                        title="Performance")
+    return _doc.put_stamp(doc, _doc.stamp(SECTION, command, TECHNIQUES, SOURCES), SECTION)
 
 
 def main(argv=None) -> int:

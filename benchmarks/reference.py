@@ -33,6 +33,10 @@ import numpy as np
 
 from . import _doc
 
+TECHNIQUES = []     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.SAMPLES, ("isplat/augment.py", "isplat/scene.py", "examples/*.toml",
+                       "tests/ray_reference.py", "benchmarks/reference.py"))
+
 REPO = Path(__file__).resolve().parents[1]
 TESTS = REPO / "tests"       # the integrator lives in tests/ray_reference.py, shared with its tests
 

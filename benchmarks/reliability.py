@@ -25,7 +25,16 @@ import numpy as np
 
 # the fuzzer and the corruptions are the tests' (tests/fuzzlab.py); this page runs them for longer
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from fuzzlab import (SHAPE_IJK, make_fixture, run_cli, mutate, check_mutant, fuzz, corrupt, _rewrite_unchecked)  # noqa: E402
+from fuzzlab import (SHAPE_IJK, TECHNIQUES as FUZZ_SCENES, make_fixture, run_cli, mutate,  # noqa: E402
+                     check_mutant, fuzz, corrupt, scene_label, _rewrite_unchecked)
+
+from . import _doc  # noqa: E402
+
+SECTION = "reliability"        # the section of its page this benchmark writes
+STAMPS_ITSELF = True     # write_report stamps its section
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(("isplat/**", "formats/examples/**", "tests/fuzzlab.py", "benchmarks/reliability.py"))
+
 
 
 def chunk_rounding(idx_path: Path, interval=(170, 255)) -> dict:
@@ -92,22 +101,30 @@ def checksum_cost(folder: Path, shape_ijk=(256, 256, 160), repeats: int = 7) -> 
         for ax in "ijk":
             ix.load_axis(ax, [(0, 255)])
 
-    def render_first_frame(aug_path, idx_path):
+    def render_first_frame(aug_path, idx_path, technique):
         from isplat.renderer import Renderer
         from isplat.scene import parse_scene
 
-        text = (f'version = 1\n[data]\naugmented = "{aug_path}"\nindex = "{idx_path}"\n[image]\nwidth = 256\n'
+        text = (f'version = 4\n[data]\naugmented = "{aug_path}"\nindex = "{idx_path}"\n[image]\nwidth = 256\n'
                 'height = 256\n[transfer]\nopacity = [[170, 0.0], [200, 1.0], [255, 1.0]]\n[shading]\n'
-                'ambient = 0.2\n[render]\nmethod = "indexed"\n')
+                f'ambient = 0.2\n[render]\nmethod = "indexed"\nclassification = "{technique}"\n')
         Renderer(parse_scene(text, folder, "bench.toml")).render_view(0)
 
-    render_first_frame(aug, idx)            # compile and warm the page cache before timing
-    times = {(w, v): [] for w in ("scene", "whole", "frame") for v in ("checked", "unchecked")}
+    def frame_pre(aug_path, idx_path):
+        render_first_frame(aug_path, idx_path, "pre")
+
+    def frame_post(aug_path, idx_path):
+        render_first_frame(aug_path, idx_path, "post")
+
+    frame_pre(aug, idx)                     # compile and warm the page cache before timing
+    frame_post(aug, idx)
+    jobs = (("scene", load_scene_data), ("whole", whole), ("frame_pre", frame_pre), ("frame_post", frame_post))
+    times = {(w, v): [] for w, _ in jobs for v in ("checked", "unchecked")}
     with contextlib.ExitStack() as st:
         for p in no_check:
             st.enter_context(p)
         for _ in range(repeats):
-            for w, fn in (("scene", load_scene_data), ("whole", whole), ("frame", render_first_frame)):
+            for w, fn in jobs:
                 for v, (ap, ip) in (("checked", (aug, idx)), ("unchecked", (aug0, idx0))):
                     t = time.perf_counter()
                     fn(ap, ip)
@@ -151,7 +168,7 @@ def _pair_cases(fx: dict) -> list[tuple[str, str, str, str]]:
 
 def _cli_cases(fx: dict, w: Path) -> list[tuple[str, list]]:
     """(input, argv): misuse of the command line and of the pipeline."""
-    aug, idx, sc = str(fx["aug"]), str(fx["idx"]), str(fx["indexed"])
+    aug, idx, sc = str(fx["aug"]), str(fx["idx"]), str(fx["post"])      # the default technique's scene
     (w / "exists.png").write_bytes(b"")
     (w / "const.npy").write_bytes(b"")
     import numpy as _np
@@ -164,7 +181,7 @@ def _cli_cases(fx: dict, w: Path) -> list[tuple[str, list]]:
         vol[3, 3, 3] = 9
         write_index(other, build_index(vol, "ijk"), vol.shape, "0" * 64, force=True)
     orbit = w / "orbit.toml"
-    orbit.write_text(fx["indexed"].read_text().split("[views]")[0] + "[views]\norbit_steps = 720\n")
+    orbit.write_text(fx["post"].read_text().split("[views]")[0] + "[views]\norbit_steps = 720\n")
     part = w / "part.idx.h5"
     if not part.exists():
         from isplat.index import build_index_file
@@ -222,11 +239,13 @@ def catalogue(fx: dict, w: Path) -> list[dict]:
         finally:
             path.write_bytes(original)
         o = check_mutant(fx, target, mutant, op)
-        rows.append({"input": what, "command": f"render ({target} file corrupted)", "result": o.result,
+        rows.append({"input": what, "command": f"render, pre and post ({target} file corrupted)", "result": o.result,
                      "message": clean(o.message) if o.message else f"({o.result})"})
+    sc, orbit = str(fx["post"]), w / "orbit.toml"
     for what, argv in _cli_cases(fx, w):
         code, _, err = run_cli(argv)
-        rows.append({"input": what, "command": " ".join(argv[:1]), "result": f"exit {code}",
+        cmd = " ".join(argv[:1]) + (" (post scene)" if sc in argv or str(orbit) in argv else "")
+        rows.append({"input": what, "command": cmd, "result": f"exit {code}",
                      "message": clean(err) or "(no message)"})
     root = Path(__file__).resolve().parents[2] / "formats/examples/scene/invalid"
     for toml in sorted(root.glob("*.toml")):
@@ -238,22 +257,25 @@ def catalogue(fx: dict, w: Path) -> list[dict]:
 
 # ------------------------------------------------------------------------------------------------- report
 
-def fuzz_figures(seconds: float, seed: int) -> dict:
-    """Fuzz for ``seconds`` in a fresh fixture; the counts by outcome."""
+def fuzz_figures(seconds: float, seed: int, technique: str) -> dict:
+    """Fuzz for ``seconds`` in a fresh fixture whose scenes are those of ``technique`` ("pre": the paper's
+    splatting, indexed and full methods; "post": the default, post-classified, shaded); the counts by outcome."""
     with tempfile.TemporaryDirectory() as td:
-        fx = make_fixture(Path(td))
+        fx = make_fixture(Path(td), scenes=FUZZ_SCENES[technique])
         rep = fuzz(fx, seconds, seed)
     by = {}
     for o in rep.outcomes:
         key = o.result if not o.result.startswith("FAIL") else "failure"
         by[key] = by.get(key, 0) + 1
-    return {"seconds": round(rep.seconds, 1), "seed": seed, "runs": len(rep.outcomes), "by_result": by,
+    return {"technique": technique, "scenes": [scene_label(s) for s in FUZZ_SCENES[technique]],
+            "seconds": round(rep.seconds, 1), "seed": seed, "runs": len(rep.outcomes), "by_result": by,
             "boundscheck": os.environ.get("NUMBA_BOUNDSCHECK", "0") == "1",
             "failures": [f"{o.target}: {o.mutation}: {o.result}" for o in rep.failures][:20]}
 
 
-def fuzz_boundscheck(seconds: float, seed: int) -> dict:
-    """The same fuzzing in a child process with NUMBA_BOUNDSCHECK=1 and a fresh NUMBA_CACHE_DIR."""
+def fuzz_boundscheck(seconds: float, seed: int) -> list[dict]:
+    """The same fuzzing, both techniques one after the other, in a child process with NUMBA_BOUNDSCHECK=1 and a
+    fresh NUMBA_CACHE_DIR; each result carries the child's wall time (compilation included)."""
     import json
     import subprocess
     import sys
@@ -266,16 +288,18 @@ def fuzz_boundscheck(seconds: float, seed: int) -> dict:
         if r.returncode != 0:
             raise RuntimeError(f"bounds-checked fuzzing failed: {r.stderr[-2000:]}")
         out = json.loads(r.stdout.strip().splitlines()[-1])
-        out["wall_seconds_with_compilation"] = round(time.perf_counter() - t, 1)
+        for o in out:
+            o["wall_seconds_with_compilation"] = round(time.perf_counter() - t, 1)
         return out
 
 
 def _fuzz_table(rows: list[dict]) -> str:
-    lines = ["| run | bounds checking | seed | seconds | mutants | one error line | same images | bytes unchanged | "
-             "failures |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| run | technique (scenes rendered) | bounds checking | seed | seconds | mutants | one error line | "
+             "same images | bytes unchanged | failures |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, f in rows:
         b = f["by_result"]
-        lines.append(f"| {name} | {'on' if f['boundscheck'] else 'off'} | {f['seed']} | {f['seconds']} | {f['runs']} | "
+        lines.append(f"| {name} | {f['technique']} ({', '.join(f['scenes'])}) | {'on' if f['boundscheck'] else 'off'} "
+                     f"| {f['seed']} | {f['seconds']} | {f['runs']} | "
                      f"{b.get('error', 0)} | {b.get('equal', 0)} | {b.get('unchanged', 0)} | {b.get('failure', 0)} |")
     return "\n".join(lines)
 
@@ -284,21 +308,24 @@ def _md(text: str) -> str:
     return text.replace("|", "\\|").replace("\n", " ")
 
 
-def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
+def write_report(out: Path, cat: list[dict], fz: list, cost: dict, quick: bool = False) -> Path:
     from ._doc import git_rev, machine_line, update_section
 
     c = cost
     body = [
-        "Made by `python -m benchmarks.reliability --out docs` (`make reliability`) at commit "
-        f"{git_rev()} on {machine_line()}. Every figure below is measured by that command.",
+        f"Made by `python -m benchmarks.reliability --out docs{' --quick' if quick else ''}` (`make reliability`) "
+        f"at commit {git_rev()} on {machine_line()}. Every figure below is measured by that command.",
         "",
         "## Fuzzing",
         "",
         "Mutants of a small head's augmented and index files (`SHAPE_IJK` "
         f"{'x'.join(map(str, SHAPE_IJK))}, alternately): a bit flip (half of them), a random byte, a zeroed run of "
         "1-64 bytes or a truncation, at a uniformly random position. Each mutant is rendered through the CLI with "
-        "both methods (three views, one per axis, every density visible, shading and gradient-modulated opacity, "
-        "so every dataset is read), then `isplat stats AUG IDX --json` runs on it. A run passes if it ends in "
+        "the row's technique (three views, one per axis, every density visible, shading and gradient-modulated "
+        "opacity, so every dataset is read): *pre*, the paper's pre-classified splatting, with the indexed and the "
+        "full method; *post*, post-classification (the default from scene version 4), with the indexed method, "
+        "which reads the index blocks and the whole channels; then `isplat stats AUG IDX --json` runs on it."
+        " A run passes if it ends in "
         "exactly one `isplat: error:` line, a non-zero exit and no output, or in PNGs byte-equal to the unmutated "
         "ones and the same figures; a failure is anything else (another image or figure, a traceback, a hang of "
         "20 s).",
@@ -307,8 +334,9 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
         "",
         "The bounds-checked run is a child process with `NUMBA_BOUNDSCHECK=1` and a fresh `NUMBA_CACHE_DIR` "
         "(numba would otherwise reuse kernels compiled without checks); its wall time including compilation was "
-        f"{fz[-1][1].get('wall_seconds_with_compilation', '?')} s. `make test` fuzzes for 45 s "
-        "(tests/test_fuzz.py); `make fuzz-boundscheck` runs that test with bounds checking.",
+        f"{fz[-1][1].get('wall_seconds_with_compilation', '?')} s for both techniques. `make test` fuzzes for 45 s "
+        "(tests/test_fuzz.py), every mutant with both techniques' scenes; `make fuzz-boundscheck` runs that test "
+        "with bounds checking (CI: 30 s).",
         "",
         "## What the checksums cost",
         "",
@@ -323,10 +351,11 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
         f"| bone scene: index blocks of densities 170..255 on three axes, normals in 8-slice slabs | "
         f"{1000 * c['scene_checked']:.1f} ms | {1000 * c['scene_unchecked']:.1f} ms | "
         f"{c['scene_checked'] / c['scene_unchecked']:.2f} |",
-        f"| bone scene end to end: Renderer (load, decode, select, gather) and its first 256x256 frame | "
-        f"{1000 * c['frame_checked']:.1f} ms | {1000 * c['frame_unchecked']:.1f} ms | "
-        f"{c['frame_checked'] / c['frame_unchecked']:.2f} |",
-        f"| everything: three whole channels, all densities on three axes | {1000 * c['whole_checked']:.1f} ms | "
+        *(f"| bone scene end to end, {t}: Renderer (load, decode, select, gather) and its first 256x256 frame | "
+          f"{1000 * c[f'frame_{t}_checked']:.1f} ms | {1000 * c[f'frame_{t}_unchecked']:.1f} ms | "
+          f"{c[f'frame_{t}_checked'] / c[f'frame_{t}_unchecked']:.2f} |" for t in ("pre", "post")),
+        f"| everything: three whole channels (post-classification reads them whole), all densities on three "
+        f"axes | {1000 * c['whole_checked']:.1f} ms | "
         f"{1000 * c['whole_unchecked']:.1f} ms | {c['whole_checked'] / c['whole_unchecked']:.2f} |",
         "| index bytes a bone load reads: whole chunks, read and checked (checked) against the rows and bytes "
         "requested (unchecked) | "
@@ -340,7 +369,8 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
         f"## Catalogue of bad inputs ({len(cat)})",
         "",
         "Each row was run by the command above; `W/` is its temporary folder. Corrupted files are rendered "
-        "(both methods); the result is `error` when the run ended in one error line and a non-zero exit.",
+        "(both techniques: pre indexed, pre full, post indexed); the result is `error` when the run ended in one "
+        "error line and a non-zero exit.",
         "",
         "| # | input | command | result | message |",
         "|---|---|---|---|---|",
@@ -348,19 +378,23 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict) -> Path:
     for n, r in enumerate(cat, 1):
         body.append(f"| {n} | {_md(r['input'])} | {r['command']} | {r['result']} | {_md(r['message'])[:400]} |")
     out.mkdir(parents=True, exist_ok=True)
-    return update_section(out / "reliability.md", "reliability", "\n".join(body), title="Reliability: bad input, "
+    path = update_section(out / "reliability.md", SECTION, "\n".join(body), title="Reliability: bad input, "
                           "corrupted files, interruptions")
+    command = "python -m benchmarks.reliability --out docs" + (" --quick" if quick else "") + " (make reliability)"
+    return _doc.put_stamp(path, _doc.stamp(SECTION, command, TECHNIQUES, SOURCES), SECTION)
 
 
 def run(out: Path, quick: bool = False, fuzz_seconds: float | None = None, seed: int = 0) -> Path:
-    secs = fuzz_seconds if fuzz_seconds is not None else (10.0 if quick else 120.0)
+    # per technique: a quick run (CI's bench-check) fuzzes each for 5 s, as long as it fuzzed one technique before
+    secs = fuzz_seconds if fuzz_seconds is not None else (5.0 if quick else 120.0)
     with tempfile.TemporaryDirectory() as td:
         w = Path(td)
         fx = make_fixture(w / "fx")
         cat = catalogue(fx, w)
         cost = checksum_cost(w, (64, 64, 48) if quick else (256, 256, 160), 3 if quick else 7)
-    fz = [("in process", fuzz_figures(secs, seed)), ("child process", fuzz_boundscheck(secs, seed))]
-    return write_report(Path(out), cat, fz, cost)
+    fz = ([("in process", fuzz_figures(secs, seed, t)) for t in FUZZ_SCENES]
+          + [("child process", f) for f in fuzz_boundscheck(secs, seed)])
+    return write_report(Path(out), cat, fz, cost, quick)
 
 
 def main(argv=None) -> int:
@@ -376,7 +410,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     os.environ.setdefault("ISPLAT_PROGRESS", "0")
     if a.fuzz_json is not None:
-        print(json.dumps(fuzz_figures(a.fuzz_json, a.seed)))
+        print(json.dumps([fuzz_figures(a.fuzz_json, a.seed, t) for t in FUZZ_SCENES]))
         return 0
     print(run(a.out, a.quick, a.fuzz_seconds, a.seed), file=sys.stderr)
     return 0

@@ -27,6 +27,11 @@ from types import SimpleNamespace
 import numpy as np
 
 from . import _doc
+
+SECTION = "scale"        # the section of its page this benchmark writes
+TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/distributed.py", "isplat/slabs.py",
+                       "isplat/augment.py", "examples/head.toml", "benchmarks/scale.py"))
 from .render import ROOT, ensure_head
 
 SCENE = ROOT / "examples" / "head.toml"
@@ -237,6 +242,8 @@ def _page(out_dir, r) -> Path:
     ms = lambda s: f"{s * 1000:.1f} ms"                               # noqa: E731
     mib = lambda b: f"{b / 2**20:.2f} MiB"                            # noqa: E731
     sel_mib = sel.held_bytes() / 2**20
+    tech = "post" if sel.post else "pre"
+    TECHNIQUES[:] = [tech]                  # the stamp names the technique examples/head.toml rendered with
     def row(k):
         rend = model[k]["render"]
         mean = statistics.mean(rend)
@@ -249,10 +256,11 @@ python -m benchmarks scale{' --quick' if quick else ''}
 ```
 Machine: {_doc.machine_line()}; isplat {_doc.git_rev()}. Shared with other work while measured: read ratios
 and medians, not single numbers. Scene: examples/head.toml (bone, lit, early termination 0.99), the `head`
-sample {'x'.join(map(str, shape)) if shape else '256x256x225'}, {size} x {size}.
+sample {'x'.join(map(str, shape)) if shape else '256x256x225'}, {size} x {size}. **Technique: {tech}**
+(`render.classification = "{tech}"`, as the scene renders) in every row below.
 
 ### A batch of views: {n_views}-view orbit, warm
-| run | wall time ({n_views} views, median of {repeats}) | per view |
+| run ({tech}) | wall time ({n_views} views, median of {repeats}) | per view |
 |---|---|---|
 | one process, 2 threads | {t_one:.2f} s | {ms(t_one / n_views)} |
 | LocalCluster, 2 workers x 1 thread (`--scheduler local:2`) | {t_dask:.2f} s | {ms(t_dask / n_views)} |
@@ -268,7 +276,7 @@ in this process, one thread, slabs one after another (medians of {repeats}); the
 predictions for larger clusters below. The last column is the work lost to early termination: a slab rendered
 apart does not know what the slabs in front cover, so it splats voxels one pass would skip.
 
-| K | prepare (max) | slab render (max) | slab render (mean) | imbalance max/mean | work: sum of slabs / one pass |
+| K ({tech}) | prepare (max) | slab render (max) | slab render (mean) | imbalance max/mean | work: sum of slabs / one pass |
 |---|---|---|---|---|---|
 {rows}
 
@@ -288,7 +296,7 @@ rendered at once, each on its worker; one 'over' on a worker; the round trip, ho
 then the frame end to end;
 medians of {repeats} interleaved frames:
 
-| workers (slabs) | predicted | measured |
+| workers (slabs), {tech} | predicted | measured |
 |---|---|---|
 | 1 | {ms(pred[1])} | {ms(meas[1])} |
 | 2 | {ms(pred[2])} | {ms(meas[2])} |
@@ -298,7 +306,7 @@ and twice that for the first round trip,
 one core per worker, the same volume and image, the render work {ms(t1)} divided evenly up to the imbalance
 measured at K = 8, at most one slab per slice ({n_slices} slices), `prepare` in full on every worker):
 
-| workers | predicted frame time | of which slab | composite rounds |
+| workers, {tech} | predicted frame time | of which slab | composite rounds |
 |---|---|---|---|
 """ + "\n".join(
         f"| {k} | {ms(big[k])} | {ms(_slab_time(extrapolate(model[8], n_slices, k)))} "

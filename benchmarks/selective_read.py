@@ -10,6 +10,11 @@ present, the head sample at 512^3) two index files of the same volume are compar
 * **after**: format version 3 (``isplat index`` now): the channel values stored once more by density, so a
   scene reads one row range per interval.
 
+Both techniques are measured: the before/after comparison is of the paper's pre-classified splatting
+(``render.classification = "pre"``), which reads only the voxels of interest's values; the default since scene
+version 4, post-classification, is loaded from the same version-3 index in the same interleaved rounds, and
+reads the whole channels (its table says how much more that is).
+
 Bytes read are counted below h5py, at the file object HDF5 reads through (whole chunks with their checksums,
 and the metadata, the files' opening included): ``LoadReport.file_bytes``. Bytes needed are the voxels of
 interest times the bytes per voxel of the channels the scene uses, plus the index blocks and table rows of
@@ -31,6 +36,10 @@ from pathlib import Path
 import numpy as np
 
 from . import _doc
+
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.READ, _doc.AUGMENT, _doc.SAMPLES, ("isplat/scene.py", "isplat/frame.py",
+                       "benchmarks/paper.py", "benchmarks/selective_read.py"))
 
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS, REPEATS_QUICK = 7, 2
@@ -110,12 +119,14 @@ def _build(aug: Path, out: Path, values: bool, quick: bool) -> tuple[float | Non
     return int(kib) / 1024.0, float(dt)
 
 
-def _scene(work: Path, name: str, tf: str, aug: Path, idx: Path, azimuth=0.0, elevation=10.0) -> Path:
+def _scene(work: Path, name: str, tf: str, aug: Path, idx: Path, azimuth=0.0, elevation=10.0,
+           technique: str = "pre") -> Path:
     from .paper import _COMMON
 
-    p = work / f"{name}-{idx.stem}.toml"
-    p.write_text(f'version = 1\n\n[data]\naugmented = "{aug}"\nindex = "{idx}"\n'
-                 + _COMMON.format(size=256, azimuth=azimuth, elevation=elevation, threads=1) + "\n" + tf)
+    p = work / f"{name}-{idx.stem}-{technique}.toml"
+    p.write_text(f'version = 4\n\n[data]\naugmented = "{aug}"\nindex = "{idx}"\n'
+                 + _COMMON.format(size=256, azimuth=azimuth, elevation=elevation, threads=1, technique=technique)
+                 + "\n" + tf)
     return p
 
 
@@ -190,14 +201,15 @@ def measure(c: dict, work: Path, repeats: int, quick: bool = False) -> dict:
     with _old_chunks():
         build_index_file(c["aug"], coarse, force=True, values=True)
     scenes = {k: load_scene(_scene(work, c["name"], c["tf"], c["aug"], p, c.get("azimuth", 0.0),
-                                   c.get("elevation", 10.0)))
-              for k, p in (("before", before), ("after", after))}
+                                   c.get("elevation", 10.0), tech))
+              for k, p, tech in (("before", before, "pre"), ("after", after, "pre"), ("post", after, "post"))}
     axes = axes_of(views_for(scenes["after"], open_augmented(c["aug"])))
-    reports, times = {}, {"before": [], "after": []}
+    reports, times = {}, {"before": [], "after": [], "post": []}
     coarse_rep = select_from_files(load_scene(_scene(work, c["name"], c["tf"], c["aug"], coarse,
                                                      c.get("azimuth", 0.0), c.get("elevation", 10.0))), axes).report
     for n in range(repeats + 1):                       # the first round warms up (numba, page cache)
-        for k in (("before", "after") if n % 2 == 0 else ("after", "before")):
+        order = ("before", "after", "post")
+        for k in order[n % 3:] + order[:n % 3]:
             t = time.perf_counter()
             sel = select_from_files(scenes[k], axes)
             dt = time.perf_counter() - t
@@ -215,7 +227,7 @@ def measure(c: dict, work: Path, repeats: int, quick: bool = False) -> dict:
                idx_after=os.path.getsize(after), rss_before=rss_b, rss_after=rss_a, build_before=t_b,
                build_after=t_a, ratio_time=[b / a for b, a in zip(times["before"], times["after"])],
                coarse_ratio=coarse_rep.read_ratio, coarse_size=os.path.getsize(coarse), bricks=bricks)
-    for k in ("before", "after"):
+    for k in ("before", "after", "post"):
         rep, held = reports[k]
         row[k] = dict(read=rep.file_bytes, aug_read=rep.augmented_file_bytes, idx_read=rep.index_file_bytes,
                       requested=rep.augmented_bytes + rep.index_bytes, needed=rep.bytes_needed,
@@ -237,8 +249,9 @@ def run(out_dir: Path, quick: bool) -> Path:
             _log(f"{c['name']}: {c['what']}")
             rows.append(measure(c, work, repeats, quick))
             r = rows[-1]
-            _log(f"  read/needed before {r['before']['ratio']:.2f}, after {r['after']['ratio']:.2f}; load "
-                 f"{1000 * r['before']['time']:.0f} ms -> {1000 * r['after']['time']:.0f} ms")
+            _log(f"  pre: read/needed before {r['before']['ratio']:.2f}, after {r['after']['ratio']:.2f}; load "
+                 f"{1000 * r['before']['time']:.0f} ms -> {1000 * r['after']['time']:.0f} ms; post: read/needed "
+                 f"{r['post']['ratio']:.2f}, load {1000 * r['post']['time']:.0f} ms")
     path = Path(out_dir) / "selective-read.md"
     path.write_text(render_doc(rows, quick, repeats, time.perf_counter() - t0))
     return path
@@ -271,7 +284,10 @@ def render_doc(rows, quick: bool, repeats: int, seconds: float) -> str:
     L += [
         "",
         "Each scene is the paper's setup (one orthographic view, shaded: the scene reads the normals of its voxels "
-        "of interest, 2 B each; the index carries the densities). **Before**: an index of format version 2 as "
+        "of interest, 2 B each; the index carries the densities). **Technique**: the before/after tables are of "
+        "the paper's pre-classified splatting (`render.classification = \"pre\"`); the default since scene "
+        "version 4, post-classification, reads the whole channels and has its own table below. "
+        "**Before**: an index of format version 2 as "
         "isplat wrote it until now (no channel values; 16 KiB table chunks, 64 KiB block chunks): the normals "
         "come from the augmented file's position-ordered channel, in slabs of 8 k-slices that hold a voxel of "
         "interest. **After**: format version 3 (`isplat index` now): the normals of the transfer function's "
@@ -283,14 +299,14 @@ def render_doc(rows, quick: bool, repeats: int, seconds: float) -> str:
         "",
         "## Bytes read against bytes needed",
         "",
-        "| scene | volume (i x j x k) | intervals | axes | voxels of interest | needed (MB) | before: read (MB) "
-        "| before: read / needed | after: read (MB) | after: read / needed | target |",
-        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|",
+        "| scene | technique | volume (i x j x k) | intervals | axes | voxels of interest | needed (MB) "
+        "| before: read (MB) | before: read / needed | after: read (MB) | after: read / needed | target |",
+        "|---|---|---|---|---|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in rows:
         b, a = r["before"], r["after"]
         ivs = ", ".join(f"{lo}..{hi}" for lo, hi in a["intervals"])
-        L.append(f"| {r['name']}: {r['what']} | {r['shape']} | {ivs} | {r['axes']} | {a['voi']:,} | "
+        L.append(f"| {r['name']}: {r['what']} | pre | {r['shape']} | {ivs} | {r['axes']} | {a['voi']:,} | "
                  f"{_mb(a['needed'])} | {_mb(b['read'])} | {b['ratio']:.2f} | {_mb(a['read'])} | "
                  f"**{a['ratio']:.3f}** | <= 1.3 |")
     L += [
@@ -300,18 +316,37 @@ def render_doc(rows, quick: bool, repeats: int, seconds: float) -> str:
             f"from the augmented file (its attributes)" for r in rows) + ". Before, the augmented file gave "
         + "; ".join(f"{r['name']} {_mb(r['before']['aug_read'])} MB" for r in rows) + ".",
         "",
-        "## Load time, before and after (one run, interleaved)",
+        "## By technique: the paper's splatting (pre) against the default (post), format 3",
+        "",
+        "The same scene and index (version 3), loaded with each technique in the same interleaved rounds. *pre* "
+        "reads the index blocks of the intervals and the voxels of interest's values from `/values`; *post* reads "
+        "the index blocks and the whole channels it samples around the voxels of interest (density and normal, "
+        "by position: isplat/selection.py). *Needed* counts the voxels of interest's bytes for the channels each "
+        "reads (so post's includes the density).",
+        "",
+        "| scene | technique | channels read | read (MB) | needed (MB) | read / needed | load (ms) | held (MB) |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        for tech, k in (("pre", "after"), ("post (default)", "post")):
+            x = r[k]
+            L.append(f"| {r['name']} | {tech} | {', '.join(x['channels']) or '-'} | {_mb(x['read'])} | "
+                     f"{_mb(x['needed'])} | {x['ratio']:.2f} | {1000 * x['time']:.1f} | {_mb(x['held'])} |")
+    L += [
+        "",
+        "## Load time, before and after (one run, interleaved; pre)",
         "",
         f"`select_from_files` for the scene's view: open both files, read, decode the blocks, select, gather the "
-        f"normals. Median of {repeats} runs each after a warm-up round, before and after alternating; ratio = "
-        f"median of the per-round ratios before / after.",
+        f"normals. Median of {repeats} runs each after a warm-up round, before, after and post (the table above) "
+        f"in a rotating order; ratio = median of the per-round ratios before / after.",
         "",
-        "| scene | before (ms) | after (ms) | before / after | held after (MB) | held per voxel of interest (B) |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| scene | technique | before (ms) | after (ms) | before / after | held after (MB) "
+        "| held per voxel of interest (B) |",
+        "|---|---|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         b, a = r["before"], r["after"]
-        L.append(f"| {r['name']} | {1000 * b['time']:.1f} | {1000 * a['time']:.1f} | "
+        L.append(f"| {r['name']} | pre | {1000 * b['time']:.1f} | {1000 * a['time']:.1f} | "
                  f"{statistics.median(r['ratio_time']):.2f} | {_mb(a['held'])} | {a['held'] / max(1, a['voi']):.2f} |")
     L += [
         "",
@@ -333,7 +368,7 @@ def render_doc(rows, quick: bool, repeats: int, seconds: float) -> str:
                  f"{_rss(r['rss_after'])}, {r['build_after']:.1f} |")
     L += [
         "",
-        "## The alternatives, measured on the same scenes",
+        "## The alternatives, measured on the same scenes (what pre reads)",
         "",
         "*Chunk sizes*: version 3 written in version 2's chunk sizes (16 KiB tables, 64 KiB blocks and values) "
         "reads more around each range, which matters for a small scene. *Bricks*: no index values at all, but "

@@ -27,6 +27,11 @@ import numpy as np
 
 from . import _doc
 
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.SAMPLES, ("isplat/augment.py", "examples/head.toml",
+                       "examples/engine.toml", "tests/ray_reference.py", "benchmarks/reference.py",
+                       "benchmarks/sheets.py"))
+
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / "bench-out"
 CASES = {"head": ("examples/head.toml", "orthographic", "bone, opaque, lit"),
@@ -318,34 +323,36 @@ def render_doc(pops, times, size, frames, quick, seconds, load0, thick=None, thi
     for case, (path, proj, what) in CASES.items():
         L.append(f"- **{case}** (`isplat sample {case}`{', 48^3' if quick else ''}): {what}: {path} ({proj})")
     L += ["", "## Popping at the principal-axis switch", "",
-          "Views 0.2 degrees of azimuth apart straddling the switch (found by bisection on "
+          "Pre-classified splatting (`render.classification = \"pre\"`; the scenes are read as version 3, whose "
+          "default it is, and image-aligned sheets imply it). Views 0.2 degrees of azimuth apart straddling the switch (found by bisection on "
           "`isplat.camera.principal_axis`); the change between neighbouring views is the RMSE over RGB in [0, 1]. "
           "*Ratio*: the change across the switch over the median change between neighbouring views on the same "
           f"side (the measure of docs/accuracy.md; issue 12's target: at most {TARGET}).", "",
-          "| case | sheets | switch at azimuth | axes | RMSE across the switch | median RMSE same side | ratio |",
-          "|---|---|---:|---|---:|---:|---:|"]
+          "| case | technique | sheets | switch at azimuth | axes | RMSE across the switch | median RMSE same side "
+          "| ratio |",
+          "|---|---|---|---:|---|---:|---:|---:|"]
     for (case, sheets), p in pops.items():
-        L.append(f"| {case} | `{sheets}` | {p['switch']:.4f} | {p['axes'][0]} -> {p['axes'][1]} | {p['cross']:.2e} | "
+        L.append(f"| {case} | pre | `{sheets}` | {p['switch']:.4f} | {p['axes'][0]} -> {p['axes'][1]} | {p['cross']:.2e} | "
                  f"{p['same']:.2e} | **{p['ratio']:.2f}** |")
     L += ["", "Every step, RMSE of the change:", "",
-          "| case | from azimuth | to | " + " | ".join(f"`{s}`" for s in ("axis", "image")) + " |",
-          "|---|---:|---:|---:|---:|"]
+          "| case | technique | from azimuth | to | " + " | ".join(f"`{s}`" for s in ("axis", "image")) + " |",
+          "|---|---|---:|---:|---:|---:|"]
     for case in CASES:
         pa, pi = pops[(case, "axis")], pops[(case, "image")]
         for sa, si in zip(pa["steps"], pi["steps"]):
             mark = " (switch)" if sa["ax0"] != sa["ax1"] else ""
-            L.append(f"| {case} | {sa['a0']:.3f} | {sa['a1']:.3f}{mark} | {sa['rmse']:.2e} | {si['rmse']:.2e} |")
+            L.append(f"| {case} | pre | {sa['a0']:.3f} | {sa['a1']:.3f}{mark} | {sa['rmse']:.2e} | {si['rmse']:.2e} |")
     L += ["", "## Frame time", "",
           f"Median of {frames} frames each, axis and image rendered in turn (interleaved) after 2 warm-up frames, "
           "all cores; counters of the last frame (image sheets: a voxel is counted once however many slabs it "
           "reaches; *sheets* is slices or slabs composited).", "",
-          "| case | sheets | ms/frame (median) | x axis | voxels examined | voxels splatted | sheets | "
+          "| case | technique | sheets | ms/frame (median) | x axis | voxels examined | voxels splatted | sheets | "
           "RMSE image vs axis |",
-          "|---|---|---:|---:|---:|---:|---:|---:|"]
+          "|---|---|---|---:|---:|---:|---:|---:|---:|"]
     for case, t in times.items():
         for s in ("axis", "image"):
             st = t[s]["stats"]
-            L.append(f"| {case} | `{s}` | {t[s]['ms']:.1f} | {t[s]['ms'] / t['axis']['ms']:.2f} | "
+            L.append(f"| {case} | {st.classification} | `{s}` | {t[s]['ms']:.1f} | {t[s]['ms'] / t['axis']['ms']:.2f} | "
                      f"{st.voxels_examined:,} | {st.voxels_splatted:,} | {st.slices:,} | "
                      f"{'' if s == 'axis' else format(t['diff'], '.2e')} |")
     L += ["", "## Reading", "", reading(pops, times), ""]

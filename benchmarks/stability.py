@@ -30,6 +30,10 @@ import numpy as np
 
 from . import _doc
 
+TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, ("isplat/augment.py", "tests/ray_reference.py",
+                       "benchmarks/reference.py", "benchmarks/stability.py"))
+
 FINE = 'footprint_radius = 4\nfootprint_table = 1048576\nearly_termination = 1.0\n'
 DEFAULT_KNOBS = 'early_termination = 1.0\n'
 
@@ -491,12 +495,14 @@ def render_doc(rows, quick, seconds, load0, cover=None, cost=None, rows_post=Non
          "(row 1) is the floor every error sits on. *finite*: the render returned (the renderer refuses to "
          "return a non-finite pixel: `finish()` in splat/composite.py reports it and `frame.render_slab` or "
          "`frame.finish_image`, whichever finished the rows, raises) and "
-         "every pixel is finite.\n",
-         "| # | case | quantity | expected | float32 | float64 | error f32 | error f64 | finite f32/f64 |",
-         "|---:|---|---|---:|---:|---:|---:|---:|---|"]
+         "every pixel is finite. **Technique**: this table is the paper's pre-classified splatting "
+         "(`render.classification = \"pre\"`), for which the cases were written; the same cases with the default, "
+         "post-classification, are in the last section.\n",
+         "| # | technique | case | quantity | expected | float32 | float64 | error f32 | error f64 | finite f32/f64 |",
+         "|---:|---|---|---|---:|---:|---:|---:|---:|---|"]
     for i, r in enumerate(rows, 1):
         fin = "/".join("yes" if r.finite[p] else "**NO**" for p in ("float32", "float64"))
-        L.append(f"| {i} | {r.case} | {r.quantity} | {_fmt(r.expected)} | {_fmt(r.got['float32'])} | "
+        L.append(f"| {i} | pre | {r.case} | {r.quantity} | {_fmt(r.expected)} | {_fmt(r.got['float32'])} | "
                  f"{_fmt(r.got['float64'])} | {_err(r, 'float32')} | {_err(r, 'float64')} | {fin} |")
     L.append("\n## Why each case is stiff or extreme, and what the renderer does\n")
     for i, r in enumerate(rows, 1):
@@ -520,11 +526,12 @@ def post_doc(rows, rows_post) -> str:
          "Every case above rendered again with `render.classification = \"post\"` (isplat/splat/post.py: the "
          "density interpolated bilinearly in each slice at the pixel's ray, then classified; no footprint, so the "
          "kernel knobs do not apply). Same expected values; *pre f32* repeats the float32 column above.\n",
-         "| # | case | expected | post f32 | post f64 | error f32 | error f64 | finite f32/f64 | pre f32 error |",
-         "|---:|---|---:|---:|---:|---:|---:|---|---:|"]
+         "| # | technique | case | expected | post f32 | post f64 | error f32 | error f64 | finite f32/f64 "
+         "| pre f32 error |",
+         "|---:|---|---|---:|---:|---:|---:|---:|---|---:|"]
     for i, (r, q) in enumerate(zip(rows, rows_post), 1):
         fin = "/".join("yes" if q.finite[p] else "**NO**" for p in ("float32", "float64"))
-        L.append(f"| {i} | {q.case} | {_fmt(q.expected)} | {_fmt(q.got['float32'])} | {_fmt(q.got['float64'])} | "
+        L.append(f"| {i} | post | {q.case} | {_fmt(q.expected)} | {_fmt(q.got['float32'])} | {_fmt(q.got['float64'])} | "
                  f"{_err(q, 'float32')} | {_err(q, 'float64')} | {fin} | {_err(r, 'float32')} |")
     bad = [q for q in rows_post if not all(q.finite.values())]
     zo = [q for q in rows_post if q.case.startswith("zoom out")]
@@ -639,15 +646,16 @@ def coverage_table(lab: Lab, quick: bool) -> dict:
 def coverage_doc(cover: dict) -> str:
     ns = sorted(next(iter(cover.values())))
     bound = 16 * 0.5 / column(0.5, 16)
-    L = ["## Sub-pixel opaque material against `render.supersample`\n",
+    L = ["## Sub-pixel opaque material against `render.supersample` (pre)\n",
+         "Pre-classified splatting (`render.classification = \"pre\"`, the technique of the first table). "
          "Row 22's cube (16^3 voxels, alpha 0.5 per slice, orthographic down k, reference kernel, float32) drawn at "
          "several widths on the image, rendered at N times the image's width and height and box-filtered down "
          "(`render.supersample = N`): the integral of opacity over the image / (face area x column opacity), 1 "
          "being right.\n",
-         "| cube's width (px) | " + " | ".join(f"N = {n}" for n in ns) + " |",
-         "|---:|" + "---:|" * len(ns)]
+         "| technique | cube's width (px) | " + " | ".join(f"N = {n}" for n in ns) + " |",
+         "|---|---:|" + "---:|" * len(ns)]
     for w, by_n in cover.items():
-        L.append(f"| {w:g} | " + " | ".join(f"{by_n[n]:.3f}" for n in ns) + " |")
+        L.append(f"| pre | {w:g} | " + " | ".join(f"{by_n[n]:.3f}" for n in ns) + " |")
     w0, wl = min(cover), max(cover)
     L += ["", f"- The ratio depends on N x width only (N = 2 at a width is N = 1 at twice that width): what counts "
               f"is the size of a voxel on the finer grid. Below about 0.7 fine pixels a voxel's "
@@ -701,16 +709,17 @@ def wide_cost(lab: Lab, quick: bool) -> dict:
 
 def cost_doc(cost: dict) -> str:
     n = cost.pop("size")
-    L = ["## Cost of the per-pixel path next to the eye\n",
+    L = ["## Cost of the per-pixel path next to the eye (pre)\n",
+         "Pre-classified splatting (`render.classification = \"pre\"`): wide footprints exist only there. ",
          f"A smooth {n}^3 volume (semi-transparent, shading on), the eye inside it at (3, -2, -20) from its "
          "centre looking towards (10, 5, 40), fov 60; 256 x 256, one thread, default kernel: median frame "
          "seconds with wide footprints along each pixel's ray (the renderer) and with every voxel along its own ray "
          "(`frame.WIDE_ANGLE = inf`), interleaved in one run. From outside (an orbit at the default distance) no "
          "footprint is wide and both do the same work: that row's ratio is the timing noise.\n",
-         "| view | per pixel (s) | per voxel (s) | ratio | runs |", "|---|---:|---:|---:|---:|"]
+         "| view | technique | per pixel (s) | per voxel (s) | ratio | runs |", "|---|---|---:|---:|---:|---:|"]
     for name in dict.fromkeys(k[0] for k in cost):
         a, b = np.median(cost[(name, "per pixel")]), np.median(cost[(name, "per voxel")])
-        L.append(f"| {name} | {a:.3f} | {b:.3f} | {a / b:.2f} | {len(cost[(name, 'per pixel')])} |")
+        L.append(f"| {name} | pre | {a:.3f} | {b:.3f} | {a / b:.2f} | {len(cost[(name, 'per pixel')])} |")
     return "\n".join(L) + "\n"
 
 

@@ -31,6 +31,9 @@ import time
 from pathlib import Path
 
 from . import _doc
+
+TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(("isplat/**", "examples/head.toml", "benchmarks/startup.py"))
 from .render import ROOT, SCENE, ensure_head
 
 SIZE = 512
@@ -154,13 +157,23 @@ def _med(xs) -> float:
     return statistics.median(xs)
 
 
+def scene_technique(path=SCENE) -> str:
+    """render.classification of the scene the processes render ("post": the default since scene version 4)."""
+    from isplat.scene import load_scene
+
+    return load_scene(path).render.classification
+
+
 def doc(warm, cold, size, quick, seconds, pre=None) -> str:
     runs = warm["os"]
+    tech = scene_technique()
+    TECHNIQUES[:] = [tech]                  # the stamp names the technique examples/head.toml renders with
     names = [n for n, _ in runs[0]["steps"]]
     L = ["# Start-up: one frame as a process, and the first run on a machine", "",
          f"Made by `python -m benchmarks startup{' --quick' if quick else ''}` (part of `make bench`) on "
          f"{_doc.machine_line()}, git {_doc.git_rev()}, in {seconds:.0f} s. Do not edit: rerun the command.", "",
-         f"The steps of `isplat render examples/head.toml` (the head sample, {size} x {size}, shaded bone) in a "
+         f"The steps of `isplat render examples/head.toml` (the head sample, {size} x {size}, shaded bone; "
+         f"technique {tech}, `render.classification = \"{tech}\"`, in every run below) in a "
          "child process, each stamped; the parent times the whole process, so *teardown* is from the last stamp "
          "to the process's end. Medians of "
          f"{len(runs)} runs of each kind (leaving with `os._exit` or through Python's normal exit, and the "

@@ -23,6 +23,10 @@ import time
 from pathlib import Path
 
 from . import _doc
+
+TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
+SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml",
+                       "benchmarks/worksplit.py"))
 from .render import ROOT, SCENE, ensure_head, overrides
 
 SEMI = "transfer.opacity=[[0,0],[99,0],[130,0.1],[200,0.5],[255,0.7]]"
@@ -220,6 +224,7 @@ def run(out_dir: Path, quick: bool) -> Path:
 
 
 def doc(rows, quick: bool, seconds: float) -> str:
+    TECHNIQUES[:] = sorted({per[1][1].classification for _, _, per, _, _ in rows})    # the stamp's techniques
     L = ["# Work per frame: hidden material and threads", "",
          f"Made by `python -m benchmarks worksplit{' --quick' if quick else ''}` (part of `make bench`) on "
          f"{_doc.machine_line()}, git {_doc.git_rev()}, in {seconds:.0f} s. Do not edit: rerun the command.", "",
@@ -249,7 +254,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
         for t in THREADS:
             nb, st = per[t]
             rep = st.voxels_tested / max(base, 1) - 1.0
-            L.append(f"| {name} | {t} | {nb} | {st.voxels_tested:,} | {100 * rep:.1f}% | "
+            L.append(f"| {name}, {per[1][1].classification} | {t} | {nb} | {st.voxels_tested:,} | {100 * rep:.1f}% | "
                      f"{predicted(serial, rep, t, nb):.2f} |")
     L += ["", "Measured on this machine, 1 thread against 2 (medians of interleaved frames, each timed frame after "
           "an untimed one of its kind, as in a run of frames; every scene measured in "
@@ -271,7 +276,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "passes: least-most |",
           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
-        L.append(f"| {name} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
+        L.append(f"| {name}, {per[1][1].classification} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
                  f"{1e3 * (tm['work1'] + tm['rest1']):.1f} | {1e3 * (tm['work2'] + tm['rest2']):.1f} / "
                  f"{1e3 * (tm['busiest2'] + tm['rest_busiest2']):.1f} | {tm['imbalance2']:.2f} | "
                  f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup2']:.2f} | {1e3 * tm['2e']:.1f} | "
@@ -285,7 +290,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
     L += ["", "| scene | ns per voxel of interest | ns per voxel splatted or sample | set-up per frame (ms) | "
           "serial share |", "|---|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
-        L.append(f"| {name} | {1e9 * tm['1'] / max(n_vox, 1):.1f} | "
+        L.append(f"| {name}, {per[1][1].classification} | {1e9 * tm['1'] / max(n_vox, 1):.1f} | "
                  f"{1e9 * tm['1'] / max(per[1][1].voxels_splatted, 1):.0f} | {1e3 * tm['prepare']:.2f} | "
                  f"{100 * tm['serial1'] / (tm['serial1'] + tm['work1'] + tm['rest1']):.1f}% |")
     L += ["", "If the frame's cost follows what is visible, the time per voxel splatted or sample stays about the same from "

@@ -7,6 +7,8 @@ engine (micro-CT stand-in, --window p0.5,p99.9). Each preset is rendered with th
 DOCS_DIR/img/preset-NAME.png, and its values and source are written into DOCS_DIR/presets.md.
 """
 
+import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -21,11 +23,16 @@ from isplat.samples import make_sample
 from isplat.scene import load_scene
 
 SIZE = (160, 160, 140)
+# the page's stamp (benchmarks/_doc.py; make docs-check): the technique of its pictures and what they depend on
+TECHNIQUES = ["post"]         # the scene below: the default technique, post-classification, written out
+SOURCES = ["isplat/presets.py", "isplat/units.py", "isplat/augment.py", "isplat/samples.py", "isplat/frame.py",
+           "isplat/renderer.py", "isplat/selection.py", "isplat/splat/**", "isplat/transfer.py", "isplat/scene.py",
+           "isplat/output.py", "scripts/presets_doc.py"]
 SAMPLE = {"ct-bone": "ct-head", "slicer-ct-bone": "ct-head", "ct-skin": "ct-head", "ct-soft-tissue": "ct-chest",
           "ct-angio": "ct-chest", "ct-lung": "ct-chest", "slicer-ct-lung": "ct-chest", "mri-t1-head": "mr-head",
           "micro-ct": "engine"}
 WINDOW = {"engine": "p0.5,p99.9"}
-SCENE = """version = 1
+SCENE = """version = 4
 [data]
 augmented = "{aug}"
 index = "{idx}"
@@ -43,6 +50,8 @@ unit_distance = 1.0
 ambient = 0.25
 specular = 0.3
 shininess = 30
+[render]
+classification = "post"
 """
 
 
@@ -77,7 +86,9 @@ def markdown(sizes) -> str:
              "holds them all); MRI and micro-CT values have no calibrated unit, so those presets are in fractions "
              "of the window (shown here as density codes, fraction x 255). Each picture is the preset on a "
              f"synthetic scan ({'x'.join(map(str, sizes))} voxels, `isplat sample`), made by "
-             "`make presets-doc` (scripts/presets_doc.py), which also writes this page.", "",
+             "`make presets-doc` (scripts/presets_doc.py), which also writes this page; every picture is "
+             "rendered with isplat's default technique, post-classification (`render.classification = \"post\"`).",
+             "",
              "| preset | shows | sample | opacity `[value, opacity]` | colour `[value, r, g, b]` | source | picture |",
              "|---|---|---|---|---|---|---|"]
     for p in PRESETS.values():
@@ -103,7 +114,10 @@ def main(out: str, docs: str) -> None:
     for name in PRESETS:
         render(out_p, docs_p / "img", name, files[SAMPLE[name]])
         print(f"presets_doc: {docs_p}/img/preset-{name}.png", file=sys.stderr)
-    (docs_p / "presets.md").write_text(markdown(SIZE))
+    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    stamp = {"section": "presets", "commit": rev or "unknown", "command": "make presets-doc", "techniques": TECHNIQUES,
+             "sources": SOURCES}
+    (docs_p / "presets.md").write_text(f"<!-- isplat-stamp: {json.dumps(stamp)} -->\n" + markdown(SIZE))
     print(f"presets_doc: {docs_p}/presets.md", file=sys.stderr)
 
 

@@ -2,9 +2,11 @@
 benchmark (benchmarks/reliability.py, which writes docs/reliability.md).
 
 The fuzzer mutates the bytes of a small head's augmented and index files (bit flips, random bytes, zeroed runs,
-truncation) and renders each mutant through the CLI, in process, and runs ``isplat stats --json`` on it: every run
-must end in one ``isplat: error:`` line with a non-zero exit, or in images and figures equal to the unmutated
-ones. ``make fuzz-boundscheck`` runs the fuzz test with numba bounds checking on (a fresh NUMBA_CACHE_DIR).
+truncation) and renders each mutant through the CLI, in process, with both techniques (``SCENES``: the paper's
+pre-classified splatting with the indexed and the full method, and the default, post-classification, shaded), and
+runs ``isplat stats --json`` on it: every run must end in one ``isplat: error:`` line with a non-zero exit, or in
+images and figures equal to the unmutated ones. ``make fuzz-boundscheck`` runs the fuzz test with numba bounds
+checking on (a fresh NUMBA_CACHE_DIR).
 """
 
 from __future__ import annotations
@@ -28,10 +30,23 @@ IMAGE = 40
 
 # ------------------------------------------------------------------------------------------------- fixture
 
-def scene_toml(aug: Path, idx: Path, method: str = "indexed") -> str:
+# the fixture's scenes: name -> (render.method, render.classification). "pre" is the paper's splatting, "post"
+# the default from scene version 4; the names "indexed" and "full" are the pre-classified scenes of before.
+SCENES = {"indexed": ("indexed", "pre"), "full": ("full", "pre"), "post": ("indexed", "post")}
+TECHNIQUES = {"pre": ("indexed", "full"), "post": ("post",)}
+
+
+def scene_label(name: str) -> str:
+    """'pre indexed', 'pre full', 'post indexed': the technique and method of a fixture scene."""
+    method, technique = SCENES[name]
+    return f"{technique} {method}"
+
+
+def scene_toml(aug: Path, idx: Path, method: str = "indexed", technique: str = "pre") -> str:
     """Three views (one per principal axis), every density visible, shading and gradient-modulated opacity:
-    a render reads every index axis, every block, and the normal and gradient-magnitude channels."""
-    return f"""version = 1
+    a render reads every index axis, every block, and the normal and gradient-magnitude channels. ``technique``
+    is written out (render.classification), not left to the scene version's default."""
+    return f"""version = 4
 [data]
 augmented = "{aug}"
 index = "{idx}"
@@ -46,14 +61,15 @@ ambient = 0.3
 diffuse = 0.7
 [render]
 method = "{method}"
+classification = "{technique}"
 [views]
 list = [{{azimuth = 0, elevation = 0}}, {{azimuth = 90, elevation = 0}}, {{azimuth = 0, elevation = 90}}]
 """
 
 
-def make_fixture(folder: Path, aug: Path | None = None, idx: Path | None = None) -> dict:
-    """A small head (or given files): augmented and index files, an indexed and a full scene, and their
-    reference images."""
+def make_fixture(folder: Path, aug: Path | None = None, idx: Path | None = None, scenes=tuple(SCENES)) -> dict:
+    """A small head (or given files): augmented and index files, the ``scenes`` (names of ``SCENES``: both
+    techniques by default) and their reference images; ``fx["scenes"]`` names them."""
     from isplat.augfile import write_augmented
     from isplat.augment import augment_array
     from isplat.index import build_index_file
@@ -69,15 +85,15 @@ def make_fixture(folder: Path, aug: Path | None = None, idx: Path | None = None)
     if idx is None:
         idx = folder / "head.idx.h5"
         build_index_file(aug, idx, force=True)
-    fx = {"aug": aug, "idx": idx, "folder": folder}
-    for method in ("indexed", "full"):
-        sc = folder / f"{method}.toml"
-        sc.write_text(scene_toml(aug, idx, method))
-        fx[method] = sc
-        code, err, images = run_render(sc, folder / f"ref_{method}")
+    fx = {"aug": aug, "idx": idx, "folder": folder, "scenes": list(scenes)}
+    for name in scenes:
+        sc = folder / f"{name}.toml"
+        sc.write_text(scene_toml(aug, idx, *SCENES[name]))
+        fx[name] = sc
+        code, err, images = run_render(sc, folder / f"ref_{name}")
         if code != 0:
-            raise RuntimeError(f"reference render failed: {err}")
-        fx[f"ref_{method}"] = images
+            raise RuntimeError(f"reference render failed ({scene_label(name)}): {err}")
+        fx[f"ref_{name}"] = images
     code, out, err = run_cli(["stats", str(aug), str(idx), "--json"])
     if code != 0:
         raise RuntimeError(f"reference stats failed: {err}")
@@ -146,9 +162,10 @@ def _alarm(signum, frame):
     raise _Timeout()
 
 
-def check_mutant(fx: dict, target: str, data: bytes, mutation: str, limit: float = 20.0) -> Outcome:
-    """Write the mutant over the fixture's ``target`` file, render both scenes and run ``stats --json``, restore
-    the file. Each must end in one error line and a non-zero exit, or give the unmutated images and figures."""
+def check_mutant(fx: dict, target: str, data: bytes, mutation: str, limit: float = 20.0, scenes=None) -> Outcome:
+    """Write the mutant over the fixture's ``target`` file, render the fixture's scenes (or ``scenes``: both
+    techniques by default) and run ``stats --json``, restore the file. Each must end in one error line and a
+    non-zero exit, or give the unmutated images and figures; a failure names the scene's technique and method."""
     path = fx[target]
     original = path.read_bytes()
     if data == original:
@@ -157,15 +174,15 @@ def check_mutant(fx: dict, target: str, data: bytes, mutation: str, limit: float
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.setitimer(signal.ITIMER_REAL, limit)
     try:
-        for method in ("indexed", "full"):
-            code, err, images = run_render(fx[method], fx["folder"] / f"mut_{method}")
+        for name in (fx["scenes"] if scenes is None else scenes):
+            code, err, images = run_render(fx[name], fx["folder"] / f"mut_{name}")
             lines = err.strip().splitlines()
-            if code == 0 and images == fx[f"ref_{method}"]:
+            if code == 0 and images == fx[f"ref_{name}"]:
                 continue
             if code != 0 and len(lines) == 1 and lines[0].startswith("isplat: error: ") and not images:
                 return Outcome(target, mutation, "error", lines[0])
             what = "different image" if code == 0 else f"exit {code}, {len(lines)} stderr lines"
-            return Outcome(target, mutation, f"FAIL ({method}: {what})", err[-2000:])
+            return Outcome(target, mutation, f"FAIL ({scene_label(name)}: {what})", err[-2000:])
         code, out, err = run_cli(["stats", str(fx["aug"]), str(fx["idx"]), "--json"])
         lines = err.strip().splitlines()
         if code != 0 and len(lines) == 1 and lines[0].startswith("isplat: error: ") and not out:
@@ -197,8 +214,9 @@ class FuzzReport:
         return [o for o in self.outcomes if o.result.startswith("FAIL")]
 
 
-def fuzz(fx: dict, seconds: float, seed: int = 0, max_runs: int | None = None) -> FuzzReport:
-    """Mutate the index and augmented files alternately for ``seconds`` (or ``max_runs`` mutants)."""
+def fuzz(fx: dict, seconds: float, seed: int = 0, max_runs: int | None = None, scenes=None) -> FuzzReport:
+    """Mutate the index and augmented files alternately for ``seconds`` (or ``max_runs`` mutants); each mutant
+    is rendered with the fixture's scenes (or ``scenes``)."""
     rng = np.random.default_rng(seed)
     originals = {t: fx[t].read_bytes() for t in ("idx", "aug")}
     rep = FuzzReport(0.0)
@@ -207,7 +225,7 @@ def fuzz(fx: dict, seconds: float, seed: int = 0, max_runs: int | None = None) -
     while time.perf_counter() - t0 < seconds and (max_runs is None or n < max_runs):
         target = ("idx", "aug")[n % 2]
         data, what = mutate(originals[target], rng)
-        rep.outcomes.append(check_mutant(fx, target, data, what))
+        rep.outcomes.append(check_mutant(fx, target, data, what, scenes=scenes))
         n += 1
     rep.seconds = time.perf_counter() - t0
     return rep

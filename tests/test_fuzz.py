@@ -1,5 +1,6 @@
 """Seeded fuzzing of the index and augmented files (issue #13): every mutant ends in one error line and a
-non-zero exit, or renders the unmutated images. Budget: ISPLAT_FUZZ_SECONDS (default 45 s); the seed is
+non-zero exit, or renders the unmutated images with both techniques (issue 30: the paper's pre-classified
+splatting, indexed and full, and the default post-classification, shaded; fuzzlab.SCENES). Budget: ISPLAT_FUZZ_SECONDS (default 45 s); the seed is
 ISPLAT_FUZZ_SEED (default: a new one per day, printed on failure). `make fuzz-boundscheck` runs it with numba
 bounds checking on. A mutant that fails belongs, as a named corruption, in tests/corpus/mutations.json."""
 
@@ -17,6 +18,7 @@ SEED = int(os.environ.get("ISPLAT_FUZZ_SEED", datetime.date.today().toordinal())
 @pytest.mark.slow
 def test_fuzz_index_and_augmented(tmp_path):
     fx = R.make_fixture(tmp_path)
+    assert {R.SCENES[s][1] for s in fx["scenes"]} == {"pre", "post"}
     rep = R.fuzz(fx, SECONDS, seed=SEED)
     runs = len(rep.outcomes)
     assert runs >= 20, f"only {runs} mutants in {SECONDS} s"

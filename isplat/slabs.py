@@ -97,8 +97,10 @@ def restrict(sel: Selection, axis: str, slices) -> Selection:
         return sel
     if axis not in sel.axes:
         raise IsplatError(f"axis {axis} was not selected (selected: {sorted(sel.axes) or 'none'})")
+    req = None if sel.request is None else \
+        dataclasses.replace(sel.request, axes=axis, slab=tuple(slice_runs(slices, sel.axes[axis].n_slices)))
     return dataclasses.replace(sel, axes={axis: restrict_axis(sel.axes[axis], slices)},
-                               report=dataclasses.replace(sel.report))
+                               report=dataclasses.replace(sel.report), request=req)
 
 
 PEAK_PER_VOXEL = 56     # bytes per voxel of interest while a selection is made (docs/scale.md, "Larger than memory")
@@ -158,12 +160,12 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     return k, most
 
 
-def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None):
-    """Render ``view`` of ``scene`` from its files in ``n_slabs`` slabs front to back, each slab's selection made
-    (:func:`isplat.selection.select_from_files` with ``slices=``), rendered over the partial image of the slabs in
-    front and dropped: the one-pass frame exactly (same image and counters, early termination included), holding
-    one slab's selection at a time. Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs:
-    bytes read added up).
+def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = None):
+    """Render ``view`` from the files of ``request`` (:class:`~isplat.request.RenderRequest`) in ``n_slabs``
+    slabs front to back, each slab's selection made (:func:`isplat.selection.select` of the request for the
+    slab's slices), rendered over the partial image of the slabs in front and dropped: the one-pass frame
+    exactly (same image and counters, early termination included), holding one slab's selection at a time.
+    Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs: bytes read added up).
 
     Each slab reads and decodes only its slices' index blocks. What is still whole: the full method's channels
     (read once, kept for every slab); for the i and j axes each slab's channel values are gathered from every
@@ -173,11 +175,12 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
 
     from .augfile import open_augmented
     from .frame import blank, finish_image, frame_stats, prepare, render_slab, slab_bounds
-    from .selection import select_from_files
+    from .index.build import slice_runs
+    from .selection import select
     from .threads import default_threads
 
     t0 = time.perf_counter()
-    aug = aug or open_augmented(scene.data.augmented)
+    aug = aug or open_augmented(request.augmented)
     axis = view.axis_sign[0]
     part = report = whole = None
     for a, b in slab_bounds(len(view.order), n_slabs):
@@ -185,7 +188,8 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
         if whole is not None:          # the full method reads whole channels: once, for every slab
             sel = whole
         else:
-            sel = select_from_files(scene, axis, aug=aug, slices=view.order[a:b])
+            runs = tuple(slice_runs(view.order[a:b], 1 << 62))
+            sel = select(dataclasses.replace(request, axes=axis, slab=runs), aug)
             whole = sel if sel.method == "full" else None
         if report is None:
             report = dataclasses.replace(sel.report, augmented_bytes=0, index_bytes=0)

@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 2
+STATS_VERSION = 3
 
 
 def density_histogram(aug) -> np.ndarray:
@@ -214,7 +214,7 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | N
     lo_w, hi_w = aug.density_window
     step = (hi_w - lo_w) / 255.0
 
-    r = Renderer(scene, (scene.views[view],))
+    r = Renderer(scene, (scene.views[view],), slabs=1)      # the whole selection: its held bytes are reported
     _, st = r.render_view(0)
     rep = r.report
     decoded = int(rep.index_decoded_bytes)
@@ -234,8 +234,9 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | N
         "slices": st.slices,
         "voxels_examined": st.voxels_examined,
         "classification": st.classification,
-        "voxels_splatted": st.voxels_splatted,        # post-classified: the samples composited
+        "voxels_splatted": st.voxels_splatted,        # pre-classified; 0 under post
         "splatted_ratio": _ratio(st.voxels_splatted, n),
+        "samples": st.samples,                        # post-classified; 0 under pre
         "render_seconds": st.seconds,
         "loaded": {
             "channels": list(rep.channels),
@@ -378,7 +379,7 @@ def format_table(s: dict) -> str:
         if sc["classification"] == "pre":
             row("voxels splatted", f"{sc['voxels_splatted']:,} ({_pct(sc['splatted_ratio'])} of all voxels)")
         else:
-            row("samples composited", f"{sc['voxels_splatted']:,} (post-classified: one per pixel and slice "
+            row("samples composited", f"{sc['samples']:,} (post-classified: one per pixel and slice "
                                        "where a quad of interest is seen)")
         ld = sc["loaded"]
         row("loaded: channels", ", ".join(ld["channels"]) or "none")

@@ -147,9 +147,10 @@ def test_a_frame_streamed_slab_by_slab_is_the_one_pass_frame(make_scene, volume,
     r = Renderer(sc)
     want, st = r.render_view(0)
     for k in (1, 2, 3, 7):
-        got, st_k, report = render_streamed(sc, r.views[0], k)
+        got, st_k, report = render_streamed(r.request, r.views[0], k)
         assert np.array_equal(got, want), k
-        assert (st_k.voxels_examined, st_k.voxels_splatted, st_k.slices) == (st.voxels_examined, st.voxels_splatted,
+        assert np.array_equal(Renderer(sc, slabs=k).render_view(0)[0], want), k      # the Renderer drives it
+        assert (st_k.voxels_examined, st_k.drawn, st_k.slices) == (st.voxels_examined, st.drawn,
                                                                              st.slices)
         assert report.index_bytes >= r.report.index_block_bytes and report.axes == r.report.axes  # blocks, each slab
         if method == "full":

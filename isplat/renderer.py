@@ -89,11 +89,11 @@ class Renderer:
 
     def _auto_slabs(self) -> int:
         """The slabs a frame needs to fit in the memory left (:func:`isplat.slabs.slabs_needed`); 1 when it fits."""
-        from .slabs import PEAK_PER_VOXEL, memory_room, slabs_needed
+        from .slabs import PEAK_PER_VOXEL, fits_anyway, memory_room, slabs_needed
 
         room = memory_room()
-        if room is None or self.method != "indexed":
-            return 1
+        if room is None or self.method != "indexed" or fits_anyway(self.scene, self.data, room):
+            return 1                # (the index is then opened once, by the selection)
         k, voxels = slabs_needed(self.scene, self.views, self.data, room)
         if k > 1:
             log.info(f"isplat render: the selection ({voxels:,} voxels of interest, about "

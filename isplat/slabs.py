@@ -140,12 +140,7 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     room = memory_room() if room is None else room
     if scene.render.method != "indexed" or room is None or scene.data.index is None:
         return 1, 0
-    # post-classification also holds the slab's channels: density, and normals (2 B) when shaded, gradient
-    # magnitudes when used
-    post = scene.render.classification == "post"
-    per_voxel = (1 + (2 if scene.shading.enabled else 0) + (1 if scene.transfer.gradient_opacity else 0)) if post \
-        else 0
-    whole = int(np.prod(aug.shape)) * per_voxel
+    whole = int(np.prod(aug.shape)) * _channel_bytes(scene)
     ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals
     idx = open_index(scene.data.index)
     k, most = 1, 0
@@ -158,6 +153,21 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
         need = -(-(n * PEAK_PER_VOXEL + whole) // max(1, int(room * ROOM_SHARE)))
         k = max(k, min(int(need), idx.n_slices(axis)))
     return k, most
+
+
+def _channel_bytes(scene) -> int:
+    """Bytes per voxel of the volume a post-classified slab holds besides its selection: its slices' channels,
+    density, and normals (2 B) when shaded, gradient magnitudes when used; 0 pre-classified."""
+    if scene.render.classification != "post":
+        return 0
+    return 1 + (2 if scene.shading.enabled else 0) + (1 if scene.transfer.gradient_opacity else 0)
+
+
+def fits_anyway(scene, aug, room: int) -> bool:
+    """True when one selection would fit even if every voxel of the volume were of interest: what
+    :func:`slabs_needed` would find (one slab) without opening the index to count the voxels of interest."""
+    n = int(np.prod(aug.shape))
+    return n * (PEAK_PER_VOXEL + _channel_bytes(scene)) <= max(1, int(room * ROOM_SHARE))
 
 
 def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = None):

@@ -163,3 +163,24 @@ def test_a_request_is_made_from_the_scene_and_its_files_alone(files):
     assert r.transfer == scene.transfer and r.unit_distance == 1.0 and r.post and r.gradient
     full = Renderer(scene, method="full").request
     assert full.index is None and full.source[2] is None        # the full method reads no index
+
+
+@pytest.mark.parametrize("slabs", [None, 2])
+def test_a_render_opens_each_file_once(files, tmp_path, monkeypatch, slabs):
+    """isplat render (a scene in density codes): the augmented file is opened once, by the Renderer, and the
+    index once, by the selection (the memory check needs no index when even the whole volume would fit); in
+    slabs the index once per slab's selection."""
+    from isplat import augfile, index
+    from isplat.cli.main import main
+
+    opened = {"aug": 0, "idx": 0}
+    real_aug, real_idx = augfile.open_augmented, index.open_index
+    monkeypatch.setattr(augfile, "open_augmented", lambda p: opened.__setitem__("aug", opened["aug"] + 1) or real_aug(p))
+    monkeypatch.setattr(index, "open_index", lambda p: opened.__setitem__("idx", opened["idx"] + 1) or real_idx(p))
+    (tmp_path / "s.toml").write_text(scene_text(files / "v.aug.h5", files / "v.idx.h5", image="width = 16\nheight = 16",
+                                                transfer="opacity = [[50, 0], [200, 0.9]]"))
+    with pytest.raises(SystemExit) as exc:
+        main(["render", str(tmp_path / "s.toml"), "-o", str(tmp_path / "a.png"), "-q",
+              *([] if slabs is None else ["--slabs", str(slabs)])])
+    assert exc.value.code in (0, None)
+    assert opened == {"aug": 1, "idx": slabs or 1}

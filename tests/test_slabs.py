@@ -199,6 +199,7 @@ def test_a_selection_that_does_not_fit_is_streamed_by_itself(volume, tmp_path, m
     assert k == 1 and voxels > 0
     room = 2 * voxels * S.PEAK_PER_VOXEL // 3 + 6    # a slab may take half of it: a third of the selection
     assert S.slabs_needed(sc, views, a, room=room)[0] == 3
+    assert S.fits_anyway(sc, a, 10 ** 12) and not S.fits_anyway(sc, a, room)  # (the Renderer's check before counting)
     assert S.slabs_needed(sc, views, a, room=1)[0] == len(views[0].order)   # at most a slice per slab
     # post-classified, a slab holds its slices' channels too (density, and normals when shaded)
     post = load_scene(tmp_path / "s.toml", ['render.classification="post"'])

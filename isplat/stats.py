@@ -190,6 +190,8 @@ def _reconcile(scene_path, overrides, aug_path: Path, idx_path: Path | None) -> 
 
 def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | None, idx, hist_from_index,
                   view: int) -> tuple[dict, object]:
+    """The ``scene`` section of the JSON (docs/stats.md) and the frame's stats. Over 60 lines: one flat dict
+    literal, a line per documented key in the order of docs/stats.md, which reads better whole than cut up."""
     from .renderer import Renderer
     from .scene import load_scene
     from .transfer import build_luts
@@ -316,7 +318,8 @@ def _pct(x) -> str:
 
 
 def format_table(s: dict) -> str:
-    """The figures of :func:`collect` as aligned text, one section per input."""
+    """The figures of :func:`collect` as aligned text, one section per input (over 60 lines: a row per figure,
+    in the order the table prints them)."""
     rows: list[tuple[str, str]] = []
 
     def head(t):

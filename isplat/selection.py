@@ -382,7 +382,7 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
 def select(request, aug=None, idx=None) -> Selection:
     """Read what ``request`` needs from its files: only the index blocks of the transfer function's intervals
     (indexed method) and the channels the request uses (module docstring). ``aug``, ``idx``: the augmented file
-    and the index, if already open. A slab (``request.slab``): only those slices' index blocks are read and
+    and the index, if already open (the report then counts the index's reads since). A slab (``request.slab``): only those slices' index blocks are read and
     decoded (``load_axis(..., slices=)``) and the channel values of the slab's voxels alone gathered from the
     augmented file's k-slabs (the index's ``/values`` hold a whole interval's)."""
     from .augfile import open_augmented
@@ -400,15 +400,16 @@ def select(request, aug=None, idx=None) -> Selection:
         sel = replace(sel, whole=_whole(sel, aug.read))
         rep.values_from = "whole channels" if sel.report.channels else "none"
     if sel.method == "indexed":
-        idx = _open_matching_index(request, aug, idx)
+        read0, io0 = (idx.bytes_read, idx.io.bytes) if idx is not None else (0, 0)  # (an index opened before:
+        idx = _open_matching_index(request, aug, idx)                                 # this selection's reads)
         rep.index_format_version = idx.version
         if not sel.post:
             rep.values_from = "none" if not rep.channels or sel.empty else \
                 "index" if idx.has_values else "augmented slabs"
         if not sel.empty:
             _select_indexed(sel, aug, idx, slices)
-        rep.index_bytes = int(idx.bytes_read)
-        rep.index_file_bytes = int(idx.io.bytes)
+        rep.index_bytes = int(idx.bytes_read - read0)
+        rep.index_file_bytes = int(idx.io.bytes - io0)
     rep.augmented_bytes = int(aug.bytes_read)
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
     _needed(sel)

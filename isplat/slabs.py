@@ -191,6 +191,11 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
 
     t0 = time.perf_counter()
     aug = aug or open_augmented(request.augmented)
+    idx = None                         # the index, opened once for every slab
+    if request.method == "indexed" and request.index is not None:
+        from .index import open_index
+
+        idx = open_index(request.index)
     axis = view.axis_sign[0]
     part = report = whole = None
     for a, b in slab_bounds(len(view.order), n_slabs):
@@ -199,7 +204,7 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
             sel = whole
         else:
             runs = tuple(slice_runs(view.order[a:b], 1 << 62))
-            sel = select(dataclasses.replace(request, axes=axis, slab=runs), aug)
+            sel = select(dataclasses.replace(request, axes=axis, slab=runs), aug, idx)
             whole = sel if sel.method == "full" else None
         if report is None:
             report = dataclasses.replace(sel.report, augmented_bytes=0, index_bytes=0)

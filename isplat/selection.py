@@ -382,9 +382,10 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
 def select(request, aug=None, idx=None) -> Selection:
     """Read what ``request`` needs from its files: only the index blocks of the transfer function's intervals
     (indexed method) and the channels the request uses (module docstring). ``aug``, ``idx``: the augmented file
-    and the index, if already open (the report then counts the index's reads since). A slab (``request.slab``): only those slices' index blocks are read and
-    decoded (``load_axis(..., slices=)``) and the channel values of the slab's voxels alone gathered from the
-    augmented file's k-slabs (the index's ``/values`` hold a whole interval's)."""
+    and the index, if already open (the report then counts the index's reads since). A slab
+    (``request.slab``): only those slices' index blocks are read and decoded (``load_axis(..., slices=)``) and
+    the channel values of the slab's voxels alone gathered from the augmented file's k-slabs (the index's
+    ``/values`` hold a whole interval's)."""
     from .augfile import open_augmented
 
     aug = aug or open_augmented(request.augmented)

@@ -175,8 +175,10 @@ def test_a_render_opens_each_file_once(files, tmp_path, monkeypatch, slabs):
 
     opened = {"aug": 0, "idx": 0}
     real_aug, real_idx = augfile.open_augmented, index.open_index
-    monkeypatch.setattr(augfile, "open_augmented", lambda p: opened.__setitem__("aug", opened["aug"] + 1) or real_aug(p))
-    monkeypatch.setattr(index, "open_index", lambda p: opened.__setitem__("idx", opened["idx"] + 1) or real_idx(p))
+    def counted(name, real):
+        return lambda p: opened.__setitem__(name, opened[name] + 1) or real(p)
+    monkeypatch.setattr(augfile, "open_augmented", counted("aug", real_aug))
+    monkeypatch.setattr(index, "open_index", counted("idx", real_idx))
     (tmp_path / "s.toml").write_text(scene_text(files / "v.aug.h5", files / "v.idx.h5", image="width = 16\nheight = 16",
                                                 transfer="opacity = [[50, 0], [200, 0.9]]"))
     with pytest.raises(SystemExit) as exc:

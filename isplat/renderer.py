@@ -56,7 +56,8 @@ class Renderer:
     """A scene's views and the one driver of their frames: in this process from one selection
     (``select`` once, ``render_frame`` per view), front to back in slabs one slab's selection at a time
     (``slabs`` > 1 without a ``scheduler``; by default as many as a selection too large for the memory left
-    needs, :func:`isplat.slabs.slabs_needed`), or on Dask (``scheduler``: ``local:N``, ``tcp://HOST:PORT``).
+    needs, :func:`isplat.slabs.slabs_needed`), or on Dask (``scheduler``: ``local:N``, ``tcp://HOST:PORT``, or a
+    ``distributed.Client``).
 
     ``views``: cameras (default the scene's); ``method``: instead of ``render.method``; ``arrays``: an
     :class:`InMemory` volume instead of the scene's files (this process only); ``cache``: a
@@ -159,9 +160,12 @@ class Renderer:
             yield n, rgba, st, self._report
 
     def _dask_frames(self, which, et, bar):
+        import contextlib
+
         from . import distributed
 
-        with distributed.connect(self.scheduler) as client:
+        spec = isinstance(self.scheduler, str)          # local:N, tcp://HOST:PORT; else a Client, connected
+        with distributed.connect(self.scheduler) if spec else contextlib.nullcontext(self.scheduler) as client:
             for n, rgba, st, rep in distributed.render_views(client, self.request, [self.views[n] for n in which],
                                                              slabs=self.slabs, et=et, bar=bar):
                 self._report = rep

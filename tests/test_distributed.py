@@ -82,6 +82,20 @@ def test_each_worker_makes_the_selection_once(files, client):
     assert sum(cached.values()) <= 2            # at most one per worker, for 24 views
 
 
+def test_the_renderer_drives_the_workers(files, client):
+    """Renderer(scene, scheduler=client): the views rendered on the workers are the one-process frames, in view
+    order, and the request made here is the workers' cache key."""
+    scene = make(files, ["image.width=24", "image.height=24", "views.orbit_steps=3"])
+    r = Renderer(scene, scheduler=client)
+    assert r.mode == "dask" and r.selection is None and r.held_bytes() is None
+    got = list(r.render_views())
+    assert [n for n, *_ in got] == [0, 1, 2]
+    for (_, rgba, _, _), want in zip(got, one_process(scene)):
+        assert np.array_equal(rgba, want)
+    keys = client.run(lambda: [k for k, _ in D._cache.items()])
+    assert any(r.request in v for v in keys.values())
+
+
 @pytest.mark.parametrize("n_slabs", [2, 3, 4])
 def test_a_frame_split_into_slabs_on_workers_is_the_one_process_frame(files, client, n_slabs):
     """Early termination off: equal to rounding (1e-5); on (0.9): the premultiplied image differs by at most

@@ -85,7 +85,8 @@ for line in sys.stdin:
     elif cmd["op"] == "image":
         img, st = Renderer(load_scene(cmd["scene"], cmd["overrides"])).render_view(0)
         np.save(cmd["path"], img)
-        out = {"examined": st.voxels_examined, "splatted": st.voxels_splatted, "slices": st.slices}
+        drawn = getattr(st, "drawn", st.voxels_splatted)  # voxels_splatted counted post's samples until issue 25
+        out = {"examined": st.voxels_examined, "splatted": drawn, "slices": st.slices}
     print(json.dumps(out), flush=True)
 """
 

@@ -471,7 +471,7 @@ def hidden_removed_data(scene, view, tag: str) -> tuple[Path, Path, float]:
 
 # ---- one case: frames interleaved, errors against the reference ----------------------------------------------
 def measure(name: str, size: int, frames: int, quick: bool) -> dict:
-    from isplat.frame import render_frame, views_for
+    from isplat.frame import BandLearning, render_frame, views_for
     from isplat.renderer import Renderer
 
     from . import reference as REF
@@ -483,13 +483,13 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
     views = [views_for(peer_scene(name, size, quick, knobs), r0.selection)[0] for _, knobs in ISPLAT_POINTS]
     vtkv = VTKView(r0, 0, SAMPLE_DISTANCE)
     labels = [f"isplat {lab}" for lab, _ in ISPLAT_POINTS] + [f"VTK {s:g}" for s in VTK_STEPS]
-    sel = {lab: (r0.selection, v) for lab, v in zip(labels, views)}
+    sel = {lab: (r0.selection, v, None, BandLearning()) for lab, v in zip(labels, views)}
     removed = None
     if name == "hidden material":       # the same frame with the voxels this view cannot see removed
         tag = f"{CASES[name][0]}-{'x'.join(map(str, CASES[name][2 if quick else 1]))}"
         *vis, removed = hidden_removed_data(scene, views[0], tag)
         r_vis = Renderer(peer_scene(name, size, quick, data=vis))
-        sel[HIDDEN_REMOVED] = (r_vis.selection, views_for(r_vis.scene, r_vis.selection)[0])
+        sel[HIDDEN_REMOVED] = (r_vis.selection, views_for(r_vis.scene, r_vis.selection)[0], None, BandLearning())
         labels.append(HIDDEN_REMOVED)
     times = {lab: [] for lab in labels}
     cold = {lab: [] for lab in labels}          # the untimed-as-such frame: right after another renderer's
@@ -530,10 +530,10 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
         sv = stats[HIDDEN_REMOVED]
         hid = dict(ms=_doc.median_ms(times[HIDDEN_REMOVED]), removed=removed, image=REF.errors(imgs[HIDDEN_REMOVED],
                    imgs[iso]), ratio=statistics.median(a / b for a, b in zip(times[iso], times[HIDDEN_REMOVED])),
-                   examined=sv.voxels_examined, tested=sv.voxels_tested, splatted=sv.voxels_splatted)
+                   examined=sv.voxels_examined, tested=sv.voxels_tested, splatted=sv.drawn)
     return dict(case=name, size=size, points=pts, paired=paired, ref_seconds=ref_s, ref_cached=cached, hidden=hid,
                 between=REF.errors(imgs[iso], imgs[v1]), between05=REF.errors(imgs[iso], imgs[v05]),
-                examined=st.voxels_examined, splatted=st.voxels_splatted, tested=st.voxels_tested,
+                examined=st.voxels_examined, splatted=st.drawn, tested=st.voxels_tested,
                 threads=(r0.threads, vtkv.threads))
 
 

@@ -179,7 +179,7 @@ def run(out_dir: Path, quick: bool) -> Path:
         rs = {"indexed": renderer(a, i), "full": renderer(a, i, "render.method=full")}
         tm = interleaved(rs, max(3, frames // 3))
         _, s = rs["indexed"].render_view(0)
-        scaling.append((n, s.voxels_examined, tm["indexed"][0], tm["full"][0], s.voxels_splatted))
+        scaling.append((n, s.voxels_examined, tm["indexed"][0], tm["full"][0], s.drawn))
 
     TECHNIQUES[:] = [st.classification]      # the stamp names the technique examples/head.toml rendered with
     body = doc(main, st, pv, orb, e2e, rss, scaling, r0, quick, time.perf_counter() - t_start)
@@ -215,11 +215,11 @@ def doc(main, st, pv, orb, e2e, rss, scaling, r0, quick, seconds) -> str:
         "in every row below.",
         "",
         f"Voxels of interest (density in the transfer function's non-zero intervals): {st.voxels_examined:,} "
-        f"of {int(np.prod(r0.geom.shape)):,}; " + (f"splatted after early termination: {st.voxels_splatted:,}."
+        f"of {int(np.prod(r0.geom.shape)):,}; " + (f"splatted after early termination: {st.drawn:,}."
                                                    if st.classification == "pre" else
                                                    f"post-classified: samples composited after early termination "
                                                    f"(one per pixel and slice where a quad of interest is seen): "
-                                                   f"{st.voxels_splatted:,}."),
+                                                   f"{st.drawn:,}."),
         "",
         f"| | {tech}, indexed | {tech}, full | full / indexed |",
         "|---|---:|---:|---:|",

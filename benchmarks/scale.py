@@ -159,12 +159,11 @@ def measured_split(client, scene, view, k, workers, b_part, b_frame, t_finish):
     rate), and right after, the frame end to end.
     ``t_finish``: the finishing work, measured in this process. Returns (predicted, measured) seconds."""
     from isplat import distributed as D
-    from isplat.frame import axes_of, slab_bounds
+    from isplat.frame import slab_bounds
 
-    axes = axes_of([view])
-    key = D.selection_key(scene, axes)
+    request = D.request_for(scene, [view])
     tag = f"{k}-{time.time_ns()}"
-    slabs = [client.submit(D.slab_task, scene, key, axes, view, a, b, None, workers=[workers[s % len(workers)]],
+    slabs = [client.submit(D.slab_task, request, view, a, b, None, workers=[workers[s % len(workers)]],
                            key=f"bench-slab-{tag}-{s}") for s, (a, b) in enumerate(slab_bounds(len(view.order), k))]
     res = client.gather(slabs)
     t_slab = max(r[2] for r in res)
@@ -176,7 +175,7 @@ def measured_split(client, scene, view, k, workers, b_part, b_frame, t_finish):
     levels = math.ceil(math.log2(k)) if k > 1 else 0
     predicted = first + (1 + levels) * per_hop + t_slab + levels * (t_over + b_part / bw) + t_finish + b_frame / bw
     del slabs, res
-    part = D.submit_slabs(client, scene, key, axes, view, k, None, f"bench-{tag}", workers[:k])
+    part = D.submit_slabs(client, request, view, k, None, f"bench-{tag}", workers[:k])
     measured = _timed(lambda: client.submit(D.finish_task, part, view, key=f"bench-frame-{tag}").result())[0]
     return predicted, measured
 

@@ -163,9 +163,10 @@ def thick_object(kind, spacing, extent, z_step=None):
 
 
 def _thick_view(vol, spacing, cam, size, channels=None, classification="pre"):
-    """(selection, view) of ``vol`` (or of augmented ``channels``: density, normal, gradient magnitude, its
-    scale) for the thick-slice renders, pre-classified unless said otherwise."""
-    from isplat.frame import views_for
+    """render_frame's arguments (selection, view, et None, the view's band learning) for ``vol`` (or augmented
+    ``channels``: density, normal, gradient magnitude, its scale), thick-slice renders, pre-classified unless
+    said otherwise."""
+    from isplat.frame import BandLearning, views_for
     from isplat.scene import parse_scene
     from isplat.selection import Selection
 
@@ -177,7 +178,7 @@ def _thick_view(vol, spacing, cam, size, channels=None, classification="pre"):
     else:
         sel = Selection.from_arrays(channels[0], sc, normal=channels[1], gradient_magnitude=channels[2],
                                     gradient_magnitude_scale=channels[3], spacing=spacing)
-    return sel, views_for(sc, sel)[0]
+    return sel, views_for(sc, sel)[0], None, BandLearning()     # the frames of a view learn their bands
 
 
 def _frame(sv) -> np.ndarray:
@@ -353,7 +354,7 @@ def render_doc(pops, times, size, frames, quick, seconds, load0, thick=None, thi
         for s in ("axis", "image"):
             st = t[s]["stats"]
             L.append(f"| {case} | {st.classification} | `{s}` | {t[s]['ms']:.1f} | {t[s]['ms'] / t['axis']['ms']:.2f} | "
-                     f"{st.voxels_examined:,} | {st.voxels_splatted:,} | {st.slices:,} | "
+                     f"{st.voxels_examined:,} | {st.drawn:,} | {st.slices:,} | "
                      f"{'' if s == 'axis' else format(t['diff'], '.2e')} |")
     L += ["", "## Reading", "", reading(pops, times), ""]
     if thick:

@@ -337,7 +337,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
                     why="every voxel's opacity is multiplied by 0",
                     does="alpha table (density x gradient code) holds 0; such voxels are dropped by one look-up "
                          "before shading",
-                    note=f"voxels splatted: {notes['float32'].voxels_splatted}"))
+                    note=f"voxels splatted: {notes['float32'].drawn}"))
     # 11. empty transfer function
     got, fin, notes = both(lab, vol, lambda img, st: float(img[..., 3].max()), camera=cam,
                            transfer="opacity = [[250, 0.0], [255, 0.0]]")
@@ -363,7 +363,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
                     why="0.999999 is within a float32 ulp band of 1 (float32(0.999999) = 0.99999899)",
                     does="termination compares in the accumulator precision; 1.0 switches it off (et < 1)",
                     note="voxels splatted (float32): " + ", ".join(
-                        f"ET {et}: {res[et]['float32'][1].voxels_splatted}" for et in (1.0, 0.999999))))
+                        f"ET {et}: {res[et]['float32'][1].drawn}" for et in (1.0, 0.999999))))
     # 13. subnormal log table in perspective
     vol = lab.volume(np.full((33, 33, 33), 200, np.uint8))
     a_s, unit_s = 1e-44, 1e-40

@@ -73,8 +73,8 @@ def counts(r, threads: int):
     from isplat import frame as F
 
     view = on_threads(r.views[0], threads)
-    r.selection.band_costs.clear()
-    return len(F.image_bands(view.frame.height, threads)), F.render_frame(r.selection, view)[1]
+    r.bands.costs.clear()
+    return len(F.image_bands(view.frame.height, threads)), F.render_frame(r.selection, view, None, r.bands)[1]
 
 
 def cpu_frame(r, view) -> dict:
@@ -106,7 +106,7 @@ def cpu_frame(r, view) -> dict:
     F.run_parallel = timed
     try:
         t0, c0 = time.perf_counter(), time.thread_time()
-        F.render_frame(r.selection, view)
+        F.render_frame(r.selection, view, None, r.bands)
         wall, main = time.perf_counter() - t0, time.thread_time() - c0
     finally:
         F.run_parallel = orig
@@ -124,7 +124,7 @@ def pair_frame(copies, views) -> float:
     from isplat.threads import run_parallel
 
     t = time.perf_counter()
-    run_parallel(lambda k: F.render_frame(copies[k].selection, views[k]), [0, 1], 2)
+    run_parallel(lambda k: F.render_frame(copies[k].selection, views[k], None, copies[k].bands), [0, 1], 2)
     return time.perf_counter() - t
 
 
@@ -148,21 +148,21 @@ def timings(r, twin, frames: int) -> dict:
         for key in (kinds if i % 2 else kinds[::-1]):
             for timed in (False, True):   # after a frame of the same kind: not paying for the caches another left
                 if key == "pair":
-                    r.selection.band_costs = learned["1"]
+                    r.bands.costs = learned["1"]
                     dt = pair_frame((r, twin), pair_views)
                     if timed:
                         pairs.append(dt)
                     continue
                 if key == "2e":
                     learned[key].clear()                            # even bands, as a first frame
-                r.selection.band_costs = learned[key]
+                r.bands.costs = learned[key]
                 if timed:
                     runs[key].append(cpu_frame(r, views[key]))
                 else:
-                    F.render_frame(r.selection, views[key])
-        r.selection.band_costs = learned["2"]
+                    F.render_frame(r.selection, views[key], None, r.bands)
+        r.bands.costs = learned["2"]
         t = time.perf_counter()
-        F.prepare(r.selection, views["2"])
+        F.prepare(r.selection, views["2"], None, r.bands)
         prep.append(time.perf_counter() - t)
     med = statistics.median
     out = {"prepare": med(prep[1:]), "pair": med(pairs[1:])}
@@ -238,7 +238,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
     for name, size, per, tm, n_vox in rows:
         st = per[1][1]
         L.append(f"| {name} | {st.classification} | {size} | {n_vox:,} | {st.voxels_examined:,} | {st.voxels_tested:,} | "
-                 f"{st.voxels_splatted:,} | {st.voxels_tested / max(st.voxels_splatted, 1):.2f} |")
+                 f"{st.drawn:,} | {st.voxels_tested / max(st.drawn, 1):.2f} |")
     L += ["", "A voxel's cell (4 x 4 voxels of a slice) is left, and its voxels (pre-classified) or the quads "
           "they touch (post-classified) are visited, only when the cell, its block (16 x 16) and its region "
           "(64 x 64) can reach a pixel of the band that is not yet saturated; the rest cost one test per square, "
@@ -291,7 +291,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "serial share |", "|---|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
         L.append(f"| {name}, {per[1][1].classification} | {1e9 * tm['1'] / max(n_vox, 1):.1f} | "
-                 f"{1e9 * tm['1'] / max(per[1][1].voxels_splatted, 1):.0f} | {1e3 * tm['prepare']:.2f} | "
+                 f"{1e9 * tm['1'] / max(per[1][1].drawn, 1):.0f} | {1e3 * tm['prepare']:.2f} | "
                  f"{100 * tm['serial1'] / (tm['serial1'] + tm['work1'] + tm['rest1']):.1f}% |")
     L += ["", "If the frame's cost follows what is visible, the time per voxel splatted or sample stays about the same from "
           "scene to scene however much lies hidden, while the time per voxel of interest falls as more of them "

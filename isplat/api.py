@@ -18,14 +18,15 @@ from __future__ import annotations
 import hashlib
 from collections import OrderedDict
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 from .errors import IsplatError
+from .request import SelectionCache
 
-_CACHE: OrderedDict = OrderedDict()       # (augmented volumes, selections) of the last few calls
+_CACHE: OrderedDict = OrderedDict()       # the augmented volumes of the last few calls
 _CACHE_SIZE = 4
+_SELECTIONS = SelectionCache(_CACHE_SIZE)  # their selections by request (isplat.request), with band learning
 
 
 def render(volume, *, preset: str | None = None, opacity=None, color=None, azimuth: float = 0.0,
@@ -49,7 +50,8 @@ def render(volume, *, preset: str | None = None, opacity=None, color=None, azimu
         from .resample import thin_slices as thin
 
         arr, spacing = thin(arr, spacing, who="isplat.render")
-    aug = _cached(("augment", _digest(arr), spacing, str(window)), lambda: _augment(arr, spacing, window))
+    identity = ("augment", _digest(arr), spacing, str(window))
+    aug = _cached(identity, lambda: _augment(arr, spacing, window))
     width, height = (size, size) if np.ndim(size) == 0 else size
     keys = [f"image.width={int(width)}", f"image.height={int(height)}", f"camera.azimuth={float(azimuth)}",
             f"camera.elevation={float(elevation)}", f"camera.zoom={float(zoom)}",
@@ -59,21 +61,17 @@ def render(volume, *, preset: str | None = None, opacity=None, color=None, azimu
     keys += [f"transfer.color={_toml(color)}"] if color is not None else []
     keys += [f"image.background={_toml(background)}"] if background is not None else []
     scene = _scene(keys + list(set), aug["density_window"])
-    return _render_scene(scene, aug, spacing)
+    return _render_scene(scene, aug, spacing, identity)
 
 
-def _render_scene(scene, aug, spacing) -> np.ndarray:
-    from .frame import axes_of, render_frame, views_for
-    from .selection import Selection
+def _render_scene(scene, aug, spacing, identity) -> np.ndarray:
+    """The first view of ``scene`` from the augmented volume ``aug`` (identified by ``identity``), through a
+    Renderer whose selection is kept by its request (:data:`_SELECTIONS`)."""
+    from .renderer import InMemory, Renderer
 
-    views = views_for(scene, SimpleNamespace(shape=aug["density"].shape, spacing_ijk=spacing))
-    t = scene.transfer
-    key = ("select", aug["density_sha256"], spacing, t.opacity, t.color, t.gradient_opacity,
-           scene.shading.enabled, scene.render.method, axes_of(views))
-    sel = _cached(key, lambda: Selection.from_arrays(
-        aug["density"], scene, normal=aug["normal"], gradient_magnitude=aug["gradient_magnitude"],
-        gradient_magnitude_scale=aug["gradient_magnitude_scale"], spacing=spacing, axes=axes_of(views)))
-    rgba, _ = render_frame(sel, views[0])
+    arrays = InMemory({ch: aug[ch] for ch in ("density", "gradient_magnitude", "normal")}, spacing,
+                      float(aug["gradient_magnitude_scale"]), identity)
+    rgba, _ = Renderer(scene, arrays=arrays, cache=_SELECTIONS).render_view(0)
     return rgba
 
 

@@ -4,8 +4,8 @@
 127.0.0.1) or ``--scheduler tcp://HOST:PORT`` (a running cluster) renders a batch of views on the workers:
 
 - **Batches** (:func:`render_views`): one task per view. Each worker opens the scene's files and makes the
-  selection once and keeps it (a worker-side cache keyed by the files' identity, path, size and modification
-  time, and by what the selection depends on: transfer function, shading, method, spacing, axes), so the
+  selection once and keeps it (a worker-side cache keyed by the views' :class:`~isplat.request.RenderRequest`:
+  the files' identity, path, size and modification time, and everything the selection depends on), so the
   following views cost one frame each. Frames come back in order. A worker that dies is replaced and its
   views are rendered again elsewhere (Dask reschedules them; ``retries`` covers exceptions too).
 - **Slabs** (``slabs=K``): each frame's slices in visibility order are cut into K slabs
@@ -25,15 +25,13 @@ import contextlib
 import dataclasses
 import logging
 import os
-import threading
 import time
 import uuid
-from collections import OrderedDict
-from pathlib import Path
 
 import numpy as np
 
 from .errors import IsplatError
+from .request import SelectionCache, file_identity  # noqa: F401  (file_identity: public here too)
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +39,8 @@ EXTRA = "dask"
 RETRIES = 2                 # a task that raises is tried again this many times (a dead worker does not count)
 _CACHE_SIZE = 4             # whole selections kept per worker
 _SLAB_CACHE_SIZE = 16       # slab selections kept per worker
-_cache: OrderedDict = OrderedDict()
-_lock = threading.Lock()
+_cache = SelectionCache(_CACHE_SIZE)            # whole selections, with their frames' band learning
+_slab_cache = SelectionCache(_SLAB_CACHE_SIZE)  # slabs' selections
 
 
 def require_dask():
@@ -87,75 +85,55 @@ def connect(spec: str):
 
 # --- the selection's identity and the worker-side cache ----------------------------------------------------------
 
-def file_identity(path) -> tuple:
-    """What identifies a file across machines sharing storage: resolved path, size, modification time (ns)."""
-    p = Path(path)
-    try:
-        st = p.stat()
-    except OSError as exc:
-        raise IsplatError(f"{path}: cannot read ({exc.strerror})") from None
-    return str(p.resolve()), int(st.st_size), int(st.st_mtime_ns)
+def request_for(scene, views, method: str | None = None):
+    """The :class:`~isplat.request.RenderRequest` of ``views`` (isplat.frame.View) of ``scene``'s files: the
+    workers' cache key, and all they need to make the selection."""
+    from .augfile import open_augmented
+    from .frame import axes_of
+    from .request import RenderRequest
+
+    return RenderRequest.from_files(scene, open_augmented(scene.data.augmented), axes_of(views), method)
 
 
-def selection_key(scene, axes: str, method: str | None = None) -> tuple:
-    """The cache key of a scene's selection: its files' identity and everything the selection depends on."""
-    files = tuple(file_identity(p) if p is not None else None for p in (scene.data.augmented, scene.data.index))
-    method = method or scene.render.method
-    index = files[1] if method == "indexed" else None
-    return (files[0], index, scene.transfer, bool(scene.shading.enabled), method, scene.volume.spacing, axes)
+def _select_here(request):
+    """Read the selection of ``request`` (of its slab only, if it has one) from the files this worker sees,
+    after checking they are the client's."""
+    from .request import _identity_or_path
+    from .selection import select
 
-
-def _cached(key, make, size):
-    with _lock:
-        if key in _cache:
-            _cache.move_to_end(key)
-            return _cache[key]
-        value = make()
-        _cache[key] = value
-        kind = key[0]
-        same = [k for k in _cache if k[0] == kind]
-        for k in same[:max(0, len(same) - size)]:
-            del _cache[k]
-        return value
-
-
-def _select_here(scene, key: tuple, axes: str, slices=None):
-    """Read the selection (of ``slices`` only, if given) from the files this worker sees, after checking they
-    are the client's."""
-    from .selection import select_from_files
-
-    if selection_key(scene, axes, key[4])[:2] != key[:2]:
-        raise IsplatError(f"{scene.data.augmented}: the worker's files differ from the client's (path, size or "
+    if ("files", _identity_or_path(request.augmented), _identity_or_path(request.index)) != request.source:
+        raise IsplatError(f"{request.augmented}: the worker's files differ from the client's (path, size or "
                           f"modification time); put them on storage every worker shares")
-    log.debug(f"worker {os.getpid()}: selecting for {scene.data.augmented}")
-    return select_from_files(scene, axes, key[4], slices=slices)
+    log.debug(f"worker {os.getpid()}: selecting for {request.augmented}")
+    return select(request)
 
 
-def worker_selection(scene, key: tuple, axes: str):
-    """The scene's selection on this worker: made once per key (files read here), then reused."""
-    return _cached(("sel", key), lambda: _select_here(scene, key, axes), _CACHE_SIZE)
+def worker_selection(request):
+    """``(selection, band learning)`` of ``request`` on this worker: made once (files read here), then reused."""
+    return _cache.get(request, lambda: _select_here(request))
 
 
-def slab_selection(scene, key: tuple, axes: str, axis: str, slices: np.ndarray):
+def slab_selection(request, axis: str, slices: np.ndarray):
     """The part of the selection that renders ``slices`` of ``axis`` on this worker (cached): cut from the
     whole selection if this worker holds it, else read from the files for those slices alone (the index
     blocks of the transfer function's densities along ``axis`` are decoded, then only the slab's are kept and
     only their channel values gathered), so the worker holds only its slabs' voxels (docs/scale.md)."""
     from .slabs import restrict, slice_runs
 
+    slab = dataclasses.replace(request, axes=axis, slab=tuple(slice_runs(slices, 1 << 62)))
+
     def make():
-        whole = _cache.get(("sel", key))
+        whole = _cache.peek(request)
         if whole is not None:
-            return restrict(whole, axis, slices)
-        return _select_here(scene, key, axis, slices)
-    runs = tuple(slice_runs(slices, 1 << 30))
-    return _cached(("slab", key, axis, runs), make, _SLAB_CACHE_SIZE)
+            return restrict(whole[0], axis, slices)
+        return _select_here(slab)
+    return _slab_cache.get(slab, make)[0]
 
 
 def clear_cache() -> None:
     """Forget this process's selections."""
-    with _lock:
-        _cache.clear()
+    _cache.clear()
+    _slab_cache.clear()
 
 
 # --- tasks (run on the workers) ------------------------------------------------------------------------------
@@ -172,16 +150,16 @@ def _worker_threads(view):
     return dataclasses.replace(view, render=dataclasses.replace(view.render, threads=int(n)))
 
 
-def view_task(scene, key, axes, view, et):
+def view_task(request, view, et):
     """Render one view on a worker: (straight RGBA (H, W, 4), FrameStats, LoadReport)."""
     from .frame import render_frame
 
-    sel = worker_selection(scene, key, axes)
-    rgba, stats = render_frame(sel, _worker_threads(view), et)
+    sel, bands = worker_selection(request)
+    rgba, stats = render_frame(sel, _worker_threads(view), et, bands)
     return rgba, stats, sel.report
 
 
-def slab_task(scene, key, axes, view, start, stop, et):
+def slab_task(request, view, start, stop, et):
     """Render slab ``order[start:stop]`` of a view from that slab's selection: (Partial, LoadReport,
     seconds). The counters are reduced over the worker's bands to one row as :func:`isplat.frame.frame_stats`
     reads them (the deepest band's examined voxels and slices; the others summed), so partials of workers with
@@ -190,7 +168,7 @@ def slab_task(scene, key, axes, view, start, stop, et):
 
     view = _worker_threads(view)
     axis = view.axis_sign[0]
-    sel = slab_selection(scene, key, axes, axis, view.order[start:stop])
+    sel = slab_selection(request, axis, view.order[start:stop])
     t0 = time.perf_counter()
     part = render_slab(prepare(sel, view, et), start, stop)
     bs = part.band_stats
@@ -245,42 +223,43 @@ def reduce_pairwise(items: list, combine):
     return items[0]
 
 
-def submit_slabs(client, scene, key, axes, view, n_slabs: int, et, token: str, workers=None):
+def submit_slabs(client, request, view, n_slabs: int, et, token: str, workers=None):
     """The future of one frame's composited partial, (Partial, LoadReport, seconds): ``n_slabs`` slabs
     rendered on workers ``s mod W``, composited pairwise in visibility order (:func:`reduce_pairwise`)."""
     from .frame import slab_bounds
 
     workers = workers or _workers(client)
     et_val = float(view.render.early_termination if et is None else et)
-    parts = [client.submit(slab_task, scene, key, axes, view, a, b, et, key=f"isplat-slab-{token}-{s}",
+    parts = [client.submit(slab_task, request, view, a, b, et, key=f"isplat-slab-{token}-{s}",
                            workers=[workers[s % len(workers)]], allow_other_workers=True, retries=RETRIES)
              for s, (a, b) in enumerate(slab_bounds(len(view.order), n_slabs))]
     return reduce_pairwise(parts, lambda f, b, level, i: client.submit(
         composite_task, f, b, et_val, key=f"isplat-over-{token}-{level}-{i}", retries=RETRIES))
 
 
-def render_views(client, scene, views, slabs: int = 1, et=None, method: str | None = None, bar=None):
-    """Render ``views`` of ``scene`` on the cluster; yields ``(n, rgba, FrameStats, LoadReport)`` in view order.
+def render_views(client, request, views, slabs: int = 1, et=None, method: str | None = None, bar=None):
+    """Render ``views`` on the cluster; yields ``(n, rgba, FrameStats, LoadReport)`` in view order.
 
-    ``slabs`` > 1 splits each frame into that many slabs (sort-last). ``bar``: a progress bar to update once
-    per frame.
+    ``request``: the views' :class:`~isplat.request.RenderRequest` (or a scene: its request is made here, with
+    ``method``, :func:`request_for`). ``slabs`` > 1 splits each frame into that many slabs (sort-last).
+    ``bar``: a progress bar to update once per frame.
     """
     from distributed import as_completed
 
-    from .frame import axes_of
+    from .request import RenderRequest
 
-    axes = axes_of(views)
-    key = selection_key(scene, axes, method)
+    if not isinstance(request, RenderRequest):
+        request = request_for(request, views, method)
     batch = uuid.uuid4().hex[:12]
     workers = _workers(client) if slabs > 1 else None
     futures = []
     for n, view in enumerate(views):
         token = f"{batch}-{n}"
         if slabs > 1:
-            part = submit_slabs(client, scene, key, axes, view, slabs, et, token, workers)
+            part = submit_slabs(client, request, view, slabs, et, token, workers)
             futures.append(client.submit(finish_task, part, view, key=f"isplat-finish-{token}", retries=RETRIES))
         else:
-            futures.append(client.submit(view_task, scene, key, axes, view, et, key=f"isplat-view-{token}",
+            futures.append(client.submit(view_task, request, view, et, key=f"isplat-view-{token}",
                                          retries=RETRIES))
     position = {f.key: n for n, f in enumerate(futures)}
     done, next_n = {}, 0

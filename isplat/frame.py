@@ -16,7 +16,7 @@ with early termination off, see docs/design.md for the bound with it on).
 ...                     ".", "example", data_required=False)
 >>> sel = Selection.from_arrays(vol, scene)
 >>> rgba, stats = render_frame(sel, views_for(scene, sel)[0])
->>> rgba.shape, stats.voxels_splatted, stats.classification      # post-classified: samples composited
+>>> rgba.shape, stats.samples, stats.classification      # post-classified: samples composited
 ((32, 32, 4), 348, 'post')
 """
 
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import time
 from collections import namedtuple
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
 import numpy as np
@@ -42,17 +42,32 @@ from .transfer import alpha_table
 
 @dataclass
 class FrameStats:
+    """What a frame visited and drew, each counter named for what it counts in the frame's technique
+    (``classification``): pre-classified frames splat voxels (``voxels_splatted``), post-classified ones
+    composite samples (``samples``); the other technique's counter is 0, and :attr:`drawn` is the frame's own."""
+
     axis: str
     sign: int
     voxels_examined: int
-    voxels_splatted: int
+    voxels_splatted: int        # pre: voxels splatted (after cuts and early termination); post: 0
     slices: int
     seconds: float
     voxels_tested: int = 0      # voxels that reached the per-voxel stages (not skipped with their region,
                                 # block or cell), summed over the image bands (a voxel near a band's edge
                                 # is tested by both bands)
-    classification: str = "pre"  # "post": ``voxels_splatted`` counts the samples composited (one per pixel and
-                                 # slice where a quad of interest is seen), not voxels
+    classification: str = "pre"
+    samples: int = 0            # post: samples composited (one per pixel and slice where a quad of interest is
+                                # seen); pre: 0
+
+    @property
+    def drawn(self) -> int:
+        """What the technique drew: voxels splatted (pre) or samples composited (post)."""
+        return self.samples if self.classification == "post" else self.voxels_splatted
+
+    @property
+    def drawn_unit(self) -> str:
+        """What :attr:`drawn` counts, in words: "voxels splatted" or "samples composited"."""
+        return "samples composited" if self.classification == "post" else "voxels splatted"
 
 
 @dataclass(frozen=True)
@@ -150,16 +165,16 @@ class Setup:
         return self.view.order if self.order is None else self.order
 
 
-def prepare(sel, view: View, et: float | None = None) -> Setup:
+def prepare(sel, view: View, et: float | None = None, bands: "BandLearning | None" = None) -> Setup:
     """Make the frame's tables: opacity corrected for this view's path length, shading for its lights, the
-    footprint for its projection, and the §3 coefficients."""
+    footprint for its projection, and the §3 coefficients; image bands by what ``bands`` learned."""
     ro, geom, frame = view.render, view.geom, view.frame
     dtype = np.float64 if ro.precision == "float64" else np.float32
     H, W = frame.height, frame.width
     threads = ro.threads or default_threads()
     axis = view.axis_sign[0]
     et_val = float(ro.early_termination if et is None else et)
-    rows = band_rows(sel, view, threads)
+    rows = band_rows(bands, view, threads)
     mine = [np.arange(t, len(rows), threads, dtype=np.int64) for t in range(min(threads, len(rows)))]
     band_px = int((rows[:, 1] - rows[:, 0]).max()) * W
     n_cells = _max_cells(sel, axis)
@@ -324,22 +339,27 @@ def slab_bounds(n_slices: int, n_slabs: int) -> list[tuple[int, int]]:
 
 def frame_stats(view: View, part: Partial, seconds: float) -> FrameStats:
     """The frame's counters: the voxels examined are those of the slices of the band that went deepest (each
-    band goes front to back until its pixels saturate), one band counts each splatted voxel, and the slices
-    are those of the deepest band."""
+    band goes front to back until its pixels saturate), one band counts each splatted voxel (pre) or
+    composited sample (post), and the slices are those of the deepest band."""
     axis, sign = view.axis_sign
     bs = part.band_stats
-    return FrameStats(axis, sign, int(bs[:, 0].max()), int(bs[:, 2].sum()), int(bs[:, 3].max()), seconds,
-                      int(bs[:, 1].sum()), view.render.classification)
+    post = view.render.classification == "post"
+    drawn = int(bs[:, 2].sum())
+    return FrameStats(axis, sign, int(bs[:, 0].max()), 0 if post else drawn, int(bs[:, 3].max()), seconds,
+                      int(bs[:, 1].sum()), view.render.classification, drawn if post else 0)
 
 
-def render_frame(sel, view: View, et: float | None = None):
+def render_frame(sel, view: View, et: float | None = None, bands: "BandLearning | None" = None):
     """Render one frame; returns (straight RGBA float array (H, W, 4) over the background, FrameStats).
+    ``bands``: what the frames before this one learned of their image bands, and where this one's times go
+    (:class:`BandLearning`; the caller keeps it from frame to frame; None: even bands, nothing kept).
 
     With a progress bar (stderr a terminal) the slices go in slabs that continue one another, so the bar can
     move; the image and the counters are the same as in one pass.
     """
     t0 = time.perf_counter()
-    setup = prepare(sel, view, et)
+    bands = BandLearning() if bands is None else bands
+    setup = prepare(sel, view, et, bands)
     n = len(setup.sheets)
     slabs = slab_bounds(n, 20) if progress.enabled() and n >= 40 and not setup.empty else [(0, n)]
     part = None
@@ -350,9 +370,8 @@ def render_frame(sel, view: View, et: float | None = None):
                                                    disable=len(slabs) == 1)):
         # what the frames before this one found of their bands is learned while this one's threads render
         part = render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None,
-                           meanwhile=(lambda: learn_pending(sel)) if i == 0 else None)
-    sel.band_learning.append((sel.band_costs, BandTimes(setup.rows, setup.band_seconds, view, setup.threads,
-                                                        setup.empty)))
+                           meanwhile=(lambda: learn_pending(bands)) if i == 0 else None)
+    bands.pending.append(BandTimes(setup.rows, setup.band_seconds, view, setup.threads, setup.empty))
     if out is None:
         out = finish_image(part.img, view.background, view.render.supersample, setup.threads)
     return out, frame_stats(view, part, time.perf_counter() - t0)
@@ -441,11 +460,11 @@ def image_bands(height: int, threads: int, tile: int = TILE) -> np.ndarray:
     return np.stack([y0, np.minimum(y0 + per * tile, height)], axis=1).astype(np.int64)
 
 
-def band_rows(sel, view: View, threads: int) -> np.ndarray:
+def band_rows(bands: "BandLearning | None", view: View, threads: int) -> np.ndarray:
     """The frame's bands: :func:`image_bands` for the first frame of its kind (principal axis and direction,
-    image size, threads, classification, sheets) on this selection, then what the frames before it learned
-    (:func:`learn_bands`). Threads take every n-th band; the image does not depend on the bands."""
-    learned = sel.band_costs.get(_balance_key(view, threads))
+    image size, threads, classification, sheets) in ``bands`` (or with None), then what the frames before it
+    learned (:func:`learn_bands`). Threads take every n-th band; the image does not depend on the bands."""
+    learned = None if bands is None else bands.costs.get(_balance_key(view, threads))
     return image_bands(view.frame.height, threads) if learned is None else learned.rows
 
 
@@ -474,22 +493,34 @@ BandTimes.__doc__ = """What :func:`learn_bands` takes of a frame's :class:`Setup
 buffers, until the next frame learns from it)."""
 
 
-def learn_pending(sel) -> None:
-    """Learn from the frames rendered since the last call (``sel.band_learning``: each frame's band costs and
-    :data:`BandTimes`, :func:`learn_bands`), oldest first. :func:`render_frame` calls it while the next
-    frame's threads render, so that the learning (Python, a few tenths of a millisecond) is not a serial part
-    of any frame; the bands then follow the frames before the last one."""
+@dataclass
+class BandLearning:
+    """What a run of frames learned of their image bands: per kind of frame (:func:`_balance_key`) what
+    :func:`learn_bands` found (``costs``), and the frames still to be learned from (``pending``, their
+    :data:`BandTimes`; :func:`learn_pending`). The state of a renderer's frames, owned by whoever renders a
+    run of frames (:class:`isplat.renderer.Renderer`, beside a cached selection in :func:`isplat.render` and on
+    a Dask worker), not by the selection, which stays unchanged and can be shared."""
+
+    costs: dict = field(default_factory=dict)
+    pending: list = field(default_factory=list)
+
+
+def learn_pending(bands: BandLearning) -> None:
+    """Learn from the frames rendered since the last call (``bands.pending``, :func:`learn_bands`), oldest
+    first. :func:`render_frame` calls it while the next frame's threads render, so that the learning (Python,
+    a few tenths of a millisecond) is not a serial part of any frame; the bands then follow the frames before
+    the last one."""
     while True:
         try:
-            costs, setup = sel.band_learning.pop(0)     # one caller learns each frame, also from two threads
+            times = bands.pending.pop(0)            # one caller learns each frame, also from two threads
         except IndexError:
             return
-        learn_bands(costs, setup)
+        learn_bands(bands.costs, times)
 
 
 def learn_bands(costs: dict, setup: Setup) -> None:
     """Learn from the frame (``setup``: its bands' rows and times, view and threads) where the next frames'
-    bands go (``costs``: a selection's ``band_costs``). The first frame of a kind only marks it seen: its times
+    bands go (``costs``: :attr:`BandLearning.costs`). The first frame of a kind only marks it seen: its times
     hold one-time costs (fresh memory, cold caches) that bands cut by them would follow. The second starts the
     profile of the work per tile row (:func:`_profile`), and the bands move (:func:`_next_bands`) only on a
     profile of two frames or more, so that one frame's noise does not move them. A frame whose busiest thread

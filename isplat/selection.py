@@ -19,7 +19,7 @@ it without file I/O (:func:`isplat.frame.render_frame`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -122,11 +122,13 @@ class WholeChannels:
         return [self.density, self.gradient_magnitude, self.normal]
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class Selection:
     """What the frames of one transfer function need (module docstring). ``axes`` for the indexed method,
     ``whole`` for the full one and for post-classification (which samples the neighbours of the voxels of
-    interest, whatever their density)."""
+    interest, whatever their density). Made from a :class:`~isplat.request.RenderRequest` (``request``) and not
+    changed after: frames keep what they learn (their bands) elsewhere (:class:`isplat.frame.BandLearning`), so
+    one selection serves any number of threads and renderers."""
 
     method: str
     shape: tuple[int, int, int]            # (n_k, n_j, n_i)
@@ -140,10 +142,7 @@ class Selection:
     whole: WholeChannels | None = None
     report: LoadReport = field(default_factory=LoadReport)
     slab: tuple | None = None              # (axis, c0, c1): ``whole`` holds only these slices (post, a slab)
-    # per kind of frame, the work per image tile row its frames found (isplat.frame.learn_bands)
-    band_costs: dict = field(default_factory=dict, init=False, repr=False, compare=False)
-    # frames whose bands are still to be learned from: (band_costs, frame.BandTimes) (frame.learn_pending)
-    band_learning: list = field(default_factory=list, init=False, repr=False, compare=False)
+    request: object = field(default=None, repr=False)   # the RenderRequest it was made from
 
     @property
     def empty(self) -> bool:
@@ -184,40 +183,49 @@ class Selection:
 
     @classmethod
     def from_arrays(cls, density, scene, normal=None, gradient_magnitude=None, gradient_magnitude_scale=None,
-                    spacing=None, window=None, axes: str = "ijk", method: str | None = None) -> "Selection":
+                    spacing=None, window=None, axes: str = "ijk", method: str | None = None,
+                    identity=None) -> "Selection":
         """Select from a volume in memory for ``scene``'s transfer function, shading and method.
 
         ``density``: the augmented density codes (uint8 ``[k, j, i]``) with, where the scene needs them,
         ``normal`` (uint16 oct16 codes) and ``gradient_magnitude`` (uint8 codes, with their
         ``gradient_magnitude_scale``); or any scalar volume, which is augmented first
         (:func:`isplat.augment.augment_array`, with ``window``). ``axes``: the index axes to select (the
-        principal axes of the views to be rendered). The index is built in memory.
+        principal axes of the views to be rendered). The index is built in memory. ``identity``: what
+        identifies the arrays' values in the selection's request (:class:`~isplat.request.RenderRequest`).
         """
         from .memory import channels_in_memory
+        from .request import RenderRequest
 
         chans, gscale, sp = channels_in_memory(density, scene, normal, gradient_magnitude,
                                                gradient_magnitude_scale, spacing, window)
-        sel = _empty_selection(method or scene.render.method, chans["density"].shape, sp, scene, gscale)
-        read = lambda ch, k0, k1: chans[ch][k0:k1]      # noqa: E731
-        if sel.method == "full" or sel.post:
-            sel.whole = _whole(sel, read)
-        if sel.method == "indexed" and not sel.empty:
-            from .index.memory import load_axis_in_memory
-
-            loaded = {ax: load_axis_in_memory(chans["density"], ax, sel.luts.intervals) for ax in grid.AXES
-                      if ax in axes}
-            _select(sel, loaded, lambda lo, ch, sh: gather_channels(read, lo, ch, sh), "array")
-        return sel
+        req = RenderRequest.from_arrays(scene, identity, chans["density"].shape, sp, gscale,
+                                        "".join(a for a in grid.AXES if a in axes), method)
+        return select_arrays(req, chans)
 
 
-def _empty_selection(method, shape, spacing_ijk, scene, gradient_magnitude_scale) -> Selection:
-    if method not in ("indexed", "full"):
-        raise IsplatError(f"render.method = {method!r}: expected 'indexed' or 'full'")
-    luts = build_luts(scene.transfer, gradient_magnitude_scale)
+def select_arrays(request, chans: dict) -> Selection:
+    """The selection of ``request`` from channels in memory (``{channel: array [k, j, i]}``, the channels the
+    request uses): the index built in memory (:func:`isplat.index.memory.load_axis_in_memory`)."""
+    sel = _empty_selection(request)
+    read = lambda ch, k0, k1: chans[ch][k0:k1]      # noqa: E731
+    if sel.method == "full" or sel.post:
+        sel = replace(sel, whole=_whole(sel, read))
+    if sel.method == "indexed" and not sel.empty:
+        from .index.memory import load_axis_in_memory
+
+        loaded = {ax: load_axis_in_memory(chans["density"], ax, sel.luts.intervals) for ax in request.axes}
+        _select(sel, loaded, lambda lo, ch, sh: gather_channels(read, lo, ch, sh), "array")
+    return sel
+
+
+def _empty_selection(request) -> Selection:
+    """A selection of ``request`` with nothing selected yet: its tables, what it reads, its report."""
+    luts = build_luts(request.transfer, request.gradient_magnitude_scale)
     empty = len(luts.intervals) == 0
-    sel = Selection(method, tuple(int(x) for x in shape), tuple(float(x) for x in spacing_ijk), luts,
-                    float(scene.transfer.unit_distance), bool(scene.shading.enabled) and not empty,
-                    luts.gradient is not None and not empty, scene.render.classification == "post")
+    sel = Selection(request.method, request.shape, request.spacing_ijk, luts, request.unit_distance,
+                    request.shading and not empty, luts.gradient is not None and not empty, request.post,
+                    request=request)
     sel.report.intervals = luts.intervals.tolist()
     sel.report.channels = (["normal"] if sel.use_shade else []) + (["gradient_magnitude"] if sel.use_gm else [])
     return sel
@@ -361,56 +369,76 @@ def _in_intervals(ivs) -> np.ndarray:
 
 
 def select_from_files(scene, axes: str, method: str | None = None, aug=None, slices=None) -> Selection:
-    """Read what ``scene`` needs for frames along ``axes`` from its files: only the index blocks of the
-    transfer function's intervals (indexed method) and the channels the scene uses (module docstring).
-    ``aug``: the scene's augmented file, if already open. ``slices``: keep only these slices of the axes (a
-    slab, :mod:`isplat.slabs`): only those slices' index blocks are read and decoded (``load_axis(...,
-    slices=)``) and the channel values of the slab's voxels alone gathered from the augmented file's k-slabs
-    (the index's ``/values`` hold a whole interval's)."""
+    """Read what ``scene`` needs for frames along ``axes`` from its files: :func:`select` of the scene's
+    request (:meth:`RenderRequest.from_files <isplat.request.RenderRequest.from_files>`). ``aug``: the scene's
+    augmented file, if already open; ``slices``: a slab's slices (see :func:`select`)."""
     from .augfile import open_augmented
+    from .request import RenderRequest
 
     aug = aug or open_augmented(scene.data.augmented)
-    sp = scene.volume.spacing or aug.spacing_ijk
-    sel = _empty_selection(method or scene.render.method, aug.shape, sp, scene, aug.gradient_magnitude_scale)
+    return select(RenderRequest.from_files(scene, aug, axes, method, slices), aug)
+
+
+def select(request, aug=None, idx=None) -> Selection:
+    """Read what ``request`` needs from its files: only the index blocks of the transfer function's intervals
+    (indexed method) and the channels the request uses (module docstring). ``aug``, ``idx``: the augmented file
+    and the index, if already open (the report then counts the index's reads since). A slab
+    (``request.slab``): only those slices' index blocks are read and decoded (``load_axis(..., slices=)``) and
+    the channel values of the slab's voxels alone gathered from the augmented file's k-slabs (the index's
+    ``/values`` hold a whole interval's)."""
+    from .augfile import open_augmented
+
+    aug = aug or open_augmented(request.augmented)
+    sel = _empty_selection(request)
+    axes, slices = request.axes, request.slices
     sel.report.axes = sorted(axes)
     rep = sel.report
     if sel.post and sel.method == "indexed" and slices is not None and len(axes) == 1 and not sel.empty:
-        sel.whole, sel.slab = _slab_channels(sel, aug, axes, slices)     # post: only the slab's slices
+        whole, slab = _slab_channels(sel, aug, axes, slices)     # post: only the slab's slices
+        sel = replace(sel, whole=whole, slab=slab)
         rep.values_from = "slab's channels"
     elif sel.method == "full" or sel.post:
-        sel.whole = _whole(sel, aug.read)
+        sel = replace(sel, whole=_whole(sel, aug.read))
         rep.values_from = "whole channels" if sel.report.channels else "none"
     if sel.method == "indexed":
-        idx = _open_matching_index(scene, aug)
+        read0, io0 = (idx.bytes_read, idx.io.bytes) if idx is not None else (0, 0)  # (an index opened before:
+        idx = _open_matching_index(request, aug, idx)                                 # this selection's reads)
         rep.index_format_version = idx.version
         if not sel.post:
             rep.values_from = "none" if not rep.channels or sel.empty else \
                 "index" if idx.has_values else "augmented slabs"
         if not sel.empty:
-            ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
-            values = None
-            with idx.session():
-                loaded = {ax: idx.load_axis(ax, ivs, slices=slices) for ax in sorted(axes)}
-                if idx.has_values and rep.channels and slices is None and not sel.post:
-                    values = idx.read_values(rep.channels, ivs)
-            rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
-            if idx.has_values:
-                gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, idx.path)  # noqa: E731
-            else:                        # format version 2: the position-ordered channels, in k-slabs
-                gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
-            if slices is not None:       # a slab: its blocks only (read so), its values from the augmented k-slabs
-                read = _slab_reader(aug, axes, slices)
-                gather = lambda lo, ch, sh: gather_channels(read, lo, ch, sh)              # noqa: E731
-                if not sel.post:
-                    rep.values_from = "none" if not rep.channels else "augmented slabs"
-            _select(sel, loaded, gather, str(scene.data.index))
-            rep.voxels_of_interest = next(iter(loaded.values())).n_voxels if loaded else 0
-        rep.index_bytes = int(idx.bytes_read)
-        rep.index_file_bytes = int(idx.io.bytes)
+            _select_indexed(sel, aug, idx, slices)
+        rep.index_bytes = int(idx.bytes_read - read0)
+        rep.index_file_bytes = int(idx.io.bytes - io0)
     rep.augmented_bytes = int(aug.bytes_read)
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
     _needed(sel)
     return sel
+
+
+def _select_indexed(sel: Selection, aug, idx, slices) -> None:
+    """The indexed method's part of :func:`select`: the intervals' index blocks (of ``slices`` only, if given),
+    decoded, selected, their channel values gathered (from the index's ``/values``, or the augmented file)."""
+    rep, axes = sel.report, sel.request.axes
+    ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
+    values = None
+    with idx.session():
+        loaded = {ax: idx.load_axis(ax, ivs, slices=slices) for ax in sorted(axes)}
+        if idx.has_values and rep.channels and slices is None and not sel.post:
+            values = idx.read_values(rep.channels, ivs)
+    rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
+    if idx.has_values:
+        gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, idx.path)  # noqa: E731
+    else:                        # format version 2: the position-ordered channels, in k-slabs
+        gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
+    if slices is not None:       # a slab: its blocks only (read so), its values from the augmented k-slabs
+        read = _slab_reader(aug, axes, slices)
+        gather = lambda lo, ch, sh: gather_channels(read, lo, ch, sh)              # noqa: E731
+        if not sel.post:
+            rep.values_from = "none" if not rep.channels else "augmented slabs"
+    _select(sel, loaded, gather, str(sel.request.index))
+    rep.voxels_of_interest = next(iter(loaded.values())).n_voxels if loaded else 0
 
 
 def _slab_shape(shape, axis: str, n: int) -> tuple[int, int, int]:
@@ -483,21 +511,23 @@ def _needed(sel: Selection) -> None:
         rep.bytes_needed = rep.voxels_of_interest * per_voxel + rep.index_block_bytes + tables
 
 
-def _open_matching_index(scene, aug):
+def _open_matching_index(request, aug, idx=None):
+    """The request's index (``idx``, if already open), checked to be made from ``aug``'s volume."""
     from .index import open_index
 
-    if scene.data.index is None:
+    if request.index is None:
         raise IsplatError("scene: data.index is required for render.method = 'indexed'")
-    idx = open_index(scene.data.index)
+    idx = idx or open_index(request.index)
+    index = request.index
     if tuple(idx.shape) != tuple(aug.shape) or idx.density_sha256 != aug.density_sha256:
-        raise IsplatError(f"{scene.data.index}: index was built from another volume "
+        raise IsplatError(f"{index}: index was built from another volume "
                           f"(density_sha256 {idx.density_sha256[:12]}..., {aug.path.name} has "
                           f"{aug.density_sha256[:12]}...); rebuild it with isplat index")
     v = idx.values
     if v is not None and (v.spacing_ijk != tuple(aug.spacing_ijk)
                           or v.gradient_magnitude_scale != aug.gradient_magnitude_scale):
-        raise IsplatError(f"{scene.data.index}: its channel values were copied from an augmented file with "
+        raise IsplatError(f"{index}: its channel values were copied from an augmented file with "
                           f"spacing_ijk {v.spacing_ijk} and gradient_magnitude_scale {v.gradient_magnitude_scale}, "
                           f"{aug.path.name} has {tuple(aug.spacing_ijk)} and {aug.gradient_magnitude_scale}; "
-                          f"rebuild it: isplat index {aug.path} -o {scene.data.index} --force")
+                          f"rebuild it: isplat index {aug.path} -o {index} --force")
     return idx

@@ -97,8 +97,10 @@ def restrict(sel: Selection, axis: str, slices) -> Selection:
         return sel
     if axis not in sel.axes:
         raise IsplatError(f"axis {axis} was not selected (selected: {sorted(sel.axes) or 'none'})")
+    req = None if sel.request is None else \
+        dataclasses.replace(sel.request, axes=axis, slab=tuple(slice_runs(slices, sel.axes[axis].n_slices)))
     return dataclasses.replace(sel, axes={axis: restrict_axis(sel.axes[axis], slices)},
-                               report=dataclasses.replace(sel.report))
+                               report=dataclasses.replace(sel.report), request=req)
 
 
 PEAK_PER_VOXEL = 56     # bytes per voxel of interest while a selection is made (docs/scale.md, "Larger than memory")
@@ -138,12 +140,7 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     room = memory_room() if room is None else room
     if scene.render.method != "indexed" or room is None or scene.data.index is None:
         return 1, 0
-    # post-classification also holds the slab's channels: density, and normals (2 B) when shaded, gradient
-    # magnitudes when used
-    post = scene.render.classification == "post"
-    per_voxel = (1 + (2 if scene.shading.enabled else 0) + (1 if scene.transfer.gradient_opacity else 0)) if post \
-        else 0
-    whole = int(np.prod(aug.shape)) * per_voxel
+    whole = int(np.prod(aug.shape)) * _channel_bytes(scene)
     ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals
     idx = open_index(scene.data.index)
     k, most = 1, 0
@@ -158,12 +155,27 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     return k, most
 
 
-def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None):
-    """Render ``view`` of ``scene`` from its files in ``n_slabs`` slabs front to back, each slab's selection made
-    (:func:`isplat.selection.select_from_files` with ``slices=``), rendered over the partial image of the slabs in
-    front and dropped: the one-pass frame exactly (same image and counters, early termination included), holding
-    one slab's selection at a time. Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs:
-    bytes read added up).
+def _channel_bytes(scene) -> int:
+    """Bytes per voxel of the volume a post-classified slab holds besides its selection: its slices' channels,
+    density, and normals (2 B) when shaded, gradient magnitudes when used; 0 pre-classified."""
+    if scene.render.classification != "post":
+        return 0
+    return 1 + (2 if scene.shading.enabled else 0) + (1 if scene.transfer.gradient_opacity else 0)
+
+
+def fits_anyway(scene, aug, room: int) -> bool:
+    """True when one selection would fit even if every voxel of the volume were of interest: what
+    :func:`slabs_needed` would find (one slab) without opening the index to count the voxels of interest."""
+    n = int(np.prod(aug.shape))
+    return n * (PEAK_PER_VOXEL + _channel_bytes(scene)) <= max(1, int(room * ROOM_SHARE))
+
+
+def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = None):
+    """Render ``view`` from the files of ``request`` (:class:`~isplat.request.RenderRequest`) in ``n_slabs``
+    slabs front to back, each slab's selection made (:func:`isplat.selection.select` of the request for the
+    slab's slices), rendered over the partial image of the slabs in front and dropped: the one-pass frame
+    exactly (same image and counters, early termination included), holding one slab's selection at a time.
+    Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs: bytes read added up).
 
     Each slab reads and decodes only its slices' index blocks. What is still whole: the full method's channels
     (read once, kept for every slab); for the i and j axes each slab's channel values are gathered from every
@@ -173,11 +185,17 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
 
     from .augfile import open_augmented
     from .frame import blank, finish_image, frame_stats, prepare, render_slab, slab_bounds
-    from .selection import select_from_files
+    from .index.build import slice_runs
+    from .selection import select
     from .threads import default_threads
 
     t0 = time.perf_counter()
-    aug = aug or open_augmented(scene.data.augmented)
+    aug = aug or open_augmented(request.augmented)
+    idx = None                         # the index, opened once for every slab
+    if request.method == "indexed" and request.index is not None:
+        from .index import open_index
+
+        idx = open_index(request.index)
     axis = view.axis_sign[0]
     part = report = whole = None
     for a, b in slab_bounds(len(view.order), n_slabs):
@@ -185,7 +203,8 @@ def render_streamed(scene, view, n_slabs: int, aug=None, et: float | None = None
         if whole is not None:          # the full method reads whole channels: once, for every slab
             sel = whole
         else:
-            sel = select_from_files(scene, axis, aug=aug, slices=view.order[a:b])
+            runs = tuple(slice_runs(view.order[a:b], 1 << 62))
+            sel = select(dataclasses.replace(request, axes=axis, slab=runs), aug, idx)
             whole = sel if sel.method == "full" else None
         if report is None:
             report = dataclasses.replace(sel.report, augmented_bytes=0, index_bytes=0)

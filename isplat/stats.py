@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 2
+STATS_VERSION = 3
 
 
 def density_histogram(aug) -> np.ndarray:
@@ -191,6 +191,8 @@ def _reconcile(scene_path, overrides, aug_path: Path, idx_path: Path | None) -> 
 
 def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | None, idx, hist_from_index,
                   view: int) -> tuple[dict, object]:
+    """The ``scene`` section of the JSON (docs/stats.md) and the frame's stats. Over 60 lines: one flat dict
+    literal, a line per documented key in the order of docs/stats.md, which reads better whole than cut up."""
     from .renderer import Renderer
     from .scene import load_scene
     from .transfer import build_luts
@@ -215,7 +217,7 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | N
     lo_w, hi_w = aug.density_window
     step = (hi_w - lo_w) / 255.0
 
-    r = Renderer(scene, (scene.views[view],))
+    r = Renderer(scene, (scene.views[view],), slabs=1)      # the whole selection: its held bytes are reported
     _, st = r.render_view(0)
     rep = r.report
     decoded = int(rep.index_decoded_bytes)
@@ -235,8 +237,9 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | N
         "slices": st.slices,
         "voxels_examined": st.voxels_examined,
         "classification": st.classification,
-        "voxels_splatted": st.voxels_splatted,        # post-classified: the samples composited
+        "voxels_splatted": st.voxels_splatted,        # pre-classified; 0 under post
         "splatted_ratio": _ratio(st.voxels_splatted, n),
+        "samples": st.samples,                        # post-classified; 0 under pre
         "render_seconds": st.seconds,
         "loaded": {
             "channels": list(rep.channels),
@@ -316,7 +319,8 @@ def _pct(x) -> str:
 
 
 def format_table(s: dict) -> str:
-    """The figures of :func:`collect` as aligned text, one section per input."""
+    """The figures of :func:`collect` as aligned text, one section per input (over 60 lines: a row per figure,
+    in the order the table prints them)."""
     rows: list[tuple[str, str]] = []
 
     def head(t):
@@ -383,7 +387,7 @@ def format_table(s: dict) -> str:
         if sc["classification"] == "pre":
             row("voxels splatted", f"{sc['voxels_splatted']:,} ({_pct(sc['splatted_ratio'])} of all voxels)")
         else:
-            row("samples composited", f"{sc['voxels_splatted']:,} (post-classified: one per pixel and slice "
+            row("samples composited", f"{sc['samples']:,} (post-classified: one per pixel and slice "
                                        "where a quad of interest is seen)")
         ld = sc["loaded"]
         row("loaded: channels", ", ".join(ld["channels"]) or "none")

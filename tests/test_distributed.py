@@ -78,8 +78,22 @@ def test_each_worker_makes_the_selection_once(files, client):
     client.run(D.clear_cache)
     list(D.render_views(client, scene, views_of(scene)))
     list(D.render_views(client, scene, views_of(scene)))
-    cached = client.run(lambda: [k[0] for k in D._cache])
-    assert sorted(sum(cached.values(), [])).count("sel") <= 2            # at most one per worker, for 24 views
+    cached = client.run(lambda: len(D._cache))
+    assert sum(cached.values()) <= 2            # at most one per worker, for 24 views
+
+
+def test_the_renderer_drives_the_workers(files, client):
+    """Renderer(scene, scheduler=client): the views rendered on the workers are the one-process frames, in view
+    order, and the request made here is the workers' cache key."""
+    scene = make(files, ["image.width=24", "image.height=24", "views.orbit_steps=3"])
+    r = Renderer(scene, scheduler=client)
+    assert r.mode == "dask" and r.selection is None and r.held_bytes() is None
+    got = list(r.render_views())
+    assert [n for n, *_ in got] == [0, 1, 2]
+    for (_, rgba, _, _), want in zip(got, one_process(scene)):
+        assert np.array_equal(rgba, want)
+    keys = client.run(lambda: [k for k, _ in D._cache.items()])
+    assert any(r.request in v for v in keys.values())
 
 
 @pytest.mark.parametrize("n_slabs", [2, 3, 4])
@@ -91,8 +105,7 @@ def test_a_frame_split_into_slabs_on_workers_is_the_one_process_frame(files, cli
         view = views_of(scene)[0]
         sel = Renderer(scene).selection
         whole = F.render_slab(F.prepare(sel, view))
-        key = D.selection_key(scene, F.axes_of([view]))
-        fut = D.submit_slabs(client, scene, key, F.axes_of([view]), view, n_slabs, None, f"t{n_slabs}-{et}")
+        fut = D.submit_slabs(client, D.request_for(scene, [view]), view, n_slabs, None, f"t{n_slabs}-{et}")
         part, _, _ = fut.result()
         assert np.abs(part.img - whole.img).max() <= tol
         assert part.band_stats[:, 2].sum() >= whole.band_stats[:, 2].sum()
@@ -120,7 +133,8 @@ def test_slab_workers_hold_only_their_slabs_voxels(files, client):
     view = views_of(scene)[0]
     client.run(D.clear_cache)
     list(D.render_views(client, scene, [view], slabs=2))
-    held = client.run(lambda: [(k[0], v.axes[k[2]].n_voxels) for k, v in D._cache.items()])
+    held = client.run(lambda: [("slab" if k.slab else "sel", v[0].axes[k.axes].n_voxels)
+                               for k, v in D._cache.items() + D._slab_cache.items()])
     assert sum(len(v) for v in held.values()) == 2 and all(k == "slab" for v in held.values() for k, _ in v)
     axis = view.axis_sign[0]
     total = Renderer(scene).selection.axes[axis].n_voxels
@@ -175,11 +189,11 @@ def test_files_changed_under_the_workers_are_refused(files, tmp_path):
     for name in ("v.aug.h5", "v.idx.h5"):
         shutil.copy(files / name, tmp_path / name)
     scene = make(tmp_path)
-    key = D.selection_key(scene, "k")
+    request = D.request_for(scene, views_of(scene)[:1])
     os.utime(tmp_path / "v.aug.h5", ns=(1, 1))
     D.clear_cache()
     with pytest.raises(IsplatError, match="worker's files differ"):
-        D.worker_selection(scene, key, "k")
+        D.worker_selection(request)
 
 
 def cli(*args, cwd, hide_dask=False):

@@ -81,7 +81,7 @@ def test_arrays_in_memory_render_as_the_files_do(make_scene, volume, method, pro
         img_f, st_f = F.render_frame(sel_f, views[0])
         img_a, st_a = F.render_frame(sel_a, views[0])
         assert np.array_equal(img_f, img_a)
-        assert (st_f.voxels_examined, st_f.voxels_splatted) == (st_a.voxels_examined, st_a.voxels_splatted)
+        assert (st_f.voxels_examined, st_f.drawn) == (st_a.voxels_examined, st_a.drawn)
         assert img_f[..., 3].max() > 0.1
 
 
@@ -139,7 +139,7 @@ def test_from_arrays_without_a_data_table(volume):
                      "[shading]\nenabled = false", ".", "notebook", data_required=False)
     sel = Selection.from_arrays(dens, sc)
     img, stats = F.render_frame(sel, F.views_for(sc, sel)[0])
-    assert img.shape == (16, 16, 4) and stats.voxels_splatted > 0
+    assert img.shape == (16, 16, 4) and stats.drawn > 0
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -307,7 +307,7 @@ def test_progress_bar_slabs_draw_and_count_as_one_pass(make_scene, volume, monke
         monkeypatch.setattr(progress, "enabled", lambda: terminal)
         monkeypatch.setattr(progress, "bar", lambda it, **kw: it)
         img, s = F.render_frame(sel, view)
-        figures.append((img, s.voxels_examined, s.voxels_splatted, s.slices))
+        figures.append((img, s.voxels_examined, s.drawn, s.slices))
     assert np.array_equal(figures[0][0], figures[1][0])
     assert figures[0][1:] == figures[1][1:]
     assert figures[0][3] < len(view.order)        # early termination stopped the frame early
@@ -399,21 +399,21 @@ def _frames_on(true_cost, threads, height, frames):
     learn_bands); per frame the busiest thread's cost over the mean, and what was learned."""
     from types import SimpleNamespace
 
-    sel = SimpleNamespace(band_costs={})
+    learning = F.BandLearning()
     view = SimpleNamespace(frame=SimpleNamespace(height=height, width=64), axis_sign=("k", 1),
                            render=SimpleNamespace(classification="post", sheets="slices"))
     cum = np.concatenate([[0.0], np.cumsum(true_cost)])
     key = F._balance_key(view, threads)
     out = []
     for _ in range(frames):
-        rows = F.band_rows(sel, view, threads)
+        rows = F.band_rows(learning, view, threads)
         spent = cum[-(-rows[:, 1] // 8)] - cum[rows[:, 0] // 8]
         per = np.bincount(np.arange(len(rows)) % threads, spent, minlength=threads)
-        first = key not in sel.band_costs
-        before = None if first else sel.band_costs[key].est
-        F.learn_bands(sel.band_costs, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads,
+        first = key not in learning.costs
+        before = None if first else learning.costs[key].est
+        F.learn_bands(learning.costs, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads,
                                                       empty=False))
-        est = sel.band_costs[key].est
+        est = learning.costs[key].est
         assert (est is None) == first              # the first frame (cold caches) only marks the kind seen
         bands = [] if first else zip(rows[:, 0] // 8, -(-rows[:, 1] // 8), spent)
         for y0, y1, s in bands:                         # the band's time over its rows
@@ -460,15 +460,16 @@ def test_frames_on_learned_or_any_bands_give_the_one_thread_image(make_scene, vo
     one = F.render_frame(sel_1, views_1[0])[0]
     sel, views = from_files(sc(2))
     key = F._balance_key(views[0], 2)
+    bands = F.BandLearning()
     for _ in range(3):
-        assert np.array_equal(F.render_frame(sel, views[0])[0], one)
-    learned = sel.band_costs[key]
+        assert np.array_equal(F.render_frame(sel, views[0], None, bands)[0], one)
+    learned = bands.costs[key]
     assert learned.est.shape == (8,) and (learned.est > 0).all()       # (frame 2's, learned during frame 3)
     skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])
-    sel.band_costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {})
-    rows = F.prepare(sel, views[0]).rows
-    assert rows.tolist() == sel.band_costs[key].rows.tolist() != F.image_bands(62, 2).tolist()
-    assert np.array_equal(F.render_frame(sel, views[0])[0], one)
+    bands.costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {})
+    rows = F.prepare(sel, views[0], None, bands).rows
+    assert rows.tolist() == bands.costs[key].rows.tolist() != F.image_bands(62, 2).tolist()
+    assert np.array_equal(F.render_frame(sel, views[0], None, bands)[0], one)
 
 
 def test_bands_are_learned_while_the_next_frame_renders(make_scene, volume, monkeypatch):
@@ -484,12 +485,13 @@ def test_bands_are_learned_while_the_next_frame_renders(make_scene, volume, monk
     calls, orig = [], F.learn_bands
     monkeypatch.setattr(F, "learn_bands", lambda costs, t: calls.append((threading.current_thread().name,
                                                                              t.band_seconds.copy())) or orig(costs, t))
-    F.render_frame(sel, views[0])
-    assert key not in sel.band_costs and len(sel.band_learning) == 1 and calls == []
-    F.render_frame(sel, views[0])
-    assert sel.band_costs[key].est is None and len(sel.band_learning) == 1
-    F.render_frame(sel, views[0])
-    assert sel.band_costs[key].est is not None and len(sel.band_learning) == 1
+    bands = F.BandLearning()        # the frames' state, kept by the caller (a Renderer), not by the selection
+    F.render_frame(sel, views[0], None, bands)
+    assert key not in bands.costs and len(bands.pending) == 1 and calls == []
+    F.render_frame(sel, views[0], None, bands)
+    assert bands.costs[key].est is None and len(bands.pending) == 1
+    F.render_frame(sel, views[0], None, bands)
+    assert bands.costs[key].est is not None and len(bands.pending) == 1
     assert [name for name, _ in calls] == [threading.current_thread().name] * 2
     assert not np.array_equal(calls[0][1], calls[1][1])          # two frames' times, not one twice
 

@@ -105,4 +105,5 @@ def test_render_report_goes_to_stderr_and_the_image_to_stdout(tmp_path, where):
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith(b"\x89PNG\r\n\x1a\n") and b"view 0" not in res.stdout
     err = res.stderr.decode().splitlines()
-    assert err[0].startswith("read: ") and err[1].startswith("view 0: axis ") and len(err) == 2
+    assert err[0].startswith("read: ") and err[1].startswith("view 0: axis ") and len(err) == 3
+    assert err[2].startswith("isplat render: stdout: 1 view, post-classified, indexed method, ")  # the summary

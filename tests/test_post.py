@@ -46,7 +46,7 @@ def test_post_agrees_with_the_reference_for_both_methods(tmp_path, make_scene, c
     ind, st_i = render(sc, "indexed")
     full, st_f = render(sc, "full")
     assert np.abs(ind - full).max() <= 1e-6
-    assert st_i.voxels_splatted == st_f.voxels_splatted > 0       # the samples composited
+    assert st_i.drawn == st_f.drawn > 0       # the samples composited
     assert np.abs(ind - ref).max() <= 2e-4
     assert ref[..., 3].max() > 0.2
 

@@ -81,7 +81,7 @@ def test_reference_with_cut_gradient_and_early_termination(tmp_path, make_scene)
     # early termination decides per pixel between slices: both methods decide identically
     assert np.abs(ind - full).max() <= 1e-5
     assert np.abs(ind - ref).max() <= 2e-4
-    assert st_i.voxels_splatted == st_f.voxels_splatted
+    assert st_i.drawn == st_f.drawn
 
 
 @pytest.mark.parametrize("cam", CAMERAS)
@@ -100,7 +100,7 @@ def test_single_voxel_is_the_footprint_at_its_projection(tmp_path, make_scene, c
                     transfer="opacity = [[199, 0], [200, 0.5], [201, 0]]", shading="enabled = false",
                     render=BIG_TABLE + "footprint_radius = 4.0")
     img, stats = render(sc)
-    assert stats.voxels_splatted == 1
+    assert stats.drawn == 1
     r = Renderer(sc)
     frame, geom = r.frames[0], r.geom
     X = geom.q + np.array(pos[::-1]) @ geom.steps
@@ -129,7 +129,7 @@ def test_wide_voxel_next_to_the_eye_takes_each_pixels_own_ray(tmp_path, make_sce
                     transfer="opacity = [[199, 0], [200, 0.5], [201, 0]]\nunit_distance = 1.0",
                     shading="enabled = false", render=BIG_TABLE + "footprint_radius = 4.0")
     img, stats = render(sc)
-    assert stats.voxels_splatted == 1 and stats.axis == "k"
+    assert stats.drawn == 1 and stats.axis == "k"
     frame = Renderer(sc).frames[0]
     X = np.array(ijk, float) - 4.0
     px, py = C.project_points(frame, [X])[0]
@@ -426,7 +426,7 @@ def test_slices_in_chunks_give_the_same_image(tmp_path, make_scene, monkeypatch)
     one, s1 = render(sc)
     monkeypatch.setattr(isplat.progress, "enabled", lambda: True)
     chunked, s2 = render(sc)
-    assert np.array_equal(one, chunked) and s1.voxels_splatted == s2.voxels_splatted
+    assert np.array_equal(one, chunked) and s1.drawn == s2.drawn
 
 
 @pytest.mark.parametrize("proj", ["orthographic", "perspective"])

@@ -65,7 +65,7 @@ def test_kernel_matches_the_slow_reference(tmp_path, make_scene, spacing, proj):
     assert ref[..., 3].max() > 0.5                  # something was rendered
     assert np.abs(ind - ref).max() <= 2e-4
     assert np.abs(ind - full).max() <= 1e-5
-    assert st_i.voxels_splatted == st_f.voxels_splatted > 0
+    assert st_i.drawn == st_f.drawn > 0
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -89,7 +89,7 @@ def test_single_voxel_spreads_its_footprint_over_the_slabs(spacing):
     for cam in CAMS:
         ax, _ = render(sel_a, sc_a, **cam)
         im, st = render(sel_i, sc_i, **cam)
-        assert st.voxels_splatted == 1 and st.slices > 1
+        assert st.drawn == 1 and st.slices > 1
         a_ax, a_im = ax[..., 3].astype(np.float64), im[..., 3].astype(np.float64)
         # the same total opacity (alpha 0.002: the two path corrections agree to about alpha)
         assert a_im.sum() == pytest.approx(a_ax.sum(), rel=5e-3)
@@ -215,7 +215,7 @@ def test_early_termination_costs_at_most_one_minus_the_threshold():
     sc_off, sel_off = volume_scene(et="1.0")
     on, st_on = render(sel_on, sc_on)
     off, st_off = render(sel_off, sc_off)
-    assert st_on.voxels_splatted < st_off.voxels_splatted
+    assert st_on.drawn < st_off.drawn
     assert np.abs(on - off).max() <= 0.1 + 1e-6
 
 

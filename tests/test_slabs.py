@@ -147,9 +147,10 @@ def test_a_frame_streamed_slab_by_slab_is_the_one_pass_frame(make_scene, volume,
     r = Renderer(sc)
     want, st = r.render_view(0)
     for k in (1, 2, 3, 7):
-        got, st_k, report = render_streamed(sc, r.views[0], k)
+        got, st_k, report = render_streamed(r.request, r.views[0], k)
         assert np.array_equal(got, want), k
-        assert (st_k.voxels_examined, st_k.voxels_splatted, st_k.slices) == (st.voxels_examined, st.voxels_splatted,
+        assert np.array_equal(Renderer(sc, slabs=k).render_view(0)[0], want), k      # the Renderer drives it
+        assert (st_k.voxels_examined, st_k.drawn, st_k.slices) == (st.voxels_examined, st.drawn,
                                                                              st.slices)
         assert report.index_bytes >= r.report.index_block_bytes and report.axes == r.report.axes  # blocks, each slab
         if method == "full":
@@ -198,6 +199,7 @@ def test_a_selection_that_does_not_fit_is_streamed_by_itself(volume, tmp_path, m
     assert k == 1 and voxels > 0
     room = 2 * voxels * S.PEAK_PER_VOXEL // 3 + 6    # a slab may take half of it: a third of the selection
     assert S.slabs_needed(sc, views, a, room=room)[0] == 3
+    assert S.fits_anyway(sc, a, 10 ** 12) and not S.fits_anyway(sc, a, room)  # (the Renderer's check before counting)
     assert S.slabs_needed(sc, views, a, room=1)[0] == len(views[0].order)   # at most a slice per slab
     # post-classified, a slab holds its slices' channels too (density, and normals when shaded)
     post = load_scene(tmp_path / "s.toml", ['render.classification="post"'])

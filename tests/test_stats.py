@@ -116,7 +116,10 @@ def test_spatial_ratio_equals_numpy(vol, with_index):
         assert ld["augmented_bytes"] == 3 * d.size and ld["index_bytes"] == 0
         assert ld["bytes_needed"] == 3 * want and ld["values_from"] == "whole channels"
         assert ld["file_bytes_read"] > ld["augmented_bytes"]          # chunk checksums and metadata
-    assert 0 < sc["voxels_splatted"] <= want
+    drawn, other = ("samples", "voxels_splatted") if sc["classification"] == "post" else ("voxels_splatted",
+                                                                                         "samples")
+    assert 0 < sc[drawn] and sc[other] == 0                 # each counter counts its own technique's work
+    assert sc["voxels_splatted"] <= want
     assert ld["bytes"] == ld["augmented_bytes"] + ld["index_bytes"]
     assert ld["augmented_fraction"] == pytest.approx(ld["augmented_bytes"] / (4 * d.size))
     assert ld["held_bytes_per_voxel_of_interest"] == pytest.approx(ld["held_bytes"] / want)
@@ -163,7 +166,7 @@ def test_json_keys(vol, capsys):
             "block_bytes_per_voxel", "decoded_bytes"} == set(s["index"]["per_axis"]["k"])
     assert {"path", "view", "method", "projection", "image", "intervals", "intervals_input_units", "ratio_source",
             "voxels_of_interest", "spatial_ratio", "axis", "slices", "voxels_examined", "classification",
-            "voxels_splatted", "splatted_ratio", "render_seconds", "loaded"} == set(s["scene"])
+            "voxels_splatted", "splatted_ratio", "samples", "render_seconds", "loaded"} == set(s["scene"])
     assert {"channels", "axes", "augmented_bytes", "index_bytes", "bytes", "index_decoded_bytes", "held_bytes",
             "augmented_fraction", "index_fraction", "files_bytes", "files_fraction", "values_from",
             "augmented_file_bytes_read", "index_file_bytes_read", "file_bytes_read", "bytes_needed", "read_ratio",
@@ -192,7 +195,8 @@ def test_transfer_function_selecting_nothing(vol, capsys):
     assert code == 0, err
     sc = json.loads(out)["scene"]
     assert sc["intervals"] == [] and sc["voxels_of_interest"] == 0 and sc["spatial_ratio"] == 0
-    assert sc["voxels_examined"] == 0 and sc["voxels_splatted"] == 0 and sc["loaded"]["index_bytes"] >= 0
+    assert sc["voxels_examined"] == 0 and sc["voxels_splatted"] == sc["samples"] == 0
+    assert sc["loaded"]["index_bytes"] >= 0
     assert sc["loaded"]["augmented_bytes"] == 0
     code, out, _ = run(capsys, aug, idx, "--scene", scene, "-q")
     assert code == 0 and "selects nothing" in out

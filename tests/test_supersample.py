@@ -60,8 +60,6 @@ def test_bad_supersample_is_one_clear_line(value, got):
 
 def test_streamed_frames_are_box_filtered_too(volume):
     """The slab-by-slab path (isplat render --slabs) box-filters the finer frame as one pass does."""
-    from isplat.cli.render import _streamed
-    from isplat.progress import bar
 
     tmp, (aug, idx) = volume
     text = scene_text(aug, idx, image="width = 16\nheight = 12\nbackground = [0, 0, 0, 0]",
@@ -69,6 +67,5 @@ def test_streamed_frames_are_box_filtered_too(volume):
                       render="early_termination = 1.0\nsupersample = 2")
     scene = parse_scene(text, tmp, "s.toml")
     one = Renderer(scene).render_view(0)[0]
-    with bar(total=1, disable=True) as b:
-        (_, streamed, _, _), = list(_streamed(scene, scene.views, 3, b))
+    (_, streamed, _, _), = list(Renderer(scene, slabs=3).render_views())
     assert streamed.shape == one.shape and np.abs(streamed - one).max() <= 1e-5

@@ -6,6 +6,7 @@ import contextlib
 import json
 import logging
 import sys
+import time
 from pathlib import Path
 
 import click
@@ -56,127 +57,126 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
       for a in 0 45 90; do isplat render head.toml --set camera.azimuth=$a -o head_$a.png; done
       isplat render orbit.toml -o orbit.gif              # a batch of views as an animated GIF
     """
-    from ..errors import IsplatError
-    from ..output import (check_format, check_memory, check_outputs, frame_paths, output_buffer_bytes, write_movie,
-                          write_still)
-    from ..threads import default_threads
+    from ..renderer import Renderer
     from ..scene import load_scene
 
+    t0 = time.perf_counter()
     scene = load_scene(scene_file, list(overrides))
-    views = scene.views
-    if view is not None:
-        if not 0 <= view < len(views):
-            raise IsplatError(f"--view {view}: the scene has {len(views)} view(s) (0..{len(views) - 1})")
-        views = (views[view],)
-    batch = len(views) > 1
-    if out is None:
-        out = Path(scene_file).stem + (".gif" if batch else ".png")
-    if as_json and out == "-":
-        raise IsplatError("--json and -o - both want stdout; choose one")
-    ext = check_format(out, batch)
-    if out == "-" and sys.stdout.isatty():
-        raise IsplatError("-o -: standard output is a terminal, not a place for PNG bytes; redirect it "
-                          "(-o - > image.png) or pipe it (-o - | display -)")
-    movie = ext in (".gif", ".mp4")
-    itemsize = 8 if scene.render.precision == "float64" else 4
-    check_memory(output_buffer_bytes(scene.image.width, scene.image.height, len(views), movie, ext, itemsize,
-                                     scene.render.threads or default_threads(), scene.render.supersample),
-                 f"{scene.image.width}x{scene.image.height}" + (f", {len(views)} views" if movie else ""))
-    paths = [] if out == "-" else ([Path(out)] if movie else frame_paths(out, len(views)))
-    check_outputs(paths, force)
-
-    frames, per_view, rep = [], [], None
-    with _frames(scene, views, scheduler, slabs) as (method, results, held):
+    views = _chosen_views(scene, view)
+    plan = _Outputs.check(scene, scene_file, out, len(views), as_json, force)
+    renderer = Renderer(scene, views, slabs=slabs, scheduler=scheduler)
+    per_view, rep = [], None
+    with progress.bar(total=len(views), desc="views", unit="view") as bar, \
+            contextlib.closing(renderer.render_views(bar=bar)) as results:
         for n, rgba, st, rep in results:
-            per_view.append({"view": n if view is None else view, "axis": ("+" if st.sign > 0 else "-") + st.axis,
-                             "voxels_examined": st.voxels_examined, "classification": st.classification,
-                             "voxels_splatted" if st.classification == "pre" else "samples": st.voxels_splatted,
-                             "slices": st.slices, "seconds": round(st.seconds, 6)})
-            if movie:
-                frames.append(rgba)
-            else:
-                write_still(out if out == "-" else str(paths[n]), rgba, scene.image.bit_depth, force)
-    if movie:
-        write_movie(out, frames, force, fps=scene.fps)
-    report = {"scene": str(scene_file), "method": method, "output": out,
-              "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
-              "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
-              "file_bytes_read": rep.file_bytes, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
-              "views": per_view}
+            per_view.append(_view_row(n if view is None else view, st))
+            plan.add(n, rgba)
+    plan.finish()
+    report = _report(scene_file, renderer.method, plan.out, rep, per_view)
     if as_json:
         json.dump(report, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
+    _log_report(report, rep, renderer.held_bytes())
+    log.info(_summary(plan.out, scene, renderer, per_view, time.perf_counter() - t0))
+
+
+def _chosen_views(scene, view) -> tuple:
+    """The scene's views, or only view ``view`` (``--view N``)."""
+    from ..errors import IsplatError
+
+    if view is None:
+        return scene.views
+    if not 0 <= view < len(scene.views):
+        raise IsplatError(f"--view {view}: the scene has {len(scene.views)} view(s) (0..{len(scene.views) - 1})")
+    return (scene.views[view],)
+
+
+class _Outputs:
+    """Where the frames go (a still per view, PNG on stdout, or a GIF or MP4 of all), checked before any frame
+    is rendered: format, memory for the output buffers, files not overwritten without --force."""
+
+    def __init__(self, scene, out, movie, paths, force):
+        self.scene, self.out, self.movie, self.paths, self.force, self.frames = scene, out, movie, paths, force, []
+
+    @classmethod
+    def check(cls, scene, scene_file, out, n_views, as_json, force) -> "_Outputs":
+        from ..errors import IsplatError
+        from ..output import check_format, check_memory, check_outputs, frame_paths, output_buffer_bytes
+        from ..threads import default_threads
+
+        batch = n_views > 1
+        if out is None:
+            out = Path(scene_file).stem + (".gif" if batch else ".png")
+        if as_json and out == "-":
+            raise IsplatError("--json and -o - both want stdout; choose one")
+        ext = check_format(out, batch)
+        if out == "-" and sys.stdout.isatty():
+            raise IsplatError("-o -: standard output is a terminal, not a place for PNG bytes; redirect it "
+                              "(-o - > image.png) or pipe it (-o - | display -)")
+        movie = ext in (".gif", ".mp4")
+        itemsize = 8 if scene.render.precision == "float64" else 4
+        im = scene.image
+        check_memory(output_buffer_bytes(im.width, im.height, n_views, movie, ext, itemsize,
+                                         scene.render.threads or default_threads(), scene.render.supersample),
+                     f"{im.width}x{im.height}" + (f", {n_views} views" if movie else ""))
+        paths = [] if out == "-" else ([Path(out)] if movie else frame_paths(out, n_views))
+        check_outputs(paths, force)
+        return cls(scene, out, movie, paths, force)
+
+    def add(self, n: int, rgba) -> None:
+        """Frame ``n``: written now (a still), or kept for the movie."""
+        from ..output import write_still
+
+        if self.movie:
+            self.frames.append(rgba)
+        else:
+            write_still(self.out if self.out == "-" else str(self.paths[n]), rgba, self.scene.image.bit_depth,
+                        self.force)
+
+    def finish(self) -> None:
+        if self.movie:
+            from ..output import write_movie
+
+            write_movie(self.out, self.frames, self.force, fps=self.scene.fps)
+
+
+def _view_row(n: int, st) -> dict:
+    """A view's entry in the report: its counters, the drawn one named for the technique's unit."""
+    return {"view": n, "axis": ("+" if st.sign > 0 else "-") + st.axis, "voxels_examined": st.voxels_examined,
+            "classification": st.classification,
+            "voxels_splatted" if st.classification == "pre" else "samples": st.drawn,
+            "slices": st.slices, "seconds": round(st.seconds, 6)}
+
+
+def _report(scene_file, method, out, rep, per_view) -> dict:
+    return {"scene": str(scene_file), "method": method, "output": out,
+            "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
+            "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
+            "file_bytes_read": rep.file_bytes, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
+            "views": per_view}
+
+
+def _log_report(report, rep, held) -> None:
+    """The report on stderr with -v."""
     log.debug(f"read: {rep.augmented_bytes} bytes of augmented channels {rep.channels or '(none)'}; "
               f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}; "
               f"{rep.file_bytes} bytes read from the files (HDF5 chunks and metadata) for {rep.bytes_needed} needed "
               f"({rep.read_ratio:.2f}x); channel values from {rep.values_from}" + (
-                  f"; held {held()} bytes, {held() / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
-                  if held else " (selections held by the workers or one slab at a time)"))
-    for v in per_view:
+                  f"; held {held} bytes, {held / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
+                  if held is not None else " (selections held by the workers or one slab at a time)"))
+    for v in report["views"]:
         drawn = f"{v['voxels_splatted']} splatted" if "voxels_splatted" in v else f"{v['samples']} samples composited"
         log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, {drawn} "
                   f"({v['classification']}-classified), {v['seconds'] * 1000:.1f} ms")
 
 
-@contextlib.contextmanager
-def _frames(scene, views, scheduler, slabs):
-    """(method, iterator of (n, rgba, FrameStats, LoadReport) in view order, the held bytes' function or None):
-    in this process, in slabs here, or on Dask."""
-    from ..renderer import Renderer
-
-    if scheduler is None and slabs is None:
-        slabs = _auto_slabs(scene, views)
-    slabs = slabs or 1
-    bar = progress.bar(total=len(views), desc="views", unit="view")
-    with bar:
-        if scheduler is None and slabs > 1:
-            yield scene.render.method, _streamed(scene, views, slabs, bar), None
-            return
-        if scheduler is None:
-            renderer = Renderer(scene, views)
-
-            def local():
-                for n in range(len(views)):
-                    rgba, st = renderer.render_view(n)
-                    bar.update(1)
-                    yield n, rgba, st, renderer.report
-            yield renderer.method, local(), renderer.held_bytes
-            return
-        from .. import distributed
-        from ..augfile import open_augmented
-        from ..frame import views_for
-
-        with distributed.connect(scheduler) as client:
-            vs = views_for(scene, open_augmented(scene.data.augmented), views)
-            yield scene.render.method, distributed.render_views(client, scene, vs, slabs=slabs, bar=bar), None
-
-
-def _auto_slabs(scene, views) -> int:
-    """The slabs a frame needs to fit in the memory left (isplat.slabs.slabs_needed); 1 when it fits."""
-    from ..augfile import open_augmented
-    from ..frame import views_for
-    from ..slabs import PEAK_PER_VOXEL, memory_room, slabs_needed
-
-    room = memory_room()
-    if room is None or scene.render.method != "indexed":
-        return 1
-    aug = open_augmented(scene.data.augmented)
-    k, voxels = slabs_needed(scene, views_for(scene, aug, views), aug, room)
-    if k > 1:
-        log.info(f"isplat render: the selection ({voxels:,} voxels of interest, about "
-                 f"{voxels * PEAK_PER_VOXEL / 2**30:.2f} GiB while it is made) does not fit the "
-                 f"{room / 2**30:.2f} GiB of memory left: each frame in {k} slabs front to back (--slabs {k})")
-    return k
-
-
-def _streamed(scene, views, slabs, bar):
-    """Each view front to back in ``slabs`` slabs, one slab's selection at a time (isplat.slabs.render_streamed)."""
-    from ..augfile import open_augmented
-    from ..frame import views_for
-    from ..slabs import render_streamed
-
-    aug = open_augmented(scene.data.augmented)
-    for n, view in enumerate(views_for(scene, aug, views)):
-        rgba, st, report = render_streamed(scene, view, slabs, aug)
-        bar.update(1)
-        yield n, rgba, st, report
+def _summary(out, scene, renderer, per_view, seconds: float) -> str:
+    """The one line on stderr (not with -q): what was written, the technique, the method, how, how long."""
+    techniques = sorted({v["classification"] for v in per_view}) or [scene.render.classification]
+    how = {"local": "", "streamed": f", {renderer.slabs} slabs front to back",
+           "dask": f", on Dask ({renderer.scheduler}" + (f", {renderer.slabs} slabs" if renderer.slabs > 1 else "")
+           + ")"}[renderer.mode]
+    sheets = ", image-aligned sheets" if scene.render.sheets == "image" else ""
+    n = len(per_view)
+    return (f"isplat render: {'stdout' if out == '-' else out}: {n} view{'s' if n != 1 else ''}, "
+            f"{'/'.join(techniques)}-classified{sheets}, {renderer.method} method{how}, {seconds:.2f} s")

@@ -6,8 +6,10 @@ A failed run leaves nothing behind, and nothing the user had is overwritten with
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -16,55 +18,187 @@ import numpy as np
 from .errors import IsplatError
 
 
+def node_kind(mode: int) -> str | None:
+    """None for a regular file, else what the node is ('a folder', 'a fifo (named pipe)', ...)."""
+    if stat.S_ISREG(mode):
+        return None
+    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a fifo (named pipe)"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_regular(path: str | os.PathLike, what: str = "input", max_bytes: int | None = None) -> None:
+    """Refuse, before anything opens it, an existing ``path`` that is a fifo, device or socket (opening a fifo
+    blocks until a writer comes; a device never ends), or larger than ``max_bytes``. A missing path or a folder
+    is left to the caller's own message."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return
+    kind = node_kind(st.st_mode)
+    if kind == "a folder":
+        return
+    if kind:
+        raise IsplatError(f"{path}: {what} is {kind}, expected a regular file")
+    if max_bytes is not None and st.st_size > max_bytes:
+        raise IsplatError(f"{path}: {what} file is {st.st_size} bytes, more than the {max_bytes} a {what} "
+                          f"file may have")
+
+
 def check_input(path: str | os.PathLike, what: str = "input") -> Path:
-    """Return ``path`` as a Path if it is a readable file, else raise a one-line error."""
+    """Return ``path`` as a Path if it is a readable regular file, else raise a one-line error."""
     p = Path(path)
     if not p.exists():
         raise IsplatError(f"{p}: {what} file does not exist")
     if p.is_dir():
         raise IsplatError(f"{p}: {what} is a folder, expected a file")
+    check_regular(p, what)
     if not os.access(p, os.R_OK):
         raise IsplatError(f"{p}: {what} file is not readable")
     return p
 
 
-def check_output(path: str | os.PathLike, force: bool = False) -> Path:
-    """Check that ``path`` may be written: its folder exists and it does not exist unless ``force``."""
+def check_output(path: str | os.PathLike, force: bool = False, probe: bool = True) -> Path:
+    """Check that ``path`` may be written: its folder exists and takes new files (``probe``: a file is created
+    there and removed), and ``path`` is new, or a regular file and ``force`` given. A folder, device, fifo or
+    socket is never replaced, even with ``force``."""
     p = Path(path)
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.exists():
         raise IsplatError(f"{p}: output folder {parent} does not exist")
     if not parent.is_dir():
         raise IsplatError(f"{p}: {parent} is not a folder")
-    if p.is_dir():
+    kind = _existing_kind(p)
+    if kind == "a folder":
         raise IsplatError(f"{p}: output is a folder, expected a file name")
-    if p.exists() and not force:
+    if kind:
+        raise IsplatError(f"{p}: output is {kind}; isplat writes only regular files, a new name or (with --force) "
+                          f"an existing file, never over {kind} even with --force")
+    if kind is not False and not force:
         raise IsplatError(f"{p}: output exists; use --force to overwrite")
+    if probe:
+        probe_folder(p)
     return p
+
+
+def _existing_kind(p) -> str | None | bool:
+    """False when ``p`` does not exist, None when it is a regular file (or a link to one, or a dangling link),
+    else what it is."""
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        return None if os.path.lexists(p) else False
+    except OSError as exc:
+        raise IsplatError(f"{p}: cannot inspect the output ({exc.strerror or exc})") from None
+    return node_kind(st.st_mode)
+
+
+def probe_folder(path: str | os.PathLike) -> None:
+    """Refuse, before any work, an output whose folder does not take new files (read-only, no permission,
+    /proc, a full disk's inode table): a file is created beside ``path`` and removed."""
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=parent)
+    except OSError as exc:
+        raise IsplatError(f"{p}: cannot create files in the output folder {parent} "
+                          f"({exc.strerror or exc})") from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(tmp)
+
+
+# errors of writing a file (not of reading an input): a block's OSError with one of these is the output's
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EIO, errno.EACCES, errno.EPERM}
 
 
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, force: bool = False):
-    """Yield a temporary path beside ``path``; rename it to ``path`` only if the block succeeds.
+    """Yield a temporary path beside ``path``; move it to ``path`` only if the block succeeds.
+
+    Without ``force`` the name is taken exclusively: a file that appeared there meanwhile (another run writing
+    the same new name) is not replaced, and the run fails. With ``force`` a regular file is replaced, never a
+    folder, device or fifo. Nothing is moved after a SIGINT or SIGTERM (:func:`isplat.interrupts.check`); the
+    temporary file is removed on every failure, and named by the interrupted message when it was.
 
     >>> with atomic_output("out.h5", force=True) as tmp:   # doctest: +SKIP
     ...     write_everything(tmp)
     """
-    p = check_output(path, force)
+    from . import interrupts
+
+    p = check_output(path, force, probe=False)
     parent = p.parent if str(p.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=parent)
+    except OSError as exc:
+        raise IsplatError(f"{p}: cannot create files in the output folder {parent} "
+                          f"({exc.strerror or exc})") from None
     os.close(fd)
     # mkstemp makes the file owner-only; give it the mode an ordinary new file would get
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)
+    committed = False
     try:
-        yield Path(tmp)
-        os.replace(tmp, p)
+        try:
+            yield Path(tmp)
+        except OSError as exc:
+            if exc.filename == tmp or exc.errno in _WRITE_ERRNOS and exc.filename is None:
+                raise IsplatError(f"{p}: writing failed ({exc.strerror or exc})") from None
+            raise
+        interrupts.check()
+        with interrupts.deferred():               # a signal now is raised once the output is whole, in place
+            committed = _commit(tmp, p, force)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
+            if not committed:
+                interrupts.REMOVED.append(str(p))
         raise
+
+
+def _commit(tmp: str, p: Path, force: bool) -> bool:
+    """Move ``tmp`` to ``p``: exclusively without ``force`` (a hard link, which fails if ``p`` exists, or where
+    links are not supported an O_EXCL placeholder); over a regular file only with it. True once ``p`` holds it."""
+    if force:
+        kind = _existing_kind(p)
+        if kind:
+            raise IsplatError(f"{p}: output became {kind} while isplat wrote it; not replaced")
+        _os_step(p, os.replace, tmp, p)
+        return True
+    appeared = IsplatError(f"{p}: output appeared while isplat was writing it (another run writing the same "
+                           f"name?); it was not replaced; use --force to overwrite")
+    try:
+        os.link(tmp, p)
+    except FileExistsError:
+        raise appeared from None
+    except OSError:                                   # no hard links here (some network and FUSE file systems)
+        try:
+            os.close(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        except FileExistsError:
+            raise appeared from None
+        except OSError as exc:
+            raise IsplatError(f"{p}: cannot create the output ({exc.strerror or exc})") from None
+        try:
+            _os_step(p, os.replace, tmp, p)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(p)
+            raise
+        return True
+    with contextlib.suppress(OSError):
+        os.unlink(tmp)
+    return True
+
+
+def _os_step(p, fn, *args):
+    try:
+        fn(*args)
+    except OSError as exc:
+        raise IsplatError(f"{p}: cannot write the output ({exc.strerror or exc})") from None
 
 
 def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None, older=(), counter=None):

@@ -23,6 +23,8 @@ from typing import Any, Iterable
 
 from . import units as _units
 from .errors import IsplatError
+from .fileio import check_regular
+from .limits import MAX_SCENE_BYTES, MAX_VIEWS, check_scene_text
 
 __all__ = [
     "SCENE_VERSION", "Scene", "Data", "Image", "Volume", "Camera", "Transfer", "Shading", "Light", "Cut",
@@ -1030,7 +1032,8 @@ def _cameras(ctx: _Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
     camera = _camera(ctx, raw_cam, cam_paths)
     views_t = ctx.table(tree, ("views",), VIEWS_KEYS)
     vp = ("views",)
-    steps = ctx.integer(vp + ("orbit_steps",), views_t.get("orbit_steps", 0), "expected an integer >= 0", lo=0)
+    steps = ctx.integer(vp + ("orbit_steps",), views_t.get("orbit_steps", 0),
+                        f"expected an integer >= 0, at most {MAX_VIEWS} views", lo=0, hi=MAX_VIEWS)
     vlist = views_t.get("list", [])
     if not isinstance(vlist, list):
         ctx.fail(vp + ("list",), vlist, "expected an array of camera tables, e.g. [{azimuth = 0}, {azimuth = 90}]")
@@ -1078,7 +1081,7 @@ def _path_views(ctx: _Ctx, views_t: dict, raw_cam: dict, cam_paths: dict) -> tup
         ctx.fail(vp + ("path",), keys, "expected an array of at least 2 camera tables (keyframes), "
                  "e.g. [{azimuth = 0}, {azimuth = 90, zoom = 2}]")
     frames = ctx.integer(vp + ("frames",), views_t.get("frames", DEFAULT_PATH_FRAMES),
-                         "expected an integer number of frames >= 2", lo=2)
+                         f"expected an integer number of frames >= 2, at most {MAX_VIEWS}", lo=2, hi=MAX_VIEWS)
     cams = _merged_cameras(ctx, vp + ("path",), keys, raw_cam, cam_paths)
     try:
         return interpolate(list(cams), frames)
@@ -1223,6 +1226,7 @@ def load_scene(path: str | os.PathLike, overrides: Iterable[str] = ()) -> Scene:
     """Read, parse and validate the scene file at ``path`` (see ``formats/scene.md``)."""
     p = Path(path)
     name = str(path)
+    check_regular(p, "scene", MAX_SCENE_BYTES)          # a fifo would block; a huge file is refused unread
     try:
         raw = p.read_bytes()
     except FileNotFoundError:
@@ -1238,5 +1242,6 @@ def load_scene(path: str | os.PathLike, overrides: Iterable[str] = ()) -> Scene:
         raise IsplatError(f"{name}:{line}: the scene file is not UTF-8 text") from None
     if text.startswith("\ufeff"):
         text = text[1:]
+    check_scene_text(name, text, overrides)    # size and nesting bounded before tomllib recurses
     scene = parse_scene(text, p.parent, name, overrides)
     return replace(scene, path=Path(os.path.abspath(p)))

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import IsplatError
+from .fileio import check_regular
 
 RAW_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 BYTE_ORDERS = {"little": "<", "big": ">"}
@@ -122,6 +123,7 @@ def _read_any(path, shape, dtype, byte_order, header_bytes, level, series, strea
             raise IsplatError(f"{p}: input does not exist")
         if not os.access(p, os.R_OK):
             raise IsplatError(f"{p}: input is not readable")
+        check_regular(p, "input")               # a fifo or device would block or never end ('-' reads stdin)
         low = p.name.lower()
         if p.is_dir():
             if raw:

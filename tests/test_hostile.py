@@ -1,0 +1,216 @@
+"""Hostile input by hand (issue #30, item 6): outputs that are not regular files, inputs that would block, folders
+that take no files, deep TOML, huge counts, racing writers, signals (also inside numba's load or compile), extreme
+camera and volume numbers, augment options that make unreadable files, attribute types. Each ends in one line
+naming the problem (or the right result), leaves nothing behind and overwrites nothing."""
+
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import scene_text, write_volume
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args, cwd=None, env=None, timeout=120):
+    e = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST")}
+    e["ISPLAT_PROGRESS"] = "0"
+    e.update(env or {})
+    return subprocess.run([sys.executable, "-m", "isplat", *map(str, args)], capture_output=True, cwd=cwd, env=e,
+                          timeout=timeout)
+
+
+def one_line(res, *needles, code=2):
+    err = res.stderr.decode()
+    assert res.returncode == code and err.count("\n") == 1 and err.startswith("isplat: error: "), err
+    for n in needles:
+        assert n in err, err
+    return err
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("hostile")
+    z, y, x = np.mgrid[:10, :12, :14]
+    dens = (((x - 6.5) ** 2 + (y - 5.5) ** 2 + (z - 4.5) ** 2) < 16).astype(np.uint8) * 200
+    write_volume(tmp, dens, name="ball")
+    (tmp / "scene.toml").write_text(scene_text("ball.aug.h5", "ball.idx.h5", image="width = 16\nheight = 12",
+                                               transfer="opacity = [[100, 0], [150, 0.8], [255, 0.8]]"))
+    np.save(tmp / "scan.npy", dens)
+    return tmp
+
+
+def _write_cmds(data, out):
+    """Every command that writes, each to ``out``."""
+    return {"render": ["render", data / "scene.toml", "-o", out],
+            "augment": ["augment", data / "scan.npy", "-o", out, "--spacing", "1,1,1"],
+            "index": ["index", data / "ball.aug.h5", "-o", out],
+            "sample": ["sample", "sphere", "-o", out, "--shape", "8,8,8"]}
+
+
+NAMES = {"render": "o.png", "augment": "o.aug.h5", "index": "o.idx.h5", "sample": "o.npy"}
+
+
+# ---------------------------------------------------------------------------------------------- 1. output nodes
+
+@pytest.mark.parametrize("cmd", sorted(NAMES))
+@pytest.mark.parametrize("node", ["fifo", "folder"])
+@pytest.mark.parametrize("force", [False, True])
+def test_output_that_is_not_a_regular_file_is_refused_even_with_force(data, tmp_path, cmd, node, force):
+    out = tmp_path / NAMES[cmd]
+    if node == "fifo":
+        os.mkfifo(out)
+    else:
+        out.mkdir()
+    args = _write_cmds(data, out)[cmd] + (["--force"] if force else [])
+    one_line(run(*args), str(out), "folder" if node == "folder" else "fifo")
+    mode = os.lstat(out).st_mode
+    assert (stat.S_ISFIFO(mode) if node == "fifo" else stat.S_ISDIR(mode))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]         # no temporary file left
+    if node == "folder":
+        assert list(out.iterdir()) == []
+
+
+@pytest.mark.parametrize("cmd", sorted(NAMES))
+@pytest.mark.parametrize("force", [False, True])
+def test_character_device_is_never_replaced(data, cmd, force):
+    """/dev/null is refused before anything is written next to it or over it, with or without --force (the check
+    is the first thing a writer does; /dev/null stays the system's character device)."""
+    before = os.stat("/dev/null")
+    args = _write_cmds(data, "/dev/null")[cmd] + (["--force"] if force else [])
+    res = run(*args)
+    # render and sample refuse the name first (no image or volume extension); the others for what it is
+    one_line(res, "/dev/null", *(() if cmd in ("render", "sample") else ("character device",)))
+    after = os.stat("/dev/null")
+    assert stat.S_ISCHR(after.st_mode) and after.st_rdev == before.st_rdev and after.st_ino == before.st_ino
+
+
+def test_character_device_named_like_an_image(data, monkeypatch, tmp_path):
+    """A device whose name has an image's extension gets past the format check and is still refused (the check
+    itself, with os.stat reporting a character device for that name)."""
+    from isplat import fileio
+    from isplat.errors import IsplatError
+
+    target = tmp_path / "dev.png"
+    target.write_bytes(b"")
+    real = os.stat
+
+    class Dev:
+        st_mode = stat.S_IFCHR | 0o666
+
+    monkeypatch.setattr(fileio.os, "stat", lambda p, *a, **k: Dev() if Path(p) == target else real(p, *a, **k))
+    with pytest.raises(IsplatError, match="character device"):
+        fileio.check_output(target, force=True)
+    with pytest.raises(IsplatError, match="character device"):
+        with fileio.atomic_output(target, force=True):
+            pass
+    assert target.read_bytes() == b"" and sorted(p.name for p in tmp_path.iterdir()) == ["dev.png"]
+
+
+def test_stdout_still_takes_an_image(data):
+    res = subprocess.run([sys.executable, "-m", "isplat", "render", "scene.toml", "-o", "-"], cwd=data,
+                         capture_output=True, env={**os.environ, "ISPLAT_PROGRESS": "0"})
+    assert res.returncode == 0 and res.stdout.startswith(b"\x89PNG")
+
+
+# ---------------------------------------------------------------------------------------------- 2. input nodes
+
+@pytest.mark.parametrize("what", ["scene", "augmented", "index", "stats", "stats-index", "augment", "set-data"])
+def test_fifo_input_is_refused_at_once(data, tmp_path, what):
+    fifo = tmp_path / {"scene": "s.toml", "augment": "scan.npy"}.get(what, "f.h5")
+    os.mkfifo(fifo)
+    args = {"scene": ["render", fifo, "-o", tmp_path / "o.png"],
+            "augmented": ["index", fifo, "-o", tmp_path / "o.idx.h5"],
+            "index": ["stats", data / "ball.aug.h5", fifo],
+            "stats": ["stats", fifo],
+            "stats-index": ["stats", data / "ball.aug.h5", fifo, "--json"],
+            "augment": ["augment", fifo, "-o", tmp_path / "o.aug.h5", "--spacing", "1,1,1"],
+            "set-data": ["render", data / "scene.toml", "--set", f"data.augmented={fifo}", "-o",
+                         tmp_path / "o.png"]}[what]
+    one_line(run(*args, timeout=60), str(fifo), "fifo")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [fifo.name]
+
+
+# ---------------------------------------------------------------------------------------------- 3. output folders
+
+@pytest.mark.parametrize("cmd", sorted(NAMES))
+def test_folder_that_takes_no_files_is_refused_before_work(data, cmd):
+    out = f"/proc/{NAMES[cmd]}"
+    t = time.monotonic()
+    one_line(run(*_write_cmds(data, out)[cmd]), out, "output folder /proc")
+    assert time.monotonic() - t < 60
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes in read-only folders")
+def test_read_only_folder_refused(data, tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o500)
+    one_line(run("render", data / "scene.toml", "-o", ro / "x.png"), "cannot create files")
+
+
+def test_write_failure_in_the_block_is_one_line(tmp_path):
+    """An OSError while the output is written (a full disk) is one IsplatError naming the output; nothing is
+    left."""
+    import errno
+
+    from isplat.errors import IsplatError
+    from isplat.fileio import atomic_output
+
+    with pytest.raises(IsplatError, match=r"o\.bin: writing failed \(No space left on device\)"):
+        with atomic_output(tmp_path / "o.bin") as tmp:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------- 4. TOML nesting
+
+@pytest.mark.parametrize("text", ["a = " + "[" * 5000 + "]" * 5000, "a = " + "{b = " * 5000 + "1" + "}" * 5000,
+                                  "a = " + "[" * 5000])
+def test_deeply_nested_scene_is_one_line(tmp_path, text):
+    (tmp_path / "deep.toml").write_text(text)
+    one_line(run("render", tmp_path / "deep.toml", "-o", tmp_path / "x.png"), "deep.toml:1", "nested 33 deep")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["deep.toml"]
+
+
+def test_deeply_nested_override_is_one_line(data, tmp_path):
+    one_line(run("render", data / "scene.toml", "--set", "camera.azimuth=" + "[" * 3000 + "]" * 3000, "-o",
+                 tmp_path / "x.png"), "--set camera.azimuth=", "nested")
+
+
+def test_huge_scene_is_refused_unread(tmp_path, monkeypatch):
+    from isplat import limits
+    from isplat.errors import IsplatError
+    from isplat.scene import load_scene
+
+    (tmp_path / "big.toml").write_text("# " + "x" * 5000 + "\n")
+    monkeypatch.setattr("isplat.scene.MAX_SCENE_BYTES", 1000)
+    with pytest.raises(IsplatError, match="big.toml: scene file is 5003 bytes, more than the 1000"):
+        load_scene(tmp_path / "big.toml")
+    assert limits.MAX_SCENE_BYTES >= 1 << 20
+
+
+def test_nesting_scan_ignores_strings_and_comments():
+    from isplat.limits import check_toml_text
+
+    deep = "[" * 100
+    check_toml_text("s", f'a = "{deep}"\nb = \'{deep}\'\nc = """\n{deep}\n"""\nd = \'\'\'{deep}\'\'\'\n# {deep}\n'
+                         f'e = "\\"{deep}"\n[[f]]\n[g.h]\ni = [[1, 2], [3, {{j = [4]}}]]\n')
+
+
+# ---------------------------------------------------------------------------------------------- 5. counts
+
+@pytest.mark.parametrize("setting,key", [("views.orbit_steps=1000000000", "views.orbit_steps"),
+                                         ("views.frames=1000000000", "views.frames")])
+def test_view_counts_refused_before_they_grow(data, tmp_path, setting, key):
+    extra = ["--set", "views.path=[{azimuth = 0}, {azimuth = 90}]"] if key == "views.frames" else []
+    t = time.monotonic()
+    one_line(run("render", data / "scene.toml", *extra, "--set", setting, "-o", tmp_path / "o.gif"), key,
+             "at most 100000")
+    assert time.monotonic() - t < 30 and list(tmp_path.iterdir()) == []

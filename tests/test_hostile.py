@@ -214,3 +214,60 @@ def test_view_counts_refused_before_they_grow(data, tmp_path, setting, key):
     one_line(run("render", data / "scene.toml", *extra, "--set", setting, "-o", tmp_path / "o.gif"), key,
              "at most 100000")
     assert time.monotonic() - t < 30 and list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------- 6. exclusive outputs
+
+def test_output_that_appears_meanwhile_is_not_replaced(tmp_path):
+    from isplat.errors import IsplatError
+    from isplat.fileio import atomic_output
+
+    out = tmp_path / "o.idx.h5"
+    with pytest.raises(IsplatError, match="appeared while isplat was writing it"):
+        with atomic_output(out) as tmp:
+            Path(tmp).write_bytes(b"second")
+            out.write_bytes(b"first")                   # another writer finished first
+    assert out.read_bytes() == b"first" and sorted(p.name for p in tmp_path.iterdir()) == ["o.idx.h5"]
+    with atomic_output(out, force=True) as tmp:         # --force replaces it
+        Path(tmp).write_bytes(b"forced")
+    assert out.read_bytes() == b"forced" and sorted(p.name for p in tmp_path.iterdir()) == ["o.idx.h5"]
+
+
+def test_exclusive_without_hard_links(tmp_path, monkeypatch):
+    """Where the file system has no hard links, an O_EXCL placeholder takes the name."""
+    import errno
+
+    from isplat import fileio
+    from isplat.errors import IsplatError
+
+    def no_link(a, b):
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(fileio.os, "link", no_link)
+    out = tmp_path / "o.bin"
+    with fileio.atomic_output(out) as tmp:
+        Path(tmp).write_bytes(b"one")
+    assert out.read_bytes() == b"one"
+    out.unlink()
+    with pytest.raises(IsplatError, match="appeared"):
+        with fileio.atomic_output(out) as tmp:
+            Path(tmp).write_bytes(b"two")
+            out.write_bytes(b"other")
+    assert out.read_bytes() == b"other" and sorted(p.name for p in tmp_path.iterdir()) == ["o.bin"]
+
+
+def test_two_index_runs_to_one_new_path(data, tmp_path):
+    """Both start while the path is new; one writes it, the other fails with one line and leaves it alone."""
+    out = tmp_path / "o.idx.h5"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST")}
+    procs = [subprocess.Popen([sys.executable, "-m", "isplat", "index", str(data / "ball.aug.h5"), "-o", str(out),
+                               "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env) for _ in range(2)]
+    results = [(p.wait(timeout=120), p.stderr.read().decode()) for p in procs]
+    codes = sorted(c for c, _ in results)
+    assert codes == [0, 2], results
+    err = next(e for c, e in results if c == 2)
+    assert err.count("\n") == 1 and ("appeared while" in err or "output exists" in err), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.idx.h5"]
+    from isplat.index import open_index
+
+    open_index(out)

@@ -271,3 +271,130 @@ def test_two_index_runs_to_one_new_path(data, tmp_path):
     from isplat.index import open_index
 
     open_index(out)
+
+
+# ---------------------------------------------------------------------------------------------- 7. signals
+
+def _popen(args, env=None, script=None, cwd=None):
+    e = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST")}
+    e["ISPLAT_PROGRESS"] = "0"
+    e.update(env or {})
+    head = [sys.executable, "-c", script] if script else [sys.executable, "-m", "isplat"]
+    return subprocess.Popen(head + [str(a) for a in args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=e, cwd=cwd, text=True)
+
+
+def _interrupted(p, sig, timeout=180):
+    _, err = p.communicate(timeout=timeout)
+    lines = err.strip().splitlines()
+    assert p.returncode == 128 + sig, (p.returncode, err)
+    assert lines and lines[-1].startswith(f"isplat: interrupted ({signal.Signals(sig).name})"), err
+    assert "Traceback" not in err and "compiled object" not in err, err
+    assert all(line.startswith("isplat: ") for line in lines), err
+    return lines[-1]
+
+
+@pytest.mark.parametrize("sig,delay", [(signal.SIGINT, 1.5), (signal.SIGTERM, 1.5), (signal.SIGINT, 4.0)])
+def test_signal_during_kernel_compile(data, tmp_path, sig, delay):
+    """An empty numba cache (and no prebuilt kernels) forces the first render to compile: a signal delivered
+    meanwhile is held until the kernel being compiled is whole, then ends the run: 130/143, one line, no
+    segfault, nothing written."""
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    out = tmp_path / "o.gif"
+    p = _popen(["render", data / "scene.toml", "--set", "views.orbit_steps=2", "-o", out],
+               env={"NUMBA_CACHE_DIR": str(cache), "ISPLAT_PREBUILT": "none"})
+    time.sleep(delay)
+    p.send_signal(sig)
+    line = _interrupted(p, sig)
+    assert "removed" not in line or "o.gif" in line
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["cache"]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("delay", [0.4, 0.8])
+def test_signal_while_the_command_starts(data, tmp_path, sig, delay):
+    """Handlers are installed by the first lines of isplat.cli.main: a signal while click, numpy, h5py and the
+    stages are imported is one line and 130/143, not a traceback or a bare -15."""
+    p = _popen(["render", data / "scene.toml", "-o", tmp_path / "o.png"])
+    time.sleep(delay)
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=120)
+    if p.returncode == 0:                       # the render finished before the signal came
+        return
+    assert p.returncode == 128 + sig and err == f"isplat: interrupted ({signal.Signals(sig).name})\n", err
+
+
+SLOW_INDEX_LOG = """
+import sys, time
+import isplat.index as ix
+real = ix.open_index
+def slow(path):
+    print("renamed", flush=True)
+    time.sleep(30)
+    return real(path)
+ix.open_index = slow
+from isplat.cli.main import main
+main(sys.argv[1:])
+"""
+
+
+def test_sigint_after_the_output_is_in_place_says_no_removal(data, tmp_path):
+    out = tmp_path / "o.idx.h5"
+    p = _popen(["index", data / "ball.aug.h5", "-o", out], script=SLOW_INDEX_LOG)
+    assert p.stdout.readline().strip() == "renamed"
+    p.send_signal(signal.SIGINT)
+    line = _interrupted(p, signal.SIGINT, timeout=60)
+    assert line == "isplat: interrupted (SIGINT)"
+    from isplat.index import open_index
+
+    open_index(out)
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["o.idx.h5"]
+
+
+SWALLOWING_WRITE = """
+import sys, time
+import imageio.v3 as iio
+real = iio.imwrite
+def swallowing(*a, **k):
+    real(*a, **k)
+    print("writing", flush=True)
+    try:
+        time.sleep(30)
+    except BaseException:
+        pass                                      # a library that swallows the interrupt
+iio.imwrite = swallowing
+from isplat.cli.main import main
+main(sys.argv[1:])
+"""
+
+
+def test_sigterm_swallowed_on_the_way_still_ends_the_run(data, tmp_path):
+    """A SIGTERM whose exception some code swallows is not lost: nothing is moved into place after it (the GIF
+    already there under --force stays), and the exit is 143."""
+    out = tmp_path / "o.gif"
+    out.write_bytes(b"old")
+    p = _popen(["render", data / "scene.toml", "--set", "views.orbit_steps=2", "-o", out, "--force", "-q"],
+               script=SWALLOWING_WRITE)
+    assert p.stdout.readline().strip() == "writing"
+    p.send_signal(signal.SIGTERM)
+    line = _interrupted(p, signal.SIGTERM, timeout=60)
+    assert "incomplete outputs removed" in line and "o.gif" in line
+    assert out.read_bytes() == b"old" and sorted(x.name for x in tmp_path.iterdir()) == ["o.gif"]
+
+
+def test_deferred_signal_is_raised_when_the_block_ends():
+    from isplat import interrupts
+
+    previous = interrupts.install()
+    try:
+        interrupts.reset()
+        with pytest.raises(interrupts.Terminated) as exc:
+            with interrupts.deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)
+                reached = True
+        assert reached and exc.value.signum == signal.SIGTERM
+    finally:
+        interrupts.restore(previous)
+        interrupts.reset()

@@ -55,6 +55,12 @@ def _check_spacing(path, spacing, source):
     if len(s) != 3 or not all(np.isfinite(s)) or min(s) <= 0:
         raise IsplatError(f"{path}: spacing {s} from {source} invalid; expected three positive numbers"
                           " (override with --spacing SX,SY,SZ)")
+    from .scene import spacing_problem            # the scene reader's and renderer's rule, so no file is unreadable
+
+    problem = spacing_problem(s)
+    if problem:
+        raise IsplatError(f"{path}: spacing {','.join(f'{x:g}' for x in s)} from {source}: {problem}"
+                          f"{' (override with --spacing SX,SY,SZ)' if source != '--spacing' else ''}")
     return s
 
 

@@ -398,3 +398,131 @@ def test_deferred_signal_is_raised_when_the_block_ends():
     finally:
         interrupts.restore(previous)
         interrupts.reset()
+
+
+# ---------------------------------------------------------------------------------------------- 8. extreme numbers
+
+@pytest.mark.parametrize("settings,needles", [
+    (["camera.zoom=1e308"], ["camera.zoom = 1e+308", "float64 precision"]),
+    (["camera.zoom=1e13"], ["camera.zoom = 1e+13", "expected a zoom between"]),
+    (["camera.zoom=1e-320"], ["camera.zoom", "float64 precision"]),
+    (["volume.origin=[1e308, 0, 0]"], ["volume.origin", "lose float64 precision"]),
+    (["volume.origin=[1e17, 0, 0]"], ["volume.origin", "lose float64 precision"]),
+    (["camera.projection=\"perspective\"", "camera.mode=\"look_at\"", "camera.position=[1e300, 0, 0]",
+      "camera.look_at=[0, 0, 0]"],
+     ["camera's target, position or distance"]),
+])
+def test_camera_and_volume_numbers_that_lose_precision(data, tmp_path, settings, needles):
+    args = [a for s in settings for a in ("--set", s)]
+    res = run("render", data / "scene.toml", *args, "-o", tmp_path / "o.png")
+    one_line(res, *needles)                              # one line: no numpy RuntimeWarning either
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("settings", [["camera.projection=\"perspective\"", "camera.fov=170"],
+                                      ["camera.projection=\"perspective\"", "camera.fov=179.82"],
+                                      ["camera.zoom=1e-9"],
+                                      ["camera.target=[1000, 0, 0]"]])
+def test_empty_frame_is_said(data, tmp_path, settings):
+    args = [a for s in settings for a in ("--set", s)]
+    res = run("render", data / "scene.toml", *args, "-o", tmp_path / "o.png")
+    err = res.stderr.decode()
+    assert res.returncode == 0 and err.count("\n") == 1 and err.startswith("isplat: warning: "), err
+    assert "the frame is empty or nearly" in err and (tmp_path / "o.png").exists()
+
+
+def test_ordinary_views_say_nothing(data, tmp_path):
+    res = run("render", data / "scene.toml", "--set", "views.orbit_steps=4", "--set", "camera.zoom=4",
+              "-o", tmp_path / "o.gif")
+    assert res.returncode == 0 and res.stderr == b"", res.stderr
+
+
+@pytest.mark.parametrize("args,needles", [
+    (["--spacing", "1e-300,1,1"], ["spacing 1e-300,1,1 from --spacing", "1e-30..1e+30"]),
+    (["--spacing", "1e300,1e300,1e300"], ["1e-30..1e+30"]),
+    (["--spacing", "1e-4,1,1000"], ["ratio"]),
+    (["--window=-1e308,1e308"], ["--window -1e+308,1e+308", "overflows"]),
+    (["--window=1e15,1.0000000001e15"], ["float64 resolves"]),
+])
+def test_augment_refuses_what_makes_unreadable_or_degenerate_files(data, tmp_path, args, needles):
+    base = ["--spacing", "1,1,1"] if "--spacing" not in args else []
+    one_line(run("augment", data / "scan.npy", "-o", tmp_path / "o.aug.h5", *base, *args), *needles)
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------- 9. attribute types
+
+EXAMPLES = ROOT / "formats" / "examples"
+
+
+def _retyped(tmp_path, rel, obj, name, make):
+    import shutil
+
+    import h5py
+
+    dst = tmp_path / Path(rel).name
+    shutil.copy(EXAMPLES / rel, dst)
+    with h5py.File(dst, "r+") as f:
+        o = f[obj]
+        value = o.attrs[name]
+        del o.attrs[name]
+        make(o.attrs, name, value)
+    return dst
+
+
+def _ascii(attrs, name, value):
+    import h5py
+
+    s = bytes(np.asarray(value)[()])
+    attrs.create(name, s, dtype=h5py.string_dtype("ascii", len(s)))
+
+
+def _big_endian(attrs, name, value):
+    arr = np.asarray(value)
+    attrs.create(name, arr.astype(arr.dtype.newbyteorder(">")))
+
+
+@pytest.mark.parametrize("rel,obj,name,make,needle", [
+    ("augmented/valid.aug.h5", "/", "format", _ascii, "ASCII string"),
+    ("augmented/valid.aug.h5", "/", "density_sha256", _ascii, "ASCII string"),
+    ("augmented/valid.aug.h5", "/", "format_version", _big_endian, "H5T_STD_I64BE"),
+    ("augmented/valid.aug.h5", "/", "gradient_magnitude_scale", _big_endian, "H5T_IEEE_F64BE"),
+    ("index/full.idx.h5", "/", "format_version", _big_endian, "H5T_STD_I64BE"),
+    ("index/full.idx.h5", "axes/k", "n_slices", _big_endian, "H5T_STD_I64BE"),
+    ("index/full.idx.h5", "axes/k", "axis", _ascii, "ASCII string"),
+    ("index/full.idx.h5", "values", "gradient_magnitude_scale", _big_endian, "H5T_IEEE_F64BE"),
+])
+def test_attribute_types_exactly_as_formats_say(tmp_path, rel, obj, name, make, needle):
+    from isplat.augfile import open_augmented
+    from isplat.errors import IsplatError
+    from isplat.index import open_index
+
+    path = _retyped(tmp_path, rel, obj, name, make)
+    with pytest.raises(IsplatError, match=needle) as exc:
+        (open_augmented if rel.startswith("augmented") else open_index)(path)
+    assert name in str(exc.value)
+
+
+@pytest.mark.parametrize("value,needle", [(np.array([0.1, 0.2], "<f4"), "float32"),
+                                          (np.float64(0.1), "shape ()"),
+                                          (np.array([0.1, 0.2], ">f8"), ">f8"),
+                                          (np.array([0.7, 0.9]), "shares in 0..1")])
+def test_density_clipped_fraction_typed(tmp_path, value, needle):
+    import shutil
+
+    import h5py
+
+    from isplat.augfile import open_augmented
+    from isplat.errors import IsplatError
+
+    path = tmp_path / "c.aug.h5"
+    shutil.copy(EXAMPLES / "augmented" / "valid.aug.h5", path)
+    with h5py.File(path, "r+") as f:
+        f.attrs.create("density_clipped_fraction", value)
+    with pytest.raises(IsplatError, match="density_clipped_fraction") as exc:
+        open_augmented(path)
+    assert needle in str(exc.value)
+    with h5py.File(path, "r+") as f:
+        del f.attrs["density_clipped_fraction"]
+        f.attrs.create("density_clipped_fraction", np.array([0.1, 0.2], "<f8"))
+    open_augmented(path)

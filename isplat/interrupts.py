@@ -24,6 +24,7 @@ import functools
 import os
 import signal
 import sys
+import threading
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
@@ -38,6 +39,7 @@ class Terminated(BaseException):
 
 
 _state = {"depth": 0, "pending": None, "received": None, "installed": False, "start_hold": False}
+_LOCK = threading.Lock()
 REMOVED: list[str] = []            # incomplete outputs removed on the way out (what the last line may name)
 
 
@@ -92,15 +94,23 @@ def check() -> None:
 
 @contextlib.contextmanager
 def deferred():
-    """Hold SIGINT and SIGTERM (when :func:`on_signal` handles them) until the block ends, then raise."""
-    _state["depth"] += 1
+    """Hold SIGINT and SIGTERM (when :func:`on_signal` handles them) until the block ends, then raise; a block
+    in another thread (numba compiling a kernel first called there) sends the held signal again, so that the
+    main thread raises it."""
+    with _LOCK:
+        _state["depth"] += 1
     try:
         yield
     finally:
-        _state["depth"] -= 1
-        if _state["depth"] == 0 and _state["pending"]:
-            signum, _state["pending"] = _state["pending"], None
-            raise Terminated(signum)
+        with _LOCK:
+            _state["depth"] -= 1
+            signum = _state["pending"] if _state["depth"] == 0 else None
+            if signum:
+                _state["pending"] = None
+        if signum:
+            if threading.current_thread() is threading.main_thread():
+                raise Terminated(signum)
+            os.kill(os.getpid(), signum)
 
 
 def defer_numba_compiles(dispatcher_class) -> None:
@@ -147,6 +157,12 @@ def release_start() -> None:
     if _state["depth"] == 0 and _state["pending"]:
         signum, _state["pending"] = _state["pending"], None
         raise Terminated(signum)
+
+
+def hold() -> None:
+    """Hold every later signal for good (the command's last steps before ``os._exit``): it is only recorded."""
+    with _LOCK:
+        _state["depth"] += 1
 
 
 def removed_note() -> str:

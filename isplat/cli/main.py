@@ -159,6 +159,14 @@ def console():
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
         if exc.code is not None and not isinstance(exc.code, int):
             print(exc.code, file=sys.stderr)
+    except Terminated as exc:                     # a signal between main's end and here
+        code = 128 + int(exc.signum)
+        print(f"isplat: interrupted ({signal.Signals(exc.signum).name})", file=sys.stderr)
+    interrupts.hold()                             # from here a signal is only recorded: the exit status tells it
+    late = interrupts.received()
+    if late and code == 0:
+        code = 128 + int(late)
+        print(f"isplat: interrupted ({signal.Signals(late).name})", file=sys.stderr)
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
         try:

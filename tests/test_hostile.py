@@ -92,6 +92,16 @@ def test_character_device_is_never_replaced(data, cmd, force):
     assert stat.S_ISCHR(after.st_mode) and after.st_rdev == before.st_rdev and after.st_ino == before.st_ino
 
 
+@pytest.mark.parametrize("cmd", sorted(NAMES))
+def test_link_to_a_character_device_is_refused(data, tmp_path, cmd):
+    """A name with the right extension that links to /dev/null: refused for what it points to, with --force."""
+    link = tmp_path / NAMES[cmd]
+    link.symlink_to("/dev/null")
+    one_line(run(*_write_cmds(data, link)[cmd], "--force"), str(link), "character device")
+    assert link.is_symlink() and os.readlink(link) == "/dev/null" and stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [link.name]
+
+
 def test_character_device_named_like_an_image(data, monkeypatch, tmp_path):
     """A device whose name has an image's extension gets past the format check and is still refused (the check
     itself, with os.stat reporting a character device for that name)."""

@@ -92,6 +92,11 @@ def open_augmented(path) -> AugmentedVolume:
         window = tuple(float(x) for x in attr_array(p, a, "density_window", "f", (2,)))
         gscale = float(attr_array(p, a, "gradient_magnitude_scale", "f"))
         check_string_attrs(p, a, ("density_sha256", "created_by"), OPTIONAL_STRINGS)
+        if "density_clipped_fraction" in a:          # optional, but typed as formats/augmented.md says
+            clipped = attr_array(p, a, "density_clipped_fraction", "f", (2,))
+            if not (np.all(clipped >= 0) and np.all(clipped <= 1) and clipped.sum() <= 1 + 1e-9):
+                raise IsplatError(f"{p}: attribute 'density_clipped_fraction' is {clipped.tolist()}, expected two "
+                                  f"shares in 0..1")
         sha = attr_string(a, "density_sha256")
         if sha is None or len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
             raise IsplatError(f"{p}: attribute 'density_sha256' is {a['density_sha256']!r}, expected 64 lower-case "

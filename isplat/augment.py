@@ -289,7 +289,23 @@ def check_window(window, name="input", prefix="") -> tuple[float, float]:
         raise IsplatError(f"{name}: --window {window!r} invalid; expected LO,HI") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
         raise IsplatError(f"{name}: --window {prefix}{lo:g},{hi:g} invalid; expected finite LO < HI")
+    problem = window_problem(lo, hi)
+    if problem:
+        raise IsplatError(f"{name}: --window {prefix}{lo:g},{hi:g}: {problem}")
     return lo, hi
+
+
+def window_problem(lo: float, hi: float) -> str | None:
+    """Why a window makes a degenerate density channel (None when it does not): a width that overflows (every
+    density 0) or too narrow for float64 to tell its 256 levels apart at that magnitude."""
+    width = hi - lo
+    if not np.isfinite(width) or not np.isfinite(255.0 / width) or 255.0 / width == 0.0:
+        return (f"the width HI - LO = {width:g} overflows (every density would be 0); expected a window narrower "
+                f"than 1e300")
+    if width / 255.0 <= 2.0 ** -40 * max(abs(lo), abs(hi)):
+        return (f"the width {width:g} is below what float64 resolves at {max(abs(lo), abs(hi)):g} (the 256 "
+                f"densities would merge); expected a wider window")
+    return None
 
 
 # --- the two passes --------------------------------------------------------------------------------------------

@@ -90,6 +90,9 @@ class ViewFrame:
 
 def _unit(x, what) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64)
+    big = float(np.abs(x).max()) if x.size else 0.0
+    if np.isfinite(big) and big > 1e150:                 # scaled first: the squares of 1e300 overflow
+        x = x / big
     n = float(np.linalg.norm(x))
     if not np.isfinite(n) or n < 1e-12:
         raise IsplatError(f"camera: {what} = {x.tolist()} has no direction")
@@ -159,7 +162,87 @@ def view_frame(cam, geom: VolumeGeometry, width: int, height: int) -> ViewFrame:
     else:
         pix = 2.0 * geom.radius / (cam.zoom * min(width, height))
         e, near, clip = None, 0.0, 0.0
-    return ViewFrame("perspective" if persp else "orthographic", p, u, v, w, e, pix, width, height, near, clip)
+    frame = ViewFrame("perspective" if persp else "orthographic", p, u, v, w, e, pix, width, height, near, clip)
+    check_precision(cam, geom, frame)
+    warn_if_empty(frame, geom)
+    return frame
+
+
+# world coordinates, pixels and voxels are float64: a coordinate more than PRECISION_RATIO times a pixel or a voxel
+# step (2**40, errors above 1e-4 of either) lost the precision the projection needs (speckled images, from a
+# volume.origin of 1e17; overflow at camera.zoom = 1e308)
+PRECISION_RATIO = 2.0 ** 40
+
+
+def check_precision(cam, geom: VolumeGeometry, frame: ViewFrame) -> None:
+    """Refuse a view whose numbers lose float64 precision: a pixel of no size (camera.zoom, camera.fov), or world
+    coordinates (volume.origin, the camera's points) too far from each other for the voxels and pixels."""
+    step = float(geom.spacing.min())
+    pix = frame.pixel_size
+    zoom = getattr(cam, "zoom", 1.0)
+    points = [geom.q, geom.centre, frame.p] + ([frame.e] if frame.e is not None else [])
+    far = max(float(np.abs(x).max()) for x in points)
+    if not math.isfinite(far) or far > PRECISION_RATIO * step:
+        near_q = float(np.abs(geom.q).max()) >= far / 2
+        which = "volume.origin" if near_q else "the camera's target, position or distance"
+        raise IsplatError(f"{which}: world coordinates of {far:.3g} with voxels of {step:.3g} world units lose "
+                          f"float64 precision (at most {PRECISION_RATIO:.3g} times a voxel); move the volume and "
+                          f"camera nearer the world origin, e.g. volume.origin = [0, 0, 0]")
+    if not (math.isfinite(pix) and pix > 0 and max(step, far) <= pix * PRECISION_RATIO
+            and pix <= step * PRECISION_RATIO):
+        fov = f", camera.fov = {cam.fov:g}" if frame.projection == "perspective" else ""
+        lo, hi = _zoom_bound(zoom, pix, step, far, False), _zoom_bound(zoom, pix, step, far, True)
+        raise IsplatError(f"camera.zoom = {zoom:g}{fov}: a pixel would be {pix:.3g} world units for voxels of "
+                          f"{step:.3g} at coordinates up to {far:.3g}, beyond float64 precision (ratio at most "
+                          f"{PRECISION_RATIO:.3g}); expected a zoom between about {lo:.3g} and {hi:.3g}")
+
+
+def _zoom_bound(zoom, pix, step, far, upper: bool) -> float:
+    if not (math.isfinite(pix) and pix > 0 and math.isfinite(zoom)):
+        return 1.0 if not upper else PRECISION_RATIO
+    return zoom * pix * (PRECISION_RATIO / max(step, far) if upper else 1.0 / (PRECISION_RATIO * step))
+
+
+_WARNED: set = set()
+
+
+def warn_if_empty(frame: ViewFrame, geom: VolumeGeometry) -> None:
+    """A warning line (once per process and image) when the volume's box covers no pixel centre of the image,
+    or spans less than two pixels across: the frame is empty or nearly (a zoom far out, a field of view near 180
+    degrees, a camera looking away)."""
+    n = geom.n_ijk.astype(np.float64)
+    corners = np.array([[a, b, c] for a in (-0.5, n[0] - 0.5) for b in (-0.5, n[1] - 0.5)
+                        for c in (-0.5, n[2] - 0.5)]) @ geom.steps + geom.q
+    if frame.projection == "perspective":
+        depth = (frame.e - corners) @ frame.w
+        if np.all(depth <= 0):
+            _warn(frame, "the volume is behind the camera")
+            return
+        if np.any(depth <= 0):
+            return                                   # the eye is inside or beside the box: not judged here
+    with np.errstate(all="ignore"):
+        xy = project_points(frame, corners)
+    if not np.all(np.isfinite(xy)):
+        return
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    size = np.array([frame.width, frame.height], float)
+    first, last = np.ceil(np.maximum(lo, 0.0)), np.floor(np.minimum(hi, size - 1))
+    if np.any(last < first):
+        _warn(frame, "the volume's box covers no pixel of the image")
+    elif np.any(hi - lo < 2.0):
+        _warn(frame, f"the volume's box spans {hi[0] - lo[0]:.2g} x {hi[1] - lo[1]:.2g} pixels")
+
+
+def _warn(frame: ViewFrame, what: str) -> None:
+    import logging
+
+    key = (what.split(" spans")[0], frame.width, frame.height)
+    if key in _WARNED:
+        return
+    _WARNED.add(key)
+    logging.getLogger(__name__).warning(
+        f"isplat: warning: {what} ({frame.width}x{frame.height}, a pixel {frame.pixel_size:.3g} world units): the "
+        f"frame is empty or nearly; zoom in (camera.zoom), narrow camera.fov or point the camera at the volume")
 
 
 def principal_axis(frame: ViewFrame, geom: VolumeGeometry) -> tuple[str, int]:

@@ -6,8 +6,10 @@ A failed run leaves nothing behind, and nothing the user had is overwritten with
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -16,55 +18,193 @@ import numpy as np
 from .errors import IsplatError
 
 
+def node_kind(mode: int) -> str | None:
+    """None for a regular file, else what the node is ('a folder', 'a fifo (named pipe)', ...)."""
+    if stat.S_ISREG(mode):
+        return None
+    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a fifo (named pipe)"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_regular(path: str | os.PathLike, what: str = "input", max_bytes: int | None = None) -> None:
+    """Refuse, before anything opens it, an existing ``path`` that is a fifo, device or socket (opening a fifo
+    blocks until a writer comes; a device never ends), or larger than ``max_bytes``. A missing path or a folder
+    is left to the caller's own message."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return
+    kind = node_kind(st.st_mode)
+    if kind == "a folder":
+        return
+    if kind:
+        raise IsplatError(f"{path}: {what} is {kind}, expected a regular file")
+    if max_bytes is not None and st.st_size > max_bytes:
+        raise IsplatError(f"{path}: {what} file is {st.st_size} bytes, more than the {max_bytes} a {what} "
+                          f"file may have")
+
+
 def check_input(path: str | os.PathLike, what: str = "input") -> Path:
-    """Return ``path`` as a Path if it is a readable file, else raise a one-line error."""
+    """Return ``path`` as a Path if it is a readable regular file, else raise a one-line error."""
     p = Path(path)
     if not p.exists():
         raise IsplatError(f"{p}: {what} file does not exist")
     if p.is_dir():
         raise IsplatError(f"{p}: {what} is a folder, expected a file")
+    check_regular(p, what)
     if not os.access(p, os.R_OK):
         raise IsplatError(f"{p}: {what} file is not readable")
     return p
 
 
-def check_output(path: str | os.PathLike, force: bool = False) -> Path:
-    """Check that ``path`` may be written: its folder exists and it does not exist unless ``force``."""
+def check_output(path: str | os.PathLike, force: bool = False, probe: bool = True) -> Path:
+    """Check that ``path`` may be written: its folder exists and takes new files (``probe``: a file is created
+    there and removed), and ``path`` is new, or a regular file and ``force`` given. A folder, device, fifo or
+    socket is never replaced, even with ``force``."""
     p = Path(path)
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.exists():
         raise IsplatError(f"{p}: output folder {parent} does not exist")
     if not parent.is_dir():
         raise IsplatError(f"{p}: {parent} is not a folder")
-    if p.is_dir():
+    kind = _existing_kind(p)
+    if kind == "a folder":
         raise IsplatError(f"{p}: output is a folder, expected a file name")
-    if p.exists() and not force:
+    if kind:
+        raise IsplatError(f"{p}: output is {kind}; isplat writes only regular files, a new name or (with --force) "
+                          f"an existing file, never over {kind} even with --force")
+    if kind is not False and not force:
         raise IsplatError(f"{p}: output exists; use --force to overwrite")
+    if probe:
+        probe_folder(p)
     return p
+
+
+def _existing_kind(p) -> str | None | bool:
+    """False when ``p`` does not exist, None when it is a regular file (or a link to one, or a dangling link),
+    else what it is."""
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        return None if os.path.lexists(p) else False
+    except OSError as exc:
+        raise IsplatError(f"{p}: cannot inspect the output ({exc.strerror or exc})") from None
+    return node_kind(st.st_mode)
+
+
+def probe_folder(path: str | os.PathLike) -> None:
+    """Refuse, before any work, an output whose folder does not take new files (read-only, no permission,
+    /proc, a full disk's inode table): a file is created beside ``path`` and removed."""
+    from . import interrupts
+
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    with interrupts.deferred():                       # a signal between the two steps would leave the probe
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=parent)
+        except OSError as exc:
+            raise IsplatError(f"{p}: cannot create files in the output folder {parent} "
+                              f"({exc.strerror or exc})") from None
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+
+
+# errors of writing a file (not of reading an input): a block's OSError with one of these is the output's
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EIO, errno.EACCES, errno.EPERM}
 
 
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, force: bool = False):
-    """Yield a temporary path beside ``path``; rename it to ``path`` only if the block succeeds.
+    """Yield a temporary path beside ``path``; move it to ``path`` only if the block succeeds.
+
+    Without ``force`` the name is taken exclusively: a file that appeared there meanwhile (another run writing
+    the same new name) is not replaced, and the run fails. With ``force`` a regular file is replaced, never a
+    folder, device or fifo. Nothing is moved after a SIGINT or SIGTERM (:func:`isplat.interrupts.check`); the
+    temporary file is removed on every failure, and named by the interrupted message when it was.
 
     >>> with atomic_output("out.h5", force=True) as tmp:   # doctest: +SKIP
     ...     write_everything(tmp)
     """
-    p = check_output(path, force)
+    from . import interrupts
+
+    p = check_output(path, force, probe=False)
     parent = p.parent if str(p.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=parent)
-    os.close(fd)
-    # mkstemp makes the file owner-only; give it the mode an ordinary new file would get
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    tmp, committed = None, False
     try:
-        yield Path(tmp)
-        os.replace(tmp, p)
+        with interrupts.deferred():                   # the name is known before a signal can end the run
+            try:
+                fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=parent)
+            except OSError as exc:
+                raise IsplatError(f"{p}: cannot create files in the output folder {parent} "
+                                  f"({exc.strerror or exc})") from None
+            os.close(fd)
+            # mkstemp makes the file owner-only; give it the mode an ordinary new file would get
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+        try:
+            yield Path(tmp)
+        except OSError as exc:
+            ours = str(exc.filename) == tmp if exc.filename is not None else exc.errno in _WRITE_ERRNOS
+            if ours:
+                raise IsplatError(f"{p}: writing failed ({exc.strerror or exc})") from None
+            raise
+        interrupts.check()
+        with interrupts.deferred():               # a signal now is raised once the output is whole, in place
+            committed = _commit(tmp, p, force)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+                if not committed:
+                    interrupts.REMOVED.append(str(p))
         raise
+
+
+def _commit(tmp: str, p: Path, force: bool) -> bool:
+    """Move ``tmp`` to ``p``: exclusively without ``force`` (a hard link, which fails if ``p`` exists, or where
+    links are not supported an O_EXCL placeholder); over a regular file only with it. True once ``p`` holds it."""
+    if force:
+        kind = _existing_kind(p)
+        if kind:
+            raise IsplatError(f"{p}: output became {kind} while isplat wrote it; not replaced")
+        _os_step(p, os.replace, tmp, p)
+        return True
+    appeared = IsplatError(f"{p}: output appeared while isplat was writing it (another run writing the same "
+                           f"name?); it was not replaced; use --force to overwrite")
+    try:
+        os.link(tmp, p)
+    except FileExistsError:
+        raise appeared from None
+    except OSError:                                   # no hard links here (some network and FUSE file systems)
+        try:
+            os.close(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        except FileExistsError:
+            raise appeared from None
+        except OSError as exc:
+            raise IsplatError(f"{p}: cannot create the output ({exc.strerror or exc})") from None
+        try:
+            _os_step(p, os.replace, tmp, p)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(p)
+            raise
+        return True
+    with contextlib.suppress(OSError):
+        os.unlink(tmp)
+    return True
+
+
+def _os_step(p, fn, *args):
+    try:
+        fn(*args)
+    except OSError as exc:
+        raise IsplatError(f"{p}: cannot write the output ({exc.strerror or exc})") from None
 
 
 def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None, older=(), counter=None):
@@ -83,8 +223,8 @@ def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None, old
         raise IsplatError(f"{p}: not a readable HDF5 file: truncated, corrupted or not HDF5 ({why[:160]})") from None
     try:
         with hdf5_errors(p, "root attributes"):
-            check_string_attrs(p, f.attrs, ("format",))
-            fmt = attr_string(f.attrs, "format")
+            check_string_attrs(p, f.attrs, ("format",), ascii_ok=True)   # UTF-8 checked once the version is
+            fmt = attr_string(f.attrs, "format", ascii_ok=True)           # known (version 1 files have ASCII)
             ver = f.attrs.get("format_version")
             superblock = f.id.get_create_plist().get_version()[0]
         if fmt != format_name:
@@ -94,11 +234,18 @@ def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None, old
             raise IsplatError(f"{p}: attribute 'format_version' is {ver!r}"
                               f"{'' if ver_arr is None else f' ({ver_arr.dtype})'}, expected the int64 scalar "
                               f"{version}")
+        with hdf5_errors(p, "root attributes"):
+            stored = h5_type_name(f.attrs, "format_version")       # a big-endian int64 reads as a native one
+        if stored != "H5T_STD_I64LE":
+            raise IsplatError(f"{p}: attribute 'format_version' is stored as {stored}, expected the int64 scalar "
+                              f"{version} (H5T_STD_I64LE)")
         if int(ver_arr) != version and int(ver_arr) not in older:
             old = f"; files of version {int(ver_arr)} have no checksums, rebuild it: {rebuild(p, f)}" \
                 if 0 < int(ver_arr) < version and rebuild else ""
             raise IsplatError(f"{p}: attribute 'format_version' is {int(ver_arr)}, this isplat reads version "
                               f"{version}{old}")
+        with hdf5_errors(p, "root attributes"):
+            check_string_attrs(p, f.attrs, ("format",))
         if superblock < 2:
             raise IsplatError(f"{p}: HDF5 superblock version {superblock} has no checksums; format version "
                               f"{int(ver_arr)} requires the HDF5 1.10 file format (superblock 2 or later)")
@@ -271,8 +418,8 @@ def hdf5_errors(path, what: str = ""):
         raise IsplatError(f"{where}: {_h5_reason(exc)}") from None
 
 
-def _string_type_problem(attrs, name: str) -> str | None:
-    """Why attribute ``name`` is not a fixed-length UTF-8 (or ASCII) scalar string, or None if it is one."""
+def _string_type_problem(attrs, name: str, ascii_ok: bool = False) -> str | None:
+    """Why attribute ``name`` is not a fixed-length UTF-8 scalar string, or None if it is one."""
     import h5py
 
     tid = attrs.get_id(name).get_type()
@@ -282,14 +429,17 @@ def _string_type_problem(attrs, name: str) -> str | None:
     if tid.is_variable_str():
         return ("is a variable-length string; format version 2 stores fixed-length UTF-8 strings (in the "
                 "checksummed object header)")
+    if tid.get_cset() != h5py.h5t.CSET_UTF8 and not ascii_ok:
+        return "is an ASCII string; format version 2 stores fixed-length UTF-8 strings (H5T_CSET_UTF8)"
     if np.asarray(attrs[name]).shape != ():
         return f"has shape {np.asarray(attrs[name]).shape}, expected a scalar string"
     return None
 
 
-def attr_string(attrs, name: str):
-    """A fixed-length string attribute as ``str``; None when absent, of another type or not UTF-8."""
-    if name not in attrs or _string_type_problem(attrs, name):
+def attr_string(attrs, name: str, ascii_ok: bool = False):
+    """A fixed-length string attribute as ``str``; None when absent, of another type or not UTF-8 (stored as
+    UTF-8: ``ascii_ok`` takes an ASCII one too, as files before format version 2 have)."""
+    if name not in attrs or _string_type_problem(attrs, name, ascii_ok):
         return None
     try:
         return bytes(np.asarray(attrs[name])[()]).decode("utf-8")
@@ -301,10 +451,14 @@ def attr_array(path, attrs, name: str, kind: str, shape: tuple | None = None):
     """A numeric attribute, checked: ``kind`` 'i' (int64) or 'f' (float64), exact ``shape`` (None = scalar)."""
     if name not in attrs:
         raise IsplatError(f"{path}: missing attribute {name!r}")
-    v = np.asarray(attrs[name])
     want = np.dtype("<i8" if kind == "i" else "<f8")
+    v = np.asarray(attrs[name])
     if v.dtype != want:
         raise IsplatError(f"{path}: attribute {name!r} has type {v.dtype}, expected {want.name}"
+                          f" ({'H5T_STD_I64LE' if kind == 'i' else 'H5T_IEEE_F64LE'})")
+    stored = h5_type_name(attrs, name)
+    if stored != ("H5T_STD_I64LE" if kind == "i" else "H5T_IEEE_F64LE"):
+        raise IsplatError(f"{path}: attribute {name!r} is stored as {stored}, expected {want.name}"
                           f" ({'H5T_STD_I64LE' if kind == 'i' else 'H5T_IEEE_F64LE'})")
     if shape is None and v.shape != ():
         raise IsplatError(f"{path}: attribute {name!r} has shape {v.shape}, expected a scalar")
@@ -316,15 +470,30 @@ def attr_array(path, attrs, name: str, kind: str, shape: tuple | None = None):
     return v.astype(want.newbyteorder("="))
 
 
-def check_string_attrs(path, attrs, required=(), optional=()) -> None:
+def h5_type_name(attrs, name: str) -> str:
+    """The HDF5 type an attribute is stored as, named as formats/ names it: ``H5T_STD_I64LE``,
+    ``H5T_IEEE_F32BE``, ... (h5py reads a big-endian scalar as a native number, so its numpy type hides it)."""
+    import h5py
+
+    tid = attrs.get_id(name).get_type()
+    order = "BE" if tid.get_order() == h5py.h5t.ORDER_BE else "LE"
+    if isinstance(tid, h5py.h5t.TypeIntegerID):
+        sign = "I" if tid.get_sign() == h5py.h5t.SGN_2 else "U"
+        return f"H5T_STD_{sign}{8 * tid.get_size()}{order}"
+    if isinstance(tid, h5py.h5t.TypeFloatID):
+        return f"H5T_IEEE_F{8 * tid.get_size()}{order}"
+    return f"an HDF5 type of class {tid.get_class()}"
+
+
+def check_string_attrs(path, attrs, required=(), optional=(), ascii_ok: bool = False) -> None:
     """Refuse a missing required string attribute, or a required or optional one that is not a UTF-8 string."""
     for name in (*required, *optional):
         if name not in attrs:
             if name in required:
                 raise IsplatError(f"{path}: missing attribute {name!r}")
             continue
-        problem = _string_type_problem(attrs, name)
+        problem = _string_type_problem(attrs, name, ascii_ok)
         if problem:
             raise IsplatError(f"{path}: attribute {name!r} {problem}")
-        if attr_string(attrs, name) is None:
+        if attr_string(attrs, name, ascii_ok) is None:
             raise IsplatError(f"{path}: attribute {name!r} is not valid UTF-8")

@@ -26,6 +26,10 @@ if BOUNDSCHECK:
 import numba as nb  # noqa: E402  (after NUMBA_CACHE_DIR is settled)
 from numba.core.registry import CPUDispatcher  # noqa: E402
 
+from .interrupts import defer_numba_compiles  # noqa: E402
+
+defer_numba_compiles(CPUDispatcher)    # SIGINT/SIGTERM held while a kernel loads or compiles (isplat.interrupts)
+
 # forceinline given (False unless asked for): numba would otherwise let a function first compiled from within
 # a forceinline one inherit it, so how a stage is compiled would depend on which caller compiled it first
 OPTIONS = {"nopython": True, "nogil": True, "cache": True, "boundscheck": BOUNDSCHECK or None, "forceinline": False}

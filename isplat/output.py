@@ -101,8 +101,12 @@ def write_movie(out: str, frames: list[np.ndarray], force: bool, fps: float = 12
 
 
 def check_outputs(paths, force: bool) -> None:
+    """:func:`isplat.fileio.check_output` for each path, each folder probed once."""
+    probed = set()
     for p in paths:
-        check_output(p, force)
+        folder = os.path.abspath(os.path.dirname(p) or ".")
+        check_output(p, force, probe=folder not in probed)
+        probed.add(folder)
 
 
 def memory_available() -> int | None:

@@ -22,6 +22,8 @@ from pathlib import Path
 from typing import Iterable
 
 from .errors import IsplatError
+from .fileio import check_regular
+from .limits import MAX_SCENE_BYTES, check_scene_text
 from .scene_parse import NO_WINDOW, DensityWindow, WindowArg, WindowUnavailable, build_scene
 from .scene_positions import locate_keys
 from .scene_schema import (CAMERA_COMMON_KEYS, CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS,  # noqa: F401
@@ -110,6 +112,7 @@ def load_scene(path: str | os.PathLike, overrides: Iterable[str] = ()) -> Scene:
     """Read, parse and validate the scene file at ``path`` (see ``formats/scene.md``)."""
     p = Path(path)
     name = str(path)
+    check_regular(p, "scene", MAX_SCENE_BYTES)          # a fifo would block; a huge file is refused unread
     try:
         raw = p.read_bytes()
     except FileNotFoundError:
@@ -125,5 +128,6 @@ def load_scene(path: str | os.PathLike, overrides: Iterable[str] = ()) -> Scene:
         raise IsplatError(f"{name}:{line}: the scene file is not UTF-8 text") from None
     if text.startswith("\ufeff"):
         text = text[1:]
+    check_scene_text(name, text, overrides)    # size and nesting bounded before tomllib recurses
     scene = parse_scene(text, p.parent, name, overrides)
     return replace(scene, path=Path(os.path.abspath(p)))

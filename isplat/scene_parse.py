@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Callable, Union
 
 from . import units as _units
+from .limits import MAX_VIEWS
 from .scene_schema import (CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS, DEFAULT_ORBIT_STEPS,
                            DEFAULT_PATH_FRAMES, FOV_MAX, IMAGE_KEYS, KEYS_SINCE, LIGHT_KEYS, ORTHONORMAL_TOLERANCE,
                            PARALLEL_TOLERANCE, RENDER_KEYS, SCENE_VERSION, SHADING_KEYS, SUPERSAMPLE_MAX, TOP_KEYS,
@@ -465,7 +466,7 @@ def _cameras(ctx: Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
     views_t = ctx.table(tree, ("views",), VIEWS_KEYS)
     vp = ("views",)
     steps = ctx.integer(vp + ("orbit_steps",), views_t.get("orbit_steps", DEFAULT_ORBIT_STEPS),
-                        "expected an integer >= 0", lo=0)
+                        f"expected an integer >= 0, at most {MAX_VIEWS} views", lo=0, hi=MAX_VIEWS)
     vlist = views_t.get("list", [])
     if not isinstance(vlist, list):
         ctx.fail(vp + ("list",), vlist, "expected an array of camera tables, e.g. [{azimuth = 0}, {azimuth = 90}]")
@@ -513,7 +514,7 @@ def _path_views(ctx: Ctx, views_t: dict, raw_cam: dict, cam_paths: dict) -> tupl
         ctx.fail(vp + ("path",), keys, "expected an array of at least 2 camera tables (keyframes), "
                  "e.g. [{azimuth = 0}, {azimuth = 90, zoom = 2}]")
     frames = ctx.integer(vp + ("frames",), views_t.get("frames", DEFAULT_PATH_FRAMES),
-                         "expected an integer number of frames >= 2", lo=2)
+                         f"expected an integer number of frames >= 2, at most {MAX_VIEWS}", lo=2, hi=MAX_VIEWS)
     cams = _merged_cameras(ctx, vp + ("path",), keys, raw_cam, cam_paths)
     try:
         return interpolate(list(cams), frames)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import IsplatError
+from .fileio import check_regular
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,12 @@ def _check_spacing(path, spacing, source):
     if len(s) != 3 or not all(np.isfinite(s)) or min(s) <= 0:
         raise IsplatError(f"{path}: spacing {s} from {source} invalid; expected three positive numbers"
                           " (override with --spacing SX,SY,SZ)")
+    from .scene import spacing_problem            # the scene reader's and renderer's rule, so no file is unreadable
+
+    problem = spacing_problem(s)
+    if problem:
+        raise IsplatError(f"{path}: spacing {','.join(f'{x:g}' for x in s)} from {source}: {problem}"
+                          f"{' (override with --spacing SX,SY,SZ)' if source != '--spacing' else ''}")
     return s
 
 
@@ -125,6 +132,7 @@ def _read_any(path, shape, dtype, byte_order, header_bytes, level, series, strea
             raise IsplatError(f"{p}: input does not exist")
         if not os.access(p, os.R_OK):
             raise IsplatError(f"{p}: input is not readable")
+        check_regular(p, "input")               # a fifo or device would block or never end ('-' reads stdin)
         low = p.name.lower()
         if p.is_dir():
             if raw:

@@ -288,6 +288,14 @@ def corrupt(path: Path, obj: str, op: str) -> None:
                 attrs[name] = np.asarray(v).astype(np.int32) if np.asarray(v).dtype.kind in "iuf" else np.int32(7)
             elif op == "as_array":
                 attrs[name] = np.stack([np.asarray(v)] * 2)
+            elif op == "big_endian":                   # the same number stored big-endian (h5py reads it native)
+                arr = np.asarray(v)
+                del attrs[name]
+                attrs.create(name, arr.astype(arr.dtype.newbyteorder(">")))
+            elif op == "ascii":                        # the same text as a fixed-length ASCII string
+                text = bytes(np.asarray(v)[()])
+                del attrs[name]
+                attrs.create(name, text, dtype=h5py.string_dtype("ascii", len(text)))
             elif op == "nan":
                 attrs[name] = np.full(np.shape(v), np.nan) if np.asarray(v).dtype.kind in "iuf" else "nan"
             elif op == "flip_header":

@@ -3,6 +3,10 @@ so ``isplat --help`` and a render start without importing every stage."""
 
 from __future__ import annotations
 
+from .. import interrupts  # noqa: I001  (first: SIGINT/SIGTERM are handled, held, from here on)
+
+interrupts.hold_from_start()
+
 import importlib
 import importlib.util
 import logging
@@ -71,17 +75,8 @@ def cli(verbose, quiet):
     start_verbosity(verbose - quiet)
 
 
-class Terminated(BaseException):
-    """SIGTERM or SIGINT, raised in the main thread so that temporary outputs are removed on the way out
-    (not KeyboardInterrupt, which click turns into Abort after writing a blank line)."""
-
-    def __init__(self, signum):
-        super().__init__(signum)
-        self.signum = signum
-
-
-def _on_signal(signum, frame):
-    raise Terminated(signum)
+Terminated = interrupts.Terminated
+_on_signal = interrupts.on_signal
 
 
 def _usage_line(exc: click.UsageError) -> str:
@@ -95,24 +90,21 @@ def main(argv=None):
 
     SIGTERM and SIGINT remove temporary outputs (:func:`isplat.fileio.atomic_output`), print one line and exit
     143 and 130; click usage errors are one line too."""
-    previous = {}
-    for sig, default in ((signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.default_int_handler)):
-        if signal.getsignal(sig) is default:
-            previous[sig] = signal.signal(sig, _on_signal)
+    previous = interrupts.install()
+    interrupts.reset()
     try:
         _run(argv)
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        interrupts.restore(previous)
 
 
 def _run(argv):
     try:
+        interrupts.release_start()
         cli.main(args=argv, prog_name="isplat", standalone_mode=False)
+        interrupts.check()                        # a signal whose exception was swallowed on the way still counts
     except Terminated as exc:
-        name = signal.Signals(exc.signum).name
-        click.echo(f"isplat: interrupted ({name}); incomplete outputs removed", err=True)
-        sys.exit(128 + exc.signum)
+        _interrupted(exc.signum)
     except click.UsageError as exc:
         click.echo(_usage_line(exc), err=True)
         sys.exit(exc.exit_code)
@@ -121,20 +113,36 @@ def _run(argv):
         click.echo(f"isplat: error: {one_line[:2000]}", err=True)
         sys.exit(exc.exit_code)
     except click.exceptions.Abort:
-        click.echo("isplat: interrupted; incomplete outputs removed", err=True)
-        sys.exit(130)
+        _interrupted(interrupts.received() or signal.SIGINT)
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)
     except BrokenPipeError:
         sys.exit(1)
     except KeyboardInterrupt:
-        click.echo("isplat: interrupted (SIGINT); incomplete outputs removed", err=True)
-        sys.exit(130)
+        _interrupted(signal.SIGINT)
     except MemoryError:
         click.echo("isplat: error: out of memory", err=True)
         sys.exit(1)
+    except OSError as exc:                        # the last resort: a system error is one line too
+        click.echo(f"isplat: error: {os_error_line(exc)}", err=True)
+        sys.exit(1)
     sys.exit(0)
+
+
+def _interrupted(signum) -> None:
+    """One line, naming the signal and, only when there were some, the incomplete outputs removed; exit 128+N."""
+    name = signal.Signals(signum).name
+    click.echo(f"isplat: interrupted ({name}){interrupts.removed_note()}", err=True)
+    sys.exit(128 + int(signum))
+
+
+def os_error_line(exc: OSError) -> str:
+    """'FILE: reason' for an OSError (its strerror, else its text), on one line."""
+    why = exc.strerror or str(exc) or exc.__class__.__name__
+    where = exc.filename if exc.filename is not None else None
+    text = f"{where}: {why}" if where is not None else why
+    return " ".join(str(text).split())[:2000]
 
 
 def console():
@@ -151,6 +159,14 @@ def console():
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
         if exc.code is not None and not isinstance(exc.code, int):
             print(exc.code, file=sys.stderr)
+    except Terminated as exc:                     # a signal between main's end and here
+        code = 128 + int(exc.signum)
+        print(f"isplat: interrupted ({signal.Signals(exc.signum).name})", file=sys.stderr)
+    interrupts.hold()                             # from here a signal is only recorded: the exit status tells it
+    late = interrupts.received()
+    if late and code == 0:
+        code = 128 + int(late)
+        print(f"isplat: interrupted ({signal.Signals(late).name})", file=sys.stderr)
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
         try:

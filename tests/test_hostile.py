@@ -439,7 +439,10 @@ def test_empty_frame_is_said(data, tmp_path, settings):
     args = [a for s in settings for a in ("--set", s)]
     res = run("render", data / "scene.toml", *args, "-o", tmp_path / "o.png")
     err = res.stderr.decode()
-    assert res.returncode == 0 and err.count("\n") == 1 and err.startswith("isplat: warning: "), err
+    # the warning, then render's one-line summary
+    lines = err.splitlines()
+    assert res.returncode == 0 and len(lines) == 2 and lines[0].startswith("isplat: warning: "), err
+    assert lines[1].startswith("isplat render: "), err
     assert "the frame is empty or nearly" in err and (tmp_path / "o.png").exists()
 
 

@@ -290,8 +290,14 @@ def _popen(args, env=None, script=None, cwd=None):
     e["ISPLAT_PROGRESS"] = "0"
     e.update(env or {})
     head = [sys.executable, "-c", script] if script else [sys.executable, "-m", "isplat"]
+    # SIGINT as an interactive shell leaves it: a test run started in the background (``make test &``, CI under
+    # some runners) hands its children SIGINT ignored, and isplat rightly keeps an ignored SIGINT ignored
     return subprocess.Popen(head + [str(a) for a in args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env=e, cwd=cwd, text=True)
+                            env=e, cwd=cwd, text=True, preexec_fn=_default_sigint)
+
+
+def _default_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _interrupted(p, sig, timeout=180):

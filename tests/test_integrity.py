@@ -232,7 +232,8 @@ def test_signal_during_gif_write_leaves_nothing(examples, tmp_path, sig, code):
     """The signal arrives while the GIF is being written under its temporary name."""
     out = tmp_path / "o.gif"
     p = subprocess.Popen([sys.executable, "-c", SLOW_WRITE, "render", str(examples["aug"]["indexed"]), "-o",
-                          str(out), "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                          str(out), "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # as tests/test_hostile
     assert p.stdout.readline().strip() == "writing"
     p.send_signal(sig)
     _, err = p.communicate(timeout=60)

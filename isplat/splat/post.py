@@ -301,7 +301,9 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     """Sample the quads of square ``sq`` (``unit`` voxels a side, from voxel (a0, b0); a cell's index when
     ``unit`` is a cell) that their cells' flags ask for, at the pixels
     whose point on the slice plane lies in them (each pixel of the slice falls in one quad), and composite the
-    samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`)."""
+    samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`).
+    One function of over 60 lines: its per-pixel loop is the scan's inner loop, inlined by LLVM, with the
+    flags' test and the sample (:func:`_sample`) in it."""
     density, gm, nrm, strides, n_a, n_b, c = voxel
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp

@@ -194,13 +194,18 @@ def _project(a, b, base, coef, persp, ex, ey, y0b, y1b, img_w):
         if -D < coef[NEAR]:
             return False, 0.0, 0.0, s, none        # at or behind the near plane: culled
         s = coef[WPE] / D                          # t0 of §3.2
-        py = coef[CY] + s * Y
-    else:
-        py = Y
+    py = coef[CY] + s * Y if persp else Y
     ry = ey * s
     if py + ry < y0b or py - ry > y1b - 1:
         return False, 0.0, py, s, none
-    X = xs + a * coef[XA] + b * coef[XB]
+    return footprint_at(xs + a * coef[XA] + b * coef[XB], py, s, ry, coef, persp, ex, y0b, y1b, img_w)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def footprint_at(X, py, s, ry, coef, persp, ex, y0b, y1b, img_w):
+    """The rest of a projection once its row ``py`` is known to reach the band: the pixel column of ``X`` (the
+    §3 x before the perspective division by ``s``), and the footprint's box, half-extents ``ex s`` and ``ry``
+    (:func:`isplat.splat.traverse.footprint_box`); returns ``(ok, px, py, s, box)``."""
     px = coef[CX] + s * X if persp else X
     ok, box = footprint_box(px, py, ex * s, ry, y0b, y1b, img_w)
     return ok, px, py, s, box
@@ -219,26 +224,24 @@ def _footprint_form(fpc, s):
 def _splat_rays(px, py, s, box, cr, cg, cb, rL, fpc, table, coef, eye, sheet, dirty_px, dirty, nd):
     """The splat of a voxel next to the eye, whose footprint spans a wide angle: as :func:`_splat`, but the
     opacity is corrected per pixel for the path through the slab along that pixel's own ray (``rL``: r times
-    log1p(-alpha) of :func:`isplat.splat.traverse.path_alpha`; ``cr, cg, cb`` straight colour). The voxel's own ray would give the
-    pixels around it the path of a ray far off theirs (a uniform slab seen from inside it would come out
-    denser at the centre than it is)."""
+    log1p(-alpha) of :func:`isplat.splat.traverse.path_alpha`; ``cr, cg, cb`` straight colour). The voxel's
+    own ray would give the pixels around it the path of a ray far off theirs (a uniform slab seen from inside
+    it would come out denser at the centre than it is)."""
+    gx, cmin = eye[EY_GX], eye[EY_COSMIN]
     x0, x1, y0, y1 = box
     img_w = sheet.shape[1]
     A, B, C, T = _footprint_form(fpc, s)
-    gx, cmin = eye[EY_GX], eye[EY_COSMIN]
     for y in range(y0, y1 + 1):
-        dy = y - py
-        ty = C * dy * dy
-        txy = B * dy
         ry = y - coef[CY]
         ny = eye[EY_GY] * ry + eye[EY_G0]
         r2y = ry * ry + eye[EY_F2]
+        dy = y - py
+        ty = C * dy * dy
+        txy = B * dy
         for x in range(x0, x1 + 1):
             dx = x - px
             wgt = table[int(min((A * dx + txy) * dx + ty, T))]
-            dirty[nd] = y * img_w + x
-            nd += 1 - dirty_px[y, x]
-            dirty_px[y, x] = 1
+            nd = _touch(dirty_px, dirty, nd, x, y, img_w)
             if wgt == 0.0:
                 continue
             rx = x - coef[CX]
@@ -291,14 +294,30 @@ def _splat(px, py, s, box, cr, cg, cb, alpha, fpc, table, sheet, dirty_px, dirty
         txy = B * dy
         for x in range(x0, x1 + 1):
             dx = x - px
-            wgt = table[int(min((A * dx + txy) * dx + ty, T))]
-            dirty[nd] = y * img_w + x
-            nd += 1 - dirty_px[y, x]
-            dirty_px[y, x] = 1
-            sheet[y, x, 0] += wgt * cr
-            sheet[y, x, 1] += wgt * cg
-            sheet[y, x, 2] += wgt * cb
-            sheet[y, x, 3] += wgt * alpha
+            nd = add_to_sheet(sheet, dirty_px, dirty, nd, x, y, img_w, table[int(min((A * dx + txy) * dx + ty, T))],
+                              cr, cg, cb, alpha)
+    return nd
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def add_to_sheet(sheet, dirty_px, dirty, nd, x, y, img_w, wgt, cr, cg, cb, alpha):
+    """Add ``wgt`` times the premultiplied colour and opacity (cr, cg, cb, alpha) to pixel (x, y) of the sheet
+    (:func:`_touch`); returns the new touched-pixel count."""
+    nd = _touch(dirty_px, dirty, nd, x, y, img_w)
+    sheet[y, x, 0] += wgt * cr
+    sheet[y, x, 1] += wgt * cg
+    sheet[y, x, 2] += wgt * cb
+    sheet[y, x, 3] += wgt * alpha
+    return nd
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _touch(dirty_px, dirty, nd, x, y, img_w):
+    """List pixel (x, y) as touched: the list always stores it and advances only on its first touch (no branch);
+    returns the new count."""
+    dirty[nd] = y * img_w + x
+    nd += 1 - dirty_px[y, x]
+    dirty_px[y, x] = 1
     return nd
 
 

@@ -55,7 +55,7 @@ import numpy as np
 
 from ..jit import jit, leaf, stage
 from .composite import composite_sheet
-from .pre import Classify, FootprintTable, _shade, _splat, sheet_buffers
+from .pre import Classify, FootprintTable, _shade, _splat, add_to_sheet, footprint_at, sheet_buffers
 from .select import BLOCK, CELL, REGION
 from .traverse import (CX, CY, EX, EY, NEAR, QA, QB, QC, R2, TSCALE, WPE, X0, XA, XB, XC, Y0, YA, YB, YC, build_sat,
                        covered, footprint_box, register)
@@ -294,16 +294,12 @@ def _slab_project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w):
     s = 1.0
     if persp:
         s = -coef[WPE] / z                       # t0 of §3.2 (D = -z)
-        py = coef[CY] + s * Y
-    else:
-        py = Y
+    py = coef[CY] + s * Y if persp else Y
     ry = ey * s
     if py + ry < y0b or py - ry > y1b - 1:
         return False, 0.0, py, s, none
-    X = coef[X0] + c * coef[XC] + a * coef[XA] + b * coef[XB]
-    px = coef[CX] + s * X if persp else X
-    ok, box = footprint_box(px, py, ex * s, ry, y0b, y1b, img_w)
-    return ok, px, py, s, box
+    return footprint_at(coef[X0] + c * coef[XC] + a * coef[XA] + b * coef[XB], py, s, ry, coef, persp, ex, y0b, y1b,
+                        img_w)
 
 
 @leaf
@@ -369,13 +365,7 @@ def _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, slab, depth, cd
             dx = x - px
             q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
             wgt = table[int(min(q, R2v) * tscale)] * _slab_mass(zy + gx * dx * inv_s, thick, depth, cdf)
-            dirty[nd] = y * img_w + x
-            nd += 1 - dirty_px[y, x]
-            dirty_px[y, x] = 1
-            sheet[y, x, 0] += wgt * cr
-            sheet[y, x, 1] += wgt * cg
-            sheet[y, x, 2] += wgt * cb
-            sheet[y, x, 3] += wgt * alpha
+            nd = add_to_sheet(sheet, dirty_px, dirty, nd, x, y, img_w, wgt, cr, cg, cb, alpha)
     return nd
 
 

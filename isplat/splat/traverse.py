@@ -13,7 +13,13 @@ and registers, for that tuple's class, two compiled stages (:func:`register`):
 
 numba picks the technique's stages by the plan's type when it compiles :func:`render` for it (an ``overload``
 of :func:`call_scratch` and :func:`render_slice`), so each technique's kernel is compiled and cached on its
-own, with its stages inlined as before: no function pointer, no branch per technique.
+own, with its stages inlined as before: no function pointer, no branch per technique. Adding a technique
+(maximum-intensity projection, say) is adding a module: its plan tuple, ``plan(tables)`` making it from
+:class:`isplat.frame.FrameTables`, its two stages registered here, and its line in ``isplat.frame.TECHNIQUES``.
+
+Threads: the image is cut into bands of rows of whole tiles (:func:`isplat.frame.band_rows`); each band walks
+the slices on its own, and a thread renders its bands one after the other (one call per band, timed). The
+image does not depend on the bands.
 
 The axis-aligned techniques (pre- and post-classified) share more: which regions of a slice a band visits and
 their hierarchy (:func:`slice_regions`: the index's selection binned per band, :func:`bin_regions`, or every
@@ -110,7 +116,7 @@ def _technique(plan):
 
 
 @overload(call_scratch, inline="always")
-def _call_scratch(plan):
+def _typed_call_scratch(plan):
     found = _technique(plan)
     if found is None:
         return None
@@ -122,7 +128,7 @@ def _call_scratch(plan):
 
 
 @overload(render_slice, inline="always")
-def _render_slice(plan, lists, scratch, c, pos, buf, band):
+def _typed_render_slice(plan, lists, scratch, c, pos, buf, band):
     found = _technique(plan)
     if found is None:
         return None
@@ -207,14 +213,14 @@ def _is_indexed(source) -> bool:
 
 
 @overload(source_scratch, inline="always")
-def _source_scratch(source):
+def _typed_source_scratch(source):
     if _is_indexed(source):
         return lambda source: (np.empty(0, dtype=np.int64),)
     return lambda source: full_scratch(source.n_a, source.n_b)
 
 
 @overload(slice_regions, inline="always")
-def _slice_regions(source, scratch, c, pos, alpha, use_gm, geo, reach, buf, band):
+def _typed_slice_regions(source, scratch, c, pos, alpha, use_gm, geo, reach, buf, band):
     if _is_indexed(source):
         def impl(source, scratch, c, pos, alpha, use_gm, geo, reach, buf, band):
             return _indexed_regions(source, scratch, c, pos, buf, band)

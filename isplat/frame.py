@@ -170,8 +170,9 @@ class FrameTables:
 
 # The techniques, by the name :func:`technique_of` gives a frame's settings: each a module with ``plan(tables)``
 # returning its plan (registered with :func:`isplat.splat.traverse.register`), its threads' scratch and its
-# order of sheets (None: the view's slices). Adding a technique is adding a module and its line here.
-TECHNIQUES = {"pre": "isplat.splat.pre", "post": "isplat.splat.post", "image-sheets": "isplat.splat.sheets"}
+# order of sheets (None: the view's slices). Adding a technique is adding a module and its line here. (Names
+# relative to isplat: isplat imports itself only relatively, scripts/ab.py loads copies of it side by side.)
+TECHNIQUES = {"pre": ".splat.pre", "post": ".splat.post", "image-sheets": ".splat.sheets"}
 
 
 def technique_of(ro) -> str:
@@ -194,7 +195,7 @@ def prepare(sel, view: View, et: float | None = None) -> Setup:
     if sel.empty:
         return Setup(view, None, [], rows, mine, tile_npix, dtype, et_val, threads, True)
     tables = frame_tables(sel, view, dtype, threads, rows, len(mine))
-    plan, lists, order = importlib.import_module(TECHNIQUES[technique_of(ro)]).plan(tables)
+    plan, lists, order = importlib.import_module(TECHNIQUES[technique_of(ro)], __package__).plan(tables)
     return Setup(view, plan, lists, rows, mine, tile_npix, dtype, et_val, threads, False, order)
 
 

@@ -159,8 +159,8 @@ def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
 @leaf
 def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, buf, band, marks, scratch):
     """One slice and one band: the cells of interest left by the occlusion tests, the quads that touch their
-    voxels sampled, classified and composited into the image. (A leaf of its own, called once per slice: inlined into
-    :func:`_slice` by numba, its counters in ``buf.stats`` were lost, numba 0.68.)"""
+    voxels sampled, classified and composited into the image. (A leaf of its own, called once per slice:
+    inlined into :func:`_slice` by numba, its counters in ``buf.stats`` came out 0 under numba 0.68.)"""
     bi, y0b, y1b, et, satab, ty0 = band
     cs, counts = scratch
     counts[0] = 0

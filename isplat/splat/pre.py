@@ -110,9 +110,10 @@ def _slice(plan, lists, scratch, c, pos, buf, band):
 def _render_slice(c, regions, p0, p1, hier, vals, n_a, n_b, plan, lists, buf, band):
     """Slice ``c`` and one band: the regions ``regions[p0:p1]``, their blocks and cells tested for occlusion
     (:func:`isplat.splat.traverse.visible_cells`), each voxel of the cells left classified, cut, projected and
-    shaded and splatted into the sheet (:func:`_splat_cells`); then the sheet composited into the image. Within a slice the tests see the saturation of the slices in front only, so
-    the cells can be picked first and splatted after. ``vals = (gm, nrm, index, direct)``: a voxel's channel
-    values are at its own row (``direct``) or at ``index[row]``."""
+    shaded and splatted into the sheet (:func:`_splat_cells`); then the sheet composited into the image.
+    Within a slice the tests see the saturation of the slices in front only, so the cells can be picked first
+    and splatted after. ``vals = (gm, nrm, index, direct)``: a voxel's channel values are at its own row
+    (``direct``) or at ``index[row]``."""
     bi, y0b, y1b, et, satab, ty0 = band
     geo = plan.geo
     cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)

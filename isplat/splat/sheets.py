@@ -40,9 +40,10 @@ MAX_SLABS_PER_KERNEL slabs (a spacing far below the others, e.g. 1 x 1 x 100).
 
 A technique of :mod:`isplat.splat.traverse`, which walks the bands and, in each, the slabs front to back
 until the band saturates (its saturation tests too): this module is its per-frame plan (:data:`SheetsPlan`,
-:func:`plan`) and its per-slab stage (:func:`_slab`). ``_shade``, ``_splat`` and the sheet (:data:`isplat.splat.pre.Sheet`) are
-the pre-classified technique's (:mod:`isplat.splat.pre`); the projection with the slice's terms per voxel
-(:func:`_slab_project`) and the opacity for a slab (:func:`_slab_alpha`) are this module's own.
+:func:`plan`) and its per-slab stage (:func:`_slab`). ``_shade``, ``_splat``, the sheet
+(:data:`isplat.splat.pre.Sheet`) and the projection's tail are the pre-classified technique's
+(:mod:`isplat.splat.pre`); the projection with the slice's terms per voxel (:func:`_slab_project`) and the
+opacity for a slab (:func:`_slab_alpha`) are this module's own.
 """
 
 from __future__ import annotations
@@ -57,8 +58,8 @@ from ..jit import jit, leaf, stage
 from .composite import composite_sheet
 from .pre import Classify, FootprintTable, _shade, _splat, add_to_sheet, footprint_at, sheet_buffers
 from .select import BLOCK, CELL, REGION
-from .traverse import (CX, CY, EX, EY, NEAR, QA, QB, QC, R2, TSCALE, WPE, X0, XA, XB, XC, Y0, YA, YB, YC, build_sat,
-                       covered, footprint_box, register)
+from .traverse import (CY, EX, EY, NEAR, QA, QB, QC, R2, TSCALE, WPE, X0, XA, XB, XC, Y0, YA, YB, YC, build_sat,
+                       covered, register)
 # a kernel reaching more slabs than this gets thicker slabs (a spacing far below the others)
 MAX_SLABS_PER_KERNEL = 48
 

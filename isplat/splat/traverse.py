@@ -547,8 +547,8 @@ def full_scratch(n_a, n_b):
 @stage
 def full_slice_regions(c, vox, alpha, use_gm, geo, reach, buf, band, scratch):
     """Stage 1 of the full method for slice ``c`` and one band: every voxel of the regions whose footprints can
-    reach the band's rows classified with the opacities ``alpha``, those not transparent put in the hierarchy (``scratch``,
-    :func:`full_scratch`); returns the number of regions."""
+    reach the band's rows classified with the opacities ``alpha``, those not transparent put in the hierarchy
+    (``scratch``, :func:`full_scratch`); returns the number of regions."""
     hier, index, _, wanted = scratch
     n_a, n_b = vox.n_a, vox.n_b
     nra = (n_a + REGION - 1) // REGION

@@ -754,6 +754,30 @@ def test_numba_disable_jit_still_imports_the_kernels():
     assert out.stdout.split() == ["True", "1.0"]
 
 
+@pytest.mark.parametrize("sets, plan, fields", [
+    ([], "PostPlan", ()), (['render.classification="pre"'], "PrePlan", ("fp", "sheet")),
+    (['render.classification="pre"', 'render.sheets="image"'], "SheetsPlan", ("fp", "sheet"))])
+def test_each_technique_prepares_a_plan_of_its_own(sets, plan, fields):
+    """frame.prepare asks the scene's technique (frame.TECHNIQUES) for its plan, a named tuple registered with the
+    traversal (traverse.register): the post-classified one has no footprint and no sheet."""
+    import importlib
+
+    from isplat.scene import parse_scene
+    from isplat.splat import traverse as T
+
+    vol = np.zeros((8, 8, 8), np.uint8)
+    vol[2:6, 2:6, 2:6] = 200
+    sc = parse_scene("[image]\nwidth = 16\nheight = 16\n[transfer]\nopacity = [[100, 0], [200, 0.8]]", ".", "t.toml",
+                     sets, data_required=False)
+    sel = Selection.from_arrays(vol, sc)
+    setup = F.prepare(sel, F.views_for(sc, sel)[0])
+    assert type(setup.plan).__name__ == plan and type(setup.plan) in T.TECHNIQUES
+    assert {f for f in ("fp", "sheet") if f in setup.plan._fields} == set(fields)
+    modules = {importlib.import_module(m, "isplat").__name__ for m in F.TECHNIQUES.values()}
+    assert {c.__module__ for c in T.TECHNIQUES} == modules
+    assert F.render_slab(setup).img[..., 3].max() > 0.5
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(h=st.integers(1, 40), w=st.integers(1, 9), threads=st.integers(1, 5), seed=st.integers(0, 2**31 - 1),
        bg=st.tuples(*[st.floats(0, 1)] * 4))

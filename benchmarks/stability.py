@@ -247,7 +247,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
         ("eye inside the volume, between slices", (0.0, 0.0, -0.5), "",
          "voxels at depth 0.5 in front of and all around the eye",
          "near plane: voxels closer than camera.near (default: the smallest spacing) along -w are culled "
-         "(kernels._project), and the first slab kept along a ray reaches back to the eye (kernels._path_alpha); "
+         "(pre._project), and the first slab kept along a ray reaches back to the eye (traverse.path_alpha); "
          "slices ordered outward from the eye (camera.slice_order)"),
         ("eye exactly on a voxel", (0.0, 0.0, 0.0), "",
          "the voxel at the eye has depth 0: t0 = wpe / D would divide by 0",
@@ -260,7 +260,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
          "t0 = 1e10: the voxel's footprint is 1e10 pixels wide",
          "footprint bounds clamped to the image; weights depend on q / t0^2 only; the eye's own slab counts "
          "from the near plane on (half a spacing); its opacity is taken along each pixel's own ray "
-         "(kernels._splat_rays)"),
+         "(pre._splat_rays)"),
     ]:
         cam = (f'projection = "perspective"\nposition = [{pos[0]!r}, {pos[1]!r}, {pos[2]!r}]\n'
                f'look_at = [{pos[0]!r}, {pos[1]!r}, 10.0]\nup = [0, 1, 0]\nfov = 60{extra}')
@@ -284,7 +284,7 @@ def cases(lab: Lab, quick: bool) -> list[Row]:
                         f"pixel is {2 * math.degrees(math.atan(math.tan(math.radians(85)) / n)):.0f} degrees wide",
                     does="the exact path ds / cos per slab, the cosine bounded below by slice spacing / box diagonal "
                          "(a ray cannot run inside one slab for longer than the volume's diagonal), along each "
-                         "pixel's own ray next to the eye (kernels._path_alpha, _splat_rays)",
+                         "pixel's own ray next to the eye (traverse.path_alpha, pre._splat_rays)",
                     note="expected: the 17 units from the eye to the far face along the central ray"))
     cam = ('projection = "perspective"\nposition = [0.0, 0.0, -60.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0, 1, 0]\n'
            'fov = 30')

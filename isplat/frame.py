@@ -32,9 +32,8 @@ import numpy as np
 from . import camera as cam_mod
 from . import grid, progress
 from .errors import IsplatError
-from .splat import kernels as K
+from .splat import traverse as T
 from .splat.composite import TILE, finish, over, saturation
-from .splat.footprint import make_footprint
 from .splat.shade import shade_table
 from .threads import default_threads, run_parallel
 from .transfer import alpha_table
@@ -127,27 +126,22 @@ class Partial:
     img: np.ndarray
     sat: np.ndarray
     tile_sat: np.ndarray
-    band_stats: np.ndarray       # int64[bands, 4], see kernels.Buffers
+    band_stats: np.ndarray       # int64[bands, 4], see traverse.Buffers
 
 
 @dataclass
 class Setup:
-    """A frame's tables and scratch buffers, made once per frame (:func:`prepare`); renders one slab at a time."""
+    """A frame's tables and scratch buffers, made once per frame (:func:`prepare`); renders one slab at a time.
+    ``plan`` is the technique's per-frame plan (a named tuple, :mod:`isplat.splat.traverse`), ``lists`` each
+    thread's own scratch for it; None and [] for an empty selection."""
 
     view: View
-    kernel: object
-    vox: tuple
-    cls: K.Classify
-    geo: K.SliceGeometry
-    fp: K.FootprintTable
+    plan: tuple | None
+    lists: list                 # per thread, the technique's scratch (its touched-pixel and visible-cell lists)
     rows: np.ndarray            # int64[bands, 2]: each image band's rows [y0, y1)
     mine: list                  # per thread, the bands it renders
-    bins: K.Bins | None
     tile_npix: np.ndarray
-    sheet: np.ndarray
-    dirty_px: np.ndarray
-    dirty: list                 # per thread, its touched-pixel list
-    cells: list                 # per thread, its list of a slice's visible cells
+    dtype: type                 # the image's float type (render.precision)
     et: float
     threads: int
     empty: bool
@@ -165,27 +159,66 @@ class Setup:
         return self.view.order if self.order is None else self.order
 
 
+@dataclass(frozen=True)
+class FrameTables:
+    """What :func:`prepare` works out for every technique, from which a technique makes its plan: the view's
+    principal ``axis`` and its projection (``proj``, :func:`isplat.camera.projection`), the unit distance, the
+    cutting planes' rows in slice coordinates (``cuts``), the axis-aligned slices' geometry (``geo``,
+    :data:`isplat.splat.traverse.SliceGeometry`) and opacities (``atab``, corrected for the slices' path
+    length), the shading table, the bands' rows, the most pixels of a band (``band_px``) and the number of
+    threads' scratch to make (``threads``)."""
+
+    sel: object
+    view: View
+    dtype: type
+    threads: int
+    rows: np.ndarray
+    band_px: int
+    axis: str
+    proj: object
+    unit: float
+    cuts: np.ndarray
+    geo: tuple
+    atab: np.ndarray
+    shade: np.ndarray
+
+
+# The techniques, by the name :func:`technique_of` gives a frame's settings: each a module with ``plan(tables)``
+# returning its plan (registered with :func:`isplat.splat.traverse.register`), its threads' scratch and its
+# order of sheets (None: the view's slices). Adding a technique is adding a module and its line here. (Names
+# relative to isplat: isplat imports itself only relatively, scripts/ab.py loads copies of it side by side.)
+TECHNIQUES = {"pre": ".splat.pre", "post": ".splat.post", "image-sheets": ".splat.sheets"}
+
+
+def technique_of(ro) -> str:
+    """The technique of a frame's settings (``render``): image-aligned sheets, or the classification's."""
+    return "image-sheets" if ro.sheets == "image" else ro.classification
+
+
 def prepare(sel, view: View, et: float | None = None, bands: "BandLearning | None" = None) -> Setup:
-    """Make the frame's tables: opacity corrected for this view's path length, shading for its lights, the
-    footprint for its projection, and the §3 coefficients; image bands by what ``bands`` learned."""
-    ro, geom, frame = view.render, view.geom, view.frame
+    """Make the frame's tables: the bands (by what ``bands`` learned), what every technique shares
+    (:class:`FrameTables`: opacity corrected for this view's path length, shading for its lights, the §3
+    coefficients), and the technique's plan."""
+    import importlib
+
+    ro, frame = view.render, view.frame
     dtype = np.float64 if ro.precision == "float64" else np.float32
-    H, W = frame.height, frame.width
     threads = ro.threads or default_threads()
-    axis = view.axis_sign[0]
     et_val = float(ro.early_termination if et is None else et)
     rows = band_rows(bands, view, threads)
     mine = [np.arange(t, len(rows), threads, dtype=np.int64) for t in range(min(threads, len(rows)))]
-    band_px = int((rows[:, 1] - rows[:, 0]).max()) * W
-    n_cells = _max_cells(sel, axis)
-    # the slice's sheet and its touched pixels: post-classified frames composite each sample at once, no sheet
-    # (zeroing an unused 4 MB sheet was a fifth of a 512 x 512 frame's serial work)
-    sh, sw = (1, 1) if ro.classification == "post" else (H, W)
-    scratch = (np.zeros((sh, sw, 4), dtype), np.zeros((sh, sw), np.uint8),
-               [np.empty(band_px + 1, np.int64) for _ in mine], [np.empty((n_cells, 4), np.int64) for _ in mine])
+    tile_npix = _tile_pixels(frame.height, frame.width)
     if sel.empty:
-        return Setup(view, None, (), None, None, None, rows, mine, None, _tile_pixels(H, W), *scratch, et_val,
-                     threads, True)
+        return Setup(view, None, [], rows, mine, tile_npix, dtype, et_val, threads, True)
+    tables = frame_tables(sel, view, dtype, threads, rows, len(mine))
+    plan, lists, order = importlib.import_module(TECHNIQUES[technique_of(ro)], __package__).plan(tables)
+    return Setup(view, plan, lists, rows, mine, tile_npix, dtype, et_val, threads, False, order)
+
+
+def frame_tables(sel, view: View, dtype, threads: int, rows: np.ndarray, n_lists: int) -> FrameTables:
+    """:class:`FrameTables` of a frame (``threads`` its threads, ``n_lists`` how many of them render)."""
+    ro, geom, frame = view.render, view.geom, view.frame
+    axis = view.axis_sign[0]
     proj = cam_mod.projection(frame, geom, axis)
     unit = sel.unit_distance or float(geom.spacing.min())
     ic = grid.SLICE_AXES[axis][2]
@@ -193,61 +226,20 @@ def prepare(sel, view: View, et: float | None = None, bands: "BandLearning | Non
     cuts = cut_coefficients(view.cuts, geom, axis)
     if frame.projection == "perspective":
         atab = alpha_table(sel.luts, None)
-        geo = K.SliceGeometry(coef, steps, _floats(geom.q - frame.e), True, float(geom.spacing[ic]) / unit,
+        geo = T.SliceGeometry(coef, steps, _floats(geom.q - frame.e), True, float(geom.spacing[ic]) / unit,
                               float((geom.q - frame.e) @ geom.unit_axes[ic]), float(geom.spacing[ic]), cuts,
                               eye_terms(frame, geom, ic, ro.footprint_radius))
     else:
         atab = alpha_table(sel.luts, proj.ds / unit)
-        geo = K.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts, (0.0,) * 9)
+        geo = T.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts, (0.0,) * 9)
     shade = (shade_table(view.shading, frame, geom, threads=threads) if sel.use_shade
              else np.zeros((1, 6), np.float32))
-    if ro.sheets == "image":
-        from .splat.sheets import image_frame
-
-        *tables, order = image_frame(sel, view, dtype, shade, cuts)
-        return Setup(view, *tables, rows, mine, None, _tile_pixels(H, W), *scratch, et_val, threads, False, order)
-    if ro.classification == "pre" and sel.post and sel.method == "indexed" and (sel.use_shade or sel.use_gm):
-        raise IsplatError("render.classification = 'pre' needs the channel values of the voxels of interest; this "
-                          "selection was made for 'post' (make it with the pre-classified scene)")
-    cls = K.Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
-    vox = sel.voxels(axis)
-    kernel = K.render_full if sel.method == "full" else K.render_indexed
-    if ro.classification == "pre":
-        fp = make_footprint(proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, dtype)
-        fpt = K.FootprintTable(fp.table, fp.params)
-    else:
-        kernel, vox, fpt = _post_kernel(sel, axis, vox, proj, dtype)
-        # the tables with their steps between codes (post.lerp_tables; the full method's search reads the
-        # opacities, the first half of the columns)
-        from .splat.post import lerp_tables
-
-        alpha, color = lerp_tables(atab, sel.luts.color)
-        cls = cls._replace(alpha=alpha, color=color)
-    bins = None if sel.method == "full" else \
-        K.Bins(*K.bin_regions(view.order, sel.voxels(axis), geo, fpt.params[K.EX], fpt.params[K.EY], rows, W))
-    return Setup(view, kernel, vox, cls, geo, fpt, rows, mine, bins, _tile_pixels(H, W), *scratch, et_val,
-                 threads, False)
-
-
-def _post_kernel(sel, axis: str, vox, proj, dtype):
-    """Post-classification (:mod:`isplat.splat.post`): its kernel, its voxels (the selection's hierarchy and
-    the whole channels) and, as the footprint, the tent's reach (one voxel step), which the occlusion tests and
-    the binning take."""
-    from .splat import post
-
-    if not sel.post or sel.whole is None:
-        raise IsplatError("render.classification = 'post' needs a selection made for it (the whole channels)")
-    params = np.zeros(7, np.float64)
-    params[K.EX], params[K.EY] = post.reach(proj.coef)
-    fpt = K.FootprintTable(np.zeros(2, dtype), params)
-    unit = post.scan_unit(proj.jac)
-    if sel.method == "full":
-        return post.render_post_full, post.PostVoxels(None, sel.whole_volume(axis), unit), fpt
-    return post.render_post_indexed, post.PostVoxels(vox, sel.whole_volume(axis), unit), fpt
+    band_px = int((rows[:, 1] - rows[:, 0]).max()) * frame.width
+    return FrameTables(sel, view, dtype, n_lists, rows, band_px, axis, proj, unit, cuts, geo, atab, shade)
 
 
 # A voxel whose footprint's sigma subtends more than this angle (radians) from the eye gets its opacity per
-# pixel, along each pixel's own ray (kernels._splat_rays), rather than along its own ray: with the voxel's own
+# pixel, along each pixel's own ray (pre._splat_rays), rather than along its own ray: with the voxel's own
 # ray, the opacity of a pixel in a uniform region is off by about half the square of that angle times
 # (sec^2 + tan^2) of the ray's angle to the slice normal (3e-4 to 1e-3 at this angle; up to 30% for the voxels
 # one spacing from an eye inside the volume).
@@ -255,7 +247,7 @@ WIDE_ANGLE = 1.0 / 40.0
 
 
 def eye_terms(frame, geom, ic: int, radius: float) -> tuple:
-    """The per-frame terms of kernels.SliceGeometry.eye (layout kernels.EY_*) for slices along grid axis ``ic``
+    """The per-frame terms of traverse.SliceGeometry.eye (layout traverse.EY_*) for slices along grid axis ``ic``
     and a footprint cut off at ``radius`` sigmas."""
     ds = float(geom.spacing[ic])
     n_c = int(geom.n_ijk[ic])
@@ -273,7 +265,7 @@ def blank(setup: Setup, zero: bool = True) -> Partial:
     its saturation not zeroed yet; render_slab's threads zero their own rows)."""
     H, W = setup.view.frame.height, setup.view.frame.width
     make = np.zeros if zero else np.empty
-    return Partial(make((H, W, 4), setup.sheet.dtype), make((H, W), np.uint8),
+    return Partial(make((H, W, 4), setup.dtype), make((H, W), np.uint8),
                    np.zeros(setup.tile_npix.shape, np.int32), np.zeros((len(setup.rows), 4), np.int64))
 
 
@@ -300,8 +292,7 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
     bg = np.asarray(setup.view.background, dtype=np.float64)
 
     def run(t):
-        buf = K.Buffers(part.img, setup.sheet, part.sat, part.tile_sat, setup.tile_npix, setup.dirty_px,
-                        setup.dirty[t], setup.cells[t], part.band_stats)
+        buf = T.Buffers(part.img, part.sat, part.tile_sat, setup.tile_npix, part.band_stats)
         ok = True
         for i, bi in enumerate(setup.mine[t]):      # band by band, each timed (band_rows balances by the times)
             c0 = time.thread_time()
@@ -309,8 +300,7 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
             if state is None:
                 part.img[y0:y1] = 0
                 part.sat[y0:y1] = 0
-            setup.kernel(slices, start, setup.bins or _NO_BINS, setup.vox, setup.cls, setup.geo, setup.fp, buf,
-                         K.Bands(setup.rows, setup.mine[t][i:i + 1], et))
+            T.render(slices, start, setup.plan, setup.lists[t], buf, T.Bands(setup.rows, setup.mine[t][i:i + 1], et))
             if finished is not None:
                 ok = finish(part.img[y0:y1], bg, finished[y0:y1]) and ok
             setup.band_seconds[bi] += time.thread_time() - c0
@@ -365,7 +355,7 @@ def render_frame(sel, view: View, et: float | None = None, bands: "BandLearning 
     part = None
     # without supersampling the last slices' threads finish their own rows (render_slab's ``finished``)
     H, W = view.frame.height, view.frame.width
-    out = np.empty((H, W, 4), setup.sheet.dtype) if view.render.supersample == 1 else None
+    out = np.empty((H, W, 4), setup.dtype) if view.render.supersample == 1 else None
     for i, (start, stop) in enumerate(progress.bar(slabs, desc=f"slices ({n})", unit="slab",
                                                    disable=len(slabs) == 1)):
         # what the frames before this one found of their bands is learned while this one's threads render
@@ -417,19 +407,6 @@ def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:
 
 BANDS_PER_THREAD = 2    # image bands per thread (see image_bands)
 MIN_BAND_TILES = 4
-_NO_BINS = K.Bins(np.zeros((1, 1), np.int64), np.zeros(0, np.int64))
-
-
-def _max_cells(sel, axis: str) -> int:
-    """The most cells one slice of ``axis`` can have (the size of a thread's list of visible cells)."""
-    if sel.empty or (sel.method != "full" and axis not in sel.axes):
-        return 0            # (an axis not selected is refused by sel.voxels)
-    if sel.method == "full":
-        _, n_a, n_b = grid.slice_shape(sel.shape, axis)
-        return -(-n_a // K.CELL) * -(-n_b // K.CELL)
-    a = sel.axes[axis]
-    per_slice = np.diff(a.block_ptr[a.region_ptr[a.slice_ptr]]) if a.n_slices else np.zeros(1, np.int64)
-    return int(per_slice.max(initial=0))
 
 
 def _floats(values) -> tuple:
@@ -450,7 +427,7 @@ def image_bands(height: int, threads: int, tile: int = TILE) -> np.ndarray:
     """The image's bands of rows cut evenly, ``int64[bands, 2]`` of ``[y0, y1)``: whole tiles, all of one height
     but the last, BANDS_PER_THREAD per thread (one for one thread), at least MIN_BAND_TILES tiles high. Each
     band walks the slices on its own and tests only the regions that reach it
-    (:func:`isplat.splat.kernels.bin_regions`); a voxel whose footprint crosses a band's edge is tested by both
+    (:func:`isplat.splat.traverse.bin_regions`); a voxel whose footprint crosses a band's edge is tested by both
     bands, so more bands repeat more work, and threads take every n-th band, so that the middle of the image,
     where the work is, is shared. A frame's bands are these, or as many cut by the work the frames before it
     found (:func:`band_rows`). The image depends neither on the bands nor on which thread renders which."""

@@ -50,9 +50,11 @@ def _announce_compile(cache_path: str) -> None:
 
 # Every module with compiled functions (a test checks the list). numba keeps a function's machine code while
 # its own file is unchanged, but a compiled function holds the code of the stages it calls from other files
-# (post's kernel inlines kernels.py's occlusion test): a cached kernel is fresh only while all of them are.
+# (every technique's kernel inlines traverse.py's occlusion tests): a cached kernel is fresh only while all of
+# them are.
 KERNEL_SOURCES = ("jit.py", "augment.py", "normals.py", "samples.py", "index/codec.py", "splat/composite.py",
-                  "splat/kernels.py", "splat/post.py", "splat/select.py", "splat/shade.py", "splat/sheets.py")
+                  "splat/post.py", "splat/pre.py", "splat/select.py", "splat/shade.py", "splat/sheets.py",
+                  "splat/traverse.py")
 _HERE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -315,10 +317,12 @@ def jit(fn=None, **extra):
 
 
 def stage(fn=None, **extra):
-    """``@jit`` for a function called only from other compiled functions (:class:`_Stage`)."""
+    """``@jit`` for a function called only from other compiled functions (:class:`_Stage`). With numba's
+    reference counting always (``_nrt`` given): numba would otherwise let a stage first compiled from within a
+    :func:`leaf` inherit the leaf's lack of it, and a stage that allocates would not compile."""
     if fn is None:
-        return lambda f: _compiled({**OPTIONS, **extra}, f, stage=True)
-    return _compiled(OPTIONS, fn, stage=True)
+        return lambda f: _compiled({**OPTIONS, "_nrt": True, **extra}, f, stage=True)
+    return _compiled({**OPTIONS, "_nrt": True}, fn, stage=True)
 
 
 def leaf(fn=None, **extra):
@@ -337,7 +341,7 @@ def leaf(fn=None, **extra):
       costs seconds of a first run's compile (7 of 24 s when every such stage was inlined this way). With
       LLVM's instead, frames were 3-5% slower for the small per-pixel helpers of the post-classified scan
       (``_row_span``, ``_span``, ``_slice_point`` in :mod:`isplat.splat.post`) and the occlusion test
-      (:func:`isplat.splat.kernels._hidden`), which keep numba's (measured as a group, not one by one), and
+      (:func:`isplat.splat.traverse._hidden`), which keep numba's (measured as a group, not one by one), and
       as fast for the larger per-pixel sample (``_sample``) and per-square scan (``_sample_square``).
     """
     if fn is None:

@@ -321,7 +321,7 @@ def test_bin_regions_lists_the_regions_whose_box_meets_each_band(make_scene, tmp
     whose pixel box (the projected corners' hull grown by the reach, rounded outwards) meets the band's rows
     and the image's columns, for the frame's bands and for bands cut at any tile rows; bands that do not tile
     the image from row 0 in whole tiles are refused."""
-    from isplat.splat import kernels as K
+    from isplat.splat import traverse as K
 
     dens = rng_volume(3, (6, 150, 140))
     aug, idx = tmp_path / "bins.aug.h5", tmp_path / "bins.idx.h5"
@@ -333,22 +333,23 @@ def test_bin_regions_lists_the_regions_whose_box_meets_each_band(make_scene, tmp
     sel = select_from_files(sc, "ijk")
     view = F.views_for(sc, sel)[0]
     setup = F.prepare(sel, view)
-    vox, coef, (ex, ey) = setup.vox, setup.geo.coef, setup.fp.params[[K.EX, K.EY]]
+    vox, bins0 = setup.plan.source
+    coef, (ex, ey) = setup.plan.geo.coef, setup.plan.reach
     edges = [0, *sorted(8 * c for c in cuts), 90]
     uneven = np.stack([edges[:-1], edges[1:]], axis=1).astype(np.int64)
     listed = 0
-    for rows, bins in ((setup.rows, setup.bins),
-                       (uneven, K.Bins(*K.bin_regions(view.order, vox, setup.geo, ex, ey, uneven, 70)))):
+    for rows, bins in ((setup.rows, bins0),
+                       (uneven, K.Bins(*K.bin_regions(view.order, vox, setup.plan.geo, ex, ey, uneven, 70)))):
         listed += _check_bins(view, vox, coef, ex, ey, rows, bins)
     assert listed > 0
     for bad in ([[1, 90]], [[0, 12], [12, 90]], [[0, 16], [24, 90]], [[0, 16], [16, 16], [16, 90]]):
         with pytest.raises(ValueError, match="bands must tile"):
-            K.bin_regions(view.order, vox, setup.geo, ex, ey, np.array(bad, np.int64), 70)
+            K.bin_regions(view.order, vox, setup.plan.geo, ex, ey, np.array(bad, np.int64), 70)
 
 
 def _check_bins(view, vox, coef, ex, ey, rows, bins):
     """Asserts bins (of the bands ``rows``) are the obvious regions; returns how many are listed."""
-    from isplat.splat import kernels as K
+    from isplat.splat import traverse as K
 
     nra = -(-vox.n_a // K.REGION)
     listed = 0
@@ -636,7 +637,7 @@ def test_a_stage_called_from_python_computes_as_its_python(monkeypatch):
     a call an error."""
     from isplat import jit as J
     from isplat.normals import _sgn
-    from isplat.splat.kernels import footprint_box
+    from isplat.splat.traverse import footprint_box
 
     assert type(_sgn) is J._Stage and type(footprint_box) is J._Stage
     for x in (-2.5, 0.0, 3.0):
@@ -677,8 +678,8 @@ def test_isplat_never_calls_a_stage_from_python(tmp_path):
 
 def test_a_cached_kernel_is_stale_when_any_file_of_compiled_functions_changes(tmp_path):
     """A kernel's cache is fresh only while its own file and every file of isplat's compiled functions are
-    unchanged (post's kernel holds kernels.py's stages): the same stamp loads, another compiles again. And
-    ``KERNEL_SOURCES`` names every module that compiles functions."""
+    unchanged (each technique's kernel holds traverse.py's stages): the same stamp loads, another compiles
+    again. And ``KERNEL_SOURCES`` names every module that compiles functions."""
     from pathlib import Path
 
     import isplat
@@ -755,6 +756,30 @@ def test_numba_disable_jit_still_imports_the_kernels():
     assert out.stdout.split() == ["True", "1.0"]
 
 
+@pytest.mark.parametrize("sets, plan, fields", [
+    ([], "PostPlan", ()), (['render.classification="pre"'], "PrePlan", ("fp", "sheet")),
+    (['render.classification="pre"', 'render.sheets="image"'], "SheetsPlan", ("fp", "sheet"))])
+def test_each_technique_prepares_a_plan_of_its_own(sets, plan, fields):
+    """frame.prepare asks the scene's technique (frame.TECHNIQUES) for its plan, a named tuple registered with the
+    traversal (traverse.register): the post-classified one has no footprint and no sheet."""
+    import importlib
+
+    from isplat.scene import parse_scene
+    from isplat.splat import traverse as T
+
+    vol = np.zeros((8, 8, 8), np.uint8)
+    vol[2:6, 2:6, 2:6] = 200
+    sc = parse_scene("[image]\nwidth = 16\nheight = 16\n[transfer]\nopacity = [[100, 0], [200, 0.8]]", ".", "t.toml",
+                     sets, data_required=False)
+    sel = Selection.from_arrays(vol, sc)
+    setup = F.prepare(sel, F.views_for(sc, sel)[0])
+    assert type(setup.plan).__name__ == plan and type(setup.plan) in T.TECHNIQUES
+    assert {f for f in ("fp", "sheet") if f in setup.plan._fields} == set(fields)
+    modules = {importlib.import_module(m, "isplat").__name__ for m in F.TECHNIQUES.values()}
+    assert {c.__module__ for c in T.TECHNIQUES} == modules
+    assert F.render_slab(setup).img[..., 3].max() > 0.5
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(h=st.integers(1, 40), w=st.integers(1, 9), threads=st.integers(1, 5), seed=st.integers(0, 2**31 - 1),
        bg=st.tuples(*[st.floats(0, 1)] * 4))
@@ -785,7 +810,7 @@ def test_rect_hull_orthographic_is_the_hull_of_the_corners_bit_for_bit(a, b, bas
     """rect_hull (orthographic) takes each bound from the least or greatest terms in a and in b; against the
     obvious hull of the four corners' projections, computed as the perspective branch and the pixel map do
     (``(x0 + a Xa) + b Xb``): the same floats, bit for bit (rounding is monotonic)."""
-    from isplat.splat import kernels as K
+    from isplat.splat import traverse as K
 
     a0, a1 = a[0], a[0] + a[1]
     b0, b1 = b[0], b[0] + b[1]
@@ -803,9 +828,9 @@ def test_rect_hull_orthographic_is_the_hull_of_the_corners_bit_for_bit(a, b, bas
 @settings(max_examples=100, deadline=None)
 @given(seed=st.integers(0, 10 ** 6), h=st.integers(1, 40), w=st.integers(1, 40), p=st.floats(0, 1), data=st.data())
 def test_occlusion_look_ups_against_the_obvious(seed, h, w, p, data):
-    """_tiles_whole (the summed-area table of whole tiles, _build_sat) and pixels_saturated against numpy on a
+    """_tiles_whole (the summed-area table of whole tiles, build_sat) and pixels_saturated against numpy on a
     random saturation mask: whether every tile a box touches is whole, whether every pixel in it is set."""
-    from isplat.splat import kernels as K
+    from isplat.splat import traverse as K
     from isplat.splat.composite import TILE
 
     sat = (np.random.default_rng(seed).random((h, w)) < p).astype(np.uint8)
@@ -814,7 +839,7 @@ def test_occlusion_look_ups_against_the_obvious(seed, h, w, p, data):
     np.add.at(tile_sat, (np.arange(h)[:, None] // TILE, np.arange(w)[None, :] // TILE), sat)
     ty0 = data.draw(st.integers(0, npix.shape[0] - 1))
     satab = np.zeros((npix.shape[0] - ty0 + 1, npix.shape[1] + 1), np.int32)
-    K._build_sat(tile_sat, npix, ty0, satab)
+    K.build_sat(tile_sat, npix, ty0, satab)
     y0 = data.draw(st.integers(ty0 * TILE, h - 1))
     y1 = data.draw(st.integers(y0, h - 1))
     x0 = data.draw(st.integers(0, w - 1))

@@ -1,1 +1,2 @@
-"""Splatting: footprint tables (footprint.py) and the compiled kernels (kernels.py)."""
+"""Splatting: footprint tables (footprint.py), the traversal every technique shares (traverse.py) and the
+techniques (pre.py, post.py, sheets.py)."""

@@ -1,6 +1,6 @@
 """Post-classified splatting (``render.classification = "post"``): reconstruct the density, then classify.
 
-The pre-classified kernel (:mod:`isplat.splat.kernels`) looks each voxel up in the transfer function and
+The pre-classified technique (:mod:`isplat.splat.pre`) looks each voxel up in the transfer function and
 spreads its colour and opacity with a Gaussian footprint, which blurs a sharp transfer-function edge and widens
 an opaque surface by the footprint's reach (Mueller, Moeller and Crawfis 1999, "Splatting without the blur").
 Here each slice's *densities* are splatted with the tent kernel of the slice's lattice (the linear B-spline,
@@ -13,7 +13,7 @@ step is the slice spacing.
 
 What the index decides: which quads are sampled. A quad is sampled when one of its four voxels is of interest
 (its density is in the transfer function's non-zero intervals) and its cell is not hidden (the occlusion tests
-of :mod:`isplat.splat.kernels`). A quad none of whose voxels is of interest is skipped, though the bilinear
+of :mod:`isplat.splat.traverse`). A quad none of whose voxels is of interest is skipped, though the bilinear
 density inside can still cross an interval (a thin material between two others, say skin at the boundary of
 bone and air); the reconstruction of such a quad is what a ray caster shows as a thin false layer.
 
@@ -26,6 +26,10 @@ voxels' Phong factors (the shading of a trilinear ray caster that shades its gri
 Each pixel samples a slice at most once (it belongs to one quad), so a sample is composited straight into the
 image: no sheet. Images do not depend on the thread bands. Counters: ``stats[band, 1]`` the voxels of interest
 in the cells left after the occlusion tests, ``stats[band, 2]`` the samples composited.
+
+A technique of :mod:`isplat.splat.traverse` (which walks the bands and slices, and the regions, blocks and cells
+the occlusion tests leave): this module is its per-frame plan (:data:`PostPlan`, :func:`plan`: no footprint,
+the tent's reach instead; no sheet) and its per-slice stages (:func:`_slice`).
 """
 
 from __future__ import annotations
@@ -35,12 +39,12 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..jit import jit, leaf, prefetch, stage
+from ..jit import leaf, prefetch, stage
 from .composite import TILE
-from .kernels import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, _band, _band_saturated, _box_args, _build_sat,
-                      _cut_away, _path_alpha, _slice_bases, _visible_cells, full_scratch, full_slice_regions,
-                      rect_hull)
 from .select import BLOCK, CELL
+from .traverse import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, box_args, build_sat, cut_away, indexed_source,
+                       max_cells, path_alpha, rect_hull, register, slice_bases, slice_regions, source_scratch,
+                       visible_cells)
 
 SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (scan_unit)
 # pixels a square's box and row spans are grown by: the forward projection of the square's corners and the
@@ -49,11 +53,20 @@ SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (sca
 SPAN_MARGIN = 1e-4
 AHEAD = 1                 # squares prefetched ahead of the one sampled (_sample_squares; 2 measured alike)
 
-PostVoxels = namedtuple("PostVoxels", "index whole unit")
-PostVoxels.__doc__ = """``index``: the selection's hierarchy (:data:`isplat.splat.kernels.IndexedVoxels`; None
-without an index), which says which quads to sample; ``whole``: the whole channels
-(:data:`isplat.splat.kernels.WholeVolume`), which give the four densities of each sample; ``unit``: the side of
-the squares scanned together (:func:`scan_unit`)."""
+PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade")
+PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
+float64[256, 2G] (opacities per density and gradient code, corrected for the slice's path length when
+orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next code) and ``color`` float64[256, 6]
+(:func:`lerp_tables`); ``shade`` float32[65536, 2 or 6] Phong factors per normal code
+(:mod:`isplat.splat.shade`)."""
+PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
+PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
+its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
+:data:`isplat.splat.traverse.WholeVolume`, each voxel classified); ``whole`` the whole channels
+(:data:`isplat.splat.traverse.WholeVolume`), which give the four densities of each sample; ``unit`` the side of
+the squares scanned together (:func:`scan_unit`); ``cls`` :data:`PostClassify`; ``geo``
+:data:`isplat.splat.traverse.SliceGeometry`; ``reach`` the tent's reach in pixels (:func:`reach`), which the
+occlusion tests and the bins take. A thread's scratch is its list of a slice's visible cells (int64[C, 4])."""
 
 
 def reach(coef) -> tuple[float, float]:
@@ -61,58 +74,43 @@ def reach(coef) -> tuple[float, float]:
     return abs(coef[XA]) + abs(coef[XB]), abs(coef[YA]) + abs(coef[YB])
 
 
-@jit
-def render_post_indexed(order, o0, bins, vox, cls, geo, fp, buf, bands):
-    """Render the slices ``order`` (front to back) post-classified: the quads around the index's voxels of
-    interest (``vox.index``), sampled in the whole channels ``vox.whole``. What allocates is here, once per
-    call; the bands' slice loops are leaves (:func:`_post_band`)."""
-    idx = vox.index
-    hier = (idx.region_id, idx.region_ptr, idx.block_pos, idx.block_ptr, idx.block_voxel, idx.cell_pos,
-            idx.cell_count)
-    marks = _marks(idx.n_a, idx.n_b)
-    scratch = _slice_scratch(geo)
-    for bi in bands.mine:
-        band = _band(bi, bands, buf)
-        _post_band(order, o0, bins, idx.slice_ptr, hier, vox.whole, vox.unit, cls, geo, fp, buf, band, marks,
-                   scratch)
+def plan(tables):
+    """The frame's :data:`PostPlan`, each thread's list of visible cells and None (the view's slices), from what
+    :func:`isplat.frame.prepare` works out for every technique (``tables``, :class:`isplat.frame.FrameTables`)."""
+    from ..errors import IsplatError
+
+    sel, view = tables.sel, tables.view
+    if not sel.post or sel.whole is None:
+        raise IsplatError("render.classification = 'post' needs a selection made for it (the whole channels)")
+    # the tables with their steps between codes (the full method's search reads the opacities, the first half
+    # of the columns)
+    alpha, color = lerp_tables(tables.atab, sel.luts.color)
+    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, sel.use_shade)
+    ex, ey = reach(tables.proj.coef)
+    tent = (float(ex), float(ey))
+    whole = sel.whole_volume(tables.axis)
+    source = whole if sel.method == "full" else \
+        indexed_source(view.order, sel.voxels(tables.axis), tables.geo, tent, tables.rows, view.frame.width)
+    n_cells = max_cells(sel, tables.axis)
+    lists = [np.empty((n_cells, 4), np.int64) for _ in range(tables.threads)]
+    return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent), lists, None
 
 
-@leaf
-def _post_band(order, o0, bins, slice_ptr, hier, whole, unit, cls, geo, fp, buf, band, marks, scratch):
-    """One band's slices, front to back until the band saturates. A leaf: without reference counting, the
-    arrays this loop hands on per slice cost no atomic increments and decrements of counters that every
-    thread's loop shares (and the slice's scratch arrays are made once per call, not per slice)."""
-    bi = band[0]
-    region_ptr, block_voxel = hier[1], hier[4]
-    for oi in range(order.shape[0]):
-        if _band_saturated(band):
-            break
-        c = order[oi]
-        r0 = region_ptr[slice_ptr[c]]
-        r1 = region_ptr[slice_ptr[c + 1]]
-        buf.stats[bi, 0] += block_voxel[r1] - block_voxel[r0]
-        p0, p1 = bins.ptr[bi, o0 + oi], bins.ptr[bi, o0 + oi + 1]
-        _post_slice(c, bins.regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, marks, scratch)
+@stage
+def _scratch(plan):
+    """What a call allocates once: the traversal's (:func:`isplat.splat.traverse.source_scratch`), the slice's
+    marks (:func:`_marks`) and its small arrays (:func:`_slice_scratch`)."""
+    return source_scratch(plan.source), _marks(plan.whole.n_a, plan.whole.n_b), _slice_scratch(plan.geo)
 
 
-@jit
-def render_post_full(order, o0, bins, vox, cls, geo, fp, buf, bands):
-    """As :func:`render_post_indexed` without an index (``vox.index`` None): every voxel of every slice is
-    classified to find the voxels of interest (:func:`isplat.splat.kernels.full_slice_regions`)."""
-    whole = vox.whole
-    scratch = full_scratch(whole.n_a, whole.n_b)
-    hier, _, all_regions, _ = scratch
-    marks = _marks(whole.n_a, whole.n_b)
-    per_slice = _slice_scratch(geo)
-    for bi in bands.mine:
-        band = _band(bi, bands, buf)
-        for oi in range(order.shape[0]):
-            if _band_saturated(band):
-                break
-            c = order[oi]
-            n_regions = full_slice_regions(c, whole, cls, geo, fp, buf, band, scratch)
-            _post_slice(c, all_regions, 0, n_regions, hier[:7], whole, vox.unit, cls, geo, fp, buf, band, marks,
-                        per_slice)
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _slice(plan, cells, scratch, c, pos, buf, band):
+    """Slice ``c`` for one band: its regions (:func:`isplat.splat.traverse.slice_regions`), then
+    :func:`_post_slice`."""
+    regions, p0, p1, hier, _, _, _ = slice_regions(plan.source, scratch[0], c, pos, plan.cls.alpha, plan.cls.use_gm,
+                                                   plan.geo, plan.reach, buf, band)
+    _post_slice(c, regions, p0, p1, hier[:7], plan.whole, plan.unit, plan.cls, plan.geo, plan.reach, cells, buf,
+                band, scratch[1], scratch[2])
 
 
 @stage
@@ -158,18 +156,19 @@ def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
     return unit
 
 
-@leaf(inline="always")
-def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, marks, scratch):
+@leaf
+def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, buf, band, marks, scratch):
     """One slice and one band: the cells of interest left by the occlusion tests, the quads that touch their
-    voxels sampled, classified and composited into the image."""
+    voxels sampled, classified and composited into the image. A leaf of its own, called once per slice: as
+    fast or faster than inlined into :func:`_slice` (scripts/ab.py, 1-4%), and numba 0.68 inlined it there
+    wrongly (its ``buf.stats[bi, k] += n`` were dropped, unless ``buf.stats`` was first given a name)."""
     bi, y0b, y1b, et, satab, ty0 = band
     cs, counts = scratch
     counts[0] = 0
     counts[1] = 0
-    base = _slice_bases(c, geo, cs)
-    box_args = _box_args(whole.n_a, whole.n_b, base, geo, fp, buf, band, et < 1.0)
-    cells = buf.cells
-    nc = _visible_cells(regions, p0, p1, hier, whole.n_a, box_args, satab, buf.sat, cells)
+    base = slice_bases(c, geo, cs)
+    boxes = box_args(whole.n_a, whole.n_b, base, geo, reach, buf.img.shape[1], band, et < 1.0)
+    nc = visible_cells(regions, p0, p1, hier, whole.n_a, boxes, satab, buf.sat, cells)
     for k in range(nc):
         buf.stats[bi, 1] += cells[k, 1] - cells[k, 0]
     mark, marked, smark, squares, todo = marks
@@ -187,7 +186,7 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, fp, buf, band, 
         smark[squares[t, 0]] = 0
     buf.stats[bi, 2] += counts[0]
     if counts[1] > 0:
-        _build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
+        build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
     buf.stats[bi, 3] += 1
 
 
@@ -303,7 +302,9 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     """Sample the quads of square ``sq`` (``unit`` voxels a side, from voxel (a0, b0); a cell's index when
     ``unit`` is a cell) that their cells' flags ask for, at the pixels
     whose point on the slice plane lies in them (each pixel of the slice falls in one quad), and composite the
-    samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`)."""
+    samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`).
+    One function of over 60 lines: its per-pixel loop is the scan's inner loop, inlined by LLVM, with the
+    flags' test and the sample (:func:`_sample`) in it."""
     density, gm, nrm, strides, n_a, n_b, c = voxel
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp
@@ -353,7 +354,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                 if not (flags & 1 or (la == CELL - 1 and flags & 2) or (lb == CELL - 1 and flags & 4)
                         or (la == CELL - 1 and lb == CELL - 1 and flags & 8)):
                     continue                # a quad no voxel of interest touches
-            if geo.cuts.shape[0] > 0 and _cut_away(u, v, geo.cuts, cs):
+            if geo.cuts.shape[0] > 0 and cut_away(u, v, geo.cuts, cs):
                 continue
             done = _sample(x, y, max(u - qa, 0.0), max(v - qb, 0.0), cbase + qa * strides[0] + qb * strides[1],
                            strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v, density, gm,
@@ -418,7 +419,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
         return 0
     a = L                       # orthographic: the table is corrected for the slices' path already
     if geo.persp:
-        a, _ = _path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
+        a, _ = path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
     c0, c1, c2 = np.uint64(0), np.uint64(1), np.uint64(2)
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
@@ -498,3 +499,6 @@ def _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b):
     # pixel, which the inverse map decides
     return (max(int(math.ceil(cx0 - SPAN_MARGIN)), 0), min(int(math.floor(cx1 + SPAN_MARGIN)), img_w - 1),
             max(int(math.ceil(cy0 - SPAN_MARGIN)), y0b), min(int(math.floor(cy1 + SPAN_MARGIN)), y1b - 1))
+
+
+register(PostPlan, _scratch, _slice)

@@ -3,7 +3,7 @@
 Arrays in, arrays out: the input is a :class:`isplat.index.LoadedAxis`'s arrays, the output the selection's
 arrays in the order every frame streams them: slice by slice, and within a slice as a hierarchy of squares of
 the slice, regions of REGION x REGION voxels, blocks of BLOCK x BLOCK, cells of CELL x CELL, each level 4 x 4 of
-the next, so that a frame can skip a hidden region, block or cell with one test (:mod:`isplat.splat.kernels`).
+the next, so that a frame can skip a hidden region, block or cell with one test (:mod:`isplat.splat.traverse`).
 
 The hierarchy is stored compactly (a few bits per position, the selection must stay small in memory):
 

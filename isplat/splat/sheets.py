@@ -1,6 +1,6 @@
 """Image-aligned sheet-buffered splatting (Mueller and Crawfis 1998): no popping at the principal-axis switch.
 
-Axis-aligned sheets (:mod:`isplat.splat.kernels`) sum each slice of the principal axis into a sheet, so the
+Axis-aligned sheets (:mod:`isplat.splat.pre`) sum each slice of the principal axis into a sheet, so the
 sheets jump when the slice axis does. Here the sheets are slabs of constant depth along the view direction,
 ``thick`` world units each, and every voxel adds to each slab its kernel overlaps the kernel's integral over
 that slab; slabs are composited front to back with the same premultiplied 'over' and early termination as
@@ -38,9 +38,12 @@ again in each slab it reaches (a few table reads) rather than held in a per-fram
 Slab thickness: the smallest spacing, or more when a kernel would otherwise reach more than
 MAX_SLABS_PER_KERNEL slabs (a spacing far below the others, e.g. 1 x 1 x 100).
 
-``_shade`` and ``_splat`` are :mod:`isplat.splat.kernels`' stages; ``_project`` (with the slice's terms per
-voxel) and the saturation tests (per tile, without the axis kernel's summed-area table) are this module's own;
-like them they are compiled without reference counting (``leaf``).
+A technique of :mod:`isplat.splat.traverse`, which walks the bands and, in each, the slabs front to back
+until the band saturates (its saturation tests too): this module is its per-frame plan (:data:`SheetsPlan`,
+:func:`plan`) and its per-slab stage (:func:`_slab`). ``_shade``, ``_splat``, the sheet
+(:data:`isplat.splat.pre.Sheet`) and the projection's tail are the pre-classified technique's
+(:mod:`isplat.splat.pre`); the projection with the slice's terms per voxel (:func:`_slab_project`) and the
+opacity for a slab (:func:`_slab_alpha`) are this module's own.
 """
 
 from __future__ import annotations
@@ -52,14 +55,11 @@ from functools import lru_cache
 import numpy as np
 
 from ..jit import jit, leaf, stage
-from .composite import TILE, composite_sheet
-from .kernels import _shade, _splat, footprint_box, pixels_saturated
+from .composite import composite_sheet
+from .pre import Classify, FootprintTable, _shade, _splat, add_to_sheet, footprint_at, sheet_buffers
 from .select import BLOCK, CELL, REGION
-
-# coef layout (camera.Projection.coef), as in kernels.py
-X0, XA, XB, XC, Y0, YA, YB, YC, W0, WA, WB, WC, CX, CY, WPE, NEAR = range(16)
-# footprint params (footprint.Footprint.params)
-QA, QB, QC, EX, EY, R2, TSCALE = range(7)
+from .traverse import (CY, EX, EY, NEAR, QA, QB, QC, R2, TSCALE, WPE, X0, XA, XB, XC, Y0, YA, YB, YC, build_sat,
+                       covered, register)
 # a kernel reaching more slabs than this gets thicker slabs (a spacing far below the others)
 MAX_SLABS_PER_KERNEL = 48
 
@@ -136,7 +136,7 @@ def _place(first, n_slabs, src_a, src_b, src_c, src_row, src_d, nkeep):
 
 @jit
 def bucket_indexed(vox, alpha, use_gm, geo, n_slabs):
-    """Bucket the voxels of one axis of a selection (kernels.IndexedVoxels: slices, regions, blocks, cells,
+    """Bucket the voxels of one axis of a selection (traverse.IndexedVoxels: slices, regions, blocks, cells,
     voxels) by first slab; returns (slab_ptr, a, b, c, row, d, culled) with ``row`` the voxel's row in the
     selection. The hierarchy is walked as :func:`isplat.splat.select.expand_coordinates` walks it (copied here:
     that one allocates three int64 arrays per voxel)."""
@@ -172,7 +172,7 @@ def bucket_indexed(vox, alpha, use_gm, geo, n_slabs):
 
 @jit
 def bucket_full(density, gm, strides, n_a, n_b, n_c, alpha, use_gm, geo, n_slabs):
-    """Bucket every voxel of whole channels (flat ``[k, j, i]``, kernels.WholeVolume) by first slab; returns
+    """Bucket every voxel of whole channels (flat ``[k, j, i]``, traverse.WholeVolume) by first slab; returns
     (slab_ptr, a, b, c, row, d, culled) with ``row`` the flat index. Two passes over the volume (count, then
     place), so nothing per voxel of the whole volume is held."""
     counts = np.zeros(n_slabs + 1, dtype=np.int64)
@@ -205,126 +205,106 @@ def bucket_full(density, gm, strides, n_a, n_b, n_c, alpha, use_gm, geo, n_slabs
 
 
 # ---- the frame kernel --------------------------------------------------------------------------------------
-@jit
-def render_image(order, o0, bins, vox, cls, geo, fp, buf, bands):
-    """Render slabs ``order`` (front to back: increasing) of the bucketed voxels ``vox`` (SheetVoxels) into
-    ``buf.img``, for the image bands ``bands.mine`` one after the other; the arguments are those of
-    :func:`isplat.splat.kernels.render_indexed` with ``vox`` and ``geo`` of this module (``o0`` and ``bins``
-    unused: every band reads every bucket it needs)."""
-    for bi in bands.mine:
-        _render_band(order, bi, (bands.rows[bi, 0], bands.rows[bi, 1], bands.et), vox, cls, geo, fp, buf)
+SheetsPlan = namedtuple("SheetsPlan", "vox cls geo fp sheet")
+SheetsPlan.__doc__ = """An image-aligned frame's tables: ``vox`` the voxels bucketed by first slab
+(:data:`SheetVoxels`), ``cls`` :data:`isplat.splat.pre.Classify` (opacities for a slab's thickness),
+``geo`` :data:`SheetGeometry`, ``fp`` the footprint (:data:`isplat.splat.pre.FootprintTable`, its table scaled
+for the slab), ``sheet`` the slab's buffer (:data:`isplat.splat.pre.Sheet`). A thread's scratch is its list of
+the pixels a slab touched (int64)."""
 
 
 @stage
-def _render_band(order, bi, band, vox, cls, geo, fp, buf):
-    """The slabs ``order`` for the image rows ``band = (y0, y1, et)``; counters into ``buf.stats[bi]``
-    (voxels examined, voxel visits past the depth test, voxels splatted, slabs)."""
-    alpha_tab, color, shade, use_gm, use_shade = cls
-    sheet, sat, tile_sat, tile_npix, dirty_px, dirty = buf.sheet, buf.sat, buf.tile_sat, buf.tile_npix, \
-        buf.dirty_px, buf.dirty
+def _scratch(plan):
+    """Nothing: the slabs read the buckets, made once per frame (:func:`bucket_indexed`, :func:`bucket_full`)."""
+    return None
+
+
+@stage
+def _slab(plan, dirty, scratch, k, pos, buf, band):
+    """Slab ``k`` for one band: the voxels of the buckets ``k - span .. k`` whose kernels reach it splatted
+    into the sheet (:func:`_splat_bucket`), then the sheet composited into the image; counters into
+    ``buf.stats[band]`` (voxels examined, voxel visits past the depth test, voxels splatted, slabs)."""
+    vox, geo, fp = plan.vox, plan.geo, plan.fp
+    bi, et, satab, ty0 = band[0], band[3], band[4], band[5]
     stats = buf.stats[bi]
-    y0b, y1b, et = band
+    rcut = math.sqrt(fp.params[R2])
+    # t (standard deviations) -> table position: (t + rcut) * depth[1]; depth[0] = 1 / geo.cond[2]
+    depth = (1.0 / geo.cond[2], (geo.cdf.shape[0] - 2) / (2.0 * rcut), rcut)
+    fpc = (fp.params[QA], 2.0 * fp.params[QB], fp.params[QC], fp.params[R2], fp.params[TSCALE])
+    if k == 0:
+        stats[0] += vox.culled
+    stats[0] += vox.slab_ptr[k + 1] - vox.slab_ptr[k]
+    z0 = geo.z_lo + k * geo.thick
+    nd = 0
+    for kk in range(max(k - geo.span, 0), k + 1):
+        nd = _splat_bucket(kk, kk == k, z0, vox, plan.cls, geo, fp, fpc, depth, plan.sheet, dirty, nd, buf, band)
+    if composite_sheet(buf.img, plan.sheet.sheet, buf.sat, buf.tile_sat, plan.sheet.dirty_px, dirty, nd, et) > 0:
+        build_sat(buf.tile_sat, buf.tile_npix, ty0, satab)
+    stats[3] += 1
+
+
+@leaf
+def _splat_bucket(kk, first, z0, vox, cls, geo, fp, fpc, depth, sheet_buf, dirty, nd, buf, band):
+    """The voxels of bucket ``kk`` whose kernels reach the slab from depth ``z0``, projected, classified, shaded
+    and splatted into the sheet (``first``: the slab is the bucket's own, where a voxel is counted); returns
+    the sheet's touched-pixel count."""
+    alpha_tab, color, shade, use_gm, use_shade = cls
+    sheet, dirty_px = sheet_buf
+    bi, y0b, y1b, et, satab, ty0 = band
+    stats = buf.stats[bi]
     et_on = et < 1.0
     img_w = sheet.shape[1]
-    table = fp.table
-    fpc = (fp.params[QA], 2.0 * fp.params[QB], fp.params[QC], fp.params[R2], fp.params[TSCALE])
     ex, ey = fp.params[EX], fp.params[EY]
-    coef, zc, persp, thick, span = geo.coef, geo.zc, geo.persp, geo.thick, geo.span
+    coef, zc, persp, thick = geo.coef, geo.zc, geo.persp, geo.thick
     gx, gy, s_c, ext, flat = geo.cond
-    rcut = math.sqrt(fp.params[R2])
-    cdf = geo.cdf
-    # t (standard deviations) -> table position: (t + rcut) * depth[1]; depth[0] = 1 / s_c
-    depth = (1.0 / s_c, (cdf.shape[0] - 2) / (2.0 * rcut), rcut)
-    for oi in range(order.shape[0]):
-        if _band_saturated(tile_sat, tile_npix, band):
-            break
-        k = order[oi]
-        if k == 0:
-            stats[0] += vox.culled
-        stats[0] += vox.slab_ptr[k + 1] - vox.slab_ptr[k]
-        z0 = geo.z_lo + k * thick
-        nd = 0
-        for kk in range(max(k - span, 0), k + 1):
-            for n in range(vox.slab_ptr[kk], vox.slab_ptr[kk + 1]):
-                a = np.int64(vox.a[n])
-                b = np.int64(vox.b[n])
-                c = np.int64(vox.c[n])
-                z = zc[0] + a * zc[1] + b * zc[2] + c * zc[3]
-                if z + ext <= z0:
-                    continue            # the kernel ended in front of this slab
-                stats[1] += 1
-                ok, px, py, s, box = _project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w)
-                if not ok or (et_on and _saturated(tile_sat, tile_npix, sat, box[0], box[1], box[2], box[3])):
-                    continue
-                row = vox.row[n]
-                d = vox.d[n]
-                L = alpha_tab[d, vox.gm[row] if use_gm else 0]
-                alpha = _path_alpha(L, a, b, c, z, geo)
-                cr, cg, cb = _shade(d, vox.nrm[row] if use_shade else 0, alpha, color, shade, use_shade)
-                zrel = z - z0
-                if flat:
-                    f = _slab_mass(zrel, thick, depth, cdf)
-                    nd = _splat(px, py, s, box, cr * f, cg * f, cb * f, alpha * f, fpc, table, sheet, dirty_px,
-                                dirty, nd)
-                else:
-                    nd = _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, (zrel, thick, gx, gy),
-                                       depth, cdf, sheet, dirty_px, dirty, nd)
-                # counted once: in its first slab, by the band holding its first image row
-                if kk == k and max(int(math.ceil(py - ey * s)), 0) >= y0b:
-                    stats[2] += 1
-        composite_sheet(buf.img, sheet, sat, tile_sat, dirty_px, dirty, nd, et)
-        stats[3] += 1
+    for n in range(vox.slab_ptr[kk], vox.slab_ptr[kk + 1]):
+        a = np.int64(vox.a[n])
+        b = np.int64(vox.b[n])
+        c = np.int64(vox.c[n])
+        z = zc[0] + a * zc[1] + b * zc[2] + c * zc[3]
+        if z + ext <= z0:
+            continue            # the kernel ended in front of this slab
+        stats[1] += 1
+        ok, px, py, s, box = _slab_project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w)
+        if not ok or (et_on and covered(satab, ty0, buf.sat, box[0], box[1], box[2], box[3])):
+            continue
+        row = vox.row[n]
+        d = vox.d[n]
+        L = alpha_tab[d, vox.gm[row] if use_gm else 0]
+        alpha = _slab_alpha(L, a, b, c, z, geo)
+        cr, cg, cb = _shade(d, vox.nrm[row] if use_shade else 0, alpha, color, shade, use_shade)
+        zrel = z - z0
+        if flat:
+            f = _slab_mass(zrel, thick, depth, geo.cdf)
+            nd = _splat(px, py, s, box, cr * f, cg * f, cb * f, alpha * f, fpc, fp.table, sheet, dirty_px, dirty, nd)
+        else:
+            nd = _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, fp.table, (zrel, thick, gx, gy), depth,
+                               geo.cdf, sheet, dirty_px, dirty, nd)
+        # counted once: in its first slab, by the band holding its first image row
+        if first and max(int(math.ceil(py - ey * s)), 0) >= y0b:
+            stats[2] += 1
+    return nd
 
 
 @leaf
-def _band_saturated(tile_sat, tile_npix, band):
-    """True when early termination is on and every pixel of the band ``(y0, y1, et)`` is saturated."""
-    if band[2] >= 1.0:
-        return False
-    for ty in range(band[0] // TILE, (band[1] + TILE - 1) // TILE):
-        for tx in range(tile_npix.shape[1]):
-            if tile_sat[ty, tx] < tile_npix[ty, tx]:
-                return False
-    return True
-
-
-@leaf
-def _saturated(tile_sat, tile_npix, sat, x0, x1, y0, y1):
-    """True when every pixel of the box has reached the early-termination opacity: whole tiles first."""
-    whole = True
-    for ty in range(y0 // TILE, y1 // TILE + 1):
-        for tx in range(x0 // TILE, x1 // TILE + 1):
-            if tile_sat[ty, tx] < tile_npix[ty, tx]:
-                whole = False
-                break
-        if not whole:
-            break
-    return whole or pixels_saturated(sat, x0, x1, y0, y1)
-
-
-@leaf
-def _project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w):
+def _slab_project(a, b, c, z, coef, persp, ex, ey, y0b, y1b, img_w):
     """The voxel's pixel position, perspective scale and footprint box clipped to the image and the band
-    (kernels.py's ``_project`` with the slice's terms per voxel; ``z`` the depth, in perspective -D)."""
+    (:func:`isplat.splat.pre._project` with the slice's terms per voxel; ``z`` the depth, in perspective -D)."""
     none = (0, 0, 0, 0)
     Y = coef[Y0] + c * coef[YC] + a * coef[YA] + b * coef[YB]
     s = 1.0
     if persp:
         s = -coef[WPE] / z                       # t0 of §3.2 (D = -z)
-        py = coef[CY] + s * Y
-    else:
-        py = Y
+    py = coef[CY] + s * Y if persp else Y
     ry = ey * s
     if py + ry < y0b or py - ry > y1b - 1:
         return False, 0.0, py, s, none
-    X = coef[X0] + c * coef[XC] + a * coef[XA] + b * coef[XB]
-    px = coef[CX] + s * X if persp else X
-    ok, box = footprint_box(px, py, ex * s, ry, y0b, y1b, img_w)
-    return ok, px, py, s, box
+    return footprint_at(coef[X0] + c * coef[XC] + a * coef[XA] + b * coef[XB], py, s, ry, coef, persp, ex, y0b, y1b,
+                        img_w)
 
 
 @leaf
-def _path_alpha(L, a, b, c, z, geo):
+def _slab_alpha(L, a, b, c, z, geo):
     """The voxel's opacity for one slab: ``L`` (orthographic, corrected already) or, in perspective,
     ``-expm1(thick / cos / unit * L)`` with ``cos`` between the voxel's ray and the view direction."""
     if not geo.persp:
@@ -386,19 +366,11 @@ def _splat_tilted(px, py, s, box, cr, cg, cb, alpha, fpc, table, slab, depth, cd
             dx = x - px
             q = (Qa * dx * dx + qxy * dx + qy) * inv_s2
             wgt = table[int(min(q, R2v) * tscale)] * _slab_mass(zy + gx * dx * inv_s, thick, depth, cdf)
-            dirty[nd] = y * img_w + x
-            nd += 1 - dirty_px[y, x]
-            dirty_px[y, x] = 1
-            sheet[y, x, 0] += wgt * cr
-            sheet[y, x, 1] += wgt * cg
-            sheet[y, x, 2] += wgt * cb
-            sheet[y, x, 3] += wgt * alpha
+            nd = add_to_sheet(sheet, dirty_px, dirty, nd, x, y, img_w, wgt, cr, cg, cb, alpha)
     return nd
 
 
 # ---- the frame's tables ------------------------------------------------------------------------------------
-SheetClassify = namedtuple("SheetClassify", "alpha color shade use_gm use_shade")
-SheetFootprint = namedtuple("SheetFootprint", "table params")
 
 
 def depth_kernel(jac, zrow, sigma, radius):
@@ -436,10 +408,12 @@ def slab_range(z0, zrow, n_abc, thick, ext, near=None):
     return z_lo, max(1, int(math.floor((zmax + ext - z_lo) / thick)) + 1)
 
 
-def image_frame(sel, view, dtype, shade, cuts):
-    """The tables of an image-aligned frame: ``(kernel, vox, cls, geo, fp, order)`` for
-    :func:`isplat.frame.render_slab` (``shade`` the frame's shading table, ``cuts`` the planes' rows in slice
-    coordinates of the view's principal axis, as :func:`isplat.frame.cut_coefficients`)."""
+def plan(tables):
+    """The frame's :data:`SheetsPlan`, each thread's touched-pixel list and the slabs in front-to-back order,
+    from what :func:`isplat.frame.prepare` works out for every technique (``tables``,
+    :class:`isplat.frame.FrameTables`: its shading table, and its cutting planes' rows in slice coordinates of the
+    view's principal axis)."""
+    sel, view, dtype, shade, cuts = tables.sel, tables.view, tables.dtype, tables.shade, tables.cuts
     from .. import camera as cam_mod
     from .. import grid
     from ..errors import IsplatError
@@ -473,7 +447,7 @@ def image_frame(sel, view, dtype, shade, cuts):
                         (float(g[0]), float(g[1]), float(s_c), float(ext), bool(tilt <= 1e-9 * s_c)),
                         cdf_table(float(ro.footprint_radius)))
     atab = alpha_table(sel.luts, None if persp else thick / unit)
-    cls = SheetClassify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
+    cls = Classify(atab, sel.luts.color, shade, sel.use_gm, sel.use_shade)
     vox = sel.voxels(axis)
     if sel.method == "full":
         n_c = int(geom.n_ijk[ic])
@@ -482,4 +456,10 @@ def image_frame(sel, view, dtype, shade, cuts):
     else:
         out = bucket_indexed(vox, atab, sel.use_gm, geo, n_slabs)
     svox = SheetVoxels(*out[:6], vox.gm, vox.nrm, int(out[6]))
-    return render_image, svox, cls, geo, SheetFootprint(table, fp.params), np.arange(n_slabs, dtype=np.int64)
+    lists = [np.empty(tables.band_px + 1, np.int64) for _ in range(tables.threads)]
+    sheet = sheet_buffers(frame.height, frame.width, dtype)
+    return (SheetsPlan(svox, cls, geo, FootprintTable(table, fp.params), sheet), lists,
+            np.arange(n_slabs, dtype=np.int64))
+
+
+register(SheetsPlan, _scratch, _slab)

@@ -23,6 +23,9 @@ is not caught: the key is derived from the file itself, not a secret (formats/au
 from __future__ import annotations
 
 import hashlib
+import itertools
+import struct
+import sys
 
 import numpy as np
 
@@ -129,13 +132,17 @@ def write_tables(f, density_sha256: str, datasets, attributes) -> None:
 
 
 class Verifier:
-    """Checks what a reader reads against ``/chunk_hashes``: made at open (:func:`open_verifier`)."""
+    """Checks what a reader reads against ``/chunk_hashes``: made at open (:func:`open_verifier`). Table rows are
+    read a table chunk (256 rows) at a time and kept, so neighbouring reads do not read them again."""
 
     def __init__(self, path, key: bytes, rebuild: str):
         self.path = path
         self.key = key
         self.rebuild = rebuild
         self.chunks_verified = 0
+        self._base = hashlib.blake2b(digest_size=DIGEST, key=key)
+        self._rows = {}                      # (dataset, table chunk index) -> bytes of its rows
+        self._tables_checked = set()         # datasets whose table's presence and shape were checked
 
     def fail(self, dataset: str, offset, why: str = "its content does not match its hash"):
         off = ", ".join(str(int(o)) for o in offset)
@@ -143,11 +150,39 @@ class Verifier:
                           f"{table_name(dataset)} (changed, moved or copied from elsewhere); rebuild it: "
                           f"{self.rebuild}")
 
+    def _table_rows(self, f, dataset: str, r0: int, r1: int) -> bytes:
+        """Rows ``r0:r1`` of the dataset's table, as bytes (16 per row)."""
+        t = None
+        out = []
+        for c in range(r0 // TABLE_CHUNK_ROWS, (r1 - 1) // TABLE_CHUNK_ROWS + 1):
+            rows = self._rows.get((dataset, c))
+            if rows is None:
+                if t is None:
+                    t = f[f"{GROUP}/{table_name(dataset)}"]
+                rows = np.ascontiguousarray(t[c * TABLE_CHUNK_ROWS:(c + 1) * TABLE_CHUNK_ROWS], dtype=np.uint8)
+                rows = rows.tobytes()
+                self._rows[(dataset, c)] = rows
+            out.append(rows)
+        base = (r0 // TABLE_CHUNK_ROWS) * TABLE_CHUNK_ROWS
+        got = b"".join(out)[(r0 - base) * DIGEST:(r1 - base) * DIGEST]
+        return got
+
+    def _hash(self, prefix: bytes, offset, data: np.ndarray) -> bytes:
+        h = self._base.copy()
+        h.update(prefix + struct.pack(f"<{len(offset)}q", *offset))
+        if data.dtype.byteorder == ">" or (data.dtype.byteorder == "=" and sys.byteorder == "big"):
+            data = data.astype(data.dtype.newbyteorder("<"))
+        h.update(memoryview(np.ascontiguousarray(data)).cast("B"))
+        return h.digest()
+
     def read(self, f, dataset: str, sel=None) -> np.ndarray:
         """``f[dataset][sel]`` (``sel``: a tuple of slices with steps of 1, missing axes whole), after checking
         every chunk it touches: whole chunks are read (HDF5 reads them whole anyway) and hashed; the selection
         is returned (a copy for 3-D datasets, a view of the chunk-aligned read for 1-D ones)."""
         ds = f[dataset]
+        if dataset not in self._tables_checked:
+            _check_table(self.path, f, dataset, ds, self.rebuild)
+            self._tables_checked.add(dataset)
         shape, chunks = tuple(int(n) for n in ds.shape), tuple(int(c) for c in ds.chunks)
         sel = tuple(sel or ()) + (slice(None),) * (len(shape) - len(sel or ()))
         bounds = [s.indices(n)[:2] for s, n in zip(sel, shape)]
@@ -155,37 +190,42 @@ class Verifier:
         out_shape = tuple(b - a for a, b in bounds)
         if 0 in out_shape:
             return np.zeros(out_shape, dtype=ds.dtype.newbyteorder("="))
+        prefix = dataset.encode("utf-8") + b"\0"
         g_lo = [a // c for (a, _), c in zip(bounds, chunks)]
         g_hi = [(b - 1) // c for (_, b), c in zip(bounds, chunks)]
         grid = grid_shape(shape, chunks)
-        table = f[GROUP][table_name(dataset)]
+        if len(shape) == 1:                       # the index's tables: one read, chunks back to back
+            c = chunks[0]
+            lo, hi = g_lo[0] * c, min(shape[0], (g_hi[0] + 1) * c)
+            arr = ds[lo:hi]
+            want = self._table_rows(f, dataset, g_lo[0], g_hi[0] + 1)
+            for n, g in enumerate(range(g_lo[0], g_hi[0] + 1)):
+                if self._hash(prefix, (g * c,), arr[g * c - lo:(g + 1) * c - lo]) != want[n * DIGEST:(n + 1) * DIGEST]:
+                    self.fail(dataset, (g * c,))
+            self.chunks_verified += g_hi[0] - g_lo[0] + 1
+            return arr[bounds[0][0] - lo:bounds[0][1] - lo]
+        out = np.empty(out_shape, dtype=ds.dtype)
+        step = _layer_rows(shape, chunks)
         inner = int(np.prod(grid[1:]))
-        step = _layer_rows(shape, chunks) if len(shape) > 1 else g_hi[0] - g_lo[0] + 1
-        out = None
         for c0 in range(g_lo[0], g_hi[0] + 1, step):
             c1 = min(g_hi[0], c0 + step - 1)
             lo = [c0 * chunks[0]] + [g * c for g, c in zip(g_lo[1:], chunks[1:])]
             hi = [min(shape[0], (c1 + 1) * chunks[0])] + [min(n, (g + 1) * c)
                                                           for g, c, n in zip(g_hi[1:], chunks[1:], shape[1:])]
             arr = ds[tuple(slice(a, b) for a, b in zip(lo, hi))]
-            got = _hash_layer(self.key, dataset, arr, lo, chunks, [c0] + g_lo[1:], [c1] + g_hi[1:])
-            r0 = c0 * inner
-            r1 = (c1 + 1) * inner
-            want = table[r0:r1]
-            if want.shape != (r1 - r0, DIGEST):
-                self.fail(dataset, tuple(lo), "the hash table is too short")
+            want = self._table_rows(f, dataset, c0 * inner, (c1 + 1) * inner)
             ranges = [range(a, b + 1) for a, b in zip([c0] + g_lo[1:], [c1] + g_hi[1:])]
-            for n, g in enumerate(np.ndindex(*[len(r) for r in ranges])):
-                idx = tuple(r[m] for r, m in zip(ranges, g))
-                row = int(np.ravel_multi_index(idx, grid)) - r0
-                if bytes(want[row]) != got[n]:
-                    self.fail(dataset, tuple(i * c for i, c in zip(idx, chunks)))
-            self.chunks_verified += len(got)
+            for idx in itertools.product(*ranges):
+                off = tuple(i * c for i, c in zip(idx, chunks))
+                row = 0
+                for i, n in zip(idx, grid):
+                    row = row * n + i
+                row -= c0 * inner
+                piece = arr[tuple(slice(o - l, o - l + c) for o, l, c in zip(off, lo, chunks))]
+                if self._hash(prefix, off, piece) != want[row * DIGEST:(row + 1) * DIGEST]:
+                    self.fail(dataset, off)
+                self.chunks_verified += 1
             cut = tuple(slice(max(a, l) - l, min(b, h) - l) for (a, b), l, h in zip(bounds, lo, hi))
-            if len(shape) == 1:
-                return arr[cut]
-            if out is None:
-                out = np.empty(out_shape, dtype=arr.dtype)
             k_a = max(bounds[0][0], lo[0]) - bounds[0][0]
             piece = arr[cut]
             out[k_a:k_a + piece.shape[0]] = piece
@@ -202,30 +242,29 @@ class Verifier:
             self.read(f, dataset)
 
 
-def check_tables(path, f, datasets, rebuild: str) -> None:
-    """Every table exists with one 16-byte row per chunk of its dataset, chunked with checksums."""
-    from .fileio import check_checked_dataset
-
+def _check_table(path, f, dataset: str, ds, rebuild: str) -> None:
+    """The table of ``dataset`` exists with one 16-byte row per chunk of ``ds`` (its layout is not checked: each
+    row is keyed, so a table damaged or replaced fails when its rows are compared)."""
     import h5py
 
-    if GROUP not in f or not isinstance(f[GROUP], h5py.Group):
-        raise IsplatError(f"{path}: group '/{GROUP}' is missing; rebuild it: {rebuild}")
-    for d in datasets:
-        name = table_name(d)
-        if name not in f[GROUP] or not isinstance(f[GROUP][name], h5py.Dataset):
-            raise IsplatError(f"{path}: dataset '/{GROUP}/{name}' (the hashes of '{d}') is missing; rebuild it: "
-                              f"{rebuild}")
-        t, ds = f[GROUP][name], f[d]
-        n = int(np.prod(grid_shape(ds.shape, ds.chunks)))
-        if t.dtype != np.dtype("|u1") or tuple(t.shape) != (n, DIGEST):
-            raise IsplatError(f"{path}: dataset '/{GROUP}/{name}' is {t.dtype} {tuple(t.shape)}, expected uint8 "
-                              f"({n}, {DIGEST}) (one hash per chunk of '{d}'); rebuild it: {rebuild}")
-        check_checked_dataset(f"{path}: dataset '/{GROUP}/{name}'", t)
+    name = table_name(dataset)
+    try:
+        t = f[f"{GROUP}/{name}"]
+    except KeyError:
+        t = None
+    if not isinstance(t, h5py.Dataset):
+        raise IsplatError(f"{path}: dataset '/{GROUP}/{name}' (the hashes of '{dataset}') is missing; rebuild it: "
+                          f"{rebuild}")
+    n = int(np.prod(grid_shape(ds.shape, ds.chunks)))
+    if t.dtype != np.dtype("|u1") or tuple(t.shape) != (n, DIGEST):
+        raise IsplatError(f"{path}: dataset '/{GROUP}/{name}' is {t.dtype} {tuple(t.shape)}, expected uint8 "
+                          f"({n}, {DIGEST}) (one hash per chunk of '{dataset}'); rebuild it: {rebuild}")
 
 
 def open_verifier(path, f, density_sha256: str, datasets, attributes, rebuild: str) -> Verifier:
-    """At open: the file key from the file's attributes and datasets, checked against ``chunk_hash_check``,
-    and the tables' presence and shapes. Refuses with one line naming the command that rebuilds the file."""
+    """At open: the file key from the file's attributes and datasets, checked against ``chunk_hash_check``, and
+    the table group's presence (each table's shape is checked on the first read of its dataset). Refuses with one
+    line naming the command that rebuilds the file."""
     from .fileio import attr_string, check_string_attrs
 
     key = file_key(density_sha256, datasets, attributes)
@@ -236,7 +275,10 @@ def open_verifier(path, f, density_sha256: str, datasets, attributes, rebuild: s
         raise IsplatError(f"{path}: attribute '{CHECK_ATTR}' does not match the file's attributes and datasets "
                           f"(an attribute that steers reading was changed, a dataset added or removed, or the "
                           f"hashes come from another file); rebuild it: {rebuild}")
-    check_tables(path, f, datasets, rebuild)
+    import h5py
+
+    if not isinstance(f.get(GROUP), h5py.Group):
+        raise IsplatError(f"{path}: group '/{GROUP}' is missing; rebuild it: {rebuild}")
     return Verifier(path, key, rebuild)
 
 

@@ -54,8 +54,10 @@ def _walk_cases():
 def _expect_error(target, obj, op) -> bool:
     """Since the chunk hashes (formats/augmented.md §1.1) every object of the examples is covered: the datasets by
     their hashes, every attribute the format specifies but ``created_by`` by the file key (``created_by`` is
-    required), the tables by their shapes and the key. So every corruption of the walk is refused."""
-    return True
+    required), the tables by their shapes and keyed rows. So every corruption of the walk is refused, but one: a
+    hash table rewritten with its rows unchanged in another layout (contiguous, compressed) reads the same rows,
+    which readers do not refuse (the images are then equal; stats gives another file size)."""
+    return not (obj.startswith("/chunk_hashes/") and op in ("contiguous", "gzip"))
 
 
 @pytest.mark.parametrize("target,obj,op", _walk_cases())
@@ -71,7 +73,9 @@ def test_every_corruption_of_the_examples(examples, tmp_path, target, obj, op):
     finally:
         path.write_bytes(original)
     out = R.check_mutant(fx, target, mutant, f"{op} {obj}")
-    assert _expect_error(target, obj, op) and out.result == "error", out
+    # (the exception: the same images, and stats' figures but the file's size)
+    assert out.result == "error" if _expect_error(target, obj, op) else \
+        out.result in ("error", "equal", "FAIL (stats: other figures)"), out
 
 
 @pytest.mark.parametrize("case", CORPUS["cases"], ids=lambda c: f"{c['target']}:{c['object']}:{c['op']}")

@@ -261,12 +261,34 @@ def chunk_hash_cost(folder: Path, shape_ijk=(128, 128, 96), repeats: int = 5) ->
     return med
 
 
+def class_fuzz_figures(folder: Path, per_class: int, seed: int) -> dict:
+    """fuzzlab's mutant classes (tests/fuzzlab.py ``MUTANT_CLASSES``) on the fuzzer's small head, each mutant
+    rendered with every fixture scene (both techniques) and ``stats --json``: {class: {target: {result: n}}}."""
+    from fuzzlab import fuzz_classes
+
+    fx = make_fixture(folder / "classes")
+    t0 = time.perf_counter()
+    res = fuzz_classes(fx, per_class, seed)
+    out = {}
+    for cls, outcomes in res.items():
+        for o in outcomes:
+            r = "failure" if o.result.startswith("FAIL") else o.result
+            out.setdefault(cls, {}).setdefault(o.target, {}).setdefault(r, 0)
+            out[cls][o.target][r] += 1
+            if r == "failure":
+                out.setdefault("_failures", []).append(f"{o.mutation}: {o.result}")
+    out["_seconds"] = round(time.perf_counter() - t0, 1)
+    out["_scenes"] = [scene_label(n) for n in fx["scenes"]]
+    return out
+
+
 def write_hash_cost(out: Path, c: dict, note: str = "") -> Path:
     """The section ``reliability-chunk-hashes`` of docs/reliability.md, stamped."""
     from ._doc import git_rev, machine_line, update_section
 
     shape = "x".join(map(str, c["shape_ijk"]))
-    command = f"python -m benchmarks.reliability --chunk-hash-cost {shape.replace('x', ',')} --out docs"
+    command = (f"python -m benchmarks.reliability --chunk-hash-cost {shape.replace('x', ',')} --repeats "
+               f"{c['repeats']} --per-class {c.get('per_class', 0)} --out docs")
 
     def row(label, key, unit="ms"):
         h, p = c[f"{key}_hashed"], c[f"{key}_plain"]
@@ -305,9 +327,33 @@ def write_hash_cost(out: Path, c: dict, note: str = "") -> Path:
         "The extra reads are the table rows of the chunks read and, for a read that starts or ends inside a chunk, "
         "the rest of that chunk (HDF5 reads it whole anyway, so the file bytes barely change); the time is "
         "BLAKE2b over the chunks read (about 1 GB/s on one core) and Python's per-chunk loop (4 KiB chunks in the "
-        "index). What the hashes catch is in the catalogue and the fuzz tables above, and in tests/test_integrity.py "
+        "index). What the hashes catch is below, and in tests/test_integrity.py "
         "(`test_mutant_classes_are_refused_with_one_line`).",
     ]
+    fz = c.get("classes")
+    if fz:
+        body += [
+            "",
+            "### Mutant classes that Fletcher-32 cannot see",
+            "",
+            f"tests/fuzzlab.py's `MUTANT_CLASSES`, {c['per_class']} mutants per class (alternately of the augmented "
+            f"and the index file; seed {c['seed']}) of the fuzzer's small head ({'x'.join(map(str, SHAPE_IJK))}), each "
+            f"rendered with the scenes {', '.join(fz['_scenes'])} and run through `isplat stats --json`, "
+            f"{fz['_seconds']} s in all. *error*: one `isplat: error:` line, a non-zero exit, no image; *equal*: the "
+            "unmutated images and figures; *unchanged*: the mutation left the bytes as they were; *failure*: "
+            "anything else (a different image, a traceback, a hang).",
+            "",
+            "| class | file | error | equal | unchanged | failure |",
+            "|---|---|---|---|---|---|",
+        ]
+        for cls, per in fz.items():
+            if cls.startswith("_"):
+                continue
+            for target, r in sorted(per.items()):
+                body.append(f"| {cls} | {'augmented' if target == 'aug' else 'index'} | {r.get('error', 0)} | "
+                            f"{r.get('equal', 0)} | {r.get('unchanged', 0)} | {r.get('failure', 0)} |")
+        for line in fz.get("_failures", [])[:20]:
+            body.append(f"\nFailure: {_md(line)}")
     page = Path(out) / "reliability.md"
     update_section(page, HASH_SECTION, "\n".join(body))
     return _doc.put_stamp(page, _doc.stamp(HASH_SECTION, command, ["pre", "post"], HASH_SOURCES), HASH_SECTION)
@@ -587,12 +633,16 @@ def main(argv=None) -> int:
                     help="only measure what the chunk hashes cost, on a head of this size (its own section)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--note", default="", help="a sentence added to the section's setup line")
+    ap.add_argument("--per-class", type=int, default=40, help="mutants per class for --chunk-hash-cost")
     a = ap.parse_args(argv)
     os.environ.setdefault("ISPLAT_PROGRESS", "0")
     if a.chunk_hash_cost is not None:
         shape = tuple(int(x) for x in a.chunk_hash_cost.split(","))
         with tempfile.TemporaryDirectory() as td:
             c = chunk_hash_cost(Path(td), shape, a.repeats)
+            if a.per_class > 0:
+                c.update(classes=class_fuzz_figures(Path(td), a.per_class, a.seed), per_class=a.per_class,
+                         seed=a.seed)
         print(json.dumps(c), file=sys.stderr)
         print(write_hash_cost(a.out, c, a.note), file=sys.stderr)
         return 0

@@ -285,8 +285,10 @@ def open_verifier(path, f, density_sha256: str, datasets, attributes, rebuild: s
 def attributes_of(f, spec) -> list:
     """``(where, name, value or None)`` for each ``(where, name)`` of ``spec`` (``where``: a group path, "" the
     root), read from open file ``f`` as stored (strings as their bytes, numbers little-endian)."""
-    out = []
+    groups, out = {}, []
     for where, name in spec:
-        obj = f[where] if where else f
-        out.append((where, name, np.asarray(obj.attrs[name]) if name in obj.attrs else None))
+        if where not in groups:          # each group's attributes read once
+            groups[where] = dict((f[where] if where else f).attrs.items())
+        v = groups[where].get(name)
+        out.append((where, name, None if v is None else np.asarray(v)))
     return out

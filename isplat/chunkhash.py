@@ -144,6 +144,13 @@ class Verifier:
         self._rows = {}                      # (dataset, table chunk index) -> bytes of its rows
         self._tables_checked = set()         # datasets whose table's presence and shape were checked
 
+    def __getstate__(self):                  # picklable (a hashlib state is not): rebuilt from the key
+        return {k: v for k, v in self.__dict__.items() if k != "_base"}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._base = hashlib.blake2b(digest_size=DIGEST, key=self.key)
+
     def fail(self, dataset: str, offset, why: str = "its content does not match its hash"):
         off = ", ".join(str(int(o)) for o in offset)
         raise IsplatError(f"{self.path}: dataset '{dataset}', chunk at ({off}): {why} in /{GROUP}/"

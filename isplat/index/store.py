@@ -14,9 +14,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .. import progress
+from .. import chunkhash, progress
 from ..errors import IsplatError
-from .. import chunkhash
 from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check_checked_dataset,
                       check_string_attrs, create_checked_dataset, create_group, create_hdf5, hdf5_errors,
                       open_counted, open_hdf5, set_string_attr)
@@ -123,8 +122,9 @@ def _write_values(f: h5py.File, v: ChannelValues) -> None:
 def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, ranges=None,
                 force: bool = False, values: ChannelValues | None = None) -> Path:
     """Write the axes of ``index`` (from :func:`build_index`) and the channel ``values`` (from
-    :func:`isplat.index.build.order_values`) to ``path`` atomically. Without ``values`` the file is of format
-    version 2 (density only: a renderer gathers the channel values from the augmented file)."""
+    :func:`isplat.index.build.order_values`) to ``path`` atomically. Without ``values`` the file has no
+    ``/values`` (density only: a renderer gathers the channel values from the augmented file, as from a file of
+    format version 2 before). The chunk hashes are written last (formats/index.md §1.1)."""
     with atomic_output(path, force) as tmp:
         with create_hdf5(tmp) as f:
             _write_root(f, shape, density_sha256, ranges, FORMAT_VERSION if values is not None else 2)
@@ -227,8 +227,8 @@ def copy_values(f: h5py.File, aug, density: np.ndarray | None, ranges, budget: i
 def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False,
                      values: bool = True, budget: int = BUILD_BUDGET, slab_voxels: int | None = None) -> Path:
     """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), with the indexed
-    voxels' channel values in density order (formats/index.md §9); ``values=False`` writes format version 2
-    (no values), as isplat did before version 3.
+    voxels' channel values in density order (formats/index.md §9); ``values=False`` writes no ``/values``
+    (as isplat's format version 2 did), still of format version 4 with chunk hashes.
 
     Streams: the density is read in k-slabs (of about ``slab_voxels``), never whole. One pass measures every
     axis's blocks (which fixes the tables); then each axis's byte stream is encoded and written in windows of

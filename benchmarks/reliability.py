@@ -148,7 +148,7 @@ class _PlainReads:
         return ds[tuple(sel)] if sel else ds[()]
 
     def verify_all(self, f, dataset):
-        pass
+        f[dataset][()]              # read it all, as the check would, without hashing
 
 
 @contextlib.contextmanager

@@ -382,3 +382,22 @@ def test_chunk_hashes_follow_the_spec(rel):
                 h.update(d.encode() + b"\0" + b"".join(o.to_bytes(8, "little") for o in off))
                 h.update(np.ascontiguousarray(data, dtype=data.dtype.newbyteorder("<")).tobytes())
                 assert h.digest() == table[row].tobytes(), (rel, d, off)
+
+
+@pytest.mark.parametrize("target,dataset", [("aug", "normal"), ("aug", "gradient_magnitude"),
+                                            ("idx", "values/normal"), ("idx", "axes/j/bytes")])
+def test_stats_checks_every_chunk(head, tmp_path, target, dataset):
+    """`isplat stats` (no scene) reads neither the normals, the magnitudes, the index's values nor its blocks for
+    its figures, yet refuses an edit of any of them: it checks every chunk of both files first."""
+    path = head[target]
+    original = path.read_bytes()
+    try:
+        with h5py.File(path, "r+") as f:
+            ds = f[dataset]
+            idx = (ds.shape[0] - 1,) + (0,) * (ds.ndim - 1)
+            ds[idx] = (int(ds[idx]) + 1) % 128
+        code, out, err = _stats([head["aug"], head["idx"]])
+    finally:
+        path.write_bytes(original)
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert f"{path}: dataset '{dataset}', chunk at (" in err and "rebuild it: isplat " in err, err

@@ -1,4 +1,4 @@
-"""The augmented-volume container (formats/augmented.md), version 1.
+"""The augmented-volume container (formats/augmented.md), version 3.
 
 Three datasets of one shape ``(n_k, n_j, n_i)``, C order, i fastest (the paper's ``ind = i + j * n_i``):
 
@@ -20,16 +20,22 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from . import chunkhash
 from .errors import IsplatError
 from .fileio import (ReadCounter, attr_array, attr_string, check_checked_dataset, check_string_attrs,
                      create_checked_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
 from .orientation import check_axes_lps
 
 FORMAT_NAME = "isplat-augmented"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3              # version 3: + /chunk_hashes, a keyed hash per chunk (formats/augmented.md §1.1)
 CHANNELS = {"density": np.uint8, "gradient_magnitude": np.uint8, "normal": np.uint16}
 CHANNEL_DTYPES = {"density": "|u1", "gradient_magnitude": "|u1", "normal": "<u2"}
 OPTIONAL_STRINGS = ("source", "source_format", "source_dtype", "density_window_method")
+# the attributes the file key covers (formats/augmented.md §1.1): every attribute of §3 but created_by, in its order
+HASHED_ATTRIBUTES = tuple(("", n) for n in (
+    "format", "format_version", "shape", "spacing_ijk", "density_window", "gradient_magnitude_scale", "density_sha256",
+    "source", "source_format", "source_dtype", "density_window_method", "density_units",
+    "density_clipped_fraction", "axes_lps"))
 
 
 def density_sha256(density: np.ndarray) -> str:
@@ -57,6 +63,7 @@ class AugmentedVolume:
     bytes_read: int = 0                          # bytes of the channel slabs requested
     io: ReadCounter = field(default_factory=ReadCounter)   # what HDF5 read from the file (opening included)
     axes_lps: np.ndarray | None = None           # rows: LPS unit vectors of i, j, k; None = orientation unknown
+    verifier: object = None                      # isplat.chunkhash.Verifier: checks each chunk read
 
     @property
     def n_voxels(self) -> int:
@@ -66,18 +73,29 @@ class AugmentedVolume:
         """Read one channel (optionally the k-slab ``k0:k1``) into memory; adds to :attr:`bytes_read`."""
         if channel not in CHANNELS:
             raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
+        return self.read_block(channel, (slice(k0, k1),))
+
+    def read_block(self, channel: str, block=()) -> np.ndarray:
+        """``channel[block]`` (a tuple of slices with step 1, e.g. ``(slice(None), slice(j0, j1))``) into memory,
+        every chunk it touches checked against the file's chunk hashes; adds to :attr:`bytes_read`."""
+        if channel not in CHANNELS:
+            raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
         with hdf5_errors(self.path, f"dataset {channel!r}"):
             with open_counted(self.path, self.io) as f:
-                ds = f[channel]
-                k1 = ds.shape[0] if k1 is None else k1
-                arr = ds[k0:k1]
+                arr = self.verifier.read(f, channel, tuple(block))
         arr = np.ascontiguousarray(arr, dtype=CHANNELS[channel])
         self.bytes_read += arr.nbytes
         return arr
 
+    def verify_all(self) -> None:
+        """Check every chunk of the three channels against the file's chunk hashes (``isplat stats``)."""
+        with hdf5_errors(self.path, "channels"), open_counted(self.path, self.io) as f:
+            for ch in CHANNELS:
+                self.verifier.verify_all(f, ch)
+
 
 def _rebuild_hint(p, f) -> str:
-    src = attr_string(f.attrs, "source")
+    src = attr_string(f.attrs, "source") if f is not None else None
     return f"isplat augment {src if src else 'SOURCE'} -o {p} --force"
 
 
@@ -120,7 +138,10 @@ def open_augmented(path) -> AugmentedVolume:
             check_checked_dataset(f"{p}: dataset {name!r}", ds)
         axes = check_axes_lps(p, attr_array(p, a, "axes_lps", "f", (3, 3))) if "axes_lps" in a else None
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
-    return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs, io=counter, axes_lps=axes)
+        verifier = chunkhash.open_verifier(p, f, sha, list(CHANNELS), chunkhash.attributes_of(f, HASHED_ATTRIBUTES),
+                                           _rebuild_hint(p, f))
+    return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs, io=counter, axes_lps=axes,
+                           verifier=verifier)
 
 
 def write_augmented(path, density, gradient_magnitude, normal, spacing_ijk, density_window,
@@ -133,6 +154,13 @@ def write_augmented(path, density, gradient_magnitude, normal, spacing_ijk, dens
         f["density"][...] = density
         f["gradient_magnitude"][...] = gradient_magnitude
         f["normal"][...] = normal
+        finish_augmented(f)
+
+
+def finish_augmented(f: h5py.File) -> None:
+    """Write the chunk hashes of open file ``f`` once its channels are written (formats/augmented.md §1.1)."""
+    chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), list(CHANNELS),
+                           chunkhash.attributes_of(f, HASHED_ATTRIBUTES))
 
 
 def create_augmented(f: h5py.File, shape, spacing_ijk, density_window, gradient_magnitude_scale,

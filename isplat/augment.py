@@ -24,7 +24,7 @@ import numba
 import numpy as np
 
 from . import progress
-from .augfile import create_augmented
+from .augfile import create_augmented, finish_augmented
 from .errors import IsplatError
 from .fileio import atomic_output, check_output, create_hdf5
 from .jit import jit, stage
@@ -457,6 +457,7 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
                     f["density"][k0:k1] = d
                     f["gradient_magnitude"][k0:k1] = mag
                     f["normal"][k0:k1] = nrm
+                finish_augmented(f)
     return {"shape_ijk": tuple(reversed(vol.array.shape)), "spacing_ijk": (sl.si, sl.sj, sl.sk),
             "density_window": (sl.lo, sl.hi), "gradient_magnitude_scale": gmax / 255.0, "density_sha256": sha,
             "density_window_method": sl.method, "clipped": _clipped_shares(sl), "hounsfield": hounsfield,

@@ -240,7 +240,7 @@ def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None, old
             raise IsplatError(f"{p}: attribute 'format_version' is stored as {stored}, expected the int64 scalar "
                               f"{version} (H5T_STD_I64LE)")
         if int(ver_arr) != version and int(ver_arr) not in older:
-            old = f"; files of version {int(ver_arr)} have no checksums, rebuild it: {rebuild(p, f)}" \
+            old = f"; files of version {int(ver_arr)} lack this version's checksums, rebuild it: {rebuild(p, f)}" \
                 if 0 < int(ver_arr) < version and rebuild else ""
             raise IsplatError(f"{p}: attribute 'format_version' is {int(ver_arr)}, this isplat reads version "
                               f"{version}{old}")

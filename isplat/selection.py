@@ -451,9 +451,6 @@ def _slab_shape(shape, axis: str, n: int) -> tuple[int, int, int]:
 def _slab_channels(sel: Selection, aug, axis: str, slices) -> tuple[WholeChannels, tuple]:
     """Post-classification of a slab: the channels of just the slab's slices (the tent kernel reaches no other
     slice), read as a block of the file (``[k0:k1]``, ``[:, j0:j1]`` or ``[:, :, i0:i1]``); and the slab."""
-    from .augfile import CHANNELS
-    from .fileio import hdf5_errors, open_counted
-
     s = np.asarray(list(slices), dtype=np.int64)
     n = grid.slice_shape(sel.shape, axis)[0]
     c0, c1 = (int(s.min()), int(s.max()) + 1) if s.size else (0, 0)
@@ -463,12 +460,8 @@ def _slab_channels(sel: Selection, aug, axis: str, slices) -> tuple[WholeChannel
         sel.report.channels.insert(0, "density")
     block = (slice(None),) * (2 - grid.AXES.index(axis)) + (slice(c0, c1),)
     out = {}
-    with open_counted(aug.path, aug.io) as f:
-        for ch in sel.report.channels:
-            with hdf5_errors(aug.path, f"dataset {ch!r}"):
-                a = np.ascontiguousarray(f[ch][block], dtype=CHANNELS[ch]).reshape(-1)
-            aug.bytes_read += int(a.nbytes)
-            out[ch] = a
+    for ch in sel.report.channels:      # each chunk read is checked against the file's chunk hashes
+        out[ch] = aug.read_block(ch, block).reshape(-1)
     return (WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16)),
             (axis, c0, c1))
 
@@ -484,13 +477,10 @@ def _slab_reader(aug, axes, slices):
     if j0 < 0 or j1 > aug.shape[1] or j1 - j0 == aug.shape[1]:
         return aug.read
     from .augfile import CHANNELS
-    from .fileio import hdf5_errors, open_counted
 
     def read(ch, k0, k1):
         out = np.zeros((k1 - k0,) + tuple(aug.shape[1:]), dtype=CHANNELS[ch])
-        with hdf5_errors(aug.path, f"dataset {ch!r}"), open_counted(aug.path, aug.io) as f:
-            out[:, j0:j1] = f[ch][k0:k1, j0:j1]
-        aug.bytes_read += int(out[:, j0:j1].nbytes)
+        out[:, j0:j1] = aug.read_block(ch, (slice(k0, k1), slice(j0, j1)))    # chunks checked, bytes counted
         return out
     return read
 

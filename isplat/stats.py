@@ -264,6 +264,7 @@ def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> d
     """All figures for ``augmented`` (and ``index``, and ``scene`` rendered at view ``view``) as one dict."""
     aug_path = Path(augmented)
     aug = open_augmented(aug_path)
+    open_augmented(aug_path).verify_all()      # every chunk of every channel against its hash (own counters)
     idx_path = Path(index) if index is not None else None
     if idx_path is None and scene is not None:
         idx_path = _scene_index(scene, overrides)
@@ -274,6 +275,7 @@ def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> d
         from .index import open_index
 
         idx = open_index(idx_path)
+        open_index(idx_path).verify_all()      # every chunk of every table, block stream and value channel
         if tuple(idx.shape) != tuple(aug.shape) or idx.density_sha256 != aug.density_sha256:
             raise IsplatError(f"{idx_path}: index was built from another volume (density_sha256 "
                               f"{idx.density_sha256[:12]}..., {aug_path.name} has {aug.density_sha256[:12]}...); "

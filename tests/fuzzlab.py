@@ -348,3 +348,181 @@ def _rewrite_unchecked(src: Path, dst: Path) -> None:
         copy(a, b)
 
 
+
+
+# ------------------------------------------------------------------------------------- chunk hashes (i30)
+
+def rehash(path: Path) -> None:
+    """Recompute the chunk-hash table and ``chunk_hash_check`` of an isplat file in place, as an editor that
+    knows the format would after an edit (formats/augmented.md §1.1: such an edit cannot be caught without a
+    signature). Tests use it to reach the structural checks behind the hashes."""
+    import h5py
+
+    from isplat import chunkhash
+    from isplat.augfile import finish_augmented
+    from isplat.index.store import finish_index
+
+    with h5py.File(path, "r+") as f:
+        if chunkhash.GROUP in f:
+            del f[chunkhash.GROUP]
+        if chunkhash.CHECK_ATTR in f.attrs:
+            del f.attrs[chunkhash.CHECK_ATTR]
+        (finish_index if f.attrs["format"] == b"isplat-index" else finish_augmented)(f)
+
+
+# Mutant classes that byte damage below HDF5 does not make, and that Fletcher-32 cannot see (issue 30): each is
+# ``fn(path, rng) -> description`` applied in place to a copy of a fixture file; every mutant must be refused
+# (the chunk hashes) with one line, never rendered.
+HASHED = {"aug": ("density", "gradient_magnitude", "normal"),
+          "idx": ("axes/k/bytes", "axes/k/entry_slice", "axes/k/entry_voxel_count", "axes/k/entry_byte_offset",
+                  "axes/i/bytes", "axes/j/density_entry_ptr", "values/normal", "values/gradient_magnitude",
+                  "values/density_voxel_ptr")}
+# pairs of same-typed datasets (a swap or a link passes every type and shape check)
+PAIRS = {"aug": (("density", "gradient_magnitude"),),
+         "idx": (("axes/k/entry_slice", "axes/k/entry_voxel_count"), ("axes/i/bytes", "axes/j/bytes"),
+                 ("axes/i/density_entry_ptr", "axes/k/density_entry_ptr"))}
+
+
+def _chunks(ds):
+    return [ds.id.get_chunk_info(n) for n in range(ds.id.get_num_chunks())]
+
+
+def transplant_chunk(path: Path, rng, target: str) -> str:
+    """Copy a whole chunk, with its own valid Fletcher-32, over another chunk of the same stored size (on disk)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        options = []
+        for name in HASHED[target]:
+            info = _chunks(f[name])
+            for a in range(len(info)):
+                for b in range(len(info)):
+                    if a != b and info[a].size == info[b].size:
+                        options.append((name, info[a], info[b]))
+    if not options:
+        raise ValueError(f"{path}: no two chunks of one size to transplant")
+    name, src, dst = options[int(rng.integers(len(options)))]
+    data = bytearray(path.read_bytes())
+    if data[src.byte_offset:src.byte_offset + src.size] == data[dst.byte_offset:dst.byte_offset + dst.size]:
+        return "unchanged"
+    data[dst.byte_offset:dst.byte_offset + dst.size] = data[src.byte_offset:src.byte_offset + src.size]
+    path.write_bytes(bytes(data))
+    return f"{name}: chunk at {src.chunk_offset} copied over chunk at {dst.chunk_offset}"
+
+
+def fletcher_blind_word(path: Path, rng, target: str) -> str:
+    """Turn an aligned 16-bit word 0x0000 of a chunk into 0xFFFF (or back): Fletcher-32 sums words modulo 65535,
+    so it cannot tell them apart."""
+    import h5py
+
+    def logical_bytes(ds, c):       # the chunk's elements inside the dataset (the rest is padding, never read)
+        inside = [min(int(k), int(n) - int(o)) for k, n, o in zip(ds.chunks, ds.shape, c.chunk_offset)]
+        return int(np.prod(inside)) * ds.dtype.itemsize if inside[1:] == list(ds.chunks[1:]) else c.size - 4
+
+    with h5py.File(path, "r") as f:
+        spots = [(name, c, logical_bytes(f[name], c)) for name in HASHED[target] for c in _chunks(f[name])]
+    data = bytearray(path.read_bytes())
+    for n in rng.permutation(len(spots)):
+        name, c, size = spots[int(n)]
+        words = np.frombuffer(bytes(data[c.byte_offset:c.byte_offset + size - size % 2]), dtype=">u2")
+        hits = np.flatnonzero((words == 0) | (words == 0xFFFF))
+        if hits.size:
+            w = int(hits[int(rng.integers(hits.size))])
+            at = c.byte_offset + 2 * w
+            old = data[at]
+            data[at:at + 2] = b"\xff\xff" if old == 0 else b"\x00\x00"
+            path.write_bytes(bytes(data))
+            new = (~old) & 0xFF
+            return f"{name}: word {w} of chunk at {c.chunk_offset}: {old:#04x}{old:02x} -> {new:#04x}{new:02x}"
+    raise ValueError(f"{path}: no 0x0000 or 0xFFFF word")
+
+
+def h5py_value_edit(path: Path, rng, target: str) -> str:
+    """Change one element through HDF5 (which writes a valid Fletcher-32)."""
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        names = [n for n in HASHED[target] if f[n].size]
+        name = names[int(rng.integers(len(names)))]
+        ds = f[name]
+        flat = int(rng.integers(ds.size))
+        idx = np.unravel_index(flat, ds.shape)
+        v = ds[idx]
+        ds[idx] = (int(v) + 1 + int(rng.integers(3))) % (1 << (8 * ds.dtype.itemsize - 1))
+        return f"{name}: element {list(map(int, idx))}: {v} -> {ds[idx]}"
+
+
+def h5py_dataset_swap(path: Path, rng, target: str) -> str:
+    """Swap two datasets of the same type through HDF5 (renames: each passes every type and shape check)."""
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        pairs = [(a, b) for a, b in PAIRS[target] if a in f and b in f]
+        a, b = pairs[int(rng.integers(len(pairs)))]
+        f.move(a, a + ".tmp")
+        f.move(b, a)
+        f.move(a + ".tmp", b)
+    return f"{a} <-> {b}"
+
+
+def h5py_link(path: Path, rng, target: str) -> str:
+    """Replace a dataset by a link (hard or soft) to another of the same type."""
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        pairs = [(a, b) for a, b in PAIRS[target] if a in f and b in f]
+        a, b = pairs[int(rng.integers(len(pairs)))]
+        soft = bool(rng.integers(2))
+        del f[a]
+        f[a] = h5py.SoftLink("/" + b) if soft else f[b]
+    return f"{a} -> {'soft' if soft else 'hard'} link to {b}"
+
+
+def foreign_dataset(path: Path, rng, target: str, other: Path | None = None) -> str:
+    """Replace a dataset and its hash table by those of another file of the same layout (another volume)."""
+    import h5py
+
+    from isplat.chunkhash import GROUP, table_name
+
+    with h5py.File(other, "r") as o, h5py.File(path, "r+") as f:
+        names = [n for n in HASHED[target] if n in o and n in f and o[n].shape == f[n].shape]
+        name = names[int(rng.integers(len(names)))]
+        if np.array_equal(o[name][()], f[name][()]):
+            return "unchanged"
+        for n in (name, f"{GROUP}/{table_name(name)}"):
+            del f[n]
+            o.copy(o[n], f[n.rsplit("/", 1)[0]] if "/" in n else f, name=n.rsplit("/", 1)[-1])
+    return f"{name} and its hashes from {Path(other).name}"
+
+
+MUTANT_CLASSES = {
+    "whole-chunk transplant": transplant_chunk,
+    "Fletcher-blind word": fletcher_blind_word,
+    "h5py value edit": h5py_value_edit,
+    "h5py dataset swap": h5py_dataset_swap,
+    "h5py link": h5py_link,
+}
+
+
+def class_mutant(fx: dict, target: str, cls: str, rng) -> tuple[bytes, str]:
+    """A mutant of the fixture's ``target`` file of mutant class ``cls`` (its bytes and description)."""
+    path = fx[target]
+    original = path.read_bytes()
+    try:
+        what = MUTANT_CLASSES[cls](path, rng, target)
+        return path.read_bytes(), f"{cls}: {what}"
+    finally:
+        path.write_bytes(original)
+
+
+def fuzz_classes(fx: dict, per_class: int, seed: int = 0, scenes=None) -> dict:
+    """``per_class`` mutants of each class of MUTANT_CLASSES on each file: {class: [Outcome, ...]}."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for cls in MUTANT_CLASSES:
+        out[cls] = []
+        for n in range(per_class):
+            target = ("aug", "idx")[n % 2]
+            data, what = class_mutant(fx, target, cls, rng)
+            out[cls].append(check_mutant(fx, target, data, what, scenes=scenes))
+    return out

@@ -74,7 +74,7 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
     assert np.array_equal(np.load(EXAMPLES / f"{name}.npy"), vol)
     path = EXAMPLES / f"{name}.idx.h5"
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(3)
+        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(4)
         assert f.attrs["format_version"].dtype == np.dtype("<i8")
         assert f.attrs["density_sha256"].decode() == density_sha256(vol)
         assert f.id.get_create_plist().get_version()[0] >= 2       # superblock with checksums
@@ -140,23 +140,31 @@ def check_values(ex, vol, path):
         assert tuple(g.attrs["spacing_ijk"]) == (1.0, 1.0, 1.0)
         assert g.attrs["gradient_magnitude_scale"] == aug["gradient_magnitude_scale"]
     idx = open_index(path)
-    assert idx.version == 3 and idx.has_values and idx.values.n_voxels == reference.size
+    assert idx.version == 4 and idx.has_values and idx.values.n_voxels == reference.size
     ptr, vals = idx.read_values(["normal", "gradient_magnitude"], ex["density_ranges"])
     assert np.array_equal(vals["normal"], aug["normal"].ravel()[reference])
 
 
-def test_version_2_file_is_read_without_values():
-    """gaps.v2.idx.h5: the same index in format version 2 (no /values): its blocks load as version 3's do, and
-    asking it for values names the command that rebuilds it."""
+def test_index_without_values_is_read():
+    """gaps.novalues.idx.h5: the same index without /values (OPTIONAL in version 4): its blocks load as the full
+    file's do, and asking it for values names the command that rebuilds it."""
     from isplat.errors import IsplatError
 
     ex, vol = load("gaps")
-    old, new = open_index(EXAMPLES / "gaps.v2.idx.h5"), open_index(EXAMPLES / "gaps.idx.h5")
-    assert old.version == 2 and not old.has_values and new.version == 3
+    old, new = open_index(EXAMPLES / "gaps.novalues.idx.h5"), open_index(EXAMPLES / "gaps.idx.h5")
+    assert old.version == 4 and not old.has_values and new.version == 4 and new.has_values
     for axis in ex["axes"]:
         a, b = old.load_axis(axis, ex["density_ranges"]), new.load_axis(axis, ex["density_ranges"])
         assert np.array_equal(a.positions, b.positions) and np.array_equal(a.block_density, b.block_density)
-    with pytest.raises(IsplatError, match=r"format version 2 holds no channel values; rebuild it: isplat index "):
+    with pytest.raises(IsplatError, match=r"holds no channel values .*; rebuild it: isplat index "):
         old.read_values(["normal"], [(1, 255)])
-    with h5py.File(EXAMPLES / "gaps.v2.idx.h5", "r") as f:
-        assert f.attrs["format_version"] == 2 and "values" not in f
+
+
+@pytest.mark.parametrize("name,version", [("gaps.v2.idx.h5", 2)])
+def test_old_versions_are_refused_with_the_rebuild_command(name, version):
+    """Files of versions 2 and 3 (no chunk hashes) are refused, naming the command that rebuilds them."""
+    from isplat.errors import IsplatError
+
+    with pytest.raises(IsplatError, match=rf"'format_version' is {version}, this isplat reads version 4; files of "
+                                          rf"version {version} lack this version's checksums, rebuild it: isplat index"):
+        open_index(EXAMPLES / name)

@@ -52,14 +52,18 @@ def _walk_cases():
 
 
 def _expect_error(target, obj, op) -> bool:
-    name = obj.rsplit("@", 1)[-1].rsplit("/", 1)[-1]
-    return name in R.REQUIRED[target] or op.startswith("flip") or op == "dataspace"
-
+    """Since the chunk hashes (formats/augmented.md §1.1) every object of the examples is covered: the datasets by
+    their hashes, every attribute the format specifies but ``created_by`` by the file key (``created_by`` is
+    required), the tables by their shapes and keyed rows. So every corruption of the walk is refused, but one: a
+    hash table rewritten with its rows unchanged in another layout (contiguous, compressed) reads the same rows,
+    which readers do not refuse (the images are then equal; stats gives another file size)."""
+    return not (obj.startswith("/chunk_hashes/") and op in ("contiguous", "gzip"))
 
 
 @pytest.mark.parametrize("target,obj,op", _walk_cases())
 def test_every_corruption_of_the_examples(examples, tmp_path, target, obj, op):
-    """One error line and a non-zero exit for each; optional attributes may instead leave the images equal."""
+    """One error line and a non-zero exit for each (before the chunk hashes, deleting an optional attribute could
+    leave the images equal)."""
     fx = examples[target]
     path = fx[target]
     original = path.read_bytes()
@@ -69,12 +73,9 @@ def test_every_corruption_of_the_examples(examples, tmp_path, target, obj, op):
     finally:
         path.write_bytes(original)
     out = R.check_mutant(fx, target, mutant, f"{op} {obj}")
-    if _expect_error(target, obj, op):
-        assert out.result == "error", out
-    elif op == "delete":       # an optional attribute: the same images; stats reports it missing
-        assert out.result in ("equal", "FAIL (stats: other figures)"), out
-    else:                      # an optional string attribute of another type is refused
-        assert out.result == "error", out
+    # (the exception: the same images, and stats' figures but the file's size)
+    assert out.result == "error" if _expect_error(target, obj, op) else \
+        out.result in ("error", "equal", "FAIL (stats: other figures)"), out
 
 
 @pytest.mark.parametrize("case", CORPUS["cases"], ids=lambda c: f"{c['target']}:{c['object']}:{c['op']}")
@@ -120,6 +121,9 @@ def test_stats_refuses_an_impossible_count_on_an_unused_axis(examples, tmp_path)
     with h5py.File(idx, "r+") as f:
         f["axes/i/entry_voxel_count"][0] = 0xFFFFFFFF
     code, out, err = _stats([fx["aug"], idx, "--json"])
+    assert code == 2 and out == "" and "dataset 'axes/i/entry_voxel_count', chunk at (0)" in err
+    R.rehash(idx)           # an editor who recomputes the chunk hashes: the count check behind them
+    code, out, err = _stats([fx["aug"], idx, "--json"])
     assert code == 2 and out == "" and "entry_voxel_count is not in 1.." in err and err.count("\n") == 1
 
 
@@ -132,6 +136,7 @@ def test_stats_refuses_axes_that_disagree(examples, tmp_path):
         ptr = f["axes/k/density_entry_ptr"][()]
         d = int(np.flatnonzero(np.diff(ptr))[0])
         f["axes/k/density_entry_ptr"][d + 1] = ptr[d + 1] + 1      # the next density's first entry becomes d's
+    R.rehash(idx)           # with the chunk hashes recomputed: the cross-axis check behind them
     code, out, err = _stats([fx["aug"], idx])
     assert code == 2 and out == "" and err.count("\n") == 1, err
 
@@ -240,3 +245,160 @@ def test_signal_during_gif_write_leaves_nothing(examples, tmp_path, sig, code):
     assert p.returncode == code
     assert err.count("\n") == 1 and "incomplete outputs removed" in err
     assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- content bound to its place (i30)
+
+@pytest.fixture(scope="module")
+def head(tmp_path_factory):
+    """The fuzzer's small head (two chunks per channel, many per index table), both techniques' scenes; and a
+    second volume's files of the same layout (for datasets brought in from another file)."""
+    from isplat.augfile import write_augmented
+    from isplat.augment import augment_array
+    from isplat.index import build_index_file
+    from isplat.samples import make_sample
+
+    base = tmp_path_factory.mktemp("head")
+    fx = R.make_fixture(base / "head")
+    arr, spacing = make_sample("head", R.SHAPE_IJK, 0)
+    a = augment_array(np.ascontiguousarray(arr[::-1]), spacing)          # another volume, the same layout
+    other = base / "other.aug.h5"
+    write_augmented(other, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
+                    a["density_window"], a["gradient_magnitude_scale"])
+    build_index_file(other, base / "other.idx.h5")
+    fx["other_aug"], fx["other_idx"] = other, base / "other.idx.h5"
+    return fx
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("target", ["aug", "idx"])
+@pytest.mark.parametrize("cls", sorted(R.MUTANT_CLASSES))
+def test_mutant_classes_are_refused_with_one_line(head, cls, target, seed):
+    """Whole chunks copied with their Fletcher-32, Fletcher-blind words, edits through h5py (values, swaps, links):
+    every mutant of both files is refused with one line (no image, in any scene; nor stats); the chunk-level ones
+    name the file, the dataset and the chunk's position."""
+    data, what = R.class_mutant(head, target, cls, np.random.default_rng(seed))
+    out = R.check_mutant(head, target, data, what)
+    assert out.result == "error" and str(head[target]) in out.message, out
+    if cls in ("whole-chunk transplant", "Fletcher-blind word", "h5py value edit"):
+        name = what.split(": ")[1]
+        assert f"dataset '{name}', chunk at (" in out.message and "rebuild it: isplat " in out.message, (what, out)
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("target", ["aug", "idx"])
+def test_a_dataset_and_its_hashes_from_another_file_are_refused(head, target, seed):
+    """A dataset copied from another volume's file together with its hash table: the table is keyed by the
+    file's identity (density_sha256 and the attributes that steer reading), so its rows do not verify."""
+    path = head[target]
+    original = path.read_bytes()
+    try:
+        what = R.foreign_dataset(path, np.random.default_rng(seed), target, head[f"other_{target}"])
+        data = path.read_bytes()
+    finally:
+        path.write_bytes(original)
+    out = R.check_mutant(head, target, data, what)
+    assert out.result in ("error", "unchanged"), out
+    if out.result == "error":
+        assert "chunk at (" in out.message and "rebuild it" in out.message, out
+
+
+def test_an_edit_that_recomputes_the_hashes_is_not_caught(head):
+    """What formats/augmented.md §1.1 says the hashes cannot do: an editor that recomputes the table after an
+    in-range value edit makes a file that reads (a signature would be needed)."""
+    path = head["aug"]
+    original = path.read_bytes()
+    try:
+        with h5py.File(path, "r+") as f:
+            f["gradient_magnitude"][3, 4, 5] = (int(f["gradient_magnitude"][3, 4, 5]) + 7) % 256
+        assert R.run_render(head["full"], head["folder"] / "edited")[0] == 2
+        R.rehash(path)
+        code, _, images = R.run_render(head["full"], head["folder"] / "edited")
+        assert code == 0 and images
+    finally:
+        path.write_bytes(original)
+
+
+def test_old_files_are_refused_with_the_rebuild_command(tmp_path):
+    """Format versions before the chunk hashes: augmented 2, index 2 (a committed example) and 3."""
+    code, _, err = R.run_cli(["stats", str(EXAMPLES / "augmented" / "invalid-version-2.aug.h5")])
+    assert code == 2 and "version 2 lack this version's checksums, rebuild it: isplat augment" in err
+    assert err.count("\n") == 1
+    code, _, err = R.run_cli(["stats", str(EXAMPLES / "augmented" / "valid.aug.h5"),
+                              str(EXAMPLES / "index" / "gaps.v2.idx.h5")])
+    assert code == 2 and "rebuild it: isplat index" in err and err.count("\n") == 1
+
+
+def _spec_key(f, datasets, attributes) -> bytes:
+    """The file key exactly as formats/augmented.md §1.1 writes it, from hashlib and the raw attributes."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=32, person=b"isplat-chunks")
+    h.update(b"isplat chunk hashes 1\0" + bytes(f.attrs["density_sha256"]) + b"\0")
+    h.update(b"".join(d.encode() + b"\0" for d in datasets) + b"\0")
+    for where, name in attributes:
+        obj = f[where] if where else f
+        h.update(f"{where}@{name}".encode() + b"\0")
+        if name not in obj.attrs:
+            h.update(b"\0")
+            continue
+        v = np.asarray(obj.attrs[name])
+        raw = bytes(v[()]) if v.dtype.kind == "S" else v.astype(v.dtype.newbyteorder("<")).tobytes()
+        h.update(b"\1" + len(raw).to_bytes(8, "little") + raw)
+    return h.digest()
+
+
+@pytest.mark.parametrize("rel", ["augmented/valid.aug.h5", "index/gaps.idx.h5", "index/gaps.novalues.idx.h5"])
+def test_chunk_hashes_follow_the_spec(rel):
+    """Every row of every table of the committed examples, recomputed from the spec's text (not isplat's code)."""
+    import hashlib
+
+    aug_attrs = ["format", "format_version", "shape", "spacing_ijk", "density_window", "gradient_magnitude_scale",
+                 "density_sha256", "source", "source_format", "source_dtype", "density_window_method",
+                 "density_units", "density_clipped_fraction", "axes_lps"]
+    with h5py.File(EXAMPLES / rel, "r") as f:
+        if rel.startswith("augmented"):
+            datasets, attributes = ["density", "gradient_magnitude", "normal"], [("", n) for n in aug_attrs]
+        else:
+            datasets = [f"values/{n}" for n in ("density_voxel_ptr", "gradient_magnitude", "normal") if "values" in f]
+            attributes = [("", n) for n in ("format", "format_version", "shape", "density_sha256", "density_ranges")]
+            attributes += [("values", n) for n in ("spacing_ijk", "gradient_magnitude_scale") if "values" in f]
+            for a in "ijk":
+                if a in f["axes"]:
+                    datasets += [f"axes/{a}/{n}" for n in ("density_entry_ptr", "entry_slice", "entry_voxel_count",
+                                                           "entry_byte_offset", "bytes")]
+                    attributes += [(f"axes/{a}", n) for n in ("axis", "n_slices", "in_slice_axes", "n_a", "n_b",
+                                                             "escape_width")]
+        key = _spec_key(f, datasets, attributes)
+        assert bytes(f.attrs["chunk_hash_check"]).decode() == \
+            hashlib.blake2b(b"isplat chunk hashes 1", digest_size=16, key=key).hexdigest()
+        for d in datasets:
+            ds, table = f[d], f["chunk_hashes"][d.replace("/", ".")][()]
+            grid = [-(-n // c) for n, c in zip(ds.shape, ds.chunks)]
+            assert table.shape == (int(np.prod(grid)), 16) and table.dtype == np.uint8
+            for row, g in enumerate(np.ndindex(*grid)):
+                off = [i * c for i, c in zip(g, ds.chunks)]
+                data = ds[tuple(slice(o, o + c) for o, c in zip(off, ds.chunks))]
+                h = hashlib.blake2b(digest_size=16, key=key)
+                h.update(d.encode() + b"\0" + b"".join(o.to_bytes(8, "little") for o in off))
+                h.update(np.ascontiguousarray(data, dtype=data.dtype.newbyteorder("<")).tobytes())
+                assert h.digest() == table[row].tobytes(), (rel, d, off)
+
+
+@pytest.mark.parametrize("target,dataset", [("aug", "normal"), ("aug", "gradient_magnitude"),
+                                            ("idx", "values/normal"), ("idx", "axes/j/bytes")])
+def test_stats_checks_every_chunk(head, tmp_path, target, dataset):
+    """`isplat stats` (no scene) reads neither the normals, the magnitudes, the index's values nor its blocks for
+    its figures, yet refuses an edit of any of them: it checks every chunk of both files first."""
+    path = head[target]
+    original = path.read_bytes()
+    try:
+        with h5py.File(path, "r+") as f:
+            ds = f[dataset]
+            idx = (ds.shape[0] - 1,) + (0,) * (ds.ndim - 1)
+            ds[idx] = (int(ds[idx]) + 1) % 128
+        code, out, err = _stats([head["aug"], head["idx"]])
+    finally:
+        path.write_bytes(original)
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert f"{path}: dataset '{dataset}', chunk at (" in err and "rebuild it: isplat " in err, err

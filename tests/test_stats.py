@@ -160,7 +160,7 @@ def test_json_keys(vol, capsys):
     assert {"path", "file_bytes", "axes", "density_ranges", "voxels_indexed", "bytes", "bytes_per_voxel",
             "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range", "format_version",
             "values"} == set(s["index"])
-    assert s["index"]["format_version"] == 3
+    assert s["index"]["format_version"] == 4
     assert s["index"]["values"] == {"voxels": d.size, "bytes": 257 * 8 + 3 * d.size}
     assert {"bytes", "block_bytes", "entries", "voxels", "escape_width", "bytes_per_voxel",
             "block_bytes_per_voxel", "decoded_bytes"} == set(s["index"]["per_axis"]["k"])

@@ -54,7 +54,7 @@ def build(out_dir: Path) -> list[Path]:
     wrong_version = out_dir / "invalid-wrong-version.aug.h5"
     write_augmented(wrong_version, *args, extra_attrs=extra)
     with h5py.File(wrong_version, "a") as f:
-        f.attrs["format_version"] = np.int64(3)
+        f.attrs["format_version"] = np.int64(4)
         set_string_attr(f, "created_by", "isplat 0.1.0")
 
     wrong_name = out_dir / "invalid-wrong-format.aug.h5"
@@ -86,6 +86,20 @@ def build(out_dir: Path) -> list[Path]:
     data[at + 3] ^= 0x04
     flipped.write_bytes(bytes(data))
 
+    old2 = out_dir / "invalid-version-2.aug.h5"      # version 2: chunks with Fletcher-32, no chunk hashes
+    write_augmented(old2, *args, extra_attrs=extra)
+    with h5py.File(old2, "a") as f:
+        del f["chunk_hashes"]
+        del f.attrs["chunk_hash_check"]
+        f.attrs["format_version"] = np.int64(2)
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+
+    edited = out_dir / "invalid-edited-value.aug.h5"  # one density changed through HDF5: Fletcher-32 recomputed
+    write_augmented(edited, *args, extra_attrs=extra)
+    with h5py.File(edited, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+        f["density"][1, 2, 3] = 255 - int(f["density"][1, 2, 3])
+
     bad_axes = out_dir / "invalid-axes-lps.aug.h5"    # an orientation whose rows are not orthonormal
     write_augmented(bad_axes, *args, extra_attrs=dict(extra, axes_lps=np.diag([1.0, 1.0, 2.0]).astype("<f8")))
     with h5py.File(bad_axes, "a") as f:
@@ -111,11 +125,13 @@ def build(out_dir: Path) -> list[Path]:
             "invalid-version-1.aug.h5": "format_version",
             "invalid-flipped-bit.aug.h5": "Fletcher-32",
             "invalid-axes-lps.aug.h5": "axes_lps",
+            "invalid-version-2.aug.h5": "format_version",
+            "invalid-edited-value.aug.h5": "chunk at (0, 0, 0)",
         },
     }
     exp = out_dir / "valid.expected.json"
     exp.write_text(json.dumps(expected, indent=1) + "\n")
-    return [valid, wrong_version, wrong_name, missing, old, flipped, bad_axes, exp]
+    return [valid, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes, exp]
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .. import progress
+from .. import chunkhash, progress
 from ..errors import IsplatError
 from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check_checked_dataset,
                       check_string_attrs, create_checked_dataset, create_group, create_hdf5, hdf5_errors,
@@ -24,8 +24,8 @@ from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry
                     k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)
 
 FORMAT_NAME = "isplat-index"
-FORMAT_VERSION = 3              # version 3: + /values, the indexed voxels' channel values in density order
-OLDER_VERSIONS = (2,)           # read: the same without /values (channel values come from the augmented file)
+FORMAT_VERSION = 4              # version 4: + /chunk_hashes (a keyed hash per chunk); /values OPTIONAL
+OLDER_VERSIONS = ()             # versions 2 and 3 (no chunk hashes) are refused with the command that rebuilds them
 DATASET_DTYPES = {
     "density_entry_ptr": "<i8",
     "entry_slice": "<u4",
@@ -54,6 +54,8 @@ BUILD_BUDGET = 1 << 29          # bytes of working arrays for isplat index: one 
 # ----------------------------------------------------------------------------------------------- write
 
 def _write_root(f: h5py.File, shape, sha: str, ranges, version: int = FORMAT_VERSION) -> None:
+    # ``version`` is kept for callers of before; every file written now is of FORMAT_VERSION
+    version = FORMAT_VERSION
     from .. import __version__
 
     set_string_attr(f, "format", FORMAT_NAME)
@@ -120,8 +122,9 @@ def _write_values(f: h5py.File, v: ChannelValues) -> None:
 def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, ranges=None,
                 force: bool = False, values: ChannelValues | None = None) -> Path:
     """Write the axes of ``index`` (from :func:`build_index`) and the channel ``values`` (from
-    :func:`isplat.index.build.order_values`) to ``path`` atomically. Without ``values`` the file is of format
-    version 2 (density only: a renderer gathers the channel values from the augmented file)."""
+    :func:`isplat.index.build.order_values`) to ``path`` atomically. Without ``values`` the file has no
+    ``/values`` (density only: a renderer gathers the channel values from the augmented file, as from a file of
+    format version 2 before). The chunk hashes are written last (formats/index.md §1.1)."""
     with atomic_output(path, force) as tmp:
         with create_hdf5(tmp) as f:
             _write_root(f, shape, density_sha256, ranges, FORMAT_VERSION if values is not None else 2)
@@ -130,7 +133,29 @@ def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, r
             for a in AXES:
                 if a in index:
                     _write_axis(f, index[a])
+            finish_index(f)
     return Path(path)
+
+
+def hashed_layout(f: h5py.File):
+    """``(datasets, attributes)`` the chunk hashes of open index ``f`` cover (formats/index.md §1.1): ``/values``
+    when present, then the present axes in i, j, k order, each dataset in the order of the spec's tables."""
+    datasets, attrs = [], [("", n) for n in ("format", "format_version", "shape", "density_sha256",
+                                              "density_ranges")]
+    if "values" in f:
+        datasets += [f"values/{n}" for n in VALUE_DTYPES]
+        attrs += [("values", "spacing_ijk"), ("values", "gradient_magnitude_scale")]
+    for a in AXES:
+        if "axes" in f and a in f["axes"]:
+            datasets += [f"axes/{a}/{n}" for n in DATASET_DTYPES]
+            attrs += [(f"axes/{a}", n) for n in ("axis", "n_slices", "in_slice_axes", "n_a", "n_b", "escape_width")]
+    return datasets, attrs
+
+
+def finish_index(f: h5py.File) -> None:
+    """Write the chunk hashes of open index ``f`` once everything else is written."""
+    datasets, attrs = hashed_layout(f)
+    chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), datasets, chunkhash.attributes_of(f, attrs))
 
 
 def _slabs_of(shape, voxels: int = VALUE_SLAB_VOXELS):
@@ -150,7 +175,9 @@ def _channel_reader(aug, density: np.ndarray | None = None):
             if ch == "density" and density is not None:
                 return density[k0:k1]
             with hdf5_errors(aug.path, f"dataset {ch!r} [{k0}:{k1}]"):
-                return np.ascontiguousarray(src[ch][k0:k1], dtype=CHANNELS[ch])
+                v = getattr(aug, "verifier", None)
+                arr = v.read(src, ch, (slice(k0, k1),)) if v is not None else src[ch][k0:k1]
+                return np.ascontiguousarray(arr, dtype=CHANNELS[ch])
         yield read
     finally:
         src.close()
@@ -200,8 +227,8 @@ def copy_values(f: h5py.File, aug, density: np.ndarray | None, ranges, budget: i
 def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False,
                      values: bool = True, budget: int = BUILD_BUDGET, slab_voxels: int | None = None) -> Path:
     """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), with the indexed
-    voxels' channel values in density order (formats/index.md §9); ``values=False`` writes format version 2
-    (no values), as isplat did before version 3.
+    voxels' channel values in density order (formats/index.md §9); ``values=False`` writes no ``/values``
+    (as isplat's format version 2 did), still of format version 4 with chunk hashes.
 
     Streams: the density is read in k-slabs (of about ``slab_voxels``), never whole. One pass measures every
     axis's blocks (which fixes the tables); then each axis's byte stream is encoded and written in windows of
@@ -231,6 +258,7 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
                     write_in_pieces(ds, window, o0)
                     del window                           # before the next window is made
                 del lay
+            finish_index(f)
     return Path(out_path)
 
 
@@ -294,7 +322,7 @@ class IndexFile:
 
     def __init__(self, path: Path, shape, density_sha256: str, ranges, axes_meta: dict[str, _AxisMeta],
                  attrs: dict, version: int = FORMAT_VERSION, values: _ValuesMeta | None = None,
-                 io: ReadCounter | None = None):
+                 io: ReadCounter | None = None, verifier=None):
         self.path = path
         self.shape = shape
         self.density_sha256 = density_sha256
@@ -304,6 +332,7 @@ class IndexFile:
         self.version = int(version)
         self.values = values
         self.io = io if io is not None else ReadCounter()
+        self.verifier = verifier       # isplat.chunkhash.Verifier: checks each chunk read
         self.bytes_read = 0
         self._handle = None
         self._indexed = np.zeros(256, dtype=np.bool_)
@@ -366,7 +395,7 @@ class IndexFile:
 
     def _read(self, g, name, lo, hi):
         with hdf5_errors(self.path, f"dataset {g.name}/{name} [{lo}:{hi}]"):
-            arr = g[name][lo:hi]
+            arr = self.verifier.read(g.file, f"{g.name.strip('/')}/{name}", (slice(lo, hi),))
         dt = DATASET_DTYPES.get(name) or VALUE_DTYPES[name]
         arr = np.ascontiguousarray(arr, dtype=np.dtype(dt).newbyteorder("="))
         self.bytes_read += int(arr.nbytes)
@@ -378,9 +407,15 @@ class IndexFile:
         """True when the file holds the indexed voxels' channel values (``/values``, version 3)."""
         return self.values is not None
 
+    def verify_all(self) -> None:
+        """Check every chunk of every dataset against the file's chunk hashes (``isplat stats``)."""
+        with self.session(), hdf5_errors(self.path, "datasets"):
+            for d in hashed_layout(self._handle)[0]:
+                self.verifier.verify_all(self._handle, d)
+
     def _need_values(self):
         if self.values is None:
-            raise IsplatError(f"{self.path}: index format version {self.version} holds no channel values; "
+            raise IsplatError(f"{self.path}: this index holds no channel values (/values, built without them); "
                               f"rebuild it: {_rebuild_hint(self.path, None)}")
         return self.values
 
@@ -658,15 +693,19 @@ def open_index(path) -> IndexFile:
                 raise IsplatError(f"{p}: unknown axis group '/axes/{name}'; expected i, j or k")
             meta[name] = _check_axis_group(p, f["axes"][name], name, shape)
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
-    return IndexFile(p, shape, sha, ranges, meta, attrs, version, values, counter)
+        datasets, hashed = hashed_layout(f)
+        verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed),
+                                           _rebuild_hint(p, f))
+    return IndexFile(p, shape, sha, ranges, meta, attrs, version, values, counter, verifier)
 
 
 def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
-    """``/values`` as §5 says (version 3; ignored in a version-2 file, which has none)."""
-    if version < 3:
+    """``/values`` as §9 says (OPTIONAL in version 4: absent, the renderer gathers the channel values from the
+    augmented file; its absence is covered by the chunk hashes' key, so it cannot be deleted silently)."""
+    if "values" not in f:
         return None
-    if "values" not in f or not isinstance(f["values"], h5py.Group):
-        raise IsplatError(f"{p}: group '/values' is missing (format version {version} requires it)")
+    if not isinstance(f["values"], h5py.Group):
+        raise IsplatError(f"{p}: '/values' is not a group")
     g = f["values"]
     where = f"{p}: /values"
     spacing = tuple(float(x) for x in attr_array(where, g.attrs, "spacing_ijk", "f", (3,)))

@@ -1,0 +1,301 @@
+"""Content hashes bound to their place: one BLAKE2b hash per HDF5 chunk, kept in a table of the file.
+
+Both containers (formats/augmented.md §1.1, formats/index.md §1.1) keep, for every chunked dataset ``D`` they
+specify, a table ``/chunk_hashes/<D with '/' as '.'>`` of ``uint8[n_chunks, 16]``: row ``r`` is the hash of the
+chunk whose grid index is ``r`` in C order. A chunk's hash is BLAKE2b (16-byte digest) keyed with the file key,
+over the dataset's path, the chunk's offset and the chunk's elements:
+
+    key  = BLAKE2b-256(person="isplat-chunks",
+                       "isplat chunk hashes 1" NUL density_sha256 NUL
+                       for each hashed dataset, in the spec's order: its path NUL
+                       NUL
+                       for each attribute the spec lists, in its order: "group@name" NUL, then 0x00 when absent,
+                       else 0x01, the value's byte length as int64 LE and its bytes)
+    hash = BLAKE2b-128(key=key, path NUL, offset as ndim int64 LE, the chunk's elements in C order, little-endian)
+
+Fletcher-32 cannot see a chunk copied over another (it carries its own valid checksum), a 16-bit word swapped
+0x0000 <-> 0xFFFF, nor anything written through HDF5 (which recomputes it); the keyed hash sees all of them: a
+chunk is bound to its dataset, its position and the file's identity (``density_sha256`` and the attributes that
+steer reading, which the root attribute ``chunk_hash_check`` confirms at open). An edit that recomputes the table
+is not caught: the key is derived from the file itself, not a secret (formats/augmented.md §1.1).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import struct
+import sys
+
+import numpy as np
+
+from .errors import IsplatError
+
+DIGEST = 16
+GROUP = "chunk_hashes"
+CHECK_ATTR = "chunk_hash_check"
+_CHECK_MESSAGE = b"isplat chunk hashes 1"
+TABLE_CHUNK_ROWS = 256               # 4 KiB chunks of the tables
+
+
+def table_name(dataset: str) -> str:
+    """The table of dataset ``axes/k/bytes`` is ``/chunk_hashes/axes.k.bytes``."""
+    return dataset.strip("/").replace("/", ".")
+
+
+def _attr_bytes(v) -> bytes:
+    if isinstance(v, str):
+        return v.encode("utf-8")
+    a = np.asarray(v)
+    if a.dtype.kind in "SUO":
+        v = a[()] if a.shape == () else a.tolist()
+        return bytes(v) if isinstance(v, bytes) else str(v).encode("utf-8")
+    return np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<")).tobytes()
+
+
+def file_key(density_sha256: str, datasets, attributes) -> bytes:
+    """The file key: ``attributes`` is a list of ``(where, name, value or None)`` (strings as ``str``)."""
+    h = hashlib.blake2b(digest_size=32, person=b"isplat-chunks")
+    h.update(_CHECK_MESSAGE + b"\0" + density_sha256.encode("ascii") + b"\0")
+    for d in datasets:
+        h.update(d.encode("utf-8") + b"\0")
+    h.update(b"\0")
+    for where, name, value in attributes:
+        h.update(f"{where}@{name}".encode("utf-8") + b"\0")
+        if value is None:
+            h.update(b"\0")
+        else:
+            raw = _attr_bytes(value)
+            h.update(b"\1" + np.int64(len(raw)).astype("<i8").tobytes() + raw)
+    return h.digest()
+
+
+def check_value(key: bytes) -> str:
+    """The root attribute ``chunk_hash_check``: 32 hex digits."""
+    return hashlib.blake2b(_CHECK_MESSAGE, digest_size=DIGEST, key=key).hexdigest()
+
+
+def chunk_hash(key: bytes, dataset: str, offset, data: np.ndarray) -> bytes:
+    h = hashlib.blake2b(digest_size=DIGEST, key=key)
+    h.update(dataset.encode("utf-8") + b"\0" + np.asarray(offset, dtype="<i8").tobytes())
+    a = np.ascontiguousarray(data, dtype=data.dtype.newbyteorder("<") if data.dtype.itemsize > 1 else data.dtype)
+    h.update(memoryview(a).cast("B"))
+    return h.digest()
+
+
+def grid_shape(shape, chunks) -> tuple:
+    return tuple(-(-int(n) // int(c)) for n, c in zip(shape, chunks))
+
+
+def _layer_rows(shape, chunks) -> int:
+    """Chunk layers (along axis 0) read at once: about 16 MiB."""
+    per = int(np.prod([int(c) for c in chunks[:1]] + [int(n) for n in shape[1:]]))
+    return max(1, (1 << 24) // max(1, per))
+
+
+def _hash_layer(key, dataset, arr, base, chunks, g_lo, g_hi) -> list[bytes]:
+    """Hashes of the chunks of grid index ``g_lo .. g_hi`` (inclusive per axis) that ``arr`` holds, ``arr``
+    starting at element ``base``; in C order of the grid."""
+    out = []
+    ranges = [range(lo, hi + 1) for lo, hi in zip(g_lo, g_hi)]
+    for g in np.ndindex(*[len(r) for r in ranges]):
+        idx = tuple(r[n] for r, n in zip(ranges, g))
+        off = tuple(i * c for i, c in zip(idx, chunks))
+        sl = tuple(slice(o - b, o - b + c) for o, b, c in zip(off, base, chunks))
+        out.append(chunk_hash(key, dataset, off, arr[sl]))
+    return out
+
+
+def write_tables(f, density_sha256: str, datasets, attributes) -> None:
+    """Write ``/chunk_hashes`` and the root ``chunk_hash_check`` of open file ``f``, whose ``datasets`` (paths)
+    are complete and whose attributes are set. Reads every dataset back, a layer of chunks at a time."""
+    from .fileio import create_checked_dataset, create_group, set_string_attr
+
+    key = file_key(density_sha256, datasets, attributes)
+    g = create_group(f, GROUP)
+    for d in datasets:
+        ds = f[d]
+        table = np.zeros((int(np.prod(grid_shape(ds.shape, ds.chunks))), DIGEST), dtype=np.uint8)
+        row = 0
+        if table.shape[0]:
+            grid = grid_shape(ds.shape, ds.chunks)
+            step = _layer_rows(ds.shape, ds.chunks)
+            for c0 in range(0, grid[0], step):
+                c1 = min(grid[0], c0 + step)
+                arr = ds[c0 * ds.chunks[0]:c1 * ds.chunks[0]]
+                hs = _hash_layer(key, d, arr, (c0 * ds.chunks[0],) + (0,) * (ds.ndim - 1), ds.chunks,
+                                 (c0,) + (0,) * (ds.ndim - 1), (c1 - 1,) + tuple(n - 1 for n in grid[1:]))
+                table[row:row + len(hs)] = np.frombuffer(b"".join(hs), dtype=np.uint8).reshape(-1, DIGEST)
+                row += len(hs)
+        create_checked_dataset(g, table_name(d), table.shape, "|u1", table, target=TABLE_CHUNK_ROWS * DIGEST)
+    set_string_attr(f, CHECK_ATTR, check_value(key))
+
+
+class Verifier:
+    """Checks what a reader reads against ``/chunk_hashes``: made at open (:func:`open_verifier`). Table rows are
+    read a table chunk (256 rows) at a time and kept, so neighbouring reads do not read them again."""
+
+    def __init__(self, path, key: bytes, rebuild: str):
+        self.path = path
+        self.key = key
+        self.rebuild = rebuild
+        self.chunks_verified = 0
+        self._base = hashlib.blake2b(digest_size=DIGEST, key=key)
+        self._rows = {}                      # (dataset, table chunk index) -> bytes of its rows
+        self._tables_checked = set()         # datasets whose table's presence and shape were checked
+
+    def __getstate__(self):                  # picklable (a hashlib state is not): rebuilt from the key
+        return {k: v for k, v in self.__dict__.items() if k != "_base"}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._base = hashlib.blake2b(digest_size=DIGEST, key=self.key)
+
+    def fail(self, dataset: str, offset, why: str = "its content does not match its hash"):
+        off = ", ".join(str(int(o)) for o in offset)
+        raise IsplatError(f"{self.path}: dataset '{dataset}', chunk at ({off}): {why} in /{GROUP}/"
+                          f"{table_name(dataset)} (changed, moved or copied from elsewhere); rebuild it: "
+                          f"{self.rebuild}")
+
+    def _table_rows(self, f, dataset: str, r0: int, r1: int) -> bytes:
+        """Rows ``r0:r1`` of the dataset's table, as bytes (16 per row)."""
+        t = None
+        out = []
+        for c in range(r0 // TABLE_CHUNK_ROWS, (r1 - 1) // TABLE_CHUNK_ROWS + 1):
+            rows = self._rows.get((dataset, c))
+            if rows is None:
+                if t is None:
+                    t = f[f"{GROUP}/{table_name(dataset)}"]
+                rows = np.ascontiguousarray(t[c * TABLE_CHUNK_ROWS:(c + 1) * TABLE_CHUNK_ROWS], dtype=np.uint8)
+                rows = rows.tobytes()
+                self._rows[(dataset, c)] = rows
+            out.append(rows)
+        base = (r0 // TABLE_CHUNK_ROWS) * TABLE_CHUNK_ROWS
+        got = b"".join(out)[(r0 - base) * DIGEST:(r1 - base) * DIGEST]
+        return got
+
+    def _hash(self, prefix: bytes, offset, data: np.ndarray) -> bytes:
+        h = self._base.copy()
+        h.update(prefix + struct.pack(f"<{len(offset)}q", *offset))
+        if data.dtype.byteorder == ">" or (data.dtype.byteorder == "=" and sys.byteorder == "big"):
+            data = data.astype(data.dtype.newbyteorder("<"))
+        h.update(memoryview(np.ascontiguousarray(data)).cast("B"))
+        return h.digest()
+
+    def read(self, f, dataset: str, sel=None) -> np.ndarray:
+        """``f[dataset][sel]`` (``sel``: a tuple of slices with steps of 1, missing axes whole), after checking
+        every chunk it touches: whole chunks are read (HDF5 reads them whole anyway) and hashed; the selection
+        is returned (a copy for 3-D datasets, a view of the chunk-aligned read for 1-D ones)."""
+        ds = f[dataset]
+        if dataset not in self._tables_checked:
+            _check_table(self.path, f, dataset, ds, self.rebuild)
+            self._tables_checked.add(dataset)
+        shape, chunks = tuple(int(n) for n in ds.shape), tuple(int(c) for c in ds.chunks)
+        sel = tuple(sel or ()) + (slice(None),) * (len(shape) - len(sel or ()))
+        bounds = [s.indices(n)[:2] for s, n in zip(sel, shape)]
+        bounds = [(a, max(a, b)) for a, b in bounds]
+        out_shape = tuple(b - a for a, b in bounds)
+        if 0 in out_shape:
+            return np.zeros(out_shape, dtype=ds.dtype.newbyteorder("="))
+        prefix = dataset.encode("utf-8") + b"\0"
+        g_lo = [a // c for (a, _), c in zip(bounds, chunks)]
+        g_hi = [(b - 1) // c for (_, b), c in zip(bounds, chunks)]
+        grid = grid_shape(shape, chunks)
+        if len(shape) == 1:                       # the index's tables: one read, chunks back to back
+            c = chunks[0]
+            lo, hi = g_lo[0] * c, min(shape[0], (g_hi[0] + 1) * c)
+            arr = ds[lo:hi]
+            want = self._table_rows(f, dataset, g_lo[0], g_hi[0] + 1)
+            for n, g in enumerate(range(g_lo[0], g_hi[0] + 1)):
+                if self._hash(prefix, (g * c,), arr[g * c - lo:(g + 1) * c - lo]) != want[n * DIGEST:(n + 1) * DIGEST]:
+                    self.fail(dataset, (g * c,))
+            self.chunks_verified += g_hi[0] - g_lo[0] + 1
+            return arr[bounds[0][0] - lo:bounds[0][1] - lo]
+        out = np.empty(out_shape, dtype=ds.dtype)
+        step = _layer_rows(shape, chunks)
+        inner = int(np.prod(grid[1:]))
+        for c0 in range(g_lo[0], g_hi[0] + 1, step):
+            c1 = min(g_hi[0], c0 + step - 1)
+            lo = [c0 * chunks[0]] + [g * c for g, c in zip(g_lo[1:], chunks[1:])]
+            hi = [min(shape[0], (c1 + 1) * chunks[0])] + [min(n, (g + 1) * c)
+                                                          for g, c, n in zip(g_hi[1:], chunks[1:], shape[1:])]
+            arr = ds[tuple(slice(a, b) for a, b in zip(lo, hi))]
+            want = self._table_rows(f, dataset, c0 * inner, (c1 + 1) * inner)
+            ranges = [range(a, b + 1) for a, b in zip([c0] + g_lo[1:], [c1] + g_hi[1:])]
+            for idx in itertools.product(*ranges):
+                off = tuple(i * c for i, c in zip(idx, chunks))
+                row = 0
+                for i, n in zip(idx, grid):
+                    row = row * n + i
+                row -= c0 * inner
+                piece = arr[tuple(slice(o - l, o - l + c) for o, l, c in zip(off, lo, chunks))]
+                if self._hash(prefix, off, piece) != want[row * DIGEST:(row + 1) * DIGEST]:
+                    self.fail(dataset, off)
+                self.chunks_verified += 1
+            cut = tuple(slice(max(a, l) - l, min(b, h) - l) for (a, b), l, h in zip(bounds, lo, hi))
+            k_a = max(bounds[0][0], lo[0]) - bounds[0][0]
+            piece = arr[cut]
+            out[k_a:k_a + piece.shape[0]] = piece
+        return out
+
+    def verify_all(self, f, dataset: str) -> None:
+        """Check every chunk of ``dataset`` (``isplat stats``)."""
+        shape = f[dataset].shape
+        if len(shape) == 1:
+            step = max(1, (1 << 24) // max(1, f[dataset].dtype.itemsize))
+            for a in range(0, int(shape[0]), step):
+                self.read(f, dataset, (slice(a, a + step),))
+        else:
+            self.read(f, dataset)
+
+
+def _check_table(path, f, dataset: str, ds, rebuild: str) -> None:
+    """The table of ``dataset`` exists with one 16-byte row per chunk of ``ds`` (its layout is not checked: each
+    row is keyed, so a table damaged or replaced fails when its rows are compared)."""
+    import h5py
+
+    name = table_name(dataset)
+    try:
+        t = f[f"{GROUP}/{name}"]
+    except KeyError:
+        t = None
+    if not isinstance(t, h5py.Dataset):
+        raise IsplatError(f"{path}: dataset '/{GROUP}/{name}' (the hashes of '{dataset}') is missing; rebuild it: "
+                          f"{rebuild}")
+    n = int(np.prod(grid_shape(ds.shape, ds.chunks)))
+    if t.dtype != np.dtype("|u1") or tuple(t.shape) != (n, DIGEST):
+        raise IsplatError(f"{path}: dataset '/{GROUP}/{name}' is {t.dtype} {tuple(t.shape)}, expected uint8 "
+                          f"({n}, {DIGEST}) (one hash per chunk of '{dataset}'); rebuild it: {rebuild}")
+
+
+def open_verifier(path, f, density_sha256: str, datasets, attributes, rebuild: str) -> Verifier:
+    """At open: the file key from the file's attributes and datasets, checked against ``chunk_hash_check``, and
+    the table group's presence (each table's shape is checked on the first read of its dataset). Refuses with one
+    line naming the command that rebuilds the file."""
+    from .fileio import attr_string, check_string_attrs
+
+    key = file_key(density_sha256, datasets, attributes)
+    if CHECK_ATTR not in f.attrs:
+        raise IsplatError(f"{path}: attribute '{CHECK_ATTR}' is missing; rebuild it: {rebuild}")
+    check_string_attrs(path, f.attrs, (CHECK_ATTR,))
+    if attr_string(f.attrs, CHECK_ATTR) != check_value(key):
+        raise IsplatError(f"{path}: attribute '{CHECK_ATTR}' does not match the file's attributes and datasets "
+                          f"(an attribute that steers reading was changed, a dataset added or removed, or the "
+                          f"hashes come from another file); rebuild it: {rebuild}")
+    import h5py
+
+    if not isinstance(f.get(GROUP), h5py.Group):
+        raise IsplatError(f"{path}: group '/{GROUP}' is missing; rebuild it: {rebuild}")
+    return Verifier(path, key, rebuild)
+
+
+def attributes_of(f, spec) -> list:
+    """``(where, name, value or None)`` for each ``(where, name)`` of ``spec`` (``where``: a group path, "" the
+    root), read from open file ``f`` as stored (strings as their bytes, numbers little-endian)."""
+    groups, out = {}, []
+    for where, name in spec:
+        if where not in groups:          # each group's attributes read once
+            groups[where] = dict((f[where] if where else f).attrs.items())
+        v = groups[where].get(name)
+        out.append((where, name, None if v is None else np.asarray(v)))
+    return out

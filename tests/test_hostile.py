@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from conftest import scene_text, write_volume
+from fuzzlab import rehash
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -542,12 +543,14 @@ def test_density_clipped_fraction_typed(tmp_path, value, needle):
     shutil.copy(EXAMPLES / "augmented" / "valid.aug.h5", path)
     with h5py.File(path, "r+") as f:
         f.attrs.create("density_clipped_fraction", value)
+    rehash(path)        # as an editor that knows the format would: the attribute's own check is what is tested
     with pytest.raises(IsplatError, match="density_clipped_fraction") as exc:
         open_augmented(path)
     assert needle in str(exc.value)
     with h5py.File(path, "r+") as f:
         del f.attrs["density_clipped_fraction"]
         f.attrs.create("density_clipped_fraction", np.array([0.1, 0.2], "<f8"))
+    rehash(path)
     open_augmented(path)
 
 

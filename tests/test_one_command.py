@@ -101,3 +101,12 @@ def test_names_and_toml_writer():
     tree = {"version": 5, "data": {"augmented": 'we"ird\\path\x7f'}, "cut": [{"point": [0.5, 1e300, -2.0]}],
             "shading": {"enabled": False, "light": [{"intensity": 0.5}]}, "a b": {"c": {"d": 1}}}
     assert tomllib.loads(to_toml(tree)) == tree
+
+
+def test_image_sheets_say_they_splat_pre_classified(data, capsys, monkeypatch):
+    """render.sheets = "image" says in one line that it is the paper's (pre-classified) splatting, and slower."""
+    opts = ("ball.aug.h5", "--set", f"transfer.opacity={OPACITY}", "--size", "16", "-q", "--force")
+    code, _, err = run(capsys, monkeypatch, data, *opts, "--set", "render.sheets=image", "-o", "sheets.png")
+    assert code == 0 and err.count("\n") == 1 and "paper's splatting" in err and "render.sheets" in err, err
+    code, _, err = run(capsys, monkeypatch, data, *opts, "-o", "axis.png")
+    assert code == 0 and err == "", err

@@ -36,6 +36,10 @@ run "$ISPLAT" augment "$OUT/ct.npy" -o "$OUT/ct.aug.h5" --orientation LPS --inde
 for p in ct-bone ct-skin; do
   run "$ISPLAT" render "$OUT/ct.aug.h5" --preset "$p" -o "$OUT/$p.png" --force
 done
+# and an MRI head (the uint16 mr-head sample)
+run "$ISPLAT" sample mr-head -o "$OUT/mr.npy" --force >/dev/null
+run "$ISPLAT" augment "$OUT/mr.npy" -o "$OUT/mr.aug.h5" --orientation LPS --index --force
+run "$ISPLAT" render "$OUT/mr.aug.h5" --preset mri-t1-head -o "$OUT/mri-t1-head.png" --force
 if "$ISPLAT" stats --help >/dev/null 2>&1; then
   run "$ISPLAT" stats "$OUT/head.aug.h5" "$OUT/head.idx.h5" --scene examples/head.toml $(data head) \
       | tee "$OUT/head-stats.txt"

@@ -39,13 +39,15 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class InMemory:
     """A volume in memory as a :class:`Renderer` takes it: augmented ``channels`` (``{name: array [k, j, i]}``,
-    density codes and the channels the scenes use), its spacing (i, j, k), gradient magnitude scale, and
-    ``identity``: what identifies the values (the request's source; a cache reuses selections by it)."""
+    density codes and the channels the scenes use), its spacing (i, j, k), gradient magnitude scale,
+    ``identity``: what identifies the values (the request's source; a cache reuses selections by it), and
+    ``axes_lps``: its orientation in the patient (rows i, j, k in LPS), None when unknown."""
 
     channels: dict
     spacing_ijk: tuple
     gradient_magnitude_scale: float
     identity: object = None
+    axes_lps: object = None
 
     @property
     def shape(self) -> tuple:

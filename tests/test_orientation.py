@@ -259,10 +259,11 @@ def test_singular_nifti_affine_is_a_warning_not_an_error(tmp_path, caplog):
 # --- rendered: data with an orientation is seen from the front, superior up, by default (scene version 5) -------
 
 def _marker_centres(png):
-    """Pixel centroid (x, y) of each marker, by its colour: A red, S green, L blue."""
+    """Pixel centroid (x, y) of each marker, by its colour: A red, S green, L blue (``png``: a file or an RGB
+    array in 0..255)."""
     import imageio.v3 as iio
 
-    img = iio.imread(png)[..., :3].astype(float)
+    img = (iio.imread(png) if not isinstance(png, np.ndarray) else png)[..., :3].astype(float)
     out = {}
     for name, c in (("A", 0), ("S", 1), ("L", 2)):
         mask = (img[..., c] > 60) & (img[..., c] > 2 * np.delete(img, c, axis=-1).max(axis=-1))
@@ -338,3 +339,18 @@ def test_named_view_without_orientation_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert exc.value.code == 2 and len(err) == 1 and "--orientation" in err[0], err
     assert not (tmp_path / "b.png").exists()
+
+
+def test_api_render_of_a_path_is_anterior(tmp_path):
+    """isplat.render(path) keeps the file's orientation as the command line does; the array alone has none."""
+    import isplat
+
+    p, vol = _nifti(tmp_path, ROTATED)
+    kw = dict(opacity=[[0.5, 0], [0.6, 1], [3, 1]], window=(0.0, 3.0), shading=False, size=96,
+              color=[[1, 1, 0, 0], [1.5, 1, 0, 0], [1.51, 0, 1, 0], [2.5, 0, 1, 0], [2.51, 0, 0, 1], [3, 0, 0, 1]],
+              set=["render.classification=pre"])
+    c = _marker_centres(isplat.render(str(p), **kw) * 255.0)
+    mid = 47.5
+    assert abs(c["A"][0] - mid) < 3 and c["S"][1] < mid - 4 and c["L"][0] > mid + 4, c
+    c0 = _marker_centres(isplat.render(vol, spacing=read_volume(p).spacing_ijk, **kw) * 255.0)
+    assert np.abs(_flat(c0) - _flat(c)).max() > 4, (c0, c)

@@ -36,8 +36,8 @@ from .scene_validate import Ctx, apply_override
 
 __all__ = [
     "SCENE_VERSION", "Scene", "Data", "Image", "Volume", "Camera", "Transfer", "Shading", "Light", "Cut",
-    "RenderOptions", "load_scene", "parse_scene", "scene_tree", "read_scene_text", "locate_keys", "scene_to_dict", "augmented_window",
-    "DensityWindow", "WindowUnavailable", "spacing_problem",
+    "RenderOptions", "load_scene", "parse_scene", "scene_tree", "read_scene_text", "locate_keys", "scene_to_dict",
+    "augmented_window", "DensityWindow", "WindowUnavailable", "spacing_problem",
 ]
 
 

@@ -21,8 +21,9 @@ from .limits import MAX_VIEWS
 from .scene_schema import (CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS, DEFAULT_ORBIT_STEPS,
                            DEFAULT_PATH_FRAMES, FOV_MAX, IMAGE_KEYS, KEYS_SINCE, LIGHT_KEYS, ORTHONORMAL_TOLERANCE,
                            PARALLEL_TOLERANCE, RENDER_KEYS, SCENE_VERSION, SHADING_KEYS, SUPERSAMPLE_MAX, TOP_KEYS,
-                           TRANSFER_KEYS, VIEW_CHOICES, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light, RenderOptions,
-                           Scene, Shading, Transfer, Vec3, Volume, default_for, defaults, spacing_problem, unit)
+                           TRANSFER_KEYS, VIEW_CHOICES, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light,
+                           RenderOptions, Scene, Shading, Transfer, Vec3, Volume, default_for, defaults, spacing_problem,
+                           unit)
 from .scene_validate import Ctx, Table, dotted, fmt, kind
 
 __all__ = ["build_scene", "DensityWindow", "WindowUnavailable", "NO_WINDOW"]

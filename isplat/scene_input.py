@@ -49,6 +49,8 @@ def is_augmented_path(path) -> bool:
     suffix = Path(path).suffix.lower()
     if suffix in (".h5", ".hdf5") or suffix == ".toml":
         return suffix != ".toml"
+    if not Path(path).is_file():         # a fifo or device is not opened (the scene reader refuses it)
+        return False
     try:
         with open(path, "rb") as f:
             return f.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
@@ -94,6 +96,9 @@ def option_overrides(index=None, preset=None, size=None) -> list[str]:
 
 def _augmented_scene(path, index_given: bool) -> dict:
     """The TOML tree of an augmented file's scene (module docstring)."""
+    from .fileio import check_regular
+
+    check_regular(path, "augmented file")              # a fifo or device: refused unopened
     if not Path(path).is_file():
         raise IsplatError(f"{path}: " + ("is a folder, expected an augmented .h5 file" if Path(path).is_dir() else
                                          "augmented file does not exist (isplat augment SCAN -o FILE.aug.h5 makes it)"))

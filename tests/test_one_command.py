@@ -1,6 +1,7 @@
 """isplat render AUG.h5: one command from an augmented file to a picture (issue 28 item 2), --print-scene, and the
 scene-file render it equals bit for bit."""
 
+import os
 import tomllib
 
 import numpy as np
@@ -110,3 +111,11 @@ def test_image_sheets_say_they_splat_pre_classified(data, capsys, monkeypatch):
     assert code == 0 and err.count("\n") == 1 and "paper's splatting" in err and "render.sheets" in err, err
     code, _, err = run(capsys, monkeypatch, data, *opts, "-o", "axis.png")
     assert code == 0 and err == "", err
+
+
+def test_a_fifo_is_refused_unopened(tmp_path, capsys, monkeypatch):
+    """A fifo as the argument, named like a scene, like an augmented file or neither: one line, nothing blocks."""
+    for name in ("pipe", "pipe.toml", "pipe.aug.h5"):
+        os.mkfifo(tmp_path / name)
+        code, _, err = run(capsys, monkeypatch, tmp_path, name, "--preset", "ct-bone", "-o", "x.png")
+        assert code == 2 and err.count("\n") == 1 and "fifo" in err, err

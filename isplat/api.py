@@ -40,12 +40,14 @@ def render(volume, *, preset: str | None = None, opacity=None, color=None, azimu
     points ``[[value, opacity], ...]`` in the scan's own values give the transfer function; ``size`` is
     ``N`` or ``(width, height)``; ``spacing`` (i, j, k) defaults to the file's or 1; ``window`` as for
     ``isplat augment --window``; ``thin_slices``: interpolate thick slices first, as ``isplat augment
-    --thin-slices`` (:mod:`isplat.resample`); ``set`` takes further ``KEY=VALUE`` scene overrides.
+    --thin-slices`` (:mod:`isplat.resample`); ``set`` takes further ``KEY=VALUE`` scene overrides. A scan whose
+    file records its orientation in the patient is seen from the front, superior up, azimuth and elevation
+    turning from there (``set=["camera.view=left"]`` names another side: formats/scene.md §4.4).
     """
     if preset is None and opacity is None:
         from .presets import PRESETS
         raise IsplatError(f"isplat.render: give preset= (one of {', '.join(PRESETS)}) or opacity= points")
-    arr, spacing = _volume_array(volume, spacing)
+    arr, spacing, axes_lps = _volume_array(volume, spacing)
     if thin_slices:
         from .resample import thin_slices as thin
 
@@ -61,30 +63,31 @@ def render(volume, *, preset: str | None = None, opacity=None, color=None, azimu
     keys += [f"transfer.color={_toml(color)}"] if color is not None else []
     keys += [f"image.background={_toml(background)}"] if background is not None else []
     scene = _scene(keys + list(set), aug["density_window"])
-    return _render_scene(scene, aug, spacing, identity)
+    return _render_scene(scene, aug, spacing, identity, axes_lps)
 
 
-def _render_scene(scene, aug, spacing, identity) -> np.ndarray:
+def _render_scene(scene, aug, spacing, identity, axes_lps=None) -> np.ndarray:
     """The first view of ``scene`` from the augmented volume ``aug`` (identified by ``identity``), through a
     Renderer whose selection is kept by its request (:data:`_SELECTIONS`)."""
     from .renderer import InMemory, Renderer
 
     arrays = InMemory({ch: aug[ch] for ch in ("density", "gradient_magnitude", "normal")}, spacing,
-                      float(aug["gradient_magnitude_scale"]), identity)
+                      float(aug["gradient_magnitude_scale"]), identity, axes_lps)
     rgba, _ = Renderer(scene, arrays=arrays, cache=_SELECTIONS).render_view(0)
     return rgba
 
 
 def _volume_array(volume, spacing):
-    """The volume as an array and its spacing (i, j, k): given, else the file's, else 1."""
+    """The volume as an array, its spacing (i, j, k): given, else the file's, else 1, and its orientation
+    (``axes_lps``, a file's; None for an array)."""
     if isinstance(volume, (str, Path)):
         from .volume_io import read_volume
 
         vol = read_volume(volume, spacing=spacing)
-        return np.asarray(vol.array), tuple(float(s) for s in vol.spacing_ijk)
+        return np.asarray(vol.array), tuple(float(s) for s in vol.spacing_ijk), vol.meta.get("axes_lps")
     from .memory import check_volume
 
-    return check_volume(volume, spacing, "isplat.render")
+    return (*check_volume(volume, spacing, "isplat.render"), None)
 
 
 def _augment(arr, spacing, window) -> dict:

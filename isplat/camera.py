@@ -125,15 +125,28 @@ def orbit_direction(azimuth_deg, elevation_deg, up) -> np.ndarray:
     return math.cos(el) * (math.cos(az) * e1 + math.sin(az) * e2) + math.sin(el) * up
 
 
-def view_frame(cam, geom: VolumeGeometry, width: int, height: int) -> ViewFrame:
-    """Resolve a scene camera (orbit, look_at or the paper's p, v, w, e) into a :class:`ViewFrame`."""
+def resolved_view(view: str | None, axes_lps) -> str | None:
+    """The named view an orbit camera's ``camera.view`` asks for: "auto" is "anterior" for data with an
+    orientation (``axes_lps``) and None (azimuth and elevation about ``camera.up``) without one, as is "none"."""
+    if view in (None, "none") or (view == "auto" and axes_lps is None):
+        return None
+    return "anterior" if view == "auto" else view
+
+
+def view_frame(cam, geom: VolumeGeometry, width: int, height: int, axes_lps=None) -> ViewFrame:
+    """Resolve a scene camera (orbit, look_at or the paper's p, v, w, e) into a :class:`ViewFrame`; an orbit
+    camera's named view (``cam.view``) takes the data's orientation ``axes_lps`` (:func:`named_view`)."""
     persp = cam.projection == "perspective"
     if cam.mode == "orbit":
         target = geom.centre if cam.target is None else np.asarray(cam.target, float)
         dist = 3.0 * geom.radius if cam.distance is None else float(cam.distance)
-        w = orbit_direction(cam.azimuth, cam.elevation, cam.up)
-        # the frame's up is d(w)/d(elevation): perpendicular to w and defined even straight overhead
-        up_frame = orbit_direction(cam.azimuth, cam.elevation + 90.0, cam.up)
+        named = resolved_view(getattr(cam, "view", None), axes_lps)
+        if named is not None:
+            w, up_frame = named_view(named, axes_lps, cam.azimuth, cam.elevation, geom.unit_axes)
+        else:
+            w = orbit_direction(cam.azimuth, cam.elevation, cam.up)
+            # the frame's up is d(w)/d(elevation): perpendicular to w and defined even straight overhead
+            up_frame = orbit_direction(cam.azimuth, cam.elevation + 90.0, cam.up)
         u, v, w = _frame_from(w, up_frame, cam.roll)
         p, e = target, target + dist * w
     elif cam.mode == "look_at":

@@ -152,7 +152,7 @@ def _check(keys) -> None:
     if first.mode not in ("orbit", "look_at"):
         raise PathError(0, "mode", f'camera paths take orbit or look_at keyframes, not mode "{first.mode}"')
     for n, cam in enumerate(keys):
-        for field in ("mode", "projection", "up"):
+        for field in ("mode", "projection", "up", "view"):
             if getattr(cam, field) != getattr(first, field):
                 raise PathError(n, field, f"every keyframe of a path needs the same {field} (keyframe 0 has "
                                           f"{_show(getattr(first, field))}, this one {_show(getattr(cam, field))})")

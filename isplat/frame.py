@@ -91,24 +91,28 @@ class View:
         return cam_mod.slice_order(self.frame, self.geom, *self.axis_sign)
 
 
-def scene_geometry(scene, shape, spacing_ijk, source: str = "volume") -> cam_mod.VolumeGeometry:
-    """Where the volume sits: the scene's ``[volume]`` (spacing defaults to the data's, from ``source``)."""
+def scene_geometry(scene, shape, spacing_ijk, source: str = "volume", axes_lps=None) -> cam_mod.VolumeGeometry:
+    """Where the volume sits: the scene's ``[volume]`` (spacing defaults to the data's, from ``source``; axes to
+    the data's orientation ``axes_lps``, world = patient space, or the identity without one)."""
     from .scene import spacing_problem
 
     sp = scene.volume.spacing or spacing_ijk
     problem = spacing_problem(sp)
     if problem:          # the scene's own spacing is checked when it is read; this is the data's
         raise IsplatError(f"{source}: attribute 'spacing_ijk' is {list(sp)}: {problem} (or set volume.spacing in the scene)")
-    return cam_mod.volume_geometry(shape, sp, scene.volume.origin, scene.volume.axes)
+    axes = scene.volume.axes if scene.volume.axes is not None else axes_lps
+    return cam_mod.volume_geometry(shape, sp, scene.volume.origin, axes)
 
 
 def views_for(scene, data, cameras=None) -> list[View]:
     """The :class:`View` of each camera (default: the scene's views) for ``data`` (anything with ``shape``
-    and ``spacing_ijk``: a Selection or an augmented file)."""
-    geom = scene_geometry(scene, data.shape, data.spacing_ijk, str(getattr(data, "path", "volume")))
+    and ``spacing_ijk``: a Selection or an augmented file, whose ``axes_lps``, if any, places the volume and
+    gives named views their meaning)."""
+    axes_lps = getattr(data, "axes_lps", None)
+    geom = scene_geometry(scene, data.shape, data.spacing_ijk, str(getattr(data, "path", "volume")), axes_lps)
     n = scene.render.supersample                # frames at n times the image's size (finish_image box-filters)
     W, H = scene.image.width * n, scene.image.height * n
-    return [View(cam_mod.view_frame(c, geom, W, H), geom, scene.render, scene.shading, scene.cuts,
+    return [View(cam_mod.view_frame(c, geom, W, H, axes_lps), geom, scene.render, scene.shading, scene.cuts,
                  tuple(scene.image.background)) for c in (scene.views if cameras is None else cameras)]
 
 

@@ -39,13 +39,15 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class InMemory:
     """A volume in memory as a :class:`Renderer` takes it: augmented ``channels`` (``{name: array [k, j, i]}``,
-    density codes and the channels the scenes use), its spacing (i, j, k), gradient magnitude scale, and
-    ``identity``: what identifies the values (the request's source; a cache reuses selections by it)."""
+    density codes and the channels the scenes use), its spacing (i, j, k), gradient magnitude scale,
+    ``identity``: what identifies the values (the request's source; a cache reuses selections by it), and
+    ``axes_lps``: its orientation in the patient (rows i, j, k in LPS), None when unknown."""
 
     channels: dict
     spacing_ijk: tuple
     gradient_magnitude_scale: float
     identity: object = None
+    axes_lps: object = None
 
     @property
     def shape(self) -> tuple:
@@ -71,6 +73,10 @@ class Renderer:
         if arrays is not None and (scheduler is not None or (slabs or 1) > 1):
             raise IsplatError("a volume in memory renders in this process, in one slab")
         self.scene, self.scheduler = scene, scheduler
+        if scene.render.sheets == "image":
+            log.warning('isplat: warning: render.sheets = "image" splats pre-classified (the paper\'s splatting, '
+                        'render.classification = "pre"), at about 5-10x the time of the default axis sheets '
+                        '(docs/sheets.md)')
         self.data = arrays if arrays is not None else open_augmented(scene.data.augmented)
         self.views = views_for(scene, self.data, views)
         axes = axes_of(self.views)

@@ -36,8 +36,8 @@ from .scene_validate import Ctx, apply_override
 
 __all__ = [
     "SCENE_VERSION", "Scene", "Data", "Image", "Volume", "Camera", "Transfer", "Shading", "Light", "Cut",
-    "RenderOptions", "load_scene", "parse_scene", "locate_keys", "scene_to_dict", "augmented_window",
-    "DensityWindow", "WindowUnavailable", "spacing_problem",
+    "RenderOptions", "load_scene", "parse_scene", "scene_tree", "read_scene_text", "locate_keys", "scene_to_dict",
+    "augmented_window", "DensityWindow", "WindowUnavailable", "spacing_problem",
 ]
 
 
@@ -74,6 +74,16 @@ def _toml(text: str, source_name: str) -> dict:
         raise IsplatError(f"{source_name}{':' + line if line else ''}: TOML syntax error: {msg}") from None
 
 
+def scene_tree(text: str, source_name: str, overrides: Iterable[str] = ()) -> tuple[dict, dict]:
+    """The TOML tree of scene ``text`` with the ``--set`` ``overrides`` applied, and where each override went
+    (``{key path: argument}``); not validated (:func:`parse_scene` does that)."""
+    tree = _toml(text, source_name)
+    set_args: dict[tuple, str] = {}
+    for arg in overrides:
+        apply_override(tree, arg, set_args)
+    return tree, set_args
+
+
 def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: Iterable[str] = (),
                 data_required: bool = True, density_window: WindowArg = None) -> Scene:
     """Parse and validate scene ``text``; relative data paths are taken from ``base_dir``.
@@ -85,10 +95,7 @@ def parse_scene(text: str, base_dir: Path | str, source_name: str, overrides: It
     ``f(data) -> DensityWindow`` called only if data units or a Hounsfield preset are used; left out, it is
     :func:`augmented_window` (the window recorded in ``data.augmented``, read only then).
     """
-    tree = _toml(text, source_name)
-    set_args: dict[tuple, str] = {}
-    for arg in overrides:
-        apply_override(tree, arg, set_args)
+    tree, set_args = scene_tree(text, source_name, overrides)
     ctx = Ctx(source_name, locate_keys(text), Path(base_dir), set_args)
     return build_scene(ctx, tree, data_required, augmented_window if density_window is None else density_window)
 
@@ -110,6 +117,14 @@ def scene_to_dict(scene: Scene, relative_to: Path | str | None = None) -> dict:
 
 def load_scene(path: str | os.PathLike, overrides: Iterable[str] = ()) -> Scene:
     """Read, parse and validate the scene file at ``path`` (see ``formats/scene.md``)."""
+    text = read_scene_text(path)
+    check_scene_text(str(path), text, overrides)    # size and nesting bounded before tomllib recurses
+    scene = parse_scene(text, Path(path).parent, str(path), overrides)
+    return replace(scene, path=Path(os.path.abspath(path)))
+
+
+def read_scene_text(path: str | os.PathLike) -> str:
+    """The text of the scene file at ``path`` (UTF-8, a byte-order mark dropped); one line when it cannot be."""
     p = Path(path)
     name = str(path)
     check_regular(p, "scene", MAX_SCENE_BYTES)          # a fifo would block; a huge file is refused unread
@@ -126,8 +141,4 @@ def load_scene(path: str | os.PathLike, overrides: Iterable[str] = ()) -> Scene:
     except UnicodeDecodeError as exc:
         line = raw[: exc.start].count(b"\n") + 1
         raise IsplatError(f"{name}:{line}: the scene file is not UTF-8 text") from None
-    if text.startswith("\ufeff"):
-        text = text[1:]
-    check_scene_text(name, text, overrides)    # size and nesting bounded before tomllib recurses
-    scene = parse_scene(text, p.parent, name, overrides)
-    return replace(scene, path=Path(os.path.abspath(p)))
+    return text[1:] if text.startswith("\ufeff") else text

@@ -21,8 +21,9 @@ from .limits import MAX_VIEWS
 from .scene_schema import (CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS, DEFAULT_ORBIT_STEPS,
                            DEFAULT_PATH_FRAMES, FOV_MAX, IMAGE_KEYS, KEYS_SINCE, LIGHT_KEYS, ORTHONORMAL_TOLERANCE,
                            PARALLEL_TOLERANCE, RENDER_KEYS, SCENE_VERSION, SHADING_KEYS, SUPERSAMPLE_MAX, TOP_KEYS,
-                           TRANSFER_KEYS, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light, RenderOptions,
-                           Scene, Shading, Transfer, Vec3, Volume, default_for, defaults, spacing_problem, unit)
+                           TRANSFER_KEYS, VIEW_CHOICES, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light,
+                           RenderOptions, Scene, Shading, Transfer, Vec3, Volume, default_for, defaults, spacing_problem,
+                           unit)
 from .scene_validate import Ctx, Table, dotted, fmt, kind
 
 __all__ = ["build_scene", "DensityWindow", "WindowUnavailable", "NO_WINDOW"]
@@ -106,7 +107,7 @@ def _image(ctx: Ctx, tree: dict) -> Image:
     return Image(width, height, bg, bit_depth)
 
 
-def _volume(ctx: Ctx, tree: dict) -> Volume:
+def _volume(ctx: Ctx, tree: dict, version: Any = None) -> Volume:
     t = Table(ctx, ctx.table(tree, ("volume",), VOLUME_KEYS), ("volume",), defaults(Volume))
     spacing = t.vector("spacing", lo=0.0, lo_open=True,
                        expected="expected 3 numbers > 0 (i, j, k spacing in world units)")
@@ -114,7 +115,7 @@ def _volume(ctx: Ctx, tree: dict) -> Volume:
     if problem:
         t.fail("spacing", problem)
     origin = t.vector("origin", expected="expected 3 numbers (world position of voxel 0,0,0)")
-    axes = t.read("axes", _axes, ctx)
+    axes = t.read("axes", _axes, ctx, default=default_for(version, Volume, "volume", "axes"))
     return Volume(spacing, origin, axes)
 
 
@@ -168,9 +169,14 @@ def _line_order(ctx: Ctx, path: tuple) -> tuple:
     return (1 if ctx.override_for(path) else 0, ctx.loc.get(path, 0))
 
 
-def _camera(ctx: Ctx, raw: dict, paths: dict[str, tuple]) -> Camera:
+def _camera(ctx: Ctx, raw: dict, paths: dict[str, tuple], version: Any = None) -> Camera:
     """Validate one camera from its raw keys; ``paths[key]`` is where each key came from (for messages)."""
     t = Table(ctx, raw, ("camera",), defaults(Camera), paths)
+    view = t.choice("view", VIEW_CHOICES, default="none" if "up" in t else default_for(version, Camera, "camera",
+                                                                                        "view"))
+    if "view" in t and "up" in t and view not in ("auto", "none"):
+        t.fail("up", f'not used with camera.view = "{view}" (a named view has its own up: superior, or anterior '
+                     'from above and below)')
     projection = t.choice("projection", ("orthographic", "perspective"))
     mode = _camera_mode(ctx, raw, paths)
     if "up" in t and mode == "paper":
@@ -188,7 +194,8 @@ def _camera(ctx: Ctx, raw: dict, paths: dict[str, tuple]) -> Camera:
     roll = t.number("roll", "expected a number of degrees")
     distance = t.number("distance", "expected a distance > 0 in world units", lo=0.0, lo_open=True)
     target = t.vector("target", expected="expected 3 numbers (world point)")
-    cam = Camera(projection, mode, azimuth, elevation, distance, roll, target, up, zoom=zoom, fov=fov, near=near)
+    cam = Camera(projection, mode, azimuth, elevation, distance, roll, target, up, zoom=zoom, fov=fov, near=near,
+                 view=view)
     if mode == "look_at":
         return _look_at(t, cam)
     if mode == "paper":
@@ -462,7 +469,8 @@ def _render(ctx: Ctx, tree: dict) -> RenderOptions:
 def _cameras(ctx: Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
     raw_cam = ctx.table(tree, ("camera",), CAMERA_KEYS)
     cam_paths = {k: ("camera", k) for k in raw_cam}
-    camera = _camera(ctx, raw_cam, cam_paths)
+    version = tree.get("version")
+    camera = _camera(ctx, raw_cam, cam_paths, version)
     views_t = ctx.table(tree, ("views",), VIEWS_KEYS)
     vp = ("views",)
     steps = ctx.integer(vp + ("orbit_steps",), views_t.get("orbit_steps", DEFAULT_ORBIT_STEPS),
@@ -476,17 +484,18 @@ def _cameras(ctx: Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
         if steps > 0 or vlist:
             key = "path" if "path" in views_t else "frames"
             ctx.fail(vp + (key,), views_t[key], "views.path cannot be combined with views.orbit_steps or views.list")
-        return camera, _path_views(ctx, views_t, raw_cam, cam_paths)
+        return camera, _path_views(ctx, views_t, raw_cam, cam_paths, version)
     if steps > 0:
         if camera.mode != "orbit":
             ctx.fail(vp + ("orbit_steps",), steps, f'needs camera mode "orbit" (the camera is in mode "{camera.mode}")')
         return camera, tuple(replace(camera, azimuth=camera.azimuth + n * 360.0 / steps) for n in range(steps))
     if not vlist:
         return camera, (camera,)
-    return camera, _merged_cameras(ctx, vp + ("list",), vlist, raw_cam, cam_paths)
+    return camera, _merged_cameras(ctx, vp + ("list",), vlist, raw_cam, cam_paths, version)
 
 
-def _merged_cameras(ctx: Ctx, lp: tuple, entries: list, raw_cam: dict, cam_paths: dict) -> tuple[Camera, ...]:
+def _merged_cameras(ctx: Ctx, lp: tuple, entries: list, raw_cam: dict, cam_paths: dict,
+                    version: Any = None) -> tuple[Camera, ...]:
     """Each entry's camera keys merged over [camera] and validated as a whole camera."""
     views = []
     for n, entry in enumerate(entries):
@@ -498,11 +507,11 @@ def _merged_cameras(ctx: Ctx, lp: tuple, entries: list, raw_cam: dict, cam_paths
         merged.update(entry)
         paths = dict(cam_paths)
         paths.update({k: ep + (k,) for k in entry})
-        views.append(_camera(ctx, merged, paths))
+        views.append(_camera(ctx, merged, paths, version))
     return tuple(views)
 
 
-def _path_views(ctx: Ctx, views_t: dict, raw_cam: dict, cam_paths: dict) -> tuple[Camera, ...]:
+def _path_views(ctx: Ctx, views_t: dict, raw_cam: dict, cam_paths: dict, version: Any = None) -> tuple[Camera, ...]:
     """``views.path`` keyframes interpolated into ``views.frames`` cameras (isplat.camera_path)."""
     from .camera_path import PathError, interpolate
 
@@ -515,7 +524,7 @@ def _path_views(ctx: Ctx, views_t: dict, raw_cam: dict, cam_paths: dict) -> tupl
                  "e.g. [{azimuth = 0}, {azimuth = 90, zoom = 2}]")
     frames = ctx.integer(vp + ("frames",), views_t.get("frames", DEFAULT_PATH_FRAMES),
                          f"expected an integer number of frames >= 2, at most {MAX_VIEWS}", lo=2, hi=MAX_VIEWS)
-    cams = _merged_cameras(ctx, vp + ("path",), keys, raw_cam, cam_paths)
+    cams = _merged_cameras(ctx, vp + ("path",), keys, raw_cam, cam_paths, version)
     try:
         return interpolate(list(cams), frames)
     except PathError as exc:
@@ -553,7 +562,7 @@ def build_scene(ctx: Ctx, tree: dict, data_required: bool = True, density_window
     render = _render(ctx, tree)
     data = _data(ctx, tree, render.method, data_required)
     image = _image(ctx, tree)
-    volume = _volume(ctx, tree)
+    volume = _volume(ctx, tree, tree.get("version"))
     camera, views = _cameras(ctx, tree)
     transfer = _transfer(ctx, tree, data, density_window)
     shading = _shading(ctx, tree)

@@ -9,6 +9,8 @@ defaults that depend on other keys or on the file's ``version`` are said next to
 (0.99, (0.0, 0.0, 0.0, 1.0))
 >>> [default_for(v, RenderOptions, "render", "classification") for v in (3, 4, None)]
 ['pre', 'post', 'post']
+>>> [default_for(v, Camera, "camera", "view") for v in (4, 5)], default_for(4, Volume, "volume", "axes")[0]
+(['none', 'auto'], (1.0, 0.0, 0.0))
 """
 
 from __future__ import annotations
@@ -24,13 +26,18 @@ __all__ = [
     "Shading", "Light", "Cut", "RenderOptions", "defaults", "default_for", "spacing_problem",
 ]
 
-SCENE_VERSION = 4
+SCENE_VERSION = 5
+IDENTITY_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 # keys added by each version after 1: a file that says an older version must not use them
 KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
               ("views", "fps"): 2, ("render", "sheets"): 3,
-              ("render", "classification"): 4, ("render", "supersample"): 4}
+              ("render", "classification"): 4, ("render", "supersample"): 4, ("camera", "view"): 5}
 # defaults a version changed: (table, key) -> (that version, the default of a file that says an older one)
-DEFAULTS_BEFORE = {("render", "classification"): (4, "pre")}
+DEFAULTS_BEFORE = {("render", "classification"): (4, "pre"), ("camera", "view"): (5, "none"),
+                   ("volume", "axes"): (5, IDENTITY_AXES)}
+# camera.view: a named anatomical view (isplat.camera.NAMED_VIEWS), "auto" or "none" (class Camera)
+NAMED_VIEW_NAMES = ("anterior", "posterior", "left", "right", "superior", "inferior")
+VIEW_CHOICES = NAMED_VIEW_NAMES + ("auto", "none")
 
 Vec3 = tuple[float, float, float]
 SUPERSAMPLE_MAX = 8
@@ -69,7 +76,8 @@ class Image:
 class Volume:
     spacing: Vec3 | None = None   # None: the augmented file's
     origin: Vec3 | None = None
-    axes: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    axes: tuple[Vec3, Vec3, Vec3] | None = None   # None: the augmented file's axes_lps (world = patient space,
+                                                  # LPS), or the identity without one; the identity before version 5
 
 
 @dataclass(frozen=True)
@@ -91,6 +99,10 @@ class Camera:
     zoom: float = 1.0
     fov: float = 30.0
     near: float = 0.0
+    view: str = "auto"            # orbit: a named view (NAMED_VIEW_NAMES; azimuth and elevation turn from it, in the
+                                  # patient) of data with an orientation; "auto": "anterior" when the data has one,
+                                  # else "none"; "none": azimuth and elevation about camera.up. "none" before
+                                  # version 5 and when the scene gives camera.up
 
 
 @dataclass(frozen=True)
@@ -185,7 +197,7 @@ IMAGE_KEYS = ("width", "height", "background", "bit_depth")
 VOLUME_KEYS = ("spacing", "origin", "axes")
 CAMERA_COMMON_KEYS = ("projection", "mode", "up", "roll", "zoom", "fov", "near")
 CAMERA_MODE_KEYS = {
-    "orbit": ("azimuth", "elevation", "distance", "target"),
+    "orbit": ("azimuth", "elevation", "distance", "target", "view"),
     "look_at": ("position", "look_at"),
     "paper": ("reference_point", "view_up", "view_plane_normal", "eye"),
 }

@@ -175,35 +175,37 @@ def _covered(idx, intervals) -> bool:
 
 # -------------------------------------------------------------------------------------------------- scene
 
-def _reconcile(scene_path, overrides, aug_path: Path, idx_path: Path | None) -> list[str]:
-    """Overrides that give the scene the command line's index when the scene names none."""
-    extra = []
-    if idx_path is not None:
+def scene_overrides(scene_path, overrides, aug_path: Path, idx_path: Path | None) -> list[str]:
+    """``overrides`` and after them those that make the scene describe the command line's files: ``data.augmented``
+    is AUG.h5; ``data.index`` is IDX.h5, or when none is given the scene's own (if the scene names AUG.h5, or a
+    ``--set data.index`` does), else the index beside AUG.h5 (the same stem, ``.idx.h5``) if there is one."""
+    from .scene_input import index_beside, toml_string
+
+    extra = ["data.augmented=" + toml_string(os.path.abspath(aug_path))]
+    if idx_path is None and not any(o.split("=", 1)[0].strip() == "data.index" for o in overrides):
         try:
             tree = tomllib.loads(Path(scene_path).read_text(encoding="utf-8-sig"))
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
             tree = {}                                  # load_scene reports the problem with its line
         data = tree.get("data") if isinstance(tree, dict) else None
-        if not (isinstance(data, dict) and "index" in data):
-            extra.append(f"data.index={os.path.abspath(idx_path)!r}".replace("'", '"'))
-    return extra + list(overrides)
+        data = data if isinstance(data, dict) else {}
+        named = data.get("augmented")
+        own = isinstance(named, str) and _same_file(Path(scene_path).parent / os.path.expanduser(named), aug_path)
+        if not (own and "index" in data) and index_beside(aug_path).is_file():
+            idx_path = index_beside(aug_path)
+    if idx_path is not None:
+        extra.append("data.index=" + toml_string(os.path.abspath(idx_path)))
+    return list(overrides) + extra
 
 
-def scene_section(scene_file, overrides, aug, aug_path: Path, idx_path: Path | None, idx, hist_from_index,
-                  view: int) -> tuple[dict, object]:
+def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_index, view: int) -> tuple[dict, object]:
     """The ``scene`` section of the JSON (docs/stats.md) and the frame's stats. Over 60 lines: one flat dict
     literal, a line per documented key in the order of docs/stats.md, which reads better whole than cut up."""
     from .renderer import Renderer
     from .scene import load_scene
     from .transfer import build_luts
 
-    scene = load_scene(scene_file, _reconcile(scene_file, overrides, aug_path, idx_path))
-    if not _same_file(scene.data.augmented, aug_path):
-        raise IsplatError(f"{scene_file}: data.augmented is {scene.data.augmented}, not {aug_path}; stats describe "
-                          f"one volume: give the scene's files, or add --set data.augmented={aug_path}")
-    if idx_path is not None and scene.data.index is not None and not _same_file(scene.data.index, idx_path):
-        raise IsplatError(f"{scene_file}: data.index is {scene.data.index}, not {idx_path}; give the scene's index, "
-                          f"or add --set data.index={idx_path}")
+    scene = load_scene(scene_file, overrides)           # (overrides: scene_overrides, the command line's files)
     if not 0 <= view < len(scene.views):
         raise IsplatError(f"--view {view}: the scene has {len(scene.views)} view(s) (0..{len(scene.views) - 1})")
     luts = build_luts(scene.transfer, aug.gradient_magnitude_scale)
@@ -266,8 +268,9 @@ def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> d
     aug = open_augmented(aug_path)
     open_augmented(aug_path).verify_all()      # every chunk of every channel against its hash (own counters)
     idx_path = Path(index) if index is not None else None
-    if idx_path is None and scene is not None:
-        idx_path = _scene_index(scene, overrides)
+    if scene is not None:
+        overrides = scene_overrides(scene, list(overrides), aug_path, idx_path)
+        idx_path = idx_path or _scene_index(scene, overrides)
     idx = None
     out = {"stats_version": STATS_VERSION, "augmented": augmented_section(aug), "index": None, "scene": None}
     hist_from_index = None
@@ -283,8 +286,7 @@ def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> d
         out["index"] = index_section(idx, aug)
         hist_from_index = idx.voxel_counts(idx.axes[0])
     if scene is not None:
-        out["scene"], _ = scene_section(scene, overrides, aug, aug_path, idx_path if index is not None else None,
-                                        idx, hist_from_index, view)
+        out["scene"], _ = scene_section(scene, overrides, aug, aug_path, idx, hist_from_index, view)
         # against the whole: channels and index tables as counted above, and the files on disk
         s, a, ix = out["scene"]["loaded"], out["augmented"], out["index"]
         s["augmented_fraction"] = _ratio(s["augmented_bytes"], a["bytes"])

@@ -29,13 +29,17 @@ run "$ISPLAT" render examples/head.toml $(data head) --set image.width=256 --set
     --set 'views.path=[{azimuth = -40, elevation = 0}, {azimuth = 60, elevation = 35, zoom = 1.6}, {azimuth = 160, elevation = 10}]' \
     --set views.frames=24 -o "$OUT/head-path.gif" --force
 
-# your own scan: a CT in Hounsfield units (here the int16 ct-head sample) and a preset, in two commands
+# your own scan: a CT in Hounsfield units (here the int16 ct-head sample, a .npy: its orientation, LPS, is
+# given) and a preset, in two commands, as README's "Your own scan"
 run "$ISPLAT" sample ct-head -o "$OUT/ct.npy" --force >/dev/null
-run "$ISPLAT" augment "$OUT/ct.npy" -o "$OUT/ct.aug.h5" --index --force
+run "$ISPLAT" augment "$OUT/ct.npy" -o "$OUT/ct.aug.h5" --orientation LPS --index --force
 for p in ct-bone ct-skin; do
-  run "$ISPLAT" render examples/ct-preset.toml --set "data.augmented=$OUT/ct.aug.h5" --set "data.index=$OUT/ct.idx.h5" \
-      --set "transfer.preset=$p" -o "$OUT/$p.png" --force
+  run "$ISPLAT" render "$OUT/ct.aug.h5" --preset "$p" -o "$OUT/$p.png" --force
 done
+# and an MRI head (the uint16 mr-head sample)
+run "$ISPLAT" sample mr-head -o "$OUT/mr.npy" --force >/dev/null
+run "$ISPLAT" augment "$OUT/mr.npy" -o "$OUT/mr.aug.h5" --orientation LPS --index --force
+run "$ISPLAT" render "$OUT/mr.aug.h5" --preset mri-t1-head -o "$OUT/mri-t1-head.png" --force
 if "$ISPLAT" stats --help >/dev/null 2>&1; then
   run "$ISPLAT" stats "$OUT/head.aug.h5" "$OUT/head.idx.h5" --scene examples/head.toml $(data head) \
       | tee "$OUT/head-stats.txt"

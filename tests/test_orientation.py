@@ -254,3 +254,103 @@ def test_singular_nifti_affine_is_a_warning_not_an_error(tmp_path, caplog):
     nib.save(nib.Nifti1Image(np.zeros((4, 5, 6), np.int16), None, header=hdr), str(tmp_path / "s.nii"))
     v = read_volume(tmp_path / "s.nii")
     assert "axes_lps" not in v.meta and "orientation is taken as unknown" in caplog.text
+
+
+# --- rendered: data with an orientation is seen from the front, superior up, by default (scene version 5) -------
+
+def _marker_centres(png):
+    """Pixel centroid (x, y) of each marker, by its colour: A red, S green, L blue (``png``: a file or an RGB
+    array in 0..255)."""
+    import imageio.v3 as iio
+
+    img = (iio.imread(png) if not isinstance(png, np.ndarray) else png)[..., :3].astype(float)
+    out = {}
+    for name, c in (("A", 0), ("S", 1), ("L", 2)):
+        mask = (img[..., c] > 60) & (img[..., c] > 2 * np.delete(img, c, axis=-1).max(axis=-1))
+        assert mask.sum() > 4, name
+        y, x = np.nonzero(mask)
+        out[name] = (x.mean(), y.mean())
+    return out
+
+
+def _flat(centres):
+    return np.array([centres[n] for n in "ASL"])
+
+
+def _render_phantom(tmp_path, monkeypatch, cols, *extra, out="a.png"):
+    from isplat.cli.main import main
+
+    p, _ = _nifti(tmp_path, cols)
+    monkeypatch.chdir(tmp_path)
+    if not (tmp_path / "ph.aug.h5").exists():
+        augment_file(p, tmp_path / "ph.aug.h5", window=(0.0, 3.0))
+    opts = ["--set", 'transfer.opacity=[[0.5, 0], [0.6, 1], [3, 1]]', "--set", "transfer.units=data",
+            "--set", "transfer.color=[[1, 1, 0, 0], [1.5, 1, 0, 0], [1.51, 0, 1, 0], [2.5, 0, 1, 0], [2.51, 0, 0, 1],"
+                     " [3, 0, 0, 1]]",
+            "--set", "shading.enabled=false", "--set", "render.classification=pre", "--size", "96", "-q"]   # pre: a
+    # voxel keeps its own colour (post would give the blue marker red and green rims)
+    with pytest.raises(SystemExit) as exc:
+        main(["render", "ph.aug.h5", *opts, *extra, "-o", out])
+    assert exc.value.code == 0
+    return _marker_centres(tmp_path / out)
+
+
+@pytest.mark.parametrize("cols", [ROTATED, MIRRORED], ids=["rotated", "mirrored"])
+def test_default_render_is_anterior_superior_up(tmp_path, monkeypatch, cols):
+    """A NIfTI with a non-identity affine (a rotation; a mirror), rendered with the defaults: the anterior marker
+    in the middle (nearest), superior above it, the patient's left on the image's right."""
+    c = _render_phantom(tmp_path, monkeypatch, cols)
+    mid = 47.5
+    assert abs(c["A"][0] - mid) < 3 and abs(c["A"][1] - mid) < 3, c
+    assert c["S"][1] < mid - 4 and abs(c["S"][0] - mid) < 3, c               # pixel y grows downwards
+    assert c["L"][0] > mid + 4 and abs(c["L"][1] - mid) < 3, c
+    # a named view turns from there: the patient's left side, anterior on the image's left, superior up
+    c = _render_phantom(tmp_path, monkeypatch, cols, "--set", "camera.view=left", out="left.png")
+    assert c["A"][0] < mid - 4 and c["S"][1] < mid - 4 and abs(c["L"][0] - mid) < 3, c
+    # azimuth is relative to the view: 90 from anterior is the left view
+    az = _render_phantom(tmp_path, monkeypatch, cols, "--set", "camera.azimuth=90", out="az.png")
+    assert np.allclose(_flat(az), _flat(c), atol=0.5), (az, c)
+
+
+def test_version_4_keeps_the_grid_convention(tmp_path, monkeypatch):
+    """A scene that says version 4 renders in grid space, as before: the rotated phantom is not seen from the
+    front; the same scene file without the version is."""
+    c4 = _render_phantom(tmp_path, monkeypatch, ROTATED, "--set", "version=4", out="v4.png")
+    c5 = _render_phantom(tmp_path, monkeypatch, ROTATED, out="v5.png")
+    assert np.abs(_flat(c4) - _flat(c5)).max() > 4, (c4, c5)
+
+
+def test_named_view_without_orientation_is_one_line(tmp_path, capsys):
+    """Data without an orientation: the default keeps the grid convention; a named view is refused in one line
+    naming isplat augment --orientation."""
+    from conftest import write_volume
+    from isplat.cli.main import main
+
+    dens = np.zeros((8, 8, 8), np.uint8)
+    dens[2:6, 2:6, 2:6] = 200
+    aug, _ = write_volume(tmp_path, dens, name="v")
+    base = [str(aug), "--set", "transfer.opacity=[[100, 0], [200, 1]]", "--size", "16", "-q"]
+    with pytest.raises(SystemExit) as exc:
+        main(["render", *base, "-o", str(tmp_path / "a.png")])
+    assert exc.value.code == 0
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        main(["render", *base, "--set", "camera.view=left", "-o", str(tmp_path / "b.png")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and "--orientation" in err[0], err
+    assert not (tmp_path / "b.png").exists()
+
+
+def test_api_render_of_a_path_is_anterior(tmp_path):
+    """isplat.render(path) keeps the file's orientation as the command line does; the array alone has none."""
+    import isplat
+
+    p, vol = _nifti(tmp_path, ROTATED)
+    kw = dict(opacity=[[0.5, 0], [0.6, 1], [3, 1]], window=(0.0, 3.0), shading=False, size=96,
+              color=[[1, 1, 0, 0], [1.5, 1, 0, 0], [1.51, 0, 1, 0], [2.5, 0, 1, 0], [2.51, 0, 0, 1], [3, 0, 0, 1]],
+              set=["render.classification=pre"])
+    c = _marker_centres(isplat.render(str(p), **kw) * 255.0)
+    mid = 47.5
+    assert abs(c["A"][0] - mid) < 3 and c["S"][1] < mid - 4 and c["L"][0] > mid + 4, c
+    c0 = _marker_centres(isplat.render(vol, spacing=read_volume(p).spacing_ijk, **kw) * 255.0)
+    assert np.abs(_flat(c0) - _flat(c)).max() > 4, (c0, c)

@@ -96,7 +96,10 @@ def test_defaults():
     assert s.data.augmented == Path("/scenes/a.h5") and s.data.index == Path("/scenes/i.h5")
     assert (s.image.width, s.image.height, s.image.background, s.image.bit_depth) == (256, 256, (0, 0, 0, 1), 8)
     assert s.volume.spacing is None and s.volume.origin is None
-    assert s.volume.axes == ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+    assert s.volume.axes is None                      # the file's axes_lps, else the identity (version 5)
+    assert parse("version = 4\n" + BASE).volume.axes == ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+    assert parse("version = 4\n" + BASE).camera.view == "none" and s.camera.view == "auto"
+    assert parse(BASE, ["camera.up=[0, 1, 0]"]).camera.view == "none"       # a scene with its own up
     c = s.camera
     assert (c.projection, c.mode, c.azimuth, c.elevation, c.distance, c.roll, c.target) == \
         ("orthographic", "orbit", 0.0, 0.0, None, 0.0, None)
@@ -283,7 +286,7 @@ def test_version_must_be_integer_one(value):
 
 
 def test_version_is_checked_before_unknown_keys():
-    assert "version = 5: this isplat reads scene versions 1 to 4" in error("version = 5\n" + BASE + "[future]\nx = 1\n")
+    assert "version = 6: this isplat reads scene versions 1 to 5" in error("version = 6\n" + BASE + "[future]\nx = 1\n")
 
 
 @pytest.mark.parametrize("key, table", [("units", "transfer"), ("preset", "transfer"), ("frames", "views"),

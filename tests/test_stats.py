@@ -206,11 +206,17 @@ def test_index_from_command_line_fills_scene_without_one(vol, capsys):
     folder, d, aug, idx = vol
     scene = write_scene(folder, method="indexed")
     scene.write_text(scene.read_text().replace('index = "v.idx.h5"\n', ""))
-    # without IDX, an indexed scene without an index is refused by the scene reader, one line
+    # without IDX, the index beside AUG.h5 (the same stem) is taken
+    code, out, err = run(capsys, aug, "--scene", scene, "--json", "-q")
+    assert code == 0, err
+    assert json.loads(out)["scene"]["method"] == "indexed" and json.loads(out)["index"] is not None
+    # without IDX and none beside AUG.h5, an indexed scene without an index is refused by the scene reader
+    moved = idx.rename(folder / "elsewhere.idx.h5")
     code, _, err = run(capsys, aug, "--scene", scene, "-q")
     assert code == 2 and err.count("\n") == 1 and "data.index" in err
-    code, out, err = run(capsys, aug, idx, "--scene", scene, "--json", "-q")
-    assert code == 0, err and json.loads(out)["scene"]["method"] == "indexed"
+    code, out, err = run(capsys, aug, moved, "--scene", scene, "--json", "-q")
+    assert code == 0, err
+    assert json.loads(out)["scene"]["method"] == "indexed"
 
 
 def one_error(code, out, err, *words):
@@ -230,15 +236,37 @@ def test_bad_input(vol, capsys):
     one_error(*run(capsys, aug, oidx), "another volume")
     one_error(*run(capsys, idx), "format")                       # an index given as the augmented file
     one_error(*run(capsys, aug, idx, "--scene", folder / "nope.toml"), "nope.toml")
-    # a scene describing another volume: the files named on the command line must be the scene's
-    scene = write_scene(folder, name="o.toml", aug="other/v.aug.h5", idx="other/v.idx.h5")
-    one_error(*run(capsys, aug, idx, "--scene", scene, "-q"), "data.augmented")
+    # the scene names another volume's index, and no IDX.h5 is given: it is checked against AUG.h5
     scene = write_scene(folder, name="oi.toml", idx="other/v.idx.h5")
-    one_error(*run(capsys, aug, idx, "--scene", scene, "-q"), "data.index")
+    (folder / "v.idx.h5").rename(folder / "kept.idx.h5")
+    one_error(*run(capsys, aug, "--scene", scene, "-q"), "another volume", "isplat index")
+    (folder / "kept.idx.h5").rename(folder / "v.idx.h5")
     one_error(*run(capsys, aug, idx, "--set", "camera.azimuth=3"), "--scene")
     one_error(*run(capsys, aug, idx, "--scene", write_scene(folder), "--view", "3", "-q"), "--view")
     bad = write_scene(folder, name="bad.toml", opacity="[[100, 2.0]]")
     one_error(*run(capsys, aug, idx, "--scene", bad, "-q"), "bad.toml", "opacity")
+
+
+def test_scene_applied_to_the_command_line_files(vol, capsys):
+    """The files on the command line are the ones described, whatever the scene's [data] names (issue 28): a
+    scene in data units naming a file that does not exist, and one naming another volume."""
+    folder, d, aug, idx = vol
+    other = folder / "other"
+    other.mkdir()
+    make_volume(other, seed=1)
+    own = json.loads(run(capsys, aug, idx, "--scene", write_scene(folder), "--json", "-q")[1])["scene"]
+    for name, scene_aug in (("gone.toml", "gone.aug.h5"), ("o.toml", "other/v.aug.h5")):
+        # the same transfer function in data units (window -100..155: code c is value c - 100), version 2
+        scene = write_scene(folder, name=name, aug=scene_aug, idx=scene_aug.replace(".aug.", ".idx."),
+                            opacity="[[0, 0.0], [20, 1.0], [60, 1.0], [70, 0.0]]")
+        scene.write_text(scene.read_text().replace("version = 1", "version = 2").replace(
+            "[render]", 'units = "data"\n[render]'))
+        for args in ((aug, idx), (aug,)):                 # IDX.h5 given, or the one beside AUG.h5
+            code, out, err = run(capsys, *args, "--scene", scene, "--json", "-q")
+            assert code == 0, err
+            got = json.loads(out)["scene"]
+            assert got["spatial_ratio"] == own["spatial_ratio"] and got["method"] == "indexed"
+            assert got["voxels_examined"] == own["voxels_examined"]
 
 
 # --- the density histogram (--histogram, --plot) ----------------------------------------------------------------

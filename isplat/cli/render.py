@@ -1,4 +1,4 @@
-"""isplat render: images from a TOML scene."""
+"""isplat render: images from a TOML scene, or from an augmented file and a preset (isplat.scene_input)."""
 
 from __future__ import annotations
 
@@ -18,13 +18,23 @@ log = logging.getLogger(__name__)
 
 
 @click.command("render")
-@click.argument("scene_file", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.argument("scene_file", metavar="SCENE|AUG.h5", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out", default=None, metavar="OUT",
               help="Image file: .png (8/16-bit per image.bit_depth), .tif/.tiff (float), '-' for PNG on "
                    "stdout; for a batch of views numbered files (NAME_000.png, or a {n} / %03d pattern), "
                    ".gif or .mp4. Default: SCENE's name with .png (or .gif for a batch) in the current folder.")
+@click.option("--preset", default=None, metavar="NAME",
+              help="Transfer function preset (isplat presets lists them): the same as --set transfer.preset=NAME.")
+@click.option("--index", "index", default=None, metavar="IDX.h5",
+              help="The index (--set data.index=IDX.h5). Default for AUG.h5: the one beside it with the same stem "
+                   "(ct.aug.h5: ct.idx.h5); without one every voxel is read (render.method = \"full\").")
+@click.option("--size", default=None, metavar="N|WxH",
+              help="Image size in pixels (image.width, image.height); default for AUG.h5: 512x512.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a scene key, e.g. --set camera.azimuth=45 --set render.method=full (repeatable).")
+@click.option("--print-scene", is_flag=True,
+              help="Write the scene used, as TOML, on stdout (one that renders the same picture: save it to "
+                   "render batches or edit it); nothing is rendered unless -o is given.")
 @click.option("--view", "view", type=int, default=None, metavar="N",
               help="Render only view N (0-based) of the scene's batch of views.")
 @click.option("--scheduler", default=None, metavar="local:N|tcp://HOST:PORT",
@@ -42,8 +52,12 @@ log = logging.getLogger(__name__)
                                                       "(not with -o -).")
 @force_option
 @quiet_option
-def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
-    """Render SCENE (a TOML file, see formats/scene.md) to images.
+def render(scene_file, out, preset, index, size, overrides, print_scene, view, as_json, force, scheduler, slabs):
+    """Render SCENE (a TOML file, see formats/scene.md), or an augmented file AUG.h5 with a preset, to images.
+
+    AUG.h5 alone is rendered with the scene defaults (formats/scene.md), a 512x512 image and the index
+    beside it; --preset (or --set transfer.*) gives its transfer function. --print-scene writes that scene:
+    a scene file is still the way to keep a picture's settings and to render batches.
 
     Only what the scene needs is read: the index axes its views use, the blocks in the transfer
     function's non-zero-opacity density intervals, normals only when shading is on, gradient magnitudes
@@ -51,6 +65,9 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
 
     \b
     Examples:
+      isplat render ct.aug.h5 --preset ct-bone -o ct.png
+      isplat render ct.aug.h5 --preset ct-skin --set camera.view=left --size 800x600 -o left.png
+      isplat render ct.aug.h5 --preset ct-bone --print-scene > ct.toml
       isplat render examples/head.toml -o head.png
       isplat render head.toml --set camera.azimuth=90 --set render.method=full -o side.png
       isplat render head.toml -o - | display -          # PNG on stdout
@@ -58,12 +75,19 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
       isplat render orbit.toml -o orbit.gif              # a batch of views as an animated GIF
     """
     from ..renderer import Renderer
-    from ..scene import load_scene
+    from ..scene_input import load_input, output_stem
 
     t0 = time.perf_counter()
-    scene = load_scene(scene_file, list(overrides))
+    if print_scene and (out == "-" or as_json):
+        raise _error(f"--print-scene and {'-o -' if out == '-' else '--json'} both want stdout; choose one")
+    scene, text = load_input(scene_file, list(overrides), index=index, preset=preset, size=size)
     views = _chosen_views(scene, view)
-    plan = _Outputs.check(scene, scene_file, out, len(views), as_json, force)
+    if print_scene:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        if out is None:
+            return
+    plan = _Outputs.check(scene, output_stem(scene_file), out, len(views), as_json, force)
     renderer = Renderer(scene, views, slabs=slabs, scheduler=scheduler)
     per_view, rep = [], None
     with progress.bar(total=len(views), desc="views", unit="view") as bar, \
@@ -78,6 +102,12 @@ def render(scene_file, out, overrides, view, as_json, force, scheduler, slabs):
         sys.stdout.write("\n")
     _log_report(report, rep, renderer.held_bytes())
     log.info(_summary(plan.out, scene, renderer, per_view, time.perf_counter() - t0))
+
+
+def _error(message: str):
+    from ..errors import IsplatError
+
+    return IsplatError(message)
 
 
 def _chosen_views(scene, view) -> tuple:
@@ -99,14 +129,14 @@ class _Outputs:
         self.scene, self.out, self.movie, self.paths, self.force, self.frames = scene, out, movie, paths, force, []
 
     @classmethod
-    def check(cls, scene, scene_file, out, n_views, as_json, force) -> "_Outputs":
+    def check(cls, scene, stem, out, n_views, as_json, force) -> "_Outputs":
         from ..errors import IsplatError
         from ..output import check_format, check_memory, check_outputs, frame_paths, output_buffer_bytes
         from ..threads import default_threads
 
         batch = n_views > 1
         if out is None:
-            out = Path(scene_file).stem + (".gif" if batch else ".png")
+            out = stem + (".gif" if batch else ".png")
         if as_json and out == "-":
             raise IsplatError("--json and -o - both want stdout; choose one")
         ext = check_format(out, batch)

@@ -38,9 +38,9 @@ def stats(augmented, index, scene_file, overrides, view, as_json, histogram, bin
     spatial ratio (voxels in the transfer function's non-zero-opacity intervals over all voxels), the
     voxels the view examines and splats, and the bytes the scene reads against the whole files.
 
-    The scene must describe the same files: a data.augmented (or data.index) naming another file is an
-    error; an index the scene does not name is taken from IDX.h5, and one it names is reported when
-    IDX.h5 is not given.
+    The scene is applied to the files on the command line, whatever its data.augmented names; without
+    IDX.h5 the index is the scene's own when it names AUG.h5, else the one beside AUG.h5 (same stem,
+    .idx.h5) if there is one.
 
     --histogram adds the density histogram: each bin's range in data units (through the file's density
     window), its voxels and share, and percentiles; --plot draws it, with the opacity ramps of the presets

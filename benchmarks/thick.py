@@ -50,6 +50,7 @@ CASES = [
     ("ct-chest-2.5mm-soft", "ct-chest", (256, 192, 72), (0.7, 0.7, 2.5), "ct-soft-tissue", 257),
 ]
 VIEWS = {"side": (90.0, 0.0), "oblique": (45.0, 25.0)}
+PROTOTYPE = ("ct-head-7mm",)     # cases that also get the sampler's shading prototyped (phong_factor_render)
 WINDOWS = {"ct-head": (-1024.0, 3071.0), "ct-chest": (-1024.0, 3071.0)}
 
 
@@ -197,7 +198,7 @@ def run_case(case, views, size, img_dir: Path, refs: bool):
     s0 = min(sp)
     obj_vol, _ = make_sample(name, (shape[0], shape[1], nk_obj))
     obj = channels(obj_vol, (s0, s0, s0), window)
-    rows, pics = [], []
+    rows, pics, proto_pics = [], [], []
     tmp = tempfile.TemporaryDirectory()
     aug = Path(tmp.name) / "scene.aug.h5"       # the scene's presets read their data units through its window
     _write_aug(aug, before["raw"], name)
@@ -222,9 +223,18 @@ def run_case(case, views, size, img_dir: Path, refs: bool):
                     row["rmse"][key] = rmse(ref, imgs["object"])
                     row.setdefault("ray_vs_isplat", {})[key] = rmse(ref, imgs["before" if not smooth else "forced"])
                 _log(f"{tag}: ray references {time.perf_counter() - t0:.0f} s")
+        if tag in PROTOTYPE and refs:
+            t0 = time.perf_counter()
+            proto = {k: phong_factor_render(sc, after, k == "weighted") for k in ("unweighted", "weighted")}
+            row["proto"] = {k: dict(rmse=rmse(v, imgs["object"]), band=band_energy(v, period),
+                                    vs_isplat=rmse(v, imgs["after"])) for k, v in proto.items()}
+            proto_pics.append([imgs["after"], proto["unweighted"], proto["weighted"], imgs["object"]])
+            _log(f"{tag}: sampler prototypes {time.perf_counter() - t0:.0f} s")
         rows.append(row)
         pics.append([imgs["before"], imgs["after"], imgs["thin"], imgs["object"]])
     _write_png(img_dir / f"thick-{tag}.png", pics)
+    if proto_pics:
+        _write_png(img_dir / f"thick-{tag}-sampler.png", proto_pics)
     tmp.cleanup()
     return rows
 
@@ -311,6 +321,25 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
         u, rv = r["band_unshaded"], r.get("ray_vs_isplat", {})
         L.append(f"| {r['case']} | {_f(u['before'])} | {_f(u['after'])} | {_f(u['object'])} | "
                  f"{_f(rv.get('ray_before'))} | {_f(rv.get('ray_after'))} |")
+    proto = [r for r in rows if "proto" in r]
+    if proto:
+        L += ["", "## The sampler's shading, prototyped", "",
+              "isplat's post-classified sampler shades a sample with the bilinear mean of its four voxels' Phong "
+              "factors (isplat/splat/post.py, `_sample`). A copy of the ray caster that does the same in 3-D "
+              "(trilinear mean of the eight voxels' Phong factors from their oct16 normals, step 1 smallest "
+              "spacing: `phong_factor_render`) against one whose means weight each voxel by its gradient magnitude "
+              "code (the proposed change), both on the *after* normals:", "",
+              "| case | view | RMSE isplat | unweighted | weighted | band isplat | unweighted | weighted | object | "
+              "unweighted vs isplat |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        for r in proto:
+            p, e, b = r["proto"], r["rmse"], r["band"]
+            L.append(f"| {r['case']} | {r['view']} | {_f(e['after'])} | {_f(p['unweighted']['rmse'])} | "
+                     f"**{_f(p['weighted']['rmse'])}** | {_f(b['after'])} | {_f(p['unweighted']['band'])} | "
+                     f"**{_f(p['weighted']['band'])}** | {_f(b['object'])} | {_f(p['unweighted']['vs_isplat'])} |")
+        for tag in dict.fromkeys(r["case"] for r in proto):
+            L += ["", f"![{tag} sampler](img/thick-{tag}-sampler.png)", "",
+                  f"`img/thick-{tag}-sampler.png`: isplat *after*, the prototype unweighted (isplat's shading), "
+                  "weighted by the gradient magnitude (the proposal), the object; side view, then oblique."]
     if costs:
         L += ["", "## What `--thin-slices` costs", "",
               "`isplat augment` of the thick sample (a .npy) as it is and with `--thin-slices` (`/usr/bin/time`: "
@@ -334,3 +363,91 @@ READING = """## Reading
 
 (Written from the run this page was made with; the figures above are regenerated, this text is not.)
 """
+
+
+# ---- the sampler's shading, prototyped in a ray caster (issue 28: a proposal for isplat/splat/post.py) -------------
+def _factor_integrator():
+    """A copy of tests/ray_reference.py's integrator (GRID, orthographic) that shades each sample with the
+    trilinear interpolation of the eight voxels' Phong factors, each weighted by ``wgt`` (all ones: what
+    isplat's post-classified sampler does, per slice; the gradient magnitudes: the proposal)."""
+    import math
+
+    import numba
+
+    rr = _rr()
+    trilinear, pwl, box_range = rr._trilinear, rr._pwl, rr._box_range
+
+    @numba.njit(parallel=True, nogil=True)
+    def integrate(vol, fac, wgt, orig, dirs, t_lo, n, step, ox, oy, cx, cy, unit, out):
+        for r in numba.prange(orig.shape[0]):
+            o = orig[r]
+            d = dirs[r]
+            t0, t1 = box_range(o, d, n, t_lo[r])
+            acc = np.zeros(3)
+            T = 1.0
+            if t1 > t0:
+                nseg = max(1, int(math.ceil((t1 - t0) / step)))
+                dt = (t1 - t0) / nseg
+                for m in range(nseg):
+                    t = t0 + (m + 0.5) * dt
+                    gi, gj, gk = o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]
+                    dens = trilinear(vol, gi, gj, gk)
+                    a = pwl(ox, oy, dens, True)
+                    if a <= 0.0:
+                        continue
+                    alpha = -math.expm1(math.log1p(-min(a, 1.0 - 2.0 ** -40)) / unit * dt)
+                    w = trilinear(wgt, gi, gj, gk)
+                    for ch in range(3):
+                        c = pwl(cx, cy[:, ch], dens, False)
+                        if w > 0.0:
+                            c = c * trilinear(fac[ch], gi, gj, gk) / w + trilinear(fac[3 + ch], gi, gj, gk) / w
+                        acc[ch] += T * alpha * c
+                    T *= 1.0 - alpha
+                    if T < 1e-9:
+                        break
+            out[r, 0], out[r, 1], out[r, 2], out[r, 3] = acc[0], acc[1], acc[2], 1.0 - T
+    return integrate
+
+
+def phong_factor_render(sc, c, weighted: bool, step: float = 1.0) -> np.ndarray:
+    """The thick data ``c`` rendered by :func:`_factor_integrator` with ``c``'s own (oct16) normals: per voxel
+    the Phong factors of its decoded normal, interpolated unweighted (isplat's sampler) or weighted by the
+    gradient magnitude codes (the proposal)."""
+    from isplat.frame import views_for
+    from isplat.normals import decode
+    from isplat.splat.composite import finish
+
+    rr = _rr()
+    sel = _selection(sc, c)
+    view = views_for(sc, sel)[0]
+    f, g = view.frame, view.geom
+    sh = sc.shading
+    lights = rr.light_rows(sh, f, g)
+    shv = np.array([sh.ambient, sh.diffuse, sh.specular, sh.shininess, 1.0 if sh.two_sided else 0.0])
+    nrm = decode(c["normal"]).astype(np.float64)
+    fac = np.empty((6,) + c["normal"].shape)
+    flat = nrm.reshape(-1, 3)
+    table = {}
+    out6 = fac.reshape(6, -1)
+    codes = c["normal"].ravel()
+    for code in np.unique(codes):                  # one Phong evaluation per distinct code
+        table[int(code)] = rr._phong(*map(float, decode(np.array([code]))[0]), lights, shv)
+    lut = np.zeros((65536, 6))
+    for code, v in table.items():
+        lut[code] = v
+    out6[:] = lut[codes].T
+    wgt = c["gm"].astype(np.float64) if weighted else np.ones(c["gm"].shape)
+    fac *= wgt[None]
+    op, col = np.asarray(sc.transfer.opacity, float), np.asarray(sc.transfer.color, float)
+    o, d, t_lo = rr.rays(view)
+    out = np.empty((len(o), 4))
+    vol = np.ascontiguousarray(c["density"], np.float32)
+    _factor_integrator()(vol, np.ascontiguousarray(fac), np.ascontiguousarray(wgt), o, d, t_lo,
+                         np.asarray(g.n_ijk, float), float(step) * float(g.spacing.min()),
+                         np.ascontiguousarray(op[:, 0]), np.ascontiguousarray(op[:, 1]),
+                         np.ascontiguousarray(col[:, 0]), np.ascontiguousarray(col[:, 1:4]),
+                         float(sc.transfer.unit_distance or g.spacing.min()), out)
+    img = out.reshape(f.height, f.width, 4)
+    rgba = np.empty_like(img)
+    finish(img, np.asarray(view.background, dtype=np.float64), rgba)
+    return rgba

@@ -50,7 +50,7 @@ CASES = [
     ("ct-chest-2.5mm-soft", "ct-chest", (256, 192, 72), (0.7, 0.7, 2.5), "ct-soft-tissue", 257),
 ]
 VIEWS = {"side": (90.0, 0.0), "oblique": (45.0, 25.0)}
-PROTOTYPE = ("ct-head-7mm",)     # cases that also get the sampler's shading prototyped (phong_factor_render)
+PROTOTYPE = ("ct-head-7mm", "mr-head-7mm", "ct-chest-2.5mm-soft")     # cases that also get the sampler's shading prototyped (phong_factor_render)
 WINDOWS = {"ct-head": (-1024.0, 3071.0), "ct-chest": (-1024.0, 3071.0)}
 
 
@@ -361,93 +361,62 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
 
 READING = """## Reading
 
-(Written from the run this page was made with; the figures above are regenerated, this text is not.)
+(Written from the run this page was made with; the tables above are regenerated, this text is not.)
+
+**What makes the terraces**, one factor at a time on the side views, where the slices are horizontal lines:
+
+- *Not the sampler's step or its reconstruction of the density, on an opaque surface.* A converged ray caster
+  (0.25 mm steps, normals interpolated as vectors) on the same thick densities and normals shows the bands too
+  (7 mm CT head, bone: band energy 0.0033, isplat 0.0043, the object 0.0027). The same views unshaded have the
+  object's band energy (0.0030 against 0.0036), so neither the density's linear interpolation between slices nor
+  the opacity correction makes them there (in a side view isplat samples the thin slices, 1 mm apart).
+- *The normals.* Central differences span two in-slice voxels (2 mm) but two slices (14 mm): where a surface
+  crosses a slice the in-slice part of the gradient is large, half-way between slices (where the voxels of both
+  slices lie off the surface) small, so the normal's direction swings slice by slice. Smoothing the density
+  along the thinner axes before the differences (*after*: a Gaussian of 0.5 sqrt(s_max^2 - s_a^2), 3.5 mm for
+  1 x 1 x 7; `isplat.augment.normal_sigmas`) brings the band energy to the object's: 0.0043 -> 0.0027 (object
+  0.0027); RMSE 0.0360 -> 0.0359 (side), 0.0437 -> 0.0422 (oblique). On a smooth ball sampled 1 x 1 x 7 the
+  normals come closer to the analytic ones (tests/test_augment.py).
+- *What remains on the CT head* (rings on the top of the skull in the oblique view, where the surface is nearly
+  parallel to the slices): the sampler's shading. It averages the four voxels' Phong factors with the bilinear
+  weights only, so a voxel just outside the surface (air: a short gradient, and a direction that is mostly the
+  surface's along k only) counts as much as the voxel on the surface. The prototype that weights each voxel's
+  Phong factors by its gradient magnitude as well removes the rings (picture above; RMSE 0.0421 -> 0.0410
+  oblique, side band 0.0028 -> 0.0023). On the MRI head it changes little (RMSE 0.0593 -> 0.0581 side, 0.0737 ->
+  0.0738 oblique), and on the chest's soft tissue, whose object is shaded by isplat's unweighted mean too, the
+  error grows a little (0.0145 -> 0.0152 side, 0.0189 -> 0.0198 oblique). The change belongs in
+  isplat/splat/post.py's `_sample` and is described in docs/design.md; not made here (isplat/splat is being
+  restructured), and to be measured on docs/accuracy.md's cases when made.
+- *The MRI head* (semi-transparent, a colour ramp, a bright scalp thinner than a slice): mostly the density's
+  reconstruction. Unshaded its band energy is 0.0195 against the object's 0.0112, and the converged ray caster
+  has the bands too. The smoothed normals lower the band energy 0.0151 -> 0.0138 and the RMSE 0.0625 -> 0.0602
+  (side), 0.0798 -> 0.0739 (oblique), but the terraces stay visible: linear interpolation between 7 mm slices
+  cross-fades a shell thinner than a slice and edges that move further from one slice to the next than they are
+  wide. Removing them needs a reconstruction across slices that follows the edges (shape-based interpolation), in
+  the sampler; not built.
+- *The chest at 0.7 x 0.7 x 2.5 mm* has no terraces to remove: its band energies are the object's in every column
+  (0.0023 bone, 0.0039 soft tissue), and its vertical texture is the sample's noise interpolated along the slices,
+  at every column alike. Smoothing there (*forced*) would double the error (0.0080 -> 0.0181 bone, 0.0139 -> 0.0264
+  soft tissue): in noisy tissue it takes away the in-slice noise of the gradient but not the noise between slices,
+  and the normals turn along the slices (speckle on the soft tissue). So the smoothing starts above 4:1
+  (`NORMAL_RATIO`); at 3.6:1 the chest's normals, and its pictures before and after, are the same. A sweep on the
+  CT head, not kept as a benchmark: 2.5 mm slices (2.5:1) no band to remove; 4 mm slices (4:1) band 0.0029 ->
+  0.0021 (object 0.0022) but RMSE 0.0266 -> 0.0274 (bone) and 0.0183 -> 0.0220 (the ct-skin preset), so 4:1 is
+  left out.
+
+**Cost of the fix**: augmenting the 7 mm samples smooths one extra float slab per slab (two more passes of a
+Gaussian along i and j): `augment_array` of the 7 mm MRI head took 0.78 s against 0.39 s without it (one run, in
+process). The file, the index and the frames are unchanged in size and time; isotropic scans and slices up to 4
+times thicker than the pixels get bit-identical files.
+
+**`--thin-slices`** (linear interpolation along the thick axis before augmenting) lowered the error in one of the
+eight views above (the chest's soft tissue, oblique: 0.0159 against 0.0193) and raised it in the others (7 mm CT
+head 0.0402 against 0.0360, MRI head 0.0688 against 0.0625, chest bone 0.0088 against 0.0080, side views); it
+removed no band. The default, post-classified sampler already interpolates linearly between slices, which is what
+`--thin-slices` stores, and the normals of the interpolated slices, differenced over 1.75 mm of a linear ramp, are
+noisier. Its cost (table above): 4 times the file at 7 mm (8.4 -> 33.3 MB), 2 times at 2.5 mm, 1.5-1.6 times the
+augment time and about 100 MB more peak memory on these small samples, growing with the scan (the volume is held
+in memory: 1.5 GiB on the issue's chest). It stays for pre-classified splatting (`render.classification = "pre"`),
+where docs/sheets.md measures it 5-12 times closer to the trilinear field; `isplat augment`'s line about thick
+slices and its `--help` now say so.
 """
-
-
-# ---- the sampler's shading, prototyped in a ray caster (issue 28: a proposal for isplat/splat/post.py) -------------
-def _factor_integrator():
-    """A copy of tests/ray_reference.py's integrator (GRID, orthographic) that shades each sample with the
-    trilinear interpolation of the eight voxels' Phong factors, each weighted by ``wgt`` (all ones: what
-    isplat's post-classified sampler does, per slice; the gradient magnitudes: the proposal)."""
-    import math
-
-    import numba
-
-    rr = _rr()
-    trilinear, pwl, box_range = rr._trilinear, rr._pwl, rr._box_range
-
-    @numba.njit(parallel=True, nogil=True)
-    def integrate(vol, fac, wgt, orig, dirs, t_lo, n, step, ox, oy, cx, cy, unit, out):
-        for r in numba.prange(orig.shape[0]):
-            o = orig[r]
-            d = dirs[r]
-            t0, t1 = box_range(o, d, n, t_lo[r])
-            acc = np.zeros(3)
-            T = 1.0
-            if t1 > t0:
-                nseg = max(1, int(math.ceil((t1 - t0) / step)))
-                dt = (t1 - t0) / nseg
-                for m in range(nseg):
-                    t = t0 + (m + 0.5) * dt
-                    gi, gj, gk = o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]
-                    dens = trilinear(vol, gi, gj, gk)
-                    a = pwl(ox, oy, dens, True)
-                    if a <= 0.0:
-                        continue
-                    alpha = -math.expm1(math.log1p(-min(a, 1.0 - 2.0 ** -40)) / unit * dt)
-                    w = trilinear(wgt, gi, gj, gk)
-                    for ch in range(3):
-                        c = pwl(cx, cy[:, ch], dens, False)
-                        if w > 0.0:
-                            c = c * trilinear(fac[ch], gi, gj, gk) / w + trilinear(fac[3 + ch], gi, gj, gk) / w
-                        acc[ch] += T * alpha * c
-                    T *= 1.0 - alpha
-                    if T < 1e-9:
-                        break
-            out[r, 0], out[r, 1], out[r, 2], out[r, 3] = acc[0], acc[1], acc[2], 1.0 - T
-    return integrate
-
-
-def phong_factor_render(sc, c, weighted: bool, step: float = 1.0) -> np.ndarray:
-    """The thick data ``c`` rendered by :func:`_factor_integrator` with ``c``'s own (oct16) normals: per voxel
-    the Phong factors of its decoded normal, interpolated unweighted (isplat's sampler) or weighted by the
-    gradient magnitude codes (the proposal)."""
-    from isplat.frame import views_for
-    from isplat.normals import decode
-    from isplat.splat.composite import finish
-
-    rr = _rr()
-    sel = _selection(sc, c)
-    view = views_for(sc, sel)[0]
-    f, g = view.frame, view.geom
-    sh = sc.shading
-    lights = rr.light_rows(sh, f, g)
-    shv = np.array([sh.ambient, sh.diffuse, sh.specular, sh.shininess, 1.0 if sh.two_sided else 0.0])
-    nrm = decode(c["normal"]).astype(np.float64)
-    fac = np.empty((6,) + c["normal"].shape)
-    flat = nrm.reshape(-1, 3)
-    table = {}
-    out6 = fac.reshape(6, -1)
-    codes = c["normal"].ravel()
-    for code in np.unique(codes):                  # one Phong evaluation per distinct code
-        table[int(code)] = rr._phong(*map(float, decode(np.array([code]))[0]), lights, shv)
-    lut = np.zeros((65536, 6))
-    for code, v in table.items():
-        lut[code] = v
-    out6[:] = lut[codes].T
-    wgt = c["gm"].astype(np.float64) if weighted else np.ones(c["gm"].shape)
-    fac *= wgt[None]
-    op, col = np.asarray(sc.transfer.opacity, float), np.asarray(sc.transfer.color, float)
-    o, d, t_lo = rr.rays(view)
-    out = np.empty((len(o), 4))
-    vol = np.ascontiguousarray(c["density"], np.float32)
-    _factor_integrator()(vol, np.ascontiguousarray(fac), np.ascontiguousarray(wgt), o, d, t_lo,
-                         np.asarray(g.n_ijk, float), float(step) * float(g.spacing.min()),
-                         np.ascontiguousarray(op[:, 0]), np.ascontiguousarray(op[:, 1]),
-                         np.ascontiguousarray(col[:, 0]), np.ascontiguousarray(col[:, 1:4]),
-                         float(sc.transfer.unit_distance or g.spacing.min()), out)
-    img = out.reshape(f.height, f.width, 4)
-    rgba = np.empty_like(img)
-    finish(img, np.asarray(view.background, dtype=np.float64), rgba)
-    return rgba

@@ -420,3 +420,91 @@ in memory: 1.5 GiB on the issue's chest). It stays for pre-classified splatting 
 where docs/sheets.md measures it 5-12 times closer to the trilinear field; `isplat augment`'s line about thick
 slices and its `--help` now say so.
 """
+
+
+# ---- the sampler's shading, prototyped in a ray caster (issue 28: a proposal for isplat/splat/post.py) -------------
+def _factor_integrator():
+    """A copy of tests/ray_reference.py's integrator (GRID, orthographic) that shades each sample with the
+    trilinear interpolation of the eight voxels' Phong factors, each weighted by ``wgt`` (all ones: what
+    isplat's post-classified sampler does, per slice; the gradient magnitudes: the proposal)."""
+    import math
+
+    import numba
+
+    rr = _rr()
+    trilinear, pwl, box_range = rr._trilinear, rr._pwl, rr._box_range
+
+    @numba.njit(parallel=True, nogil=True)
+    def integrate(vol, fac, wgt, orig, dirs, t_lo, n, step, ox, oy, cx, cy, unit, out):
+        for r in numba.prange(orig.shape[0]):
+            o = orig[r]
+            d = dirs[r]
+            t0, t1 = box_range(o, d, n, t_lo[r])
+            acc = np.zeros(3)
+            T = 1.0
+            if t1 > t0:
+                nseg = max(1, int(math.ceil((t1 - t0) / step)))
+                dt = (t1 - t0) / nseg
+                for m in range(nseg):
+                    t = t0 + (m + 0.5) * dt
+                    gi, gj, gk = o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]
+                    dens = trilinear(vol, gi, gj, gk)
+                    a = pwl(ox, oy, dens, True)
+                    if a <= 0.0:
+                        continue
+                    alpha = -math.expm1(math.log1p(-min(a, 1.0 - 2.0 ** -40)) / unit * dt)
+                    w = trilinear(wgt, gi, gj, gk)
+                    for ch in range(3):
+                        c = pwl(cx, cy[:, ch], dens, False)
+                        if w > 0.0:
+                            c = c * trilinear(fac[ch], gi, gj, gk) / w + trilinear(fac[3 + ch], gi, gj, gk) / w
+                        acc[ch] += T * alpha * c
+                    T *= 1.0 - alpha
+                    if T < 1e-9:
+                        break
+            out[r, 0], out[r, 1], out[r, 2], out[r, 3] = acc[0], acc[1], acc[2], 1.0 - T
+    return integrate
+
+
+def phong_factor_render(sc, c, weighted: bool, step: float = 1.0) -> np.ndarray:
+    """The thick data ``c`` rendered by :func:`_factor_integrator` with ``c``'s own (oct16) normals: per voxel
+    the Phong factors of its decoded normal, interpolated unweighted (isplat's sampler) or weighted by the
+    gradient magnitude codes (the proposal)."""
+    from isplat.frame import views_for
+    from isplat.normals import decode
+    from isplat.splat.composite import finish
+
+    rr = _rr()
+    sel = _selection(sc, c)
+    view = views_for(sc, sel)[0]
+    f, g = view.frame, view.geom
+    sh = sc.shading
+    lights = rr.light_rows(sh, f, g)
+    shv = np.array([sh.ambient, sh.diffuse, sh.specular, sh.shininess, 1.0 if sh.two_sided else 0.0])
+    nrm = decode(c["normal"]).astype(np.float64)
+    fac = np.empty((6,) + c["normal"].shape)
+    flat = nrm.reshape(-1, 3)
+    table = {}
+    out6 = fac.reshape(6, -1)
+    codes = c["normal"].ravel()
+    for code in np.unique(codes):                  # one Phong evaluation per distinct code
+        table[int(code)] = rr._phong(*map(float, decode(np.array([code]))[0]), lights, shv)
+    lut = np.zeros((65536, 6))
+    for code, v in table.items():
+        lut[code] = v
+    out6[:] = lut[codes].T
+    wgt = c["gm"].astype(np.float64) if weighted else np.ones(c["gm"].shape)
+    fac *= wgt[None]
+    op, col = np.asarray(sc.transfer.opacity, float), np.asarray(sc.transfer.color, float)
+    o, d, t_lo = rr.rays(view)
+    out = np.empty((len(o), 4))
+    vol = np.ascontiguousarray(c["density"], np.float32)
+    _factor_integrator()(vol, np.ascontiguousarray(fac), np.ascontiguousarray(wgt), o, d, t_lo,
+                         np.asarray(g.n_ijk, float), float(step) * float(g.spacing.min()),
+                         np.ascontiguousarray(op[:, 0]), np.ascontiguousarray(op[:, 1]),
+                         np.ascontiguousarray(col[:, 0]), np.ascontiguousarray(col[:, 1:4]),
+                         float(sc.transfer.unit_distance or g.spacing.min()), out)
+    img = out.reshape(f.height, f.width, 4)
+    rgba = np.empty_like(img)
+    finish(img, np.asarray(view.background, dtype=np.float64), rgba)
+    return rgba

@@ -355,6 +355,11 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
                      f"{' x '.join(f'{s:g}' for s in r['thin_spacing'])} | {c['as_is']['seconds']:.2f} | "
                      f"{c['thin']['seconds']:.2f} | {c['as_is']['rss_mb']:.0f} | {c['thin']['rss_mb']:.0f} | "
                      f"{c['as_is']['file_mb']:.1f} | {c['thin']['file_mb']:.1f} |")
+        ratios = [(c["thin"]["seconds"] / c["as_is"]["seconds"], c["thin"]["rss_mb"] - c["as_is"]["rss_mb"],
+                   c["thin"]["file_mb"] / c["as_is"]["file_mb"]) for c in costs.values()]
+        L += ["", f"With `--thin-slices`: {min(r[0] for r in ratios):.2f}-{max(r[0] for r in ratios):.2f} times the "
+              f"seconds, {min(r[1] for r in ratios):.0f}-{max(r[1] for r in ratios):.0f} MB more peak memory, "
+              f"{min(r[2] for r in ratios):.1f}-{max(r[2] for r in ratios):.1f} times the file."]
     L += ["", READING, ""]
     return "\n".join(L)
 
@@ -414,9 +419,10 @@ eight views above (the chest's soft tissue, oblique: 0.0159 against 0.0193) and 
 head 0.0402 against 0.0360, MRI head 0.0688 against 0.0625, chest bone 0.0088 against 0.0080, side views); it
 removed no band. The default, post-classified sampler already interpolates linearly between slices, which is what
 `--thin-slices` stores, and the normals of the interpolated slices, differenced over 1.75 mm of a linear ramp, are
-noisier. Its cost (table above): 4 times the file at 7 mm (8.4 -> 33.3 MB), 2 times at 2.5 mm, 1.5-1.6 times the
-augment time and about 100 MB more peak memory on these small samples, growing with the scan (the volume is held
-in memory: 1.5 GiB on the issue's chest). It stays for pre-classified splatting (`render.classification = "pre"`),
+noisier. Its cost (table above): 4 times the file at 7 mm (8.4 -> 33.3 MB), 2 times at 2.5 mm, more augment time
+and peak memory (the ratios under the table; the times are whole processes, start-up included, and vary with the
+machine's load between runs), growing with the scan, since the volume is held in memory (1.5 GiB on the issue's
+chest). It stays for pre-classified splatting (`render.classification = "pre"`),
 where docs/sheets.md measures it 5-12 times closer to the trilinear field; `isplat augment`'s line about thick
 slices and its `--help` now say so.
 """

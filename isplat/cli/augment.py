@@ -46,7 +46,9 @@ log = logging.getLogger(__name__)
               help="Also build the index beside OUT (NAME.aug.h5 -> NAME.idx.h5), as `isplat index` would.")
 @click.option("--thin-slices", "thin", is_flag=True,
               help="Interpolate (linearly) along an axis whose spacing is more than twice the smallest, before "
-                   "augmenting: thick CT/MR slices then render without streaks (the volume is held in memory). "
+                   "augmenting: for the paper's pre-classified splatting (render.classification = \"pre\"), whose "
+                   "thick slices streak. The default, post-classified rendering already interpolates between "
+                   "slices and gains nothing from it (docs/thick-slices.md); costs 2-4x the file and memory. "
                    "The window is the one given, or the one the scan gets without --thin-slices.")
 @quiet_option
 def augment(input, out, force, window, spacing, shape, dtype, byte_order, header_bytes, level, series, orientation,
@@ -84,8 +86,9 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
         log.info(f"isplat augment: {line}")
     sp_out = info["spacing_ijk"]
     if not thin and max(sp_out) > THICK_RATIO * min(sp_out):
-        log.info(f"isplat augment: slices {max(sp_out) / min(sp_out):.1f} times thicker than the smallest spacing "
-                 "render with streaks; --thin-slices interpolates them first")
+        log.info(f"isplat augment: slices {max(sp_out) / min(sp_out):.1f} times thicker than the smallest spacing; "
+                 "pre-classified renders (render.classification = \"pre\") streak on them unless --thin-slices "
+                 "interpolates them first (the default, post-classified, needs no --thin-slices)")
     log.info(f"isplat augment: wrote {out} (NI,NJ,NK={','.join(map(str, info['shape_ijk']))}, "
              f"gradient scale {info['gradient_magnitude_scale']:g}/code)")
     if idx is not None:

@@ -433,34 +433,7 @@ def _read_dicom(files, p, series=None):
         raise IsplatError(f"{f0}: ImageOrientationPatient has {iop.size} values, expected 6")
     # slice normal = row direction x column direction; slices are ordered by their position along it
     normal = np.cross(iop[:3], iop[3:])
-    pos = []
-    for f, ds in slices:
-        if (ds.Rows, ds.Columns) != (d0.Rows, d0.Columns):
-            raise IsplatError(f"{f}: DICOM image is {ds.Rows}x{ds.Columns}, {f0.name} is {d0.Rows}x{d0.Columns}")
-        if "ImagePositionPatient" not in ds:
-            if len(slices) > 1:
-                raise IsplatError(f"{f}: DICOM tag ImagePositionPatient is missing; cannot order the slices")
-            pos.append(0.0)
-            continue
-        io = np.asarray(ds.get("ImageOrientationPatient", iop), dtype=np.float64)
-        if not np.allclose(io, iop, atol=1e-4):
-            raise IsplatError(f"{f}: ImageOrientationPatient {list(io)} differs from {f0.name} {list(iop)}")
-        pos.append(float(np.dot(np.asarray(ds.ImagePositionPatient, dtype=np.float64), normal)))
-    order = np.argsort(pos, kind="stable")
-    pos = np.asarray(pos)[order]
-    if len(pos) > 1:
-        steps = np.diff(pos)
-        if np.any(steps <= 1e-6):
-            raise IsplatError(f"{p}: two DICOM slices share a position; expected one series")
-        # mean step from the end slices; each slice must sit on that grid to within 2% of a step plus
-        # 0.1 mm, which allows the 0.1 mm rounding many scanners write into ImagePositionPatient
-        step = float((pos[-1] - pos[0]) / (len(pos) - 1))
-        resid = pos - (pos[0] + step * np.arange(len(pos)))
-        if np.max(np.abs(resid)) > 0.02 * step + 0.1:
-            raise IsplatError(f"{p}: DICOM slice positions are not evenly spaced (steps {steps.min():g} "
-                              f"to {steps.max():g}); expected one uniform series")
-    else:
-        step = float(d0.get("SliceThickness", 1.0) or 1.0)
+    order, step = _dicom_order(slices, p, iop, normal)
     slopes = [float(ds.get("RescaleSlope", 1) or 1) for _, ds in slices]
     inters = [float(ds.get("RescaleIntercept", 0) or 0) for _, ds in slices]
     rescale = any(s != 1 for s in slopes) or any(i != 0 for i in inters)
@@ -490,6 +463,41 @@ def _read_dicom(files, p, series=None):
     if "ImageOrientationPatient" in d0:
         _set_axes(meta, f0, lambda: _in_lps([iop[:3], iop[3:], normal], "lps", "ImageOrientationPatient"))
     return Volume(arr, (ps[1], ps[0], step), meta)
+
+
+def _dicom_order(slices, p, iop, normal):
+    """The slices' order along their ``normal`` (from ImagePositionPatient) and the step between them; the
+    series must be one uniform stack of images of one size and orientation."""
+    f0, d0 = slices[0]
+    pos = []
+    for f, ds in slices:
+        if (ds.Rows, ds.Columns) != (d0.Rows, d0.Columns):
+            raise IsplatError(f"{f}: DICOM image is {ds.Rows}x{ds.Columns}, {f0.name} is {d0.Rows}x{d0.Columns}")
+        if "ImagePositionPatient" not in ds:
+            if len(slices) > 1:
+                raise IsplatError(f"{f}: DICOM tag ImagePositionPatient is missing; cannot order the slices")
+            pos.append(0.0)
+            continue
+        io = np.asarray(ds.get("ImageOrientationPatient", iop), dtype=np.float64)
+        if not np.allclose(io, iop, atol=1e-4):
+            raise IsplatError(f"{f}: ImageOrientationPatient {list(io)} differs from {f0.name} {list(iop)}")
+        pos.append(float(np.dot(np.asarray(ds.ImagePositionPatient, dtype=np.float64), normal)))
+    order = np.argsort(pos, kind="stable")
+    pos = np.asarray(pos)[order]
+    if len(pos) > 1:
+        steps = np.diff(pos)
+        if np.any(steps <= 1e-6):
+            raise IsplatError(f"{p}: two DICOM slices share a position; expected one series")
+        # mean step from the end slices; each slice must sit on that grid to within 2% of a step plus
+        # 0.1 mm, which allows the 0.1 mm rounding many scanners write into ImagePositionPatient
+        step = float((pos[-1] - pos[0]) / (len(pos) - 1))
+        resid = pos - (pos[0] + step * np.arange(len(pos)))
+        if np.max(np.abs(resid)) > 0.02 * step + 0.1:
+            raise IsplatError(f"{p}: DICOM slice positions are not evenly spaced (steps {steps.min():g} "
+                              f"to {steps.max():g}); expected one uniform series")
+    else:
+        step = float(d0.get("SliceThickness", 1.0) or 1.0)
+    return order, step
 
 
 # --- MetaImage (.mha/.mhd) through SimpleITK ---------------------------------------------------------------------

@@ -566,22 +566,30 @@ class IndexFile:
         dest[order] = block_voxel_ptr[:-1]
         positions = np.empty(int(block_voxel_ptr[-1]), dtype=np.int32)
         if verify_offsets:
-            starts, ends, buf = cat(st_l, np.int64), cat(en_l, np.int64), cat(buf_l, np.uint8)
-            status, e = codec.decode_blocks(buf, starts, ends, cnt, dest, m.n_a, m.n_b, m.escape_width, positions)
-            if status != codec.OK:
-                self._fail(axis, f"corrupt block: {codec.ERROR_TEXT[int(status)]}", dens[e], sl[e])
+            bounds = (cat(st_l, np.int64), cat(en_l, np.int64))
+            self._decode(axis, m, [cat(buf_l, np.uint8)], [cnt], dest, positions, dens, sl, bounds)
         else:
-            first = 0
-            for buf, c in zip(buf_l, cnt_l):   # one interval = one contiguous run of blocks
-                n = c.size
-                status, e = codec.decode_stream(buf, c, dest[first:first + n], m.n_a, m.n_b, m.escape_width,
-                                                positions)
-                if status != codec.OK:
-                    self._fail(axis, f"corrupt block: {codec.ERROR_TEXT[int(status)]}", dens[first + e],
-                               sl[first + e])
-                first += n
+            self._decode(axis, m, buf_l, cnt_l, dest, positions, dens, sl)
         return LoadedAxis(axis, m.n_slices, m.n_a, m.n_b, slice_block_ptr, dens[order].astype(np.uint8),
                           block_voxel_ptr, positions, self.bytes_read - before, ivs)
+
+    def _decode(self, axis, m: _AxisMeta, bufs, counts, dest, positions, dens, sl, bounds=None) -> None:
+        """Decode the blocks of ``bufs`` (one contiguous run of blocks each, their voxel ``counts``) into
+        ``positions`` at ``dest``; with ``bounds`` (every block's start and end in the one buffer, from
+        ``entry_byte_offset``) each block is checked against them. A corrupt block fails naming its density and
+        slice (``dens``, ``sl``: the blocks' own, in the order read)."""
+        first = 0
+        for buf, c in zip(bufs, counts):
+            n = c.size
+            if bounds is None:
+                status, e = codec.decode_stream(buf, c, dest[first:first + n], m.n_a, m.n_b, m.escape_width,
+                                                positions)
+            else:
+                status, e = codec.decode_blocks(buf, bounds[0], bounds[1], c, dest, m.n_a, m.n_b, m.escape_width,
+                                                positions)
+            if status != codec.OK:
+                self._fail(axis, f"corrupt block: {codec.ERROR_TEXT[int(status)]}", dens[first + e], sl[first + e])
+            first += n
 
     def _pieces(self, g, axis, m: _AxisMeta, ptr, ivs, runs):
         """``(r0, r1, densities, slices)`` of each contiguous run of entry rows to load: the whole row range of

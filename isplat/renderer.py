@@ -67,7 +67,7 @@ class Renderer:
     renderers by :attr:`request`. The augmented file is opened once, here."""
 
     def __init__(self, scene, views=None, method: str | None = None, *, slabs: int | None = None,
-                 scheduler=None, arrays: InMemory | None = None, cache=None):
+                 scheduler=None, arrays: InMemory | None = None, cache=None, opened: dict | None = None):
         from .augfile import open_augmented
 
         if arrays is not None and (scheduler is not None or (slabs or 1) > 1):
@@ -77,7 +77,9 @@ class Renderer:
             log.warning('isplat: warning: render.sheets = "image" splats pre-classified (the paper\'s splatting, '
                         'render.classification = "pre"), at about 5-10x the time of the default axis sheets '
                         '(docs/sheets.md)')
-        self.data = arrays if arrays is not None else open_augmented(scene.data.augmented)
+        # ``opened``: files the run has open already (the scene's window read from the augmented file)
+        self.data = arrays if arrays is not None else \
+            (opened or {}).get(scene.data.augmented) or open_augmented(scene.data.augmented)
         self.views = views_for(scene, self.data, views)
         axes = axes_of(self.views)
         if arrays is not None:

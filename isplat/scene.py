@@ -41,10 +41,12 @@ __all__ = [
 ]
 
 
-def augmented_window(data: Data) -> DensityWindow:
+def augmented_window(data: Data, opened: dict | None = None) -> DensityWindow:
     """The density window recorded in ``data.augmented`` (its attributes only): what :func:`parse_scene` converts
-    data units through when not given a window. Raises :class:`WindowUnavailable` with the reason."""
-    from .augfile import open_augmented
+    data units through when not given a window. Raises :class:`WindowUnavailable` with the reason. ``opened``
+    (path -> AugmentedVolume): the run's open files, where the one opened here is left for the renderer, so a
+    run opens each file once."""
+    from . import augfile
 
     if data.augmented is None:
         raise WindowUnavailable(NO_WINDOW)
@@ -52,9 +54,11 @@ def augmented_window(data: Data) -> DensityWindow:
     if not data.augmented.exists():
         raise WindowUnavailable(f"{why}: {data.written} does not exist (augment the scan first)")
     try:
-        aug = open_augmented(data.augmented)
+        aug = (opened or {}).get(data.augmented) or augfile.open_augmented(data.augmented)
     except IsplatError as exc:
         raise WindowUnavailable(f"{why}: {exc}") from None
+    if opened is not None:
+        opened[data.augmented] = aug
     return DensityWindow(aug.density_window, data.written, aug.attrs.get("source"), aug.attrs.get("density_units"))
 
 

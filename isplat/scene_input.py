@@ -117,12 +117,12 @@ def _augmented_scene(path, index_given: bool) -> dict:
     return tree
 
 
-def load_input(path, overrides=(), index=None, preset=None, size=None):
+def load_input(path, overrides=(), index=None, preset=None, size=None, opened: dict | None = None):
     """``(scene, toml_text)``: the scene of a render's input ``path`` (a scene file or an augmented file) with the
     options and ``--set`` ``overrides`` applied, and that scene as TOML that renders the same (``--print-scene``:
-    the data paths absolute, ``version`` written)."""
+    the data paths absolute, ``version`` written). ``opened``: the run's open files (``augmented_window``)."""
     from .limits import check_scene_text
-    from .scene import parse_scene, read_scene_text, scene_tree
+    from .scene import augmented_window, parse_scene, read_scene_text, scene_tree
 
     sets = option_overrides(index, preset, size) + list(overrides)
     augmented = is_augmented_path(path)
@@ -135,7 +135,7 @@ def load_input(path, overrides=(), index=None, preset=None, size=None):
     if augmented and "transfer" not in tree:
         raise IsplatError(f"{path}: no transfer function: give --preset NAME (isplat presets lists them), e.g. "
                           f"--preset ct-bone, or --set 'transfer.opacity=[[LO, 0], [HI, 1]]' (density codes)")
-    scene = parse_scene(text, base, name, sets)
+    scene = parse_scene(text, base, name, sets, density_window=lambda data: augmented_window(data, opened))
     if not augmented:
         scene = replace(scene, path=Path(os.path.abspath(path)))
     return scene, _printable(tree, scene)

@@ -165,9 +165,11 @@ def test_a_request_is_made_from_the_scene_and_its_files_alone(files):
     assert full.index is None and full.source[2] is None        # the full method reads no index
 
 
+@pytest.mark.parametrize("units", ["codes", "data"])
 @pytest.mark.parametrize("slabs", [None, 2])
-def test_a_render_opens_each_file_once(files, tmp_path, monkeypatch, slabs):
-    """isplat render (a scene in density codes): the augmented file is opened once, by the Renderer, and the
+def test_a_render_opens_each_file_once(files, tmp_path, monkeypatch, slabs, units):
+    """isplat render (a scene in density codes, or in data units: its window read from the augmented file, which
+    the Renderer then takes as it is): the augmented file is opened once, and the
     index once, by the selection (the memory check needs no index when even the whole volume would fit), or in
     slabs for all the slabs' selections."""
     from isplat import augfile, index
@@ -180,7 +182,8 @@ def test_a_render_opens_each_file_once(files, tmp_path, monkeypatch, slabs):
     monkeypatch.setattr(augfile, "open_augmented", counted("aug", real_aug))
     monkeypatch.setattr(index, "open_index", counted("idx", real_idx))
     (tmp_path / "s.toml").write_text(scene_text(files / "v.aug.h5", files / "v.idx.h5", image="width = 16\nheight = 16",
-                                                transfer="opacity = [[50, 0], [200, 0.9]]"))
+                                                transfer="opacity = [[50, 0], [200, 0.9]]" + (
+                                                    '\nunits = "data"' if units == "data" else "")))
     with pytest.raises(SystemExit) as exc:
         main(["render", str(tmp_path / "s.toml"), "-o", str(tmp_path / "a.png"), "-q",
               *([] if slabs is None else ["--slabs", str(slabs)])])

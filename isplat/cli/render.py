@@ -80,7 +80,8 @@ def render(scene_file, out, preset, index, size, overrides, print_scene, view, a
     t0 = time.perf_counter()
     if print_scene and (out == "-" or as_json):
         raise _error(f"--print-scene and {'-o -' if out == '-' else '--json'} both want stdout; choose one")
-    scene, text = load_input(scene_file, list(overrides), index=index, preset=preset, size=size)
+    opened = {}                                  # each file opened once per run: the scene's window, the frames
+    scene, text = load_input(scene_file, list(overrides), index=index, preset=preset, size=size, opened=opened)
     views = _chosen_views(scene, view)
     if print_scene:
         sys.stdout.write(text)
@@ -88,7 +89,7 @@ def render(scene_file, out, preset, index, size, overrides, print_scene, view, a
         if out is None:
             return
     plan = _Outputs.check(scene, output_stem(scene_file), out, len(views), as_json, force)
-    renderer = Renderer(scene, views, slabs=slabs, scheduler=scheduler)
+    renderer = Renderer(scene, views, slabs=slabs, scheduler=scheduler, opened=opened)
     per_view, rep = [], None
     with progress.bar(total=len(views), desc="views", unit="view") as bar, \
             contextlib.closing(renderer.render_views(bar=bar)) as results:

@@ -136,13 +136,20 @@ def image_cases() -> list[tuple[str, str, list]]:
                         cases.append((f"random {proj} az{az} el{el} {method} t{threads} et{et}", scene, o))
     extra = [("shading, gradient opacity", ["shading.enabled=true", "transfer.gradient_opacity=[[0, 0.2], [60, 1]]"]),
              ("cut", ['cut=[{point = [0, 0, 0], normal = [1, 0.3, 0]}]']),
-             ("float64", ["render.precision=float64"])]
+             ("float64", ["render.precision=float64"]),
+             ("pre", ["render.classification=pre"]),
+             ("pre shading, gradient opacity", ["render.classification=pre", "shading.enabled=true",
+                                                "transfer.gradient_opacity=[[0, 0.2], [60, 1]]"]),
+             ("pre perspective", ["render.classification=pre", "camera.projection=perspective"]),
+             ("image sheets", ["render.sheets=image"])]
     for name, o in extra:
         for method in ("indexed", "full"):
             cases.append((f"random {name} {method}", scene, [*_data("random"), *o, f"render.method={method}"]))
     for name, tag, toml in (("head", "head-128,128,112", "head.toml"), ("engine", "engine", "engine.toml")):
         for method in ("indexed", "full"):
-            cases.append((f"{name} {method}", ROOT / "examples" / toml, [*_data(tag), f"render.method={method}"]))
+            for extra in ([], ["render.classification=pre"]):
+                cases.append((f"{name} {method}", ROOT / "examples" / toml,
+                              [*_data(tag), f"render.method={method}", *extra]))
     return cases
 
 
@@ -208,7 +215,8 @@ def compare_images(old: Worker, new: Worker) -> list[dict]:
                 stats.append(w.ask(op="image", scene=str(scene), overrides=o, path=path))
                 imgs.append(np.load(path))
             diff = float(np.abs(imgs[0].astype(np.float64) - imgs[1]).max())
-            rows.append({"case": name, "bit_equal": bool(np.array_equal(imgs[0], imgs[1])), "max_diff": diff,
+            rows.append({"case": name, "technique": technique(o),
+                         "bit_equal": bool(np.array_equal(imgs[0], imgs[1])), "max_diff": diff,
                          "same_counts": stats[0] == stats[1]})
     return rows
 
@@ -222,7 +230,18 @@ def time_cases() -> list[tuple[str, str, list]]:
                           head + [f"image.width={size}", f"image.height={size}", f"render.method={method}"]))
         cases.append((f"engine 512x384 {method}", ROOT / "examples" / "engine.toml",
                       eng + [f"render.method={method}"]))
+    for size in (256, 512):
+        cases.append((f"head bone {size}x{size} indexed", ROOT / "examples" / "head.toml",
+                      head + [f"image.width={size}", f"image.height={size}", "render.classification=pre"]))
     return cases
+
+
+def technique(overrides) -> str:
+    """The technique a case renders with: the example scenes and the random one say version 4 or nothing, so
+    post-classification unless the overrides ask for the paper's splatting or image-aligned sheets."""
+    if "render.sheets=image" in overrides:
+        return "image sheets (pre)"
+    return "pre" if "render.classification=pre" in overrides else "post"
 
 
 def compare_times(old: Worker, new: Worker, frames: int) -> list[dict]:
@@ -235,15 +254,20 @@ def compare_times(old: Worker, new: Worker, frames: int) -> list[dict]:
             for tag, w in (("old", old), ("new", new)):
                 t[tag].append(w.ask(op="time", key=name)["s"])
         mo, mn = statistics.median(t["old"]), statistics.median(t["new"])
-        rows.append({"case": name, "old_ms": mo * 1e3, "new_ms": mn * 1e3, "ratio": mn / mo})
+        rows.append({"case": name, "technique": technique(o), "old_ms": mo * 1e3, "new_ms": mn * 1e3,
+                     "ratio": mn / mo})
     return rows
 
 
 def write_page(out: Path, rev: str, tests: dict, images: list, times: list, frames: int, command: str):
     n_equal = sum(r["bit_equal"] for r in images)
     worst = max(r["max_diff"] for r in images)
+    from benchmarks._doc import historical
+
     lines = [
-        "# Render core in stages: the same images, the same speed", "",
+        historical("render-core", f"a one-time comparison of the working tree at {_doc_rev()} with {rev}: it documents "
+                                  "that change (issue 25: techniques as units behind one request) and is not rerun"),
+        "# The render core against an earlier commit: the same images, the same speed", "",
         f"Made by `{command}` (old = `{rev}`, new = the working tree), on {_machine()}.", "",
         "## Images of the tests", "",
         f"The render tests ({', '.join(TEST_FILES)}) of each version, every image `Renderer.render_view` returned "
@@ -254,14 +278,20 @@ def write_page(out: Path, rev: str, tests: dict, images: list, times: list, fram
         f"{len(images)} scenes rendered by both versions: {n_equal} bit for bit equal, largest difference "
         f"{worst:.3g} (straight RGBA in [0, 1]); voxel, splat and slice counts equal in "
         f"{sum(r['same_counts'] for r in images)} of {len(images)}.", "",
-        "| scene | bit for bit | max difference | same counts |", "|---|---|---:|---|"]
-    lines += [f"| {r['case']} | {'yes' if r['bit_equal'] else 'no'} | {r['max_diff']:.3g} | "
+        "| scene | technique | bit for bit | max difference | same counts |", "|---|---|---|---:|---|"]
+    lines += [f"| {r['case']} | {r['technique']} | {'yes' if r['bit_equal'] else 'no'} | {r['max_diff']:.3g} | "
               f"{'yes' if r['same_counts'] else 'no'} |" for r in images]
     lines += ["", "## Frame time", "",
               f"Median of {frames} warm frames each, the two versions alternating frame by frame, all cores.", "",
-              "| case | old (ms) | new (ms) | new / old |", "|---|---:|---:|---:|"]
-    lines += [f"| {r['case']} | {r['old_ms']:.1f} | {r['new_ms']:.1f} | {r['ratio']:.3f} |" for r in times]
+              "| case | technique | old (ms) | new (ms) | new / old |", "|---|---|---:|---:|---:|"]
+    lines += [f"| {r['case']} | {r['technique']} | {r['old_ms']:.1f} | {r['new_ms']:.1f} | {r['ratio']:.3f} |"
+              for r in times]
     out.write_text("\n".join(lines) + "\n")
+
+
+def _doc_rev() -> str:
+    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                          check=True).stdout.strip()
 
 
 def _machine() -> str:

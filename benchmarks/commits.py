@@ -262,6 +262,8 @@ def compare_times(old: Worker, new: Worker, frames: int) -> list[dict]:
 def write_page(out: Path, rev: str, tests: dict, images: list, times: list, frames: int, command: str):
     n_equal = sum(r["bit_equal"] for r in images)
     worst = max(r["max_diff"] for r in images)
+    if str(ROOT) not in sys.path:               # run as a script: benchmarks/ is sys.path[0], not the root
+        sys.path.insert(0, str(ROOT))
     from benchmarks._doc import historical
 
     lines = [

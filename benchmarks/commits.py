@@ -1,6 +1,6 @@
 """Compare two versions of isplat side by side: the same images, and frame times interleaved in one run.
 
-    python benchmarks/commits.py --old REV [--frames 15] [--out docs/render-core.md]
+    python benchmarks/commits.py --old REV [--frames 15] [--rounds 5] [--out docs/render-core.md]
 
 REV (a commit) is checked out into a temporary git worktree; one worker process runs each version (the old
 one with its worktree first on ``sys.path``), and both load the same scenes through the public API both
@@ -244,22 +244,32 @@ def technique(overrides) -> str:
     return "pre" if "render.classification=pre" in overrides else "post"
 
 
-def compare_times(old: Worker, new: Worker, frames: int) -> list[dict]:
+def compare_times(old: Worker, new: Worker, frames: int, rounds: int = 1) -> list[dict]:
+    """Per case, ``rounds`` rounds over all the cases (the host's load changes over seconds), each the median of
+    ``frames`` frames per version, the versions alternating frame by frame (which goes first alternating too):
+    the median over rounds of each round's ratio, and their range."""
+    per = {}
+    for rnd in range(rounds):
+        for name, scene, o in time_cases():
+            key = f"{name} {technique(o)} {rnd}"
+            for w in (old, new):
+                w.ask(op="load", key=key, scene=str(scene), overrides=o)
+            t = {"old": [], "new": []}
+            for i in range(frames):
+                for tag, w in ((("old", old), ("new", new)) if i % 2 == 0 else (("new", new), ("old", old))):
+                    t[tag].append(w.ask(op="time", key=key)["s"])
+            per.setdefault((name, technique(o)), []).append((statistics.median(t["old"]), statistics.median(t["new"])))
     rows = []
-    for name, scene, o in time_cases():
-        for w in (old, new):
-            w.ask(op="load", key=name, scene=str(scene), overrides=o)
-        t = {"old": [], "new": []}
-        for _ in range(frames):
-            for tag, w in (("old", old), ("new", new)):
-                t[tag].append(w.ask(op="time", key=name)["s"])
-        mo, mn = statistics.median(t["old"]), statistics.median(t["new"])
-        rows.append({"case": name, "technique": technique(o), "old_ms": mo * 1e3, "new_ms": mn * 1e3,
-                     "ratio": mn / mo})
+    for (name, tech), r in per.items():
+        ratios = [mn / mo for mo, mn in r]
+        rows.append({"case": name, "technique": tech, "old_ms": statistics.median(mo for mo, _ in r) * 1e3,
+                     "new_ms": statistics.median(mn for _, mn in r) * 1e3, "ratio": statistics.median(ratios),
+                     "lo": min(ratios), "hi": max(ratios)})
     return rows
 
 
-def write_page(out: Path, rev: str, tests: dict, images: list, times: list, frames: int, command: str):
+def write_page(out: Path, rev: str, tests: dict, images: list, times: list, frames: int, command: str,
+               rounds: int = 1):
     n_equal = sum(r["bit_equal"] for r in images)
     worst = max(r["max_diff"] for r in images)
     if str(ROOT) not in sys.path:               # run as a script: benchmarks/ is sys.path[0], not the root
@@ -284,10 +294,13 @@ def write_page(out: Path, rev: str, tests: dict, images: list, times: list, fram
     lines += [f"| {r['case']} | {r['technique']} | {'yes' if r['bit_equal'] else 'no'} | {r['max_diff']:.3g} | "
               f"{'yes' if r['same_counts'] else 'no'} |" for r in images]
     lines += ["", "## Frame time", "",
-              f"Median of {frames} warm frames each, the two versions alternating frame by frame, all cores.", "",
-              "| case | technique | old (ms) | new (ms) | new / old |", "|---|---|---:|---:|---:|"]
-    lines += [f"| {r['case']} | {r['technique']} | {r['old_ms']:.1f} | {r['new_ms']:.1f} | {r['ratio']:.3f} |"
-              for r in times]
+              f"Median of {frames} warm frames each, the two versions alternating frame by frame, all cores, in "
+              f"{rounds} round(s) over all the cases; new / old is the median of the rounds' ratios, with their "
+              f"range (the spread between rounds is this shared machine's noise).", "",
+              "| case | technique | old (ms) | new (ms) | new / old | range over rounds |",
+              "|---|---|---:|---:|---:|---|"]
+    lines += [f"| {r['case']} | {r['technique']} | {r['old_ms']:.1f} | {r['new_ms']:.1f} | {r['ratio']:.3f} | "
+              f"{r['lo']:.3f}-{r['hi']:.3f} |" for r in times]
     out.write_text("\n".join(lines) + "\n")
 
 
@@ -306,6 +319,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--old", required=True, help="the revision to compare with (a commit or tag)")
     ap.add_argument("--frames", type=int, default=15)
+    ap.add_argument("--rounds", type=int, default=5, help="timing rounds over all the cases")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "render-core.md")
     args = ap.parse_args(argv)
     rev = subprocess.run(["git", "rev-parse", "--short", args.old], cwd=ROOT, capture_output=True, text=True,
@@ -318,13 +332,13 @@ def main(argv=None):
             tests = compare_tests(tree, Path(tmp))
             old, new = Worker(tree, WORK / f"data-{rev}"), Worker(ROOT, WORK / "data-new")
             images = compare_images(old, new)
-            times = compare_times(old, new, args.frames)
+            times = compare_times(old, new, args.frames, args.rounds)
             old.close()
             new.close()
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, check=False)
-    cmd = f"python benchmarks/commits.py --old {args.old} --frames {args.frames}"
-    write_page(args.out, rev, tests, images, times, args.frames, cmd)
+    cmd = f"python benchmarks/commits.py --old {args.old} --frames {args.frames} --rounds {args.rounds}"
+    write_page(args.out, rev, tests, images, times, args.frames, cmd, args.rounds)
     print(args.out.read_text())
 
 

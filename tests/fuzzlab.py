@@ -338,8 +338,11 @@ def _rewrite_unchecked(src: Path, dst: Path) -> None:
 
     with h5py.File(src, "r") as a, create_hdf5(dst) as b:
         def copy(ga, gb):
-            for k, v in ga.attrs.items():
-                gb.attrs[k] = v
+            for k in ga.attrs:                   # each attribute with its stored type (UTF-8 stays UTF-8)
+                aid = ga.attrs.get_id(k)
+                buf = np.empty(aid.shape, dtype=aid.dtype)
+                aid.read(buf)
+                h5py.h5a.create(gb.id, k.encode(), aid.get_type(), aid.get_space()).write(buf)
             for name, obj in ga.items():
                 if isinstance(obj, h5py.Group):
                     copy(obj, gb.create_group(name))

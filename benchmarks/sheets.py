@@ -123,7 +123,7 @@ def frame_times(case: str, size: int, frames: int, quick: bool) -> dict:
     from isplat.frame import prepare
 
     r = rs["image"]
-    geo = prepare(r.selection, r.views[0]).geo
+    geo = prepare(r.selection, r.views[0]).plan.geo      # the image-sheet plan (splat.sheets.SheetsPlan)
     out["slabs_per_voxel"] = 2.0 * geo.cond[3] / geo.thick + 1.0
     out["thick"] = geo.thick
     out["diff"] = rmse(last["image"][0], last["axis"][0])

@@ -101,17 +101,22 @@ def probe_folder(path: str | os.PathLike) -> None:
     /proc, a full disk's inode table): a file is created beside ``path`` and removed."""
     from . import interrupts
 
-    p = Path(path)
-    parent = p.parent if str(p.parent) else Path(".")
     with interrupts.deferred():                       # a signal between the two steps would leave the probe
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=parent)
-        except OSError as exc:
-            raise IsplatError(f"{p}: cannot create files in the output folder {parent} "
-                              f"({exc.strerror or exc})") from None
-        os.close(fd)
+        tmp = _temp_beside(Path(path), ".probe")
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+
+
+def _temp_beside(p: Path, suffix: str) -> str:
+    """A new empty file in ``p``'s folder named after it (``.NAME.XXXX{suffix}``); the folder refusing it is one
+    IsplatError line."""
+    parent = p.parent if str(p.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=suffix, dir=parent)
+    except OSError as exc:
+        raise IsplatError(f"{p}: cannot create files in the output folder {parent} ({exc.strerror or exc})") from None
+    os.close(fd)
+    return tmp
 
 
 # errors of writing a file (not of reading an input): a block's OSError with one of these is the output's
@@ -133,16 +138,10 @@ def atomic_output(path: str | os.PathLike, force: bool = False):
     from . import interrupts
 
     p = check_output(path, force, probe=False)
-    parent = p.parent if str(p.parent) else Path(".")
     tmp, committed = None, False
     try:
         with interrupts.deferred():                   # the name is known before a signal can end the run
-            try:
-                fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=parent)
-            except OSError as exc:
-                raise IsplatError(f"{p}: cannot create files in the output folder {parent} "
-                                  f"({exc.strerror or exc})") from None
-            os.close(fd)
+            tmp = _temp_beside(p, ".part")
             # mkstemp makes the file owner-only; give it the mode an ordinary new file would get
             umask = os.umask(0)
             os.umask(umask)

@@ -62,6 +62,22 @@ def chunk_rounding(idx_path: Path, interval=(170, 255)) -> dict:
     return {"bone_requested_bytes": seen["requested"], "bone_chunk_bytes": seen["chunks"]}
 
 
+def read_whole(aug_path, idx_path, values: bool = False) -> None:
+    """Read every channel of the augmented file and every block of the index's three axes (and, with
+    ``values``, the index's /values), as a load that touches all of both files."""
+    from isplat.augfile import open_augmented
+    from isplat.index import open_index
+
+    av = open_augmented(aug_path)
+    for ch in ("density", "gradient_magnitude", "normal"):
+        av.read(ch)
+    ix = open_index(idx_path)
+    for ax in "ijk":
+        ix.load_axis(ax, [(0, 255)])
+    if values:
+        ix.read_values(["normal", "gradient_magnitude"], [(0, 255)])
+
+
 def checksum_cost(folder: Path, shape_ijk=(256, 256, 160), repeats: int = 7) -> dict:
     """Median load time of a bone scene (index blocks + normals) and of whole channels, with and without
     checksums, interleaved in one run."""
@@ -95,12 +111,7 @@ def checksum_cost(folder: Path, shape_ijk=(256, 256, 160), repeats: int = 7) -> 
             av.read("normal", k0, k0 + 8)
 
     def whole(aug_path, idx_path):
-        av = open_augmented(aug_path)
-        for ch in ("density", "gradient_magnitude", "normal"):
-            av.read(ch)
-        ix = open_index(idx_path)
-        for ax in "ijk":
-            ix.load_axis(ax, [(0, 255)])
+        read_whole(aug_path, idx_path)
 
     def render_first_frame(aug_path, idx_path, technique):
         from isplat.renderer import Renderer
@@ -211,13 +222,7 @@ def chunk_hash_cost(folder: Path, shape_ijk=(128, 128, 96), repeats: int = 5) ->
         return job
 
     def whole():
-        av = open_augmented(aug)
-        for ch in ("density", "gradient_magnitude", "normal"):
-            av.read(ch)
-        ix = open_index(idx)
-        for ax in "ijk":
-            ix.load_axis(ax, [(0, 255)])
-        ix.read_values(["normal", "gradient_magnitude"], [(0, 255)])
+        read_whole(aug, idx, values=True)
 
     def check_all():
         open_augmented(aug).verify_all()

@@ -6,7 +6,8 @@ nearest turn). Those angles, and log zoom, log distance, target, roll and field 
 spline through the keyframes (PCHIP, Fritsch-Carlson: C1, so no kink at a keyframe, and no overshoot, so the
 camera never swings past a keyframe and back, as a Catmull-Rom spline does with unequal steps). It is then
 re-timed so that consecutive frames are the same angle apart (the angle between their view directions); a path
-that turns back on itself between two frames is timed by the angle turned along it instead. A
+that turns back on itself between two frames (where no equal angles exist with the frames in path order) is
+timed by the angle turned along it instead; a sharp turn that does not turn back gets equal angles too. A
 stretch between two keyframes with the same direction (only zoom or target change) takes the time of an
 average turning stretch. The first and last frames are the first and last keyframes exactly.
 """
@@ -21,6 +22,7 @@ import numpy as np
 SAMPLES_PER_SEGMENT = 512       # dense samples of the spline per keyframe interval, for the re-timing
 STILL = 1e-9                    # radians: a stretch turning less than this does not rotate
 REFINE, GAIN = 60, 0.5          # damped passes that equalise the angles between consecutive frames
+SETTLED = 1e-3                  # their spread (max - min over mean) when they did; else the equal arcs are kept
 
 
 class PathError(ValueError):
@@ -130,8 +132,8 @@ def frame_parameters(ch: np.ndarray, up, frames: int) -> np.ndarray:
         v = spline(ch[:, :2], uf)
         d = directions(v[:, 0], np.clip(v[:, 1], -90, 90), up)
         chord = angles_between(d[:-1], d[1:])
-        if chord.min() < 0.5 * chord.mean():   # the path turns back between two frames: keep equal arcs
-            return arc
+        if not chord.min() > 0:   # two frames on one direction: no chord to equalise
+            break
         spread = (chord.max() - chord.min()) / chord.mean()
         if spread < best:
             best, best_u = spread, uf
@@ -140,6 +142,11 @@ def frame_parameters(ch: np.ndarray, up, frames: int) -> np.ndarray:
         reached = np.concatenate([[0.0], np.cumsum(chord)])
         target = np.clip(target + GAIN * (np.linspace(0.0, reached[-1], frames) - reached), 0.0, time[-1])
         uf = np.interp(target, time, u)
+    # A sharp turn between two frames (a high keyframe the path goes up to and down from) makes that chord much
+    # shorter than the arc at first; the passes above still equalise it. Only a path that really turns back on
+    # itself between two frames (no equal chords with the frames in path order) keeps the equal arcs.
+    if best > SETTLED or not np.all(np.diff(best_u) > 0):
+        return arc
     return best_u
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from isplat.camera import orbit_direction
@@ -61,6 +61,9 @@ def test_orbit_path_ends_on_keyframes_with_constant_angular_step(keys, start, fr
 @settings(max_examples=25, deadline=None)
 @given(turns=st.lists(st.tuples(st.floats(15, 100), st.floats(20, 200), st.floats(-40, 40)), min_size=2, max_size=4),
        frames=st.integers(3, 30))
+# up to a high keyframe and down again: the chord across its sharp turn starts at half the others, and used to
+# make the re-timing give up on equal angles although the path never turns back
+@example(turns=[(15, 20, 0), (15, 20, 34), (15, 20, 0)], frames=14)
 def test_look_at_path(turns, frames):
     """Eyes going round the point looked at (each keyframe 15..100 degrees further), at any radius and height."""
     ang = np.radians(np.cumsum([t[0] for t in turns]))

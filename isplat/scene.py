@@ -14,6 +14,7 @@ isplat.scene_schema (the dataclasses, their defaults, the known keys) and isplat
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import tomllib
@@ -24,7 +25,7 @@ from typing import Iterable
 from .errors import IsplatError
 from .fileio import check_regular
 from .limits import MAX_SCENE_BYTES, check_scene_text
-from .scene_parse import NO_WINDOW, DensityWindow, WindowArg, WindowUnavailable, build_scene
+from .scene_parse import NO_WINDOW, DensityWindow, WindowArg, WindowUnavailable, build_scene, old_defaults_note
 from .scene_positions import locate_keys
 from .scene_schema import (CAMERA_COMMON_KEYS, CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS,  # noqa: F401
                            DEFAULT_LIGHT_DIRECTION, DEFAULT_PATH_FRAMES, FOV_MAX, IMAGE_KEYS, KEYS_SINCE, LIGHT_KEYS,
@@ -37,8 +38,10 @@ from .scene_validate import Ctx, apply_override
 __all__ = [
     "SCENE_VERSION", "Scene", "Data", "Image", "Volume", "Camera", "Transfer", "Shading", "Light", "Cut",
     "RenderOptions", "load_scene", "parse_scene", "scene_tree", "read_scene_text", "locate_keys", "scene_to_dict",
-    "augmented_window", "DensityWindow", "WindowUnavailable", "spacing_problem",
+    "augmented_window", "DensityWindow", "WindowUnavailable", "spacing_problem", "old_defaults_note",
 ]
+
+log = logging.getLogger(__name__)
 
 
 def augmented_window(data: Data, opened: dict | None = None) -> DensityWindow:
@@ -119,11 +122,18 @@ def scene_to_dict(scene: Scene, relative_to: Path | str | None = None) -> dict:
     return plain(scene)
 
 
-def load_scene(path: str | os.PathLike, overrides: Iterable[str] = ()) -> Scene:
-    """Read, parse and validate the scene file at ``path`` (see ``formats/scene.md``)."""
+def load_scene(path: str | os.PathLike, overrides: Iterable[str] = (), say_old_defaults: bool = False) -> Scene:
+    """Read, parse and validate the scene file at ``path`` (see ``formats/scene.md``). ``say_old_defaults``: log
+    (INFO) the one line of :func:`old_defaults_note` when the file says an older ``version`` (a command does it
+    once, on the load whose scene it uses)."""
     text = read_scene_text(path)
+    overrides = list(overrides)
     check_scene_text(str(path), text, overrides)    # size and nesting bounded before tomllib recurses
     scene = parse_scene(text, Path(path).parent, str(path), overrides)
+    if say_old_defaults:
+        note = old_defaults_note(scene_tree(text, str(path), overrides)[0], str(path))
+        if note:
+            log.info(note)
     return replace(scene, path=Path(os.path.abspath(path)))
 
 

@@ -122,7 +122,7 @@ def load_input(path, overrides=(), index=None, preset=None, size=None, opened: d
     options and ``--set`` ``overrides`` applied, and that scene as TOML that renders the same (``--print-scene``:
     the data paths absolute, ``version`` written). ``opened``: the run's open files (``augmented_window``)."""
     from .limits import check_scene_text
-    from .scene import augmented_window, parse_scene, read_scene_text, scene_tree
+    from .scene import augmented_window, old_defaults_note, parse_scene, read_scene_text, scene_tree
 
     sets = option_overrides(index, preset, size) + list(overrides)
     augmented = is_augmented_path(path)
@@ -136,6 +136,9 @@ def load_input(path, overrides=(), index=None, preset=None, size=None, opened: d
         raise IsplatError(f"{path}: no transfer function: give --preset NAME (isplat presets lists them), e.g. "
                           f"--preset ct-bone, or --set 'transfer.opacity=[[LO, 0], [HI, 1]]' (density codes)")
     scene = parse_scene(text, base, name, sets, density_window=lambda data: augmented_window(data, opened))
+    note = old_defaults_note(tree, name)            # once per render, whatever the number of views
+    if note:
+        log.info(note)
     if not augmented:
         scene = replace(scene, path=Path(os.path.abspath(path)))
     return scene, _printable(tree, scene)

@@ -19,11 +19,11 @@ from typing import Any, Callable, Union
 from . import units as _units
 from .limits import MAX_VIEWS
 from .scene_schema import (CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS, DEFAULT_ORBIT_STEPS,
-                           DEFAULT_PATH_FRAMES, FOV_MAX, IMAGE_KEYS, KEYS_SINCE, LIGHT_KEYS, ORTHONORMAL_TOLERANCE,
-                           PARALLEL_TOLERANCE, RENDER_KEYS, SCENE_VERSION, SHADING_KEYS, SUPERSAMPLE_MAX, TOP_KEYS,
-                           TRANSFER_KEYS, VIEW_CHOICES, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light,
-                           RenderOptions, Scene, Shading, Transfer, Vec3, Volume, default_for, defaults, spacing_problem,
-                           unit)
+                           DEFAULT_PATH_FRAMES, DEFAULTS_BEFORE, FOV_MAX, IDENTITY_AXES, IMAGE_KEYS, KEYS_SINCE,
+                           LIGHT_KEYS, OLD_DEFAULT_MEANING, ORTHONORMAL_TOLERANCE, PARALLEL_TOLERANCE, RENDER_KEYS,
+                           SCENE_VERSION, SHADING_KEYS, SUPERSAMPLE_MAX, TOP_KEYS, TRANSFER_KEYS, VIEW_CHOICES,
+                           VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light, RenderOptions, Scene, Shading,
+                           Transfer, Vec3, Volume, default_for, defaults, spacing_problem, unit)
 from .scene_validate import Ctx, Table, dotted, fmt, kind
 
 __all__ = ["build_scene", "DensityWindow", "WindowUnavailable", "NO_WINDOW"]
@@ -549,6 +549,40 @@ def _check_version(ctx: Ctx, tree: dict) -> None:
         if since > v and isinstance(table, dict) and path[1] in table:
             ctx.fail(path, table[path[1]], f"this key is new in scene version {since}; the file says version = "
                                            f"{v} (write version = {since}, or leave version out)")
+
+
+def old_defaults_note(tree: dict, source_name: str) -> str | None:
+    """The one line a scene of an older ``version`` gets (once per command, from the CLI): which of the defaults
+    its version changed it keeps because it does not set them itself; None for a current or unversioned scene,
+    or one that sets them all (formats/scene.md, Version).
+
+    >>> print(old_defaults_note({"version": 1}, "head.toml"))   # doctest: +NORMALIZE_WHITESPACE
+    head.toml: version = 1 keeps version-1 defaults: render.classification = "pre" (the paper's splatting),
+    camera.view = "none" (the orbit about camera.up, not the anatomical front), volume.axes = identity (grid
+    space, not the file's patient orientation); say version = 5 for the current defaults
+    >>> old_defaults_note({"version": 4, "camera": {"up": [0, 0, 1]}, "volume": {"axes": [[1, 0, 0]] * 3}}, "s")
+    >>> old_defaults_note({}, "s") is None and old_defaults_note({"version": 5}, "s") is None
+    True
+    """
+    v = tree.get("version")
+    if isinstance(v, bool) or not isinstance(v, int) or v >= SCENE_VERSION:
+        return None
+    kept = []
+    for (table, key), (since, older) in DEFAULTS_BEFORE.items():
+        t = tree.get(table)
+        t = t if isinstance(t, dict) else {}
+        if v >= since or key in t:
+            continue
+        if (table, key) == ("render", "classification") and t.get("sheets") == "image":
+            continue                                  # image-aligned sheets splat pre-classified in every version
+        if (table, key) == ("camera", "view") and "up" in t:
+            continue                                  # camera.up means "none" in every version
+        shown = "identity" if older == IDENTITY_AXES else f'"{older}"' if isinstance(older, str) else str(older)
+        kept.append(f"{table}.{key} = {shown} ({OLD_DEFAULT_MEANING[table, key]})")
+    if not kept:
+        return None
+    return (f"{source_name}: version = {v} keeps version-{v} defaults: {', '.join(kept)}; say version = "
+            f"{SCENE_VERSION} for the current defaults")
 
 
 def build_scene(ctx: Ctx, tree: dict, data_required: bool = True, density_window: WindowArg = None) -> Scene:

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
-    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "Scene", "Data", "Image", "Volume", "Camera", "Transfer",
+    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "OLD_DEFAULT_MEANING", "Scene", "Data", "Image", "Volume", "Camera", "Transfer",
     "Shading", "Light", "Cut", "RenderOptions", "defaults", "default_for", "spacing_problem",
 ]
 
@@ -35,6 +35,10 @@ KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "pa
 # defaults a version changed: (table, key) -> (that version, the default of a file that says an older one)
 DEFAULTS_BEFORE = {("render", "classification"): (4, "pre"), ("camera", "view"): (5, "none"),
                    ("volume", "axes"): (5, IDENTITY_AXES)}
+# what each of those older defaults means, for the note a scene of an older version gets (old_defaults_note)
+OLD_DEFAULT_MEANING = {("render", "classification"): "the paper's splatting",
+                       ("camera", "view"): "the orbit about camera.up, not the anatomical front",
+                       ("volume", "axes"): "grid space, not the file's patient orientation"}
 # camera.view: a named anatomical view (isplat.camera.NAMED_VIEWS), "auto" or "none" (class Camera)
 NAMED_VIEW_NAMES = ("anterior", "posterior", "left", "right", "superior", "inferior")
 VIEW_CHOICES = NAMED_VIEW_NAMES + ("auto", "none")

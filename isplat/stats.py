@@ -205,7 +205,8 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_ind
     from .scene import load_scene
     from .transfer import build_luts
 
-    scene = load_scene(scene_file, overrides)           # (overrides: scene_overrides, the command line's files)
+    # (overrides: scene_overrides, the command line's files); an older version's defaults said here, once
+    scene = load_scene(scene_file, overrides, say_old_defaults=True)
     if not 0 <= view < len(scene.views):
         raise IsplatError(f"--view {view}: the scene has {len(scene.views)} view(s) (0..{len(scene.views) - 1})")
     luts = build_luts(scene.transfer, aug.gradient_magnitude_scale)

@@ -115,3 +115,25 @@ def test_scene_line_is_reported(data):
     (data / "bad.toml").write_text(scene_text("ball.aug.h5", "ball.idx.h5", camera="fov = 500"))
     line = error_line(run("render", "bad.toml", "-o", "x.png", cwd=data))
     assert "bad.toml:" in line and "camera.fov" in line and "500" in line
+
+
+def test_an_old_version_says_once_which_defaults_it_keeps(data):
+    """A scene that says an older version: one line on stderr per command (not per view) naming the defaults it
+    keeps; the same scene without version (the current defaults) or with them set says nothing of the kind."""
+    text = (data / "orbit.toml").read_text()
+    (data / "orbit_v1.toml").write_text("version = 1\n" + text)
+    res = run("render", "orbit_v1.toml", "-o", "v1.gif", cwd=data)
+    assert res.returncode == 0, res.stderr
+    notes = [ln for ln in res.stderr.decode().splitlines() if "keeps version-1 defaults" in ln]
+    assert len(notes) == 1 and notes[0].startswith("orbit_v1.toml: version = 1 keeps version-1 defaults: "), notes
+    assert 'render.classification = "pre"' in notes[0] and "say version = 5" in notes[0]
+    assert "4 views, pre-classified" in res.stderr.decode()
+    res = run("render", "orbit.toml", "-o", "v5.gif", cwd=data)
+    assert res.returncode == 0 and b"keeps version-" not in res.stderr and b"post-classified" in res.stderr
+    res = run("stats", "ball.aug.h5", "ball.idx.h5", "--scene", "orbit_v1.toml", "--json", cwd=data)
+    assert res.returncode == 0, res.stderr
+    notes = [ln for ln in res.stderr.decode().splitlines() if "keeps version-1 defaults" in ln]
+    assert len(notes) == 1 and json.loads(res.stdout)["scene"] is not None, res.stderr
+    res = run("render", "orbit_v1.toml", "-o", "v4.gif", "--set", "version=4", "--set", "camera.up=[0,0,1]", "--set", "volume.axes=[[1,0,0],[0,1,0],[0,0,1]]", cwd=data)
+    assert res.returncode == 0 and b"keeps version-" not in res.stderr and b"post-classified" in res.stderr, \
+        res.stderr

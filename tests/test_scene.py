@@ -505,3 +505,40 @@ def test_error_line_points_at_the_bad_key(key, blank_lines, value):
 def test_scene_examples_window_file_is_the_augmented_example():
     copy = EXAMPLES / "valid" / "window-0-100.aug.h5"
     assert copy.read_bytes() == (ROOT / "formats" / "examples" / "augmented" / "valid.aug.h5").read_bytes()
+
+
+def test_a_scene_without_version_gets_the_current_defaults():
+    from isplat.scene_schema import DEFAULTS_BEFORE, IDENTITY_AXES
+
+    assert set(DEFAULTS_BEFORE) == {("render", "classification"), ("camera", "view"), ("volume", "axes")}
+    s = parse_scene(BASE, ".", "s.toml")
+    assert (s.render.classification, s.camera.view, s.volume.axes) == ("post", "auto", None)
+    s1 = parse_scene("version = 1\n" + BASE, ".", "s.toml")
+    assert (s1.render.classification, s1.camera.view, s1.volume.axes) == ("pre", "none", IDENTITY_AXES)
+    s4 = parse_scene("version = 4\n" + BASE, ".", "s.toml")
+    assert (s4.render.classification, s4.camera.view, s4.volume.axes) == ("post", "none", IDENTITY_AXES)
+
+
+@pytest.mark.parametrize("text, kept", [
+    ("", None),
+    ("version = 5\n", None),
+    ("version = 1\n", ['render.classification = "pre" (the paper\'s splatting)', 'camera.view = "none"',
+                       "volume.axes = identity"]),
+    ("version = 3\n[render]\nclassification = \"post\"\n", ['camera.view = "none"', "volume.axes = identity"]),
+    ("version = 3\n[render]\nsheets = \"image\"\n", ['camera.view = "none"', "volume.axes = identity"]),
+    ("version = 4\n", ['camera.view = "none"', "volume.axes = identity"]),
+    ("version = 4\n[camera]\nup = [0, 0, 1]\n[volume]\naxes = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n", None),
+])
+def test_old_defaults_note_names_what_an_old_version_keeps(text, kept):
+    from isplat.scene import old_defaults_note, scene_tree
+
+    note = old_defaults_note(scene_tree(text, "s.toml", [])[0], "s.toml")
+    if kept is None:
+        assert note is None
+        return
+    v = text.split("\n")[0].split("= ")[1]
+    assert note.startswith(f"s.toml: version = {v} keeps version-{v} defaults: ") and "\n" not in note
+    assert note.endswith("say version = 5 for the current defaults")
+    for k in kept:
+        assert k in note
+    assert ("render.classification" in note) == any(k.startswith("render.") for k in kept)

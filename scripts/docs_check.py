@@ -14,6 +14,13 @@ not regenerated; it is listed, never stale. A page of docs/ with no stamp at all
 Prints one line per stamp and per unstamped page or section, then a summary; exits 1 with ``--strict`` when
 something is stale or unstamped (CI runs it without, so that the list is printed and the run goes on), else 0.
 A malformed stamp exits 2.
+
+``--rerun`` (``make docs-regen``) regenerates: it runs the rerun command of every stale section once (a command
+shared by sections runs once), cheapest first by :data:`MINUTES` (what each took on a 2-core machine; one not in
+it counts as :data:`UNKNOWN_MINUTES`), the long ones last, each command's wall time logged to stderr; the first
+command that fails stops the run with one line (exit 1); the check is printed again at the end. ``--dry-run``
+prints that order with the estimates and runs nothing; ``--max-minutes M`` runs only the commands estimated at
+most M minutes (the others are listed as left out); ``--only NAME,...`` only those sections.
 """
 
 from __future__ import annotations
@@ -21,8 +28,10 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import shlex
 import subprocess
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -150,12 +159,120 @@ def report(findings: list[Finding], show: int = 3) -> str:
     return "\n".join(lines)
 
 
+# Estimated wall minutes of each rerun command (its first words, as in the stamps), measured on a 2-core machine
+# shared with other work; the order of --rerun. reference caches the references accuracy reads, so accuracy is
+# counted with it and runs after it.
+MINUTES = {
+    "python -m benchmarks normals": 0.5,
+    "python -m benchmarks render": 1,
+    "python -m benchmarks paper": 1,
+    "python -m benchmarks startup": 2,
+    "python -m benchmarks stability": 2,
+    "python -m benchmarks worksplit": 2,
+    "python -m benchmarks sheets": 2,
+    "python -m benchmarks thick": 3,
+    "make presets-doc": 3,
+    "python -m benchmarks augment": 4,
+    "python -m benchmarks index": 6,
+    "python -m benchmarks.reliability --chunk-hash-cost": 6,
+    "python -m benchmarks selective_read": 8,
+    "python -m benchmarks reference": 9,
+    "python -m benchmarks accuracy": 10,
+    "python -m benchmarks outofcore": 30,
+    "python -m benchmarks scale": 40,
+    "python -m benchmarks.reliability --out docs": 60,
+    "make bench-peers": 90,
+}
+UNKNOWN_MINUTES = 15
+
+
+def runnable(command: str) -> str:
+    """The command of a stamp without its remark in parentheses: ``python -m benchmarks paper (make paper-table)``
+    -> ``python -m benchmarks paper``."""
+    return re.sub(r"\s*\(.*\)\s*$", "", command).strip()
+
+
+def estimate(command: str) -> float:
+    """:data:`MINUTES` of the longest key that starts ``command`` (word for word), else :data:`UNKNOWN_MINUTES`.
+
+    >>> estimate("python -m benchmarks paper"), estimate("python -m benchmarks.reliability --chunk-hash-cost 1,1,1")
+    (1, 6)
+    >>> estimate("python -m benchmarks new")
+    15
+    """
+    words = command.split()
+    best = None
+    for key, minutes in MINUTES.items():
+        k = key.split()
+        if words[:len(k)] == k and (best is None or len(k) > len(best[0].split())):
+            best = (key, minutes)
+    return UNKNOWN_MINUTES if best is None else best[1]
+
+
+def rerun_plan(findings: list[Finding], only=None) -> list[tuple[str, float, list[str]]]:
+    """(command, estimated minutes, the sections it regenerates) for the stale sections, cheapest first."""
+    plan: dict[str, list[str]] = {}
+    for f in findings:
+        if f.state not in ("stale", "unknown commit"):
+            continue
+        if only and f.section not in only:
+            continue
+        plan.setdefault(runnable(f.stamp["command"]), []).append(f"{f.page} § {f.section}")
+    return sorted(((c, estimate(c), secs) for c, secs in plan.items()), key=lambda t: t[1])
+
+
+def _argv(command: str) -> list[str]:
+    """The command's words, ``python`` being this interpreter (the venv's under make)."""
+    words = shlex.split(command)
+    if words and words[0] == "python":
+        words[0] = sys.executable
+    return words
+
+
+def rerun(repo: Path, plan, max_minutes: float | None = None, dry_run: bool = False) -> int:
+    """Run ``plan`` (:func:`rerun_plan`) in ``repo``; 0 when every command ran, 1 at the first that failed."""
+    todo = [p for p in plan if max_minutes is None or p[1] <= max_minutes]
+    left = [p for p in plan if p not in todo]
+    log = sys.stderr
+    total = sum(m for _, m, _ in todo)
+    print(f"docs-regen: {len(todo)} commands, about {total:.0f} min" + (
+        f"; left out (estimated over {max_minutes:g} min): " + "; ".join(f"{c} (~{m:g} min)" for c, m, _ in left)
+        if left else ""), file=log)
+    t_all = time.perf_counter()
+    for n, (command, minutes, sections) in enumerate(todo, 1):
+        print(f"docs-regen: [{n}/{len(todo)}] {command}   (~{minutes:g} min; {', '.join(sections)})", file=log,
+              flush=True)
+        if dry_run:
+            continue
+        t0 = time.perf_counter()
+        try:
+            code = subprocess.run(_argv(command), cwd=repo).returncode
+        except OSError as exc:
+            code = f"not started: {exc.strerror or exc}"
+        took = time.perf_counter() - t0
+        if code != 0:
+            print(f"docs-regen: error: {command} failed ({f'exit {code}' if isinstance(code, int) else code}) "
+                  f"after {took:.0f} s; the {n - 1} commands before it rewrote their pages; fix it and run "
+                  f"docs-regen again (only what is still stale runs)", file=log)
+            return 1
+        print(f"docs-regen: [{n}/{len(todo)}] {command}: {took:.1f} s wall", file=log, flush=True)
+    if not dry_run:
+        print(f"docs-regen: {len(todo)} commands in {time.perf_counter() - t_all:.0f} s wall", file=log)
+    return 0
+
+
 def main(argv=None) -> int:
     root = Path(__file__).resolve().parents[1]
     ap = argparse.ArgumentParser(prog="docs_check", description=__doc__.split("\n\n")[0])
     ap.add_argument("--repo", type=Path, default=root, help="the git repository (default: this one)")
     ap.add_argument("--docs", type=Path, default=None, help="the folder of pages (default: REPO/docs)")
     ap.add_argument("--strict", action="store_true", help="exit 1 when a page or section is stale or unstamped")
+    ap.add_argument("--rerun", action="store_true", help="run the rerun command of every stale section, cheapest "
+                    "first, stopping at the first failure (make docs-regen)")
+    ap.add_argument("--dry-run", action="store_true", help="with --rerun: print the order and estimates only")
+    ap.add_argument("--max-minutes", type=float, default=None, metavar="M",
+                    help="with --rerun: only the commands estimated at most M minutes")
+    ap.add_argument("--only", default=None, metavar="NAME,...", help="with --rerun: only these sections")
     a = ap.parse_args(argv)
     repo = a.repo.resolve()
     docs = (a.docs or repo / "docs").resolve()
@@ -164,6 +281,21 @@ def main(argv=None) -> int:
     except StampError as exc:
         print(f"docs-check: error: {exc}", file=sys.stderr)
         return 2
+    if a.rerun:
+        only = set(a.only.split(",")) if a.only else None
+        unknown = only - {f.section for f in findings} if only else set()
+        if unknown:
+            print(f"docs-check: error: --only {','.join(sorted(unknown))}: no such section (the sections: "
+                  f"{', '.join(f.section for f in findings)})", file=sys.stderr)
+            return 2
+        code = rerun(repo, rerun_plan(findings, only), a.max_minutes, a.dry_run)
+        if code or a.dry_run:
+            return code
+        try:
+            findings = check(repo, docs)
+        except StampError as exc:
+            print(f"docs-check: error: {exc}", file=sys.stderr)
+            return 2
     print(report(findings))
     return 1 if a.strict and any(f.bad for f in findings) else 0
 

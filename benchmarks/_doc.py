@@ -112,6 +112,48 @@ def historical(section: str, why: str) -> str:
     return f"<!-- {STAMP_TAG}: {json.dumps({'section': section, 'historical': why})} -->"
 
 
+# Runs argv[1:] in a child forked from this small process and prints the child's exit status, its peak resident set
+# (RUSAGE_CHILDREN.ru_maxrss, KiB) and its wall seconds. Linux carries a process's high-water RSS across fork and
+# exec (a child spawned by a big benchmark process reports that process's peak: a /bin/true spawned by the render
+# benchmark "used" 431 MiB), so the measured command is started from this fresh, small one.
+_PEAK_WRAPPER = """import os, resource, sys, time
+t = time.perf_counter()
+pid = os.fork()
+if pid == 0:
+    fd = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(fd, 1)
+    try:
+        os.execv(sys.argv[1], sys.argv[1:])
+    finally:
+        os._exit(127)
+_, status = os.waitpid(pid, 0)
+dt = time.perf_counter() - t
+print(os.waitstatus_to_exitcode(status), resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, dt)
+"""
+
+
+def child_peak(argv, env=None) -> tuple[float, float]:
+    """(peak resident set in MiB, wall seconds) of the command ``argv`` (stdout discarded) run in a process of
+    its own, started from a fresh small process so that the figure is the command's own (see _PEAK_WRAPPER).
+    Raises RuntimeError when it fails. Compare with :func:`baseline_peak`, the floor of the method."""
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _PEAK_WRAPPER, *map(str, argv)], capture_output=True, text=True,
+                       env=env)
+    try:
+        code, kib, dt = r.stdout.split()
+    except ValueError:
+        raise RuntimeError(f"{' '.join(map(str, argv))}: no measurement ({r.stderr.strip()[-300:]})") from None
+    if int(code) != 0:
+        raise RuntimeError(f"{' '.join(map(str, argv))} failed (exit {code}): {r.stderr.strip()[-300:]}")
+    return int(kib) / 1024.0, float(dt)
+
+
+def baseline_peak() -> float:
+    """Peak RSS (MiB) that :func:`child_peak` reports for ``/bin/true``: what the method itself counts."""
+    return child_peak(["/bin/true"])[0]
+
+
 def median_ms(seconds) -> float:
     return 1000.0 * statistics.median(seconds)
 

@@ -108,21 +108,19 @@ def interleaved(renderers: dict, frames: int) -> dict:
     return {k: (statistics.median(v), min(v), max(v)) for k, v in times.items()}
 
 
-def end_to_end(aug, idx, runs: int) -> tuple[float, float]:
-    """Median seconds of ``isplat render`` (process start to PNG written) and the largest peak RSS (MiB)."""
+def end_to_end(aug, idx, runs: int) -> tuple[float, float, float]:
+    """Median seconds of ``isplat render`` (process start to PNG written), its largest peak RSS (MiB), each run
+    in a process of its own started from a fresh small one (``_doc.child_peak``: the render's own peak, not this
+    benchmark's), and the floor of that method (``/bin/true`` spawned the same way, MiB)."""
     out = WORK / "e2e.png"
     cmd = [sys.executable, "-m", "isplat", "render", str(SCENE), "-o", str(out), "--force", "-q",
            *sum((["--set", o] for o in overrides(aug, idx)), [])]
     secs, rss = [], []
     for _ in range(runs + 1):                      # the first run may write numba's cache: not counted
-        t = time.perf_counter()
-        p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
-        _, status, usage = os.wait4(p.pid, 0)
-        secs.append(time.perf_counter() - t)
-        rss.append(usage.ru_maxrss / 1024.0)
-        if status != 0:
-            raise RuntimeError(f"isplat render failed: {' '.join(cmd)}")
-    return statistics.median(secs[1:]), max(rss[1:])
+        peak, dt = _doc.child_peak(cmd)
+        secs.append(dt)
+        rss.append(peak)
+    return statistics.median(secs[1:]), max(rss[1:]), _doc.baseline_peak()
 
 
 def orbit(aug, idx, single_median: float) -> dict:
@@ -169,7 +167,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     orb = orbit(aug, idx, single)
 
     _log("end to end")
-    e2e, rss = end_to_end(aug, idx, 3 if quick else 5)
+    e2e, rss, rss0 = end_to_end(aug, idx, 3 if quick else 5)
 
     _log("scaling 128^3, 256^3, 512^3")
     sizes = [64, 128] if quick else [128, 256, 512]
@@ -182,7 +180,7 @@ def run(out_dir: Path, quick: bool) -> Path:
         scaling.append((n, s.voxels_examined, tm["indexed"][0], tm["full"][0], s.drawn))
 
     TECHNIQUES[:] = [st.classification]      # the stamp names the technique examples/head.toml rendered with
-    body = doc(main, st, pv, orb, e2e, rss, scaling, r0, quick, time.perf_counter() - t_start)
+    body = doc(main, st, pv, orb, e2e, (rss, rss0), scaling, r0, quick, time.perf_counter() - t_start)
     return _doc.update_section(out_dir / "performance.md", "render", body, title="Performance")
 
 
@@ -231,7 +229,8 @@ def doc(main, st, pv, orb, e2e, rss, scaling, r0, quick, seconds) -> str:
         "|---|---:|---|",
         f"| median frame <= 40 ms (aim far lower) | {_ms(im[0])} ms | {'met' if im[0] <= 0.040 else 'NOT met'} |",
         f"| one frame end to end (`isplat render` start to PNG written) <= 2.5 s | {e2e:.2f} s "
-        f"(peak RSS {rss:.0f} MiB) | {'met' if e2e <= 2.5 else 'NOT met'} |",
+        f"(peak RSS {rss[0]:.0f} MiB: the render's own, interpreter and libraries included; /bin/true spawned "
+        f"the same way: {rss[1]:.0f} MiB) | {'met' if e2e <= 2.5 else 'NOT met'} |",
         f"| 36-view orbit: time per view <= 1.5 x single frame | {_ms(orb['median'])} ms per view = "
         f"{orb['ratio']:.2f} x | {'met' if orb['ratio'] <= 1.5 else 'NOT met'} |",
         f"| perspective <= 1.5 x orthographic (the paper saw 1.2) | {persp:.2f} x "

@@ -389,8 +389,8 @@ def check_checked_dataset(where: str, ds) -> None:
     filters = [plist.get_filter(n)[0] for n in range(plist.get_nfilters())]
     if ds.chunks is None or filters != [3]:          # H5Z_FILTER_FLETCHER32
         layout = "contiguous" if ds.chunks is None else f"chunked with filters {filters}"
-        raise IsplatError(f"{where}: dataset is {layout}; format version 2 requires chunks with the Fletcher-32 "
-                          f"filter only (checksums)")
+        raise IsplatError(f"{where}: dataset is {layout}; isplat's formats (since version 2) require chunks with "
+                          f"the Fletcher-32 filter only (checksums)")
     if int(np.prod(ds.chunks)) * ds.dtype.itemsize > READ_CHUNK_LIMIT:
         raise IsplatError(f"{where}: chunks of {ds.chunks} exceed {READ_CHUNK_LIMIT} bytes")
 

@@ -680,35 +680,21 @@ def _timed(cmd, env=None) -> float:
     return dt
 
 
-def _cold(cmd, env) -> float:
-    """``cmd``'s time with an empty numba cache (a new machine)."""
-    with tempfile.TemporaryDirectory(prefix="numba-empty-") as cache:
-        return _timed(cmd, dict(env, NUMBA_CACHE_DIR=cache))
-
-
 def measure_process(name: str, size: int, quick: bool, repeats: int) -> dict:
     with tempfile.TemporaryDirectory(prefix="isplat-peers-") as tmp:
         tmp = Path(tmp)
         iso, vtk = process_commands(name, size, quick, tmp)
         env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}   # as installed: .pyc kept
-        env["ISPLAT_PREBUILT"] = "none"                 # kernels compiled for this CPU (cold_prebuilt: the others)
+        env["ISPLAT_PREBUILT"] = "none"                 # kernels compiled for this CPU
         _timed(iso, env)
         _timed(vtk, env)                                # warm: numba's cache, .pyc files, the OS's file cache
         t = {"isplat": [], "vtk": []}
         for rep in range(repeats):
             for who in (("isplat", "vtk") if rep % 2 == 0 else ("vtk", "isplat")):
                 t[who].append(_timed(iso if who == "isplat" else vtk, env))
-        cold = cold_prebuilt = None
-        if not quick:
-            cold = _cold(iso, env)
-            from isplat import prebuilt as PB
-
-            if PB.portable_here():
-                PB.build(str(tmp / "pre"))
-                cold_prebuilt = statistics.median(_cold(iso, dict(env, ISPLAT_PREBUILT=str(tmp / "pre")))
-                                                  for _ in range(3))
-        return dict(isplat=statistics.median(t["isplat"]), vtk=statistics.median(t["vtk"]), cold=cold,
-                    cold_prebuilt=cold_prebuilt,
+        # the first run on a machine (an empty numba cache, with and without prebuilt kernels) is measured in
+        # one place only, docs/startup.md (python -m benchmarks startup), which this page refers to
+        return dict(isplat=statistics.median(t["isplat"]), vtk=statistics.median(t["vtk"]),
                     spread={k: (min(v), max(v)) for k, v in t.items()}, repeats=repeats,
                     command=shlex.join([Path(iso[0]).name] + iso[1:2] + ["examples/head.toml", "-o", "frame.png",
                                                                           "--set", "..."]))
@@ -836,12 +822,9 @@ def slower_text(results, mem, proc) -> list[str]:
                  f"{proc['repeats']} each, interleaved; both with Python's bytecode cache, as a package installed by "
                  f"pip has it, although this machine sets PYTHONDONTWRITEBYTECODE): isplat {proc['isplat']:.2f} s, "
                  f"VTK {proc['vtk']:.2f} s "
-                 f"({proc['isplat'] / proc['vtk']:.2f}x)" +
-                 (f"; the first isplat run with an empty numba cache (a new machine: everything compiles) "
-                  f"{proc['cold']:.1f} s" if proc["cold"] is not None else "") +
-                 (f", or {proc['cold_prebuilt']:.2f} s with the kernels prebuilt for x86-64-v3 in the package "
-                  f"(`make prebuilt`, which `make demo` runs; median of 3; docs/startup.md)."
-                  if proc.get("cold_prebuilt") is not None else "."))
+                 f"({proc['isplat'] / proc['vtk']:.2f}x), with numba's cache present; the first isplat run on a "
+                 "machine (an empty numba cache, with and without the kernels prebuilt by `make prebuilt`) is "
+                 "measured in docs/startup.md (`python -m benchmarks startup`, \"Cold\").")
     better = [r for r in results if _pt(r, "isplat defaults")["err"]["rmse"] < _pt(r, "VTK 1")["err"]["rmse"]]
     L.append(f"- Image error against reference (a): isplat's defaults are closer than VTK at step 1 in {len(better)} "
              f"of {len(results)} cases (" + "; ".join(

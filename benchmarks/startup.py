@@ -208,6 +208,11 @@ def doc(warm, cold, size, quick, seconds, pre=None) -> str:
           "| | " + " | ".join(f"NUMBA_OPT={k}" for k in cold) + " |",
           "|---|" + "---:|" * len(cold)]
     L.append("| whole process (s) | " + " | ".join(f"{c['total']:.1f}" for c in cold.values()) + " |")
+    first_run = next(iter(cold.values()))["total"]
+    L[-3:-3] = [f"**The first run on a machine compiles: {first_run:.1f} s** for the whole process (technique "
+                f"{tech}, numba's default optimisation, no prebuilt kernels). This is the one place that figure is "
+                "measured: the README, docs/design.md, docs/performance.md and isplat's own \"compiling the "
+                "kernels\" line refer here rather than repeat it.", ""]
     L.append("| compiling, all top-level kernels (s) | " +
              " | ".join(f"{sum(t for _, t in c['compiles']):.1f}" for c in cold.values()) + " |")
     first = next(iter(cold.values()))["compiles"]

@@ -2,7 +2,7 @@
 
     python -m isplat.prebuilt OUT          # make demo and make wheel put them in isplat/_prebuilt
 
-A first ``isplat render`` on a machine compiles its kernels with numba (15-20 s, docs/startup.md). This
+A first ``isplat render`` on a machine compiles its kernels with numba (seconds: docs/startup.md, "Cold"). This
 compiles them once, in a child process, for ``x86-64-v3`` (the x86-64 level with AVX2 and FMA: Intel since
 2013, AMD since 2015) rather than for the building machine's own CPU, runs a workload that calls every kernel
 with the argument types isplat's commands use, and keeps, per module, numba's cache files of the functions

@@ -15,6 +15,10 @@ Prints one line per stamp and per unstamped page or section, then a summary; exi
 something is stale or unstamped (CI runs it without, so that the list is printed and the run goes on), else 0.
 A malformed stamp exits 2.
 
+``--mark`` writes, under the stamp of every stale section, one visible line saying that the section is older
+than the code it measures, with its rerun command (``> **Older than the code it measures** ... <!-- isplat-stale
+-->``), and removes that line where the section is no longer stale; a regenerated section is written without it.
+
 ``--rerun`` (``make docs-regen``) regenerates: it runs the rerun command of every stale section once (a command
 shared by sections runs once), cheapest first by :data:`MINUTES` (what each took on a 2-core machine; one not in
 it counts as :data:`UNKNOWN_MINUTES`), the long ones last, each command's wall time logged to stderr; the first
@@ -38,6 +42,8 @@ from pathlib import Path
 STAMP_RE = re.compile(r"^<!-- isplat-stamp: (\{.*\}) -->[ \t]*$", re.M)
 BEGIN_RE = re.compile(r"^<!-- BEGIN (\S+) -->[ \t]*$", re.M)
 TECHNIQUES = ("pre", "post")
+STALE_TAG = "<!-- isplat-stale -->"
+STALE_RE = re.compile(r"^> \*\*Older than the code it measures\*\*.*" + re.escape(STALE_TAG) + r"[ \t]*\n", re.M)
 
 
 class StampError(Exception):
@@ -159,6 +165,39 @@ def report(findings: list[Finding], show: int = 3) -> str:
     return "\n".join(lines)
 
 
+def stale_note(f: Finding) -> str:
+    """The visible line under a stale section's stamp (``--mark``)."""
+    if f.state == "unknown commit":
+        why = f"measured at {f.stamp['commit']}, a commit this repository does not have"
+    else:
+        why = (f"measured at {f.stamp['commit']}; {len(f.changed)} of its source files changed since (first: "
+               f"{', '.join(f.changed[:3])})")
+    return (f"> **Older than the code it measures** (`make docs-check`): {why}. Rerun: "
+            f"`{runnable(f.stamp['command'])}` (or `make docs-regen`). {STALE_TAG}\n")
+
+
+def mark_page(repo: Path, page: Path, rel: str) -> bool:
+    """Put :func:`stale_note` under each stale stamp of ``page`` and take it from the others; True if changed."""
+    text = page.read_text(encoding="utf-8")
+    findings = {f.section: f for f in check_page(repo, page, rel) if f.stamp}
+    out, pos = [], 0
+    for m in STAMP_RE.finditer(text):
+        end = m.end() + 1 if text[m.end():m.end() + 1] == "\n" else m.end()
+        out.append(text[pos:end])
+        pos = end
+        old = STALE_RE.match(text, pos)
+        if old:
+            pos = old.end()
+        f = findings.get(json.loads(m.group(1)).get("section"))
+        if f is not None and f.state in ("stale", "unknown commit"):
+            out.append(stale_note(f))
+    out.append(text[pos:])
+    new = "".join(out)
+    if new != text:
+        page.write_text(new, encoding="utf-8")
+    return new != text
+
+
 # Estimated wall minutes of each rerun command (its first words, as in the stamps), measured on a 2-core machine
 # shared with other work; the order of --rerun. reference caches the references accuracy reads, so accuracy is
 # counted with it and runs after it.
@@ -267,6 +306,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repo", type=Path, default=root, help="the git repository (default: this one)")
     ap.add_argument("--docs", type=Path, default=None, help="the folder of pages (default: REPO/docs)")
     ap.add_argument("--strict", action="store_true", help="exit 1 when a page or section is stale or unstamped")
+    ap.add_argument("--mark", action="store_true", help="write under each stale section's stamp the line that "
+                    "says it is older than the code (and remove it where it is not)")
     ap.add_argument("--rerun", action="store_true", help="run the rerun command of every stale section, cheapest "
                     "first, stopping at the first failure (make docs-regen)")
     ap.add_argument("--dry-run", action="store_true", help="with --rerun: print the order and estimates only")
@@ -296,6 +337,11 @@ def main(argv=None) -> int:
         except StampError as exc:
             print(f"docs-check: error: {exc}", file=sys.stderr)
             return 2
+    if a.mark:
+        for page in sorted(docs.glob("*.md")):
+            rel = str(page.relative_to(repo)) if page.is_relative_to(repo) else str(page)
+            if mark_page(repo, page, rel):
+                print(f"docs-check: marked {rel}", file=sys.stderr)
     print(report(findings))
     return 1 if a.strict and any(f.bad for f in findings) else 0
 

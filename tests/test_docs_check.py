@@ -91,3 +91,57 @@ def test_a_malformed_stamp_is_an_error(repo):
                                                  sources=["src/**"]) + "\n")
     out = _check(repo)
     assert out.returncode == 2 and "techniques" in out.stderr
+
+
+def test_mark_says_on_the_page_that_a_section_is_older_than_its_code(repo):
+    page = repo / "docs" / "bench.md"
+    clean = page.read_text()
+    assert _check(repo, "--mark").returncode == 0 and page.read_text() == clean       # up to date: no note
+    (repo / "src" / "kernel.py").write_text("x = 2\n")
+    _git(repo, "commit", "-q", "-am", "kernel changed")
+    assert _check(repo, "--mark").returncode == 0
+    lines = page.read_text().splitlines()
+    assert lines[1].startswith("> **Older than the code it measures**") and "src/kernel.py" in lines[1]
+    assert "Rerun: `python -m benchmarks bench`" in lines[1] and lines[2:] == clean.splitlines()[1:]
+    _check(repo, "--mark")
+    assert page.read_text().count("Older than the code") == 1                          # once, however often
+    # the source back as measured: not stale any more, the note goes
+    (repo / "src" / "kernel.py").write_text("x = 1\n")
+    _git(repo, "commit", "-q", "-am", "kernel back")
+    _check(repo, "--mark")
+    assert page.read_text() == clean
+
+
+def _bench_writer(repo, name, code=0):
+    """A stand-in benchmark: rewrites its page stamped at HEAD (so it is no longer stale), or fails with ``code``."""
+    head = _git(repo, "rev-parse", "--short", "HEAD")
+    text = _stamp(section=name, commit=head, command=f"python bench_{name}.py", techniques=["post"],
+                  sources=["src/**"]) + f"\n# {name}\n"
+    write = f"pathlib.Path('docs/{name}.md').write_text({text!r})\n" if code == 0 else ""
+    (repo / f"bench_{name}.py").write_text(f"import pathlib, sys\n{write}sys.exit({code})\n")
+
+
+def test_rerun_runs_each_stale_command_cheapest_first_and_stops_at_a_failure(repo):
+    head = _git(repo, "rev-parse", "--short", "HEAD")
+    for name in ("one", "two"):
+        (repo / "docs" / f"{name}.md").write_text(
+            _stamp(section=name, commit=head, command=f"python bench_{name}.py (make {name})", techniques=["pre"],
+                   sources=["src/**"]) + f"\n# {name}\n")
+    (repo / "src" / "kernel.py").write_text("x = 3\n")
+    _git(repo, "add", "-A")
+    _git(repo, "commit", "-q", "-m", "kernel changed")
+    _bench_writer(repo, "one")
+    dry = _check(repo, "--rerun", "--dry-run")
+    assert dry.returncode == 0 and "3 commands" in dry.stderr and "python bench_one.py   (~15 min" in dry.stderr
+    assert (repo / "docs" / "one.md").read_text().endswith("# one\n")                  # nothing ran
+    _bench_writer(repo, "two", code=3)
+    out = _check(repo, "--rerun", "--only", "one,two")
+    err = out.stderr.splitlines()
+    assert out.returncode == 1 and err[-1].startswith("docs-regen: error: python bench_two.py failed (exit 3)"), err
+    assert any(ln.startswith("docs-regen: [1/2] python bench_one.py: ") and ln.endswith(" s wall") for ln in err)
+    _bench_writer(repo, "two")
+    out = _check(repo, "--rerun", "--only", "one,two")
+    assert out.returncode == 0, out.stderr
+    assert "1 commands" in out.stderr and "bench_one" not in out.stderr               # one is up to date now
+    assert "STALE" in out.stdout and "docs/bench.md" in out.stdout                       # not asked for: still stale
+    assert _check(repo, "--rerun", "--only", "nope").returncode == 2

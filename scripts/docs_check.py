@@ -198,29 +198,30 @@ def mark_page(repo: Path, page: Path, rel: str) -> bool:
     return new != text
 
 
-# Estimated wall minutes of each rerun command (its first words, as in the stamps), measured on a 2-core machine
-# shared with other work; the order of --rerun. reference caches the references accuracy reads, so accuracy is
-# counted with it and runs after it.
+# Estimated wall minutes of each rerun command (its first words, as in the stamps): what each took on this
+# project's 2-core machine shared with other work (docs-regen logs the time of every run; update them from it).
+# The order of --rerun: cheapest first. reference caches the references accuracy reads, so accuracy comes after
+# it. The quick variants (--quick) of the long ones run in minutes: bench-check.
 MINUTES = {
-    "python -m benchmarks normals": 0.5,
-    "python -m benchmarks render": 1,
-    "python -m benchmarks paper": 1,
-    "python -m benchmarks startup": 2,
-    "python -m benchmarks stability": 2,
-    "python -m benchmarks worksplit": 2,
-    "python -m benchmarks sheets": 2,
-    "python -m benchmarks thick": 3,
-    "make presets-doc": 3,
-    "python -m benchmarks augment": 4,
-    "python -m benchmarks index": 6,
+    "python -m benchmarks normals": 0.1,
+    "make presets-doc": 0.2,
+    "python -m benchmarks sheets": 1,
+    "python -m benchmarks augment": 1.1,
+    "python -m benchmarks stability": 1.3,
+    "python -m benchmarks paper": 2,
+    "python -m benchmarks render": 2,
+    "python -m benchmarks index": 2,
+    "python -m benchmarks startup": 3,
+    "python -m benchmarks reference": 4,
+    "python -m benchmarks thick": 4.6,
+    "python -m benchmarks worksplit": 4.8,
+    "python -m benchmarks accuracy": 5,
     "python -m benchmarks.reliability --chunk-hash-cost": 6,
+    "python -m benchmarks scale": 6,
     "python -m benchmarks selective_read": 8,
-    "python -m benchmarks reference": 9,
-    "python -m benchmarks accuracy": 10,
-    "python -m benchmarks outofcore": 30,
-    "python -m benchmarks scale": 40,
-    "python -m benchmarks.reliability --out docs": 60,
-    "make bench-peers": 90,
+    "python -m benchmarks.reliability --out docs": 15,           # its fuzz: 120 s per technique, and the catalogue
+    "python -m benchmarks outofcore": 30,                          # 1024^3: augment, index, nine renders
+    "make bench-peers": 60,                                        # installs vtk; every case and size, VTK's too
 }
 UNKNOWN_MINUTES = 15
 
@@ -235,7 +236,7 @@ def estimate(command: str) -> float:
     """:data:`MINUTES` of the longest key that starts ``command`` (word for word), else :data:`UNKNOWN_MINUTES`.
 
     >>> estimate("python -m benchmarks paper"), estimate("python -m benchmarks.reliability --chunk-hash-cost 1,1,1")
-    (1, 6)
+    (2, 6)
     >>> estimate("python -m benchmarks new")
     15
     """

@@ -48,6 +48,9 @@ python -m benchmarks normals{' --quick' if quick else ''}
 
 # Octahedral 16-bit normals: accuracy
 
+Machine: {_doc.machine_line()}; isplat {_doc.git_rev()} (shared with other work while measured: the times are
+of this run, the errors exact). No rendering.
+
 {n:,} unit vectors, uniformly distributed on the sphere (normalised Gaussian triples, numpy seed 20240601),
 encoded with the precise oct16 encoder (`isplat.normals.encode`) and decoded (`isplat.normals.decode`):
 

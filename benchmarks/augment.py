@@ -95,7 +95,7 @@ python -m benchmarks augment{' --quick' if quick else ''}
 Each run is `python -m isplat augment IN.npy -o OUT.aug.h5 --force -q` in a subprocess (input memory-mapped,
 processed in slabs of ~4 M voxels with a one-slice halo, two passes). Peak memory is the child's maximum resident
 set size from `/usr/bin/time -v` (it includes the Python interpreter, numpy, h5py and numba, and the mapped input
-pages it touched). Machine: {os.cpu_count()} CPUs.
+pages it touched). Machine: {_doc.machine_line()}; isplat {_doc.git_rev()} (shared with other work while measured).
 
 | volume | input | wall time | peak RSS |
 |--------|-------|-----------|----------|

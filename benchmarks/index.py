@@ -159,7 +159,7 @@ def run(out_dir: Path, quick: bool) -> Path:
         "",
         f"Sample `head` (256x256x225 = {n_vox:,} voxels), augmented with default settings "
         f"(`isplat.augment.augment_array`). Times are medians of {repeats} after a warm-up run "
-        f"(numba compile); machine: {os.cpu_count()} CPUs.",
+        f"(numba compile); machine: {_doc.machine_line()}; isplat {_doc.git_rev()}.",
         "",
         "## Build time",
         "",

@@ -205,19 +205,19 @@ def mark_page(repo: Path, page: Path, rel: str) -> bool:
 MINUTES = {
     "python -m benchmarks normals": 0.1,
     "make presets-doc": 0.2,
+    "python -m benchmarks scale": 0.5,
+    "python -m benchmarks.reliability --chunk-hash-cost": 0.7,
+    "python -m benchmarks render": 0.9,
     "python -m benchmarks sheets": 1,
     "python -m benchmarks augment": 1.1,
+    "python -m benchmarks paper": 1.1,
     "python -m benchmarks stability": 1.3,
-    "python -m benchmarks paper": 2,
-    "python -m benchmarks render": 2,
     "python -m benchmarks index": 2,
     "python -m benchmarks startup": 3,
     "python -m benchmarks reference": 4,
     "python -m benchmarks thick": 4.6,
     "python -m benchmarks worksplit": 4.8,
     "python -m benchmarks accuracy": 5,
-    "python -m benchmarks.reliability --chunk-hash-cost": 6,
-    "python -m benchmarks scale": 6,
     "python -m benchmarks selective_read": 8,
     "python -m benchmarks.reliability --out docs": 15,           # its fuzz: 120 s per technique, and the catalogue
     "python -m benchmarks outofcore": 30,                          # 1024^3: augment, index, nine renders
@@ -236,7 +236,7 @@ def estimate(command: str) -> float:
     """:data:`MINUTES` of the longest key that starts ``command`` (word for word), else :data:`UNKNOWN_MINUTES`.
 
     >>> estimate("python -m benchmarks paper"), estimate("python -m benchmarks.reliability --chunk-hash-cost 1,1,1")
-    (2, 6)
+    (1.1, 0.7)
     >>> estimate("python -m benchmarks new")
     15
     """

@@ -40,12 +40,13 @@ _ANNOUNCED = []
 
 def _announce_compile(cache_path: str) -> None:
     """Say once per process, as an INFO log line (shown by the command line unless ``-q``), that kernels are
-    being compiled: the first run on a machine spends 10-20 s there before any output (docs/startup.md)."""
+    being compiled: the first run on a machine spends seconds there before any output (measured in one place,
+    docs/startup.md, "Cold")."""
     if not _ANNOUNCED:
         _ANNOUNCED.append(cache_path)
         logging.getLogger(__name__).info(
-            f"isplat: compiling the kernels for this machine, once (10-20 s; later runs load them from "
-            f"numba's cache, {cache_path})")
+            f"isplat: compiling the kernels for this machine, once (seconds, not a fraction of one: docs/startup.md; "
+            f"later runs load them from numba's cache, {cache_path})")
 
 
 # Every module with compiled functions (a test checks the list). numba keeps a function's machine code while

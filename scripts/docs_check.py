@@ -43,7 +43,7 @@ STAMP_RE = re.compile(r"^<!-- isplat-stamp: (\{.*\}) -->[ \t]*$", re.M)
 BEGIN_RE = re.compile(r"^<!-- BEGIN (\S+) -->[ \t]*$", re.M)
 TECHNIQUES = ("pre", "post")
 STALE_TAG = "<!-- isplat-stale -->"
-STALE_RE = re.compile(r"^> \*\*Older than the code it measures\*\*.*" + re.escape(STALE_TAG) + r"[ \t]*\n", re.M)
+STALE_RE = re.compile(r"^> \*\*Older than the code it measures\*\*.*" + re.escape(STALE_TAG) + r"[ \t]*\n\n?", re.M)
 
 
 class StampError(Exception):
@@ -173,7 +173,7 @@ def stale_note(f: Finding) -> str:
         why = (f"measured at {f.stamp['commit']}; {len(f.changed)} of its source files changed since (first: "
                f"{', '.join(f.changed[:3])})")
     return (f"> **Older than the code it measures** (`make docs-check`): {why}. Rerun: "
-            f"`{runnable(f.stamp['command'])}` (or `make docs-regen`). {STALE_TAG}\n")
+            f"`{runnable(f.stamp['command'])}` (or `make docs-regen`). {STALE_TAG}\n\n")   # its own paragraph
 
 
 def mark_page(repo: Path, page: Path, rel: str) -> bool:

@@ -227,7 +227,10 @@ def _empty_selection(request) -> Selection:
                     request.shading and not empty, luts.gradient is not None and not empty, request.post,
                     request=request)
     sel.report.intervals = luts.intervals.tolist()
-    sel.report.channels = (["normal"] if sel.use_shade else []) + (["gradient_magnitude"] if sel.use_gm else [])
+    # post-classified and shaded: the gradient magnitudes too, which weight the corners' Phong factors
+    # (isplat.splat.post._sample)
+    gm = sel.use_gm or (sel.use_shade and request.post)
+    sel.report.channels = (["normal"] if sel.use_shade else []) + (["gradient_magnitude"] if gm else [])
     return sel
 
 

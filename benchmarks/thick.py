@@ -159,30 +159,29 @@ def render_with(sc, c, weighted: bool) -> np.ndarray:
         _sampler(old)
 
 
-def _blur(L, sigma: float):
-    """A Gaussian blur of ``L`` (2-D), separable, edges repeated."""
-    r = max(1, int(math.ceil(3 * sigma)))
-    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-    k /= k.sum()
-    for axis in (0, 1):
-        pad = [(0, 0), (0, 0)]
-        pad[axis] = (r, r)
-        P = np.pad(L, pad, mode="edge")
-        n = L.shape[axis]
-        L = sum(k[m] * (P[m:m + n] if axis == 0 else P[:, m:m + n]) for m in range(2 * r + 1))
-    return L
+def _measure():
+    """tests/streak_measure.py (the streak measure, shared with the tests)."""
+    tests = str(REPO / "tests")
+    if tests not in sys.path:
+        sys.path.insert(0, tests)
+    import streak_measure
+
+    return streak_measure
 
 
-def streak(img, obj, period_px: float) -> float:
-    """Streak strength: the RMS, over the pixels where the picture or the object is drawn, of the difference
-    between their high-frequency luminance (the luminance minus its Gaussian blur of sigma two slice periods in
-    pixels). Rings and terraces repeat at the slice period or wider (a surface at a slant to the slices spreads
-    them), the shapes' own shading changes more slowly, and the object's own fine detail cancels."""
-    sigma = max(1.0, 2.0 * period_px)
-    La, Lb = img[..., :3].mean(-1), obj[..., :3].mean(-1)
-    d = (La - _blur(La, sigma)) - (Lb - _blur(Lb, sigma))
-    mask = (img[..., 3] > 0.5) | (obj[..., 3] > 0.5)
-    return float(np.sqrt(np.mean(d[mask] ** 2))) if mask.any() else 0.0
+def _view(sc, c):
+    from isplat.frame import views_for
+
+    return views_for(sc, _selection(sc, c))[0]
+
+
+def surface_phase(sc, obj, thick_c, level: float) -> np.ndarray:
+    """:func:`streak_measure.surface_phase` of the scene's view of the object and of the thick data."""
+    return _measure().surface_phase(_view(sc, obj), _view(sc, thick_c), obj["density"], level)
+
+
+def streak(img, phase, period_px: float) -> float:
+    return _measure().streak(img, phase, period_px)
 
 
 def ns_per_sample(sc, c, rounds: int) -> dict:
@@ -198,8 +197,8 @@ def ns_per_sample(sc, c, rounds: int) -> dict:
         old = _sampler(w)
         render_frame(sel, view)
         _sampler(old)
-    for _ in range(rounds):
-        for w in (False, True):
+    for r in range(rounds):
+        for w in ((False, True) if r % 2 == 0 else (True, False)):     # ABBA: neither always goes first
             old = _sampler(w)
             try:
                 _, st = render_frame(sel, view)
@@ -210,6 +209,15 @@ def ns_per_sample(sc, c, rounds: int) -> dict:
     med = {w: statistics.median(v) for w, v in t.items()}
     return dict(before=med[False] * 1e9 / max(1, n[False]), after=med[True] * 1e9 / max(1, n[True]),
                 samples=n[True], seconds_before=med[False], seconds_after=med[True], rounds=rounds)
+
+
+def level(sc) -> float:
+    """The density code where the scene's opacity first reaches half its largest value: the surface
+    :func:`surface_phase` looks for."""
+    op = np.asarray(sc.transfer.opacity, float)
+    codes = np.arange(256.0)
+    a = np.interp(codes, op[:, 0], op[:, 1], left=0.0, right=0.0)
+    return float(codes[np.argmax(a >= 0.5 * a.max())])
 
 
 def run_case(case, views, size, img_dir: Path, rounds: int):
@@ -240,9 +248,10 @@ def run_case(case, views, size, img_dir: Path, rounds: int):
         period = max(sp) / pixel_size(sc, c)
         ref = {"before": "object_before", "thin_before": "object_before"}
         keys = ("before", "after", "thin_before", "thin")
+        phase = surface_phase(sc, obj, c, level(sc))
         row = dict(case=tag, view=view, preset=preset, spacing=sp, thin_spacing=tsp, period_px=period,
                    rmse={k: rmse(imgs[k], imgs[ref.get(k, "object")]) for k in keys},
-                   streak={k: streak(imgs[k], imgs[ref.get(k, "object")], period) for k in keys},
+                   streak={k: streak(imgs[k], phase, period) for k in keys + ("object_before", "object")},
                    objects=rmse(imgs["object_before"], imgs["object"]))
         if view == "side":
             row["band"] = {k: band_energy(imgs[k], period) for k in keys + ("object_before", "object")}
@@ -321,22 +330,25 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
         L += [f"![{tag}](img/thick-{tag}.png)", "",
               f"`img/thick-{tag}.png` (post-classified): before, after, thin, object; side, then oblique.", ""]
     L += ["## Streaks, measured", "",
-          "*streak*: the RMS, over the drawn pixels, of the difference between the picture's and the object's "
-          "high-frequency luminance (luminance minus its Gaussian blur of sigma two slice periods in pixels; "
-          "`streak` in benchmarks/thick.py): rings, terraces and streaks repeat at the slice period or wider, the "
-          "shapes' own shading changes more slowly, and the object's own fine detail cancels. *RMSE*: over RGB "
-          "against the object. Each column is compared with the object rendered by the same sampler (*before* and "
-          "*thin before* with the object shaded as before), so both measure what the thick slices add; *objects*: "
-          "RMSE between the object shaded before and after (what the change does on thin slices). *band* (side "
-          "views): RMS over the image's rows of the row's mean luminance minus its running mean over one slice "
-          "period (the object's own is the floor).", "",
-          "| case | preset | spacing (mm) | view | streak before | after | thin before | thin | RMSE before | after "
-          "| thin before | thin | objects | band before | after | thin | object |",
-          "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "*streak*: how much the picture's fine shading depends on where the surface lies between two thick "
+          "slices (`streak` in benchmarks/thick.py): per pixel, the first point of the object's surface (the "
+          "density where the preset's opacity reaches half its top) along the ray gives the phase 0..1 between "
+          "two thick slices; the high-frequency luminance (luminance minus its Gaussian blur of sigma two slice "
+          "periods in pixels) is averaged per eighth of that phase, and the streak is the RMS of those eight means. "
+          "Rings, terraces and streaks are locked to the slices and make the eighths differ; the shapes' own "
+          "shading and the object's fine detail are not, and average out: the object's own value (rendered with "
+          "the same phases) is the floor. *RMSE*: over RGB against the object, each column against the object "
+          "rendered by the same sampler (*before* and *thin before* against the object shaded as before); "
+          "*objects*: RMSE between the object shaded before and after (what the change does on thin slices). "
+          "*band* (side views): RMS over the image's rows of the row's mean luminance minus its running mean over "
+          "one slice period (the object's own is the floor).", "",
+          "| case | preset | spacing (mm) | view | streak before | after | thin before | thin | object | RMSE "
+          "before | after | thin before | thin | objects | band before | after | thin | object |",
+          "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         s, e, b = r["streak"], r["rmse"], r.get("band")
         L.append(f"| {r['case']} | {r['preset']} | {_sp(r['spacing'])} | {r['view']} | {_f(s['before'])} | "
-                 f"**{_f(s['after'])}** | {_f(s['thin_before'])} | {_f(s['thin'])} | {_f(e['before'])} | "
+                 f"**{_f(s['after'])}** | {_f(s['thin_before'])} | {_f(s['thin'])} | {_f(s['object'])} | {_f(e['before'])} | "
                  f"**{_f(e['after'])}** | {_f(e['thin_before'])} | {_f(e['thin'])} | {_f(r['objects'])} | " +
                  (f"{_f(b['before'])} | **{_f(b['after'])}** | {_f(b['thin'])} | {_f(b['object'])} |" if b
                   else "| | | |"))
@@ -344,7 +356,7 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
     if timed:
         L += ["", "## What the weighting costs", "",
               f"The oblique view of each case rendered in {timed[0]['timing']['rounds']} interleaved rounds, before "
-              "and after in turn (one process, the same selection; `isplat.splat.post.WEIGHTED_SHADING` switches "
+              "and after in turn, the order swapped every round (one process, the same selection; `isplat.splat.post.WEIGHTED_SHADING` switches "
               "the sampler), after a warm-up frame of each: the median frame time over the samples composited. "
               "After reads the gradient magnitude channel too (1 byte per voxel more in memory and read from the "
               "file when shaded).", "",
@@ -397,7 +409,8 @@ def reading(rows, costs) -> str:
     for r in rows:
         s, e = r["streak"], r["rmse"]
         items.append(f"- *{r['case']}*, {r['view']}: streak {s['before']:.4f} -> {s['after']:.4f} "
-                     f"({(s['after'] / s['before'] - 1) * 100 if s['before'] else 0:+.0f}%), RMSE {e['before']:.4f} -> "
+                     f"({(s['after'] / s['before'] - 1) * 100 if s['before'] else 0:+.0f}%; object "
+                     f"{s['object']:.4f}), RMSE {e['before']:.4f} -> "
                      f"{e['after']:.4f}" + (f"; band {r['band']['before']:.4f} -> {r['band']['after']:.4f} (object "
                                              f"{r['band']['object']:.4f})" if "band" in r else "") + ".")
     out += ["**This run, before -> after** (each against the object rendered by the same sampler):", ""] + items

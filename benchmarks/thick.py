@@ -421,9 +421,13 @@ def reading(rows, costs) -> str:
                 "from the density's linear interpolation between 7 mm slices (a shell thinner than a slice "
                 "cross-fades between slices), which shading cannot remove; a reconstruction across slices that "
                 "follows the edges (shape-based interpolation) would be needed, in the sampler. Not built."]
-    thin = [r for r in rows if r["streak"]["thin"] < r["streak"]["after"]]
-    out += ["", f"**`--thin-slices`** lowers the streak measure below *after* in {len(thin)} of the {len(rows)} "
-            "views above" + (" (" + ", ".join(f"{r['case']} {r['view']}" for r in thin) + ")" if thin else "") +
+    near = [r for r in rows if r["streak"]["before"] <= 1.2 * r["streak"]["object"]]
+    if near:
+        out += ["", "Already within 20% of the object's own streak before the change (nothing locked to the "
+                "slices to remove): " + ", ".join(f"{r['case']} {r['view']}" for r in near) + "."]
+    thin = [r for r in rows if r["streak"]["thin"] < 0.95 * r["streak"]["after"]]
+    out += ["", f"**`--thin-slices`** lowers the streak measure more than 5% below *after* in {len(thin)} of the "
+            f"{len(rows)} views above" + (" (" + ", ".join(f"{r['case']} {r['view']}" for r in thin) + ")" if thin else "") +
             "; it stores the linear interpolation between slices that the post-classified sampler already "
             "computes, so it cannot remove what that interpolation makes, and its normals, differenced over a "
             "linear ramp, are no better. Its cost is in the table above (file and memory grow with the factor of "

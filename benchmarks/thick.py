@@ -45,7 +45,7 @@ CASES = [
     ("mr-head-7mm", "mr-head", (256, 256, 32), (1.0, 1.0, 7.0), "mri-t1-head", 224),
 ]
 VIEWS = {"side": (90.0, 0.0), "oblique": (45.0, 25.0)}
-ROUNDS = 7                # interleaved rounds of the timing (ns_per_sample)
+ROUNDS = 41               # interleaved rounds of the timing (ns_per_sample; frames of 10-50 ms on a shared machine)
 WINDOWS = {"ct-head": (-1024.0, 3071.0), "ct-chest": (-1024.0, 3071.0)}
 
 
@@ -357,7 +357,7 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
         L += ["", "## What the weighting costs", "",
               f"The oblique view of each case rendered in {timed[0]['timing']['rounds']} interleaved rounds, before "
               "and after in turn, the order swapped every round (one process, the same selection; `isplat.splat.post.WEIGHTED_SHADING` switches "
-              "the sampler), after a warm-up frame of each: the median frame time over the samples composited. "
+              "the sampler), after a warm-up frame of each: the median frame time (the whole frame: traversal and set-up included) over the samples composited. "
               "After reads the gradient magnitude channel too (1 byte per voxel more in memory and read from the "
               "file when shaded).", "",
               "| case | samples | ms before | ms after | ns per sample before | after | after / before |",

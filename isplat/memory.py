@@ -32,8 +32,7 @@ def channels_in_memory(density, scene, normal=None, gradient_magnitude=None, gra
     """
     arr, sp = check_volume(density, spacing or scene.volume.spacing)
     needs_normal = bool(scene.shading.enabled)
-    # post-classified shading weights the Phong factors by the gradient magnitudes (isplat.splat.post._sample)
-    needs_gm = len(scene.transfer.gradient_opacity) > 0 or (needs_normal and scene.render.classification == "post")
+    needs_gm = len(scene.transfer.gradient_opacity) > 0
     missing = [name for name, value, need in (("normal", normal, needs_normal),
                                               ("gradient_magnitude", gradient_magnitude, needs_gm)) if need and value is None]
     if missing and (normal is not None or gradient_magnitude is not None):

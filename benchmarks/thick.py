@@ -1,32 +1,26 @@
-"""Thick slices: what makes the terraces and streaks on shaded renders of 2.5-7 mm slices, and their fix.
+"""Thick slices: what makes the rings, terraces and streaks on shaded renders of 2.5-7 mm slices, and their fix.
 
 ``python -m benchmarks thick [--quick]`` writes docs/thick-slices.md and the pictures docs/img/thick-*.png.
 
 Each case is a sample made with few, thick slices (``isplat sample NAME --shape NI,NJ,NK`` and ``--spacing``), and
 the same sample made with slices as thin as its pixels (the *object*, the reference the pictures are compared
 against: the samples are painted in normalised coordinates, so both are the same object). Rendered with isplat's
-default technique (scene version 4, post-classified), shaded, orthographic, from the side (the thick axis vertical
-in the image, the view along i) and obliquely, with:
+default technique (post-classified), shaded, orthographic, from the side (the thick axis vertical in the image,
+the view along i) and obliquely, with the post-classified sampler's shading *before* (each quad corner's Phong
+factors weighted bilinearly) and *after* (weighted by the bilinear weight times the corner's gradient magnitude:
+``isplat.splat.post.WEIGHTED_SHADING``), and *thin* (``isplat augment --thin-slices``).
 
-* *before*: the normals as isplat made them before this page: central differences of the windowed density
-  (``augment_array(..., smooth_normals=False)``);
-* *after*: the default now (:func:`isplat.augment.normal_sigmas`: on slices more than ``NORMAL_RATIO`` times
-  thicker than the pixels the density is smoothed along the thinner axes before the normals' differences);
-* *forced*: that smoothing at any ratio (for the cases below ``NORMAL_RATIO``: what it would do there);
-* *thin*: ``isplat augment --thin-slices`` (linear interpolation along the thick axis first);
-* the *object*, made with thin slices.
-
-Measures: RMSE over RGB against the object; the *band energy* of a side view (the RMS over image rows of the
-row's mean luminance minus its running mean over one slice period: what repeats slice by slice); and, for the
-side views, a converged ray caster (tests/ray_reference.py, step 0.25 of the smallest spacing, normals
-interpolated as vectors) on the thick data with each set of normals, which separates the normals from isplat's
-sampler; and the same renders unshaded, which separates shading from the reconstruction of the density.
-``--thin-slices``'s cost is measured on the command line (``isplat augment``, /usr/bin/time).
+Measures: the *streak* strength (:func:`streak`: the high-frequency luminance's difference from the object's),
+RMSE over RGB against the object, the *band energy* of a side view (:func:`band_energy`), the sampler's cost in ns
+per sample (interleaved rounds, :func:`ns_per_sample`), and ``--thin-slices``'s cost on the command line
+(``isplat augment``, /usr/bin/time).
 """
 
 from __future__ import annotations
 
+import math
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -39,31 +33,24 @@ from benchmarks import _doc
 
 TECHNIQUES = ["post"]
 SOURCES = _doc.sources(_doc.RENDER, _doc.AUGMENT, _doc.SAMPLES, ("isplat/resample.py", "benchmarks/thick.py",
-                                                                  "tests/ray_reference.py", "examples/ct-preset.toml"))
+                                                                  "isplat/presets.py", "isplat/scene_parse.py",
+                                                                  "examples/ct-preset.toml"))
 REPO = Path(__file__).resolve().parents[1]
 SIZE = 320
 # name, sample, thick shape (NI, NJ, NK), spacing (i, j, k), preset, object's NK (slices of the in-plane spacing)
 CASES = [
+    ("ct-head-2.5mm", "ct-head", (256, 256, 72), (0.7, 0.7, 2.5), "ct-bone", 257),
+    ("ct-chest-2.5mm", "ct-chest", (256, 192, 72), (0.7, 0.7, 2.5), "ct-bone", 257),
     ("ct-head-7mm", "ct-head", (256, 256, 32), (1.0, 1.0, 7.0), "ct-bone", 224),
     ("mr-head-7mm", "mr-head", (256, 256, 32), (1.0, 1.0, 7.0), "mri-t1-head", 224),
-    ("ct-chest-2.5mm", "ct-chest", (256, 192, 72), (0.7, 0.7, 2.5), "ct-bone", 257),
-    ("ct-chest-2.5mm-soft", "ct-chest", (256, 192, 72), (0.7, 0.7, 2.5), "ct-soft-tissue", 257),
 ]
 VIEWS = {"side": (90.0, 0.0), "oblique": (45.0, 25.0)}
-PROTOTYPE = ("ct-head-7mm", "mr-head-7mm", "ct-chest-2.5mm-soft")     # cases that also get the sampler's shading prototyped (phong_factor_render)
+ROUNDS = 41               # interleaved rounds of the timing (ns_per_sample; frames of 10-50 ms on a shared machine)
 WINDOWS = {"ct-head": (-1024.0, 3071.0), "ct-chest": (-1024.0, 3071.0)}
 
 
 def _log(msg):
     print(f"[thick] {msg}", file=sys.stderr, flush=True)
-
-
-def _rr():
-    if str(REPO / "tests") not in sys.path:
-        sys.path.insert(0, str(REPO / "tests"))
-    import ray_reference
-
-    return ray_reference
 
 
 def scene(aug: Path, preset: str, view: str, size: int, shaded: bool = True):
@@ -112,33 +99,6 @@ def pixel_size(sc, c) -> float:
     return float(views_for(sc, _selection(sc, c))[0].frame.pixel_size)
 
 
-def ray_reference(sc, c, smooth_normals: bool, step=0.25) -> np.ndarray:
-    """The converged ray caster on the thick data, its normals central differences of the density codes, or of
-    the codes smoothed as :func:`isplat.augment.normal_sigmas` says (``smooth_normals``)."""
-    from isplat.augment import _smooth_axis, normal_sigmas
-    from isplat.frame import views_for
-
-    rr = _rr()
-    sel = _selection(sc, c)
-    view = views_for(sc, sel)[0]
-    orig = rr.central_gradient
-    sig = normal_sigmas(c["spacing"], ratio=1.0) if smooth_normals else None
-
-    def grad(vol, spacing):
-        v = np.asarray(vol, np.float32)
-        if sig is not None:
-            for axis, s in enumerate((sig[2] / spacing[2], sig[1] / spacing[1], sig[0] / spacing[0])):
-                v = _smooth_axis(v, s, axis)
-        return orig(v, spacing)
-
-    rr.central_gradient = grad
-    try:
-        unit = sc.transfer.unit_distance or float(view.geom.spacing.min())
-        return rr.render(view, sc.transfer, sc.shading, density=c["density"], unit=unit, step=step)
-    finally:
-        rr.central_gradient = orig
-
-
 def rmse(a, b) -> float:
     d = a[..., :3] - b[..., :3]
     return float(np.sqrt(np.mean(d * d)))
@@ -181,7 +141,86 @@ def thin_cost(name, shape, spacing, window) -> dict:
     return out
 
 
-def run_case(case, views, size, img_dir: Path, refs: bool):
+def _sampler(weighted: bool):
+    """Set the post-classified sampler's shading: corners weighted by their gradient magnitudes too (the default
+    now) or bilinearly only (before); returns the previous setting."""
+    from isplat.splat import post
+
+    old = post.WEIGHTED_SHADING
+    post.WEIGHTED_SHADING = weighted
+    return old
+
+
+def render_with(sc, c, weighted: bool) -> np.ndarray:
+    old = _sampler(weighted)
+    try:
+        return render(sc, c)
+    finally:
+        _sampler(old)
+
+
+def _measure():
+    """tests/streak_measure.py (the streak measure, shared with the tests)."""
+    tests = str(REPO / "tests")
+    if tests not in sys.path:
+        sys.path.insert(0, tests)
+    import streak_measure
+
+    return streak_measure
+
+
+def _view(sc, c):
+    from isplat.frame import views_for
+
+    return views_for(sc, _selection(sc, c))[0]
+
+
+def surface_phase(sc, obj, thick_c, level: float) -> np.ndarray:
+    """:func:`streak_measure.surface_phase` of the scene's view of the object and of the thick data."""
+    return _measure().surface_phase(_view(sc, obj), _view(sc, thick_c), obj["density"], level)
+
+
+def streak(img, phase, period_px: float) -> float:
+    return _measure().streak(img, phase, period_px)
+
+
+def ns_per_sample(sc, c, rounds: int) -> dict:
+    """Interleaved rounds of the frame with the sampler's shading unweighted (before) and weighted (after): the
+    median frame seconds over the samples composited, in ns per sample, and the samples."""
+    from isplat.frame import render_frame, views_for
+
+    sel = _selection(sc, c)
+    view = views_for(sc, sel)[0]
+    t = {False: [], True: []}
+    n = {}
+    for w in (False, True):          # compile and warm both
+        old = _sampler(w)
+        render_frame(sel, view)
+        _sampler(old)
+    for r in range(rounds):
+        for w in ((False, True) if r % 2 == 0 else (True, False)):     # ABBA: neither always goes first
+            old = _sampler(w)
+            try:
+                _, st = render_frame(sel, view)
+            finally:
+                _sampler(old)
+            t[w].append(st.seconds)
+            n[w] = st.samples
+    med = {w: statistics.median(v) for w, v in t.items()}
+    return dict(before=med[False] * 1e9 / max(1, n[False]), after=med[True] * 1e9 / max(1, n[True]),
+                samples=n[True], seconds_before=med[False], seconds_after=med[True], rounds=rounds)
+
+
+def level(sc) -> float:
+    """The density code where the scene's opacity first reaches half its largest value: the surface
+    :func:`surface_phase` looks for."""
+    op = np.asarray(sc.transfer.opacity, float)
+    codes = np.arange(256.0)
+    a = np.interp(codes, op[:, 0], op[:, 1], left=0.0, right=0.0)
+    return float(codes[np.argmax(a >= 0.5 * a.max())])
+
+
+def run_case(case, views, size, img_dir: Path, rounds: int):
     from isplat.resample import thin_slices
     from isplat.samples import make_sample
 
@@ -189,52 +228,39 @@ def run_case(case, views, size, img_dir: Path, refs: bool):
     _log(f"{tag}: samples")
     thick, _ = make_sample(name, shape)
     window = WINDOWS.get(name)
-    before = channels(thick, sp, window, smooth_normals=False)
-    window = before["window"]
-    after = channels(thick, sp, window)
-    forced = channels(thick, sp, window, forced=True)
+    c = channels(thick, sp, window)
+    window = c["window"]
     tv, tsp = thin_slices(thick.astype(np.float32), sp)
     thin = channels(tv, tsp, window)
     s0 = min(sp)
     obj_vol, _ = make_sample(name, (shape[0], shape[1], nk_obj))
     obj = channels(obj_vol, (s0, s0, s0), window)
-    rows, pics, proto_pics = [], [], []
+    rows, pics = [], []
     tmp = tempfile.TemporaryDirectory()
-    aug = Path(tmp.name) / "scene.aug.h5"       # the scene's presets read their data units through its window
-    _write_aug(aug, before["raw"], name)
+    aug = Path(tmp.name) / "scene.aug.h5"       # the scene's presets read their data units (or, MRI, the
+    _write_aug(aug, c["raw"], name)             # histogram they are placed on) through this file
     for view in views:
         _log(f"{tag}: {view}")
         sc = scene(aug, preset, view, size)
-        imgs = {k: render(sc, c) for k, c in (("before", before), ("after", after), ("forced", forced), ("thin", thin),
-                                              ("object", obj))}
-        period = max(sp) / pixel_size(sc, before)
-        row = dict(case=tag, view=view, preset=preset, spacing=sp, thin_spacing=tsp,
-                   rmse={k: rmse(v, imgs["object"]) for k, v in imgs.items() if k != "object"},
-                   band={k: band_energy(v, period) for k, v in imgs.items()})
+        imgs = {"before": render_with(sc, c, False), "after": render_with(sc, c, True),
+                "thin_before": render_with(sc, thin, False), "thin": render_with(sc, thin, True),
+                "object_before": render_with(sc, obj, False), "object": render_with(sc, obj, True)}
+        period = max(sp) / pixel_size(sc, c)
+        ref = {"before": "object_before", "thin_before": "object_before"}
+        keys = ("before", "after", "thin_before", "thin")
+        phase = surface_phase(sc, obj, c, level(sc))
+        row = dict(case=tag, view=view, preset=preset, spacing=sp, thin_spacing=tsp, period_px=period,
+                   rmse={k: rmse(imgs[k], imgs[ref.get(k, "object")]) for k in keys},
+                   streak={k: streak(imgs[k], phase, period) for k in keys + ("object_before", "object")},
+                   objects=rmse(imgs["object_before"], imgs["object"]))
         if view == "side":
-            scu = scene(aug, preset, view, size, shaded=False)
-            un = {k: render(scu, c) for k, c in (("before", before), ("after", after), ("object", obj))}
-            row["band_unshaded"] = {k: band_energy(v, period) for k, v in un.items()}
-            if refs:
-                t0 = time.perf_counter()
-                for key, smooth in (("ray_before", False), ("ray_after", True)):
-                    ref = ray_reference(sc, before, smooth)
-                    row["band"][key] = band_energy(ref, period)
-                    row["rmse"][key] = rmse(ref, imgs["object"])
-                    row.setdefault("ray_vs_isplat", {})[key] = rmse(ref, imgs["before" if not smooth else "forced"])
-                _log(f"{tag}: ray references {time.perf_counter() - t0:.0f} s")
-        if tag in PROTOTYPE and refs:
-            t0 = time.perf_counter()
-            proto = {k: phong_factor_render(sc, after, k == "weighted") for k in ("unweighted", "weighted")}
-            row["proto"] = {k: dict(rmse=rmse(v, imgs["object"]), band=band_energy(v, period),
-                                    vs_isplat=rmse(v, imgs["after"])) for k, v in proto.items()}
-            proto_pics.append([imgs["after"], proto["unweighted"], proto["weighted"], imgs["object"]])
-            _log(f"{tag}: sampler prototypes {time.perf_counter() - t0:.0f} s")
+            row["band"] = {k: band_energy(imgs[k], period) for k in keys + ("object_before", "object")}
+        if view == "oblique" and rounds:
+            row["timing"] = ns_per_sample(sc, c, rounds)
+            _log(f"{tag}: {row['timing']['before']:.1f} -> {row['timing']['after']:.1f} ns per sample")
         rows.append(row)
         pics.append([imgs["before"], imgs["after"], imgs["thin"], imgs["object"]])
     _write_png(img_dir / f"thick-{tag}.png", pics)
-    if proto_pics:
-        _write_png(img_dir / f"thick-{tag}-sampler.png", proto_pics)
     tmp.cleanup()
     return rows
 
@@ -261,14 +287,12 @@ def run(out_dir: Path, quick: bool) -> Path:
     t0 = time.perf_counter()
     size = 160 if quick else SIZE
     cases = CASES[:1] if quick else CASES
-    views = ["side"] if quick else list(VIEWS)
     rows, costs = [], {}
     for case in cases:
-        rows += run_case(case, views, size, Path(out_dir) / "img", refs=not quick)
+        rows += run_case(case, list(VIEWS), size, Path(out_dir) / "img", 2 if quick else ROUNDS)
         tag, name, shape, sp = case[:4]
-        if tag.endswith("soft") or quick:
-            continue
-        costs[tag] = thin_cost(name, shape, sp, WINDOWS.get(name))
+        if not quick:
+            costs[tag] = thin_cost(name, shape, sp, WINDOWS.get(name))
     path = Path(out_dir) / "thick-slices.md"
     path.write_text(render_doc(rows, costs, size, quick, time.perf_counter() - t0))
     return path
@@ -278,68 +302,71 @@ def _f(x, n=4):
     return "" if x is None else f"{x:.{n}f}"
 
 
+
+def _sp(sp) -> str:
+    return " x ".join(f"{s:g}" for s in sp)
+
+
+def _get(rows, case, view):
+    return next((r for r in rows if r["case"] == case and r["view"] == view), None)
+
+
 def render_doc(rows, costs, size, quick, seconds) -> str:
     L = ["```", "python -m benchmarks thick" + (" --quick" if quick else ""), "```", "",
-         "# Thick slices: terraces and streaks, their cause and their fix", "",
-         f"Measured on {_doc.machine_line()}; {seconds:.0f} s. Pictures {size} x {size}, orthographic, shaded "
-         "(examples/ct-preset.toml's lights and Phong terms), the default technique (scene version 4, "
-         "post-classified), early termination at its default. Each case is an isplat sample made with thick slices "
-         "(`isplat sample NAME --shape ...`, augmented with `--spacing`) and the same sample made with slices as "
-         "thin as its pixels, the *object* (the samples are painted in normalised coordinates: the same object). "
-         "Columns of each picture: *before* (normals of plain central differences, as isplat made them before), "
-         "*after* (the default now: `isplat.augment.normal_sigmas`), *thin* (`isplat augment --thin-slices`), "
-         "the *object*. Rows: the side view (azimuth 90, elevation 0: the slices are horizontal), then the "
-         "oblique view (azimuth 45, elevation 25).", ""]
+         "# Thick slices: rings, terraces and streaks, their cause and their fix", "",
+         f"Measured on {_doc.machine_line()}; {seconds:.0f} s. Every picture and number: isplat's default technique, "
+         f"**post-classified** splatting (`render.classification = \"post\"`), {size} x {size}, orthographic, "
+         "shaded (examples/ct-preset.toml's lights and Phong terms), early termination at its default. Each case is "
+         "an isplat sample made with thick slices (`isplat sample NAME --shape ...`, augmented with `--spacing`) and "
+         "the same sample made with slices as thin as its pixels, the *object* (the samples are painted in "
+         "normalised coordinates: the same object). Columns of each picture: *before* (the sampler's shading as "
+         "isplat had it: each quad corner's Phong factors weighted bilinearly), *after* (the default now: weighted "
+         "by the bilinear weight times the corner's gradient magnitude, isplat/splat/post.py `_sample`), *thin* "
+         "(`isplat augment --thin-slices`, rendered as *after*), the *object* (as *after*). Rows: the side view "
+         "(azimuth 90, elevation 0: the slices are horizontal), then the oblique view (azimuth 45, elevation 25). "
+         "Both columns use the same file (normals smoothed along the thin axes above 4:1, "
+         "`isplat.augment.normal_sigmas`); only the sampler differs.", ""]
     for tag in dict.fromkeys(r["case"] for r in rows):
-        L += [f"![{tag}](img/thick-{tag}.png)", "", f"`img/thick-{tag}.png`", ""]
-    L += ["## Error against the object", "",
-          "RMSE over RGB against the object; *band*: the band energy of the side view (RMS over the image's rows "
-          "of the row's mean luminance minus its running mean over one slice period; the object's own is the floor "
-          "what the object's shading and the rings of its in-plane sampling give). *ray*: a converged ray caster "
-          "(tests/ray_reference.py, step 0.25 of the smallest spacing) on the same thick densities, its normals "
-          "central differences (*before*) or smoothed as *forced*, interpolated as vectors, not as Phong factors.", "",
-          "*forced*: the smoothing of *after* applied below its ratio too.", "",
-          "| case | preset | spacing (mm) | view | RMSE before | after | forced | thin | ray before | ray after | "
-          "band before | after | forced | thin | ray before | ray after | object |",
-          "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        L += [f"![{tag}](img/thick-{tag}.png)", "",
+              f"`img/thick-{tag}.png` (post-classified): before, after, thin, object; side, then oblique.", ""]
+    L += ["## Streaks, measured", "",
+          "*streak*: how much the picture's fine shading depends on where the surface lies between two thick "
+          "slices (`streak` in benchmarks/thick.py): per pixel, the first point of the object's surface (the "
+          "density where the preset's opacity reaches half its top) along the ray gives the phase 0..1 between "
+          "two thick slices; the high-frequency luminance (luminance minus its Gaussian blur of sigma two slice "
+          "periods in pixels) is averaged per eighth of that phase, and the streak is the RMS of those eight means. "
+          "Rings, terraces and streaks are locked to the slices and make the eighths differ; the shapes' own "
+          "shading and the object's fine detail are not, and average out: the object's own value (rendered with "
+          "the same phases) is the floor. *RMSE*: over RGB against the object, each column against the object "
+          "rendered by the same sampler (*before* and *thin before* against the object shaded as before); "
+          "*objects*: RMSE between the object shaded before and after (what the change does on thin slices). "
+          "*band* (side views): RMS over the image's rows of the row's mean luminance minus its running mean over "
+          "one slice period (the object's own is the floor).", "",
+          "| case | preset | spacing (mm) | view | streak before | after | thin before | thin | object | RMSE "
+          "before | after | thin before | thin | objects | band before | after | thin | object |",
+          "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        e, b = r["rmse"], r["band"]
-        side = r["view"] == "side"
-        L.append(f"| {r['case']} | {r['preset']} | {' x '.join(f'{s:g}' for s in r['spacing'])} | {r['view']} | "
-                 f"{_f(e['before'])} | **{_f(e['after'])}** | {_f(e['forced'])} | {_f(e['thin'])} | "
-                 f"{_f(e.get('ray_before'))} | {_f(e.get('ray_after'))} | " + (
-                     f"{_f(b['before'])} | **{_f(b['after'])}** | {_f(b['forced'])} | {_f(b['thin'])} | "
-                     f"{_f(b.get('ray_before'))} | {_f(b.get('ray_after'))} | {_f(b['object'])} |" if side
-                     else "| | | | | | |"))
-    L += ["", "Unshaded (the same side views with `shading.enabled = false`): band energy, which shading cannot "
-          "cause. *ray vs isplat*: RMSE between the ray caster and isplat with the same normals (*before*, *forced*).", "",
-          "| case | band unshaded: before | after | object | ray vs isplat: before | forced |",
-          "|---|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        if "band_unshaded" not in r:
-            continue
-        u, rv = r["band_unshaded"], r.get("ray_vs_isplat", {})
-        L.append(f"| {r['case']} | {_f(u['before'])} | {_f(u['after'])} | {_f(u['object'])} | "
-                 f"{_f(rv.get('ray_before'))} | {_f(rv.get('ray_after'))} |")
-    proto = [r for r in rows if "proto" in r]
-    if proto:
-        L += ["", "## The sampler's shading, prototyped", "",
-              "isplat's post-classified sampler shades a sample with the bilinear mean of its four voxels' Phong "
-              "factors (isplat/splat/post.py, `_sample`). A copy of the ray caster that does the same in 3-D "
-              "(trilinear mean of the eight voxels' Phong factors from their oct16 normals, step 1 smallest "
-              "spacing: `phong_factor_render`) against one whose means weight each voxel by its gradient magnitude "
-              "code (the proposed change), both on the *after* normals:", "",
-              "| case | view | RMSE isplat | unweighted | weighted | band isplat | unweighted | weighted | object | "
-              "unweighted vs isplat |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-        for r in proto:
-            p, e, b = r["proto"], r["rmse"], r["band"]
-            L.append(f"| {r['case']} | {r['view']} | {_f(e['after'])} | {_f(p['unweighted']['rmse'])} | "
-                     f"**{_f(p['weighted']['rmse'])}** | {_f(b['after'])} | {_f(p['unweighted']['band'])} | "
-                     f"**{_f(p['weighted']['band'])}** | {_f(b['object'])} | {_f(p['unweighted']['vs_isplat'])} |")
-        for tag in dict.fromkeys(r["case"] for r in proto):
-            L += ["", f"![{tag} sampler](img/thick-{tag}-sampler.png)", "",
-                  f"`img/thick-{tag}-sampler.png`: isplat *after*, the prototype unweighted (isplat's shading), "
-                  "weighted by the gradient magnitude (the proposal), the object; side view, then oblique."]
+        s, e, b = r["streak"], r["rmse"], r.get("band")
+        L.append(f"| {r['case']} | {r['preset']} | {_sp(r['spacing'])} | {r['view']} | {_f(s['before'])} | "
+                 f"**{_f(s['after'])}** | {_f(s['thin_before'])} | {_f(s['thin'])} | {_f(s['object'])} | {_f(e['before'])} | "
+                 f"**{_f(e['after'])}** | {_f(e['thin_before'])} | {_f(e['thin'])} | {_f(r['objects'])} | " +
+                 (f"{_f(b['before'])} | **{_f(b['after'])}** | {_f(b['thin'])} | {_f(b['object'])} |" if b
+                  else "| | | |"))
+    timed = [r for r in rows if "timing" in r]
+    if timed:
+        L += ["", "## What the weighting costs", "",
+              f"The oblique view of each case rendered in {timed[0]['timing']['rounds']} interleaved rounds, before "
+              "and after in turn, the order swapped every round (one process, the same selection; `isplat.splat.post.WEIGHTED_SHADING` switches "
+              "the sampler), after a warm-up frame of each: the median frame time (the whole frame: traversal and set-up included) over the samples composited. "
+              "After reads the gradient magnitude channel too (1 byte per voxel more in memory and read from the "
+              "file when shaded).", "",
+              "| case | samples | ms before | ms after | ns per sample before | after | after / before |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+        for r in timed:
+            t = r["timing"]
+            L.append(f"| {r['case']} | {t['samples']:,} | {t['seconds_before'] * 1e3:.1f} | "
+                     f"{t['seconds_after'] * 1e3:.1f} | {t['before']:.1f} | {t['after']:.1f} | "
+                     f"{t['after'] / t['before']:.2f} |")
     if costs:
         L += ["", "## What `--thin-slices` costs", "",
               "`isplat augment` of the thick sample (a .npy) as it is and with `--thin-slices` (`/usr/bin/time`: "
@@ -351,166 +378,59 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
             if r["case"] not in costs or r["view"] != "side":
                 continue
             c = costs[r["case"]]
-            L.append(f"| {r['case']} | {' x '.join(f'{s:g}' for s in r['spacing'])} -> "
-                     f"{' x '.join(f'{s:g}' for s in r['thin_spacing'])} | {c['as_is']['seconds']:.2f} | "
-                     f"{c['thin']['seconds']:.2f} | {c['as_is']['rss_mb']:.0f} | {c['thin']['rss_mb']:.0f} | "
-                     f"{c['as_is']['file_mb']:.1f} | {c['thin']['file_mb']:.1f} |")
+            L.append(f"| {r['case']} | {_sp(r['spacing'])} -> {_sp(r['thin_spacing'])} | "
+                     f"{c['as_is']['seconds']:.2f} | {c['thin']['seconds']:.2f} | {c['as_is']['rss_mb']:.0f} | "
+                     f"{c['thin']['rss_mb']:.0f} | {c['as_is']['file_mb']:.1f} | {c['thin']['file_mb']:.1f} |")
         ratios = [(c["thin"]["seconds"] / c["as_is"]["seconds"], c["thin"]["rss_mb"] - c["as_is"]["rss_mb"],
                    c["thin"]["file_mb"] / c["as_is"]["file_mb"]) for c in costs.values()]
         L += ["", f"With `--thin-slices`: {min(r[0] for r in ratios):.2f}-{max(r[0] for r in ratios):.2f} times the "
               f"seconds, {min(r[1] for r in ratios):.0f}-{max(r[1] for r in ratios):.0f} MB more peak memory, "
               f"{min(r[2] for r in ratios):.1f}-{max(r[2] for r in ratios):.1f} times the file."]
-    L += ["", READING, ""]
+    L += ["", reading(rows, costs), ""]
     return "\n".join(L)
 
 
-READING = """## Reading
-
-(Written from the run this page was made with; the tables above are regenerated, this text is not.)
-
-**What makes the terraces**, one factor at a time on the side views, where the slices are horizontal lines:
-
-- *Not the sampler's step or its reconstruction of the density, on an opaque surface.* A converged ray caster
-  (0.25 mm steps, normals interpolated as vectors) on the same thick densities and normals shows the bands too
-  (7 mm CT head, bone: band energy 0.0033, isplat 0.0043, the object 0.0027). The same views unshaded have the
-  object's band energy (0.0030 against 0.0036), so neither the density's linear interpolation between slices nor
-  the opacity correction makes them there (in a side view isplat samples the thin slices, 1 mm apart).
-- *The normals.* Central differences span two in-slice voxels (2 mm) but two slices (14 mm): where a surface
-  crosses a slice the in-slice part of the gradient is large, half-way between slices (where the voxels of both
-  slices lie off the surface) small, so the normal's direction swings slice by slice. Smoothing the density
-  along the thinner axes before the differences (*after*: a Gaussian of 0.5 sqrt(s_max^2 - s_a^2), 3.5 mm for
-  1 x 1 x 7; `isplat.augment.normal_sigmas`) brings the band energy to the object's: 0.0043 -> 0.0027 (object
-  0.0027); RMSE 0.0360 -> 0.0359 (side), 0.0437 -> 0.0422 (oblique). On a smooth ball sampled 1 x 1 x 7 the
-  normals come closer to the analytic ones (tests/test_augment.py).
-- *What remains on the CT head* (rings on the top of the skull in the oblique view, where the surface is nearly
-  parallel to the slices): the sampler's shading. It averages the four voxels' Phong factors with the bilinear
-  weights only, so a voxel just outside the surface (air: a short gradient, and a direction that is mostly the
-  surface's along k only) counts as much as the voxel on the surface. The prototype that weights each voxel's
-  Phong factors by its gradient magnitude as well removes the rings (picture above; RMSE 0.0421 -> 0.0410
-  oblique, side band 0.0028 -> 0.0023). On the MRI head it changes little (RMSE 0.0593 -> 0.0581 side, 0.0737 ->
-  0.0738 oblique), and on the chest's soft tissue, whose object is shaded by isplat's unweighted mean too, the
-  error grows a little (0.0145 -> 0.0152 side, 0.0189 -> 0.0198 oblique). The change belongs in
-  isplat/splat/post.py's `_sample` and is described in docs/design.md; not made here (isplat/splat is being
-  restructured), and to be measured on docs/accuracy.md's cases when made.
-- *The MRI head* (semi-transparent, a colour ramp, a bright scalp thinner than a slice): mostly the density's
-  reconstruction. Unshaded its band energy is 0.0195 against the object's 0.0112, and the converged ray caster
-  has the bands too. The smoothed normals lower the band energy 0.0151 -> 0.0138 and the RMSE 0.0625 -> 0.0602
-  (side), 0.0798 -> 0.0739 (oblique), but the terraces stay visible: linear interpolation between 7 mm slices
-  cross-fades a shell thinner than a slice and edges that move further from one slice to the next than they are
-  wide. Removing them needs a reconstruction across slices that follows the edges (shape-based interpolation), in
-  the sampler; not built.
-- *The chest at 0.7 x 0.7 x 2.5 mm* has no terraces to remove: its band energies are the object's in every column
-  (0.0023 bone, 0.0039 soft tissue), and its vertical texture is the sample's noise interpolated along the slices,
-  at every column alike. Smoothing there (*forced*) would double the error (0.0080 -> 0.0181 bone, 0.0139 -> 0.0264
-  soft tissue): in noisy tissue it takes away the in-slice noise of the gradient but not the noise between slices,
-  and the normals turn along the slices (speckle on the soft tissue). So the smoothing starts above 4:1
-  (`NORMAL_RATIO`); at 3.6:1 the chest's normals, and its pictures before and after, are the same. A sweep on the
-  CT head, not kept as a benchmark: 2.5 mm slices (2.5:1) no band to remove; 4 mm slices (4:1) band 0.0029 ->
-  0.0021 (object 0.0022) but RMSE 0.0266 -> 0.0274 (bone) and 0.0183 -> 0.0220 (the ct-skin preset), so 4:1 is
-  left out.
-
-**Cost of the fix**: augmenting the 7 mm samples smooths one extra float slab per slab (two more passes of a
-Gaussian along i and j): `augment_array` of the 7 mm MRI head took 0.78 s against 0.39 s without it (one run, in
-process). The file, the index and the frames are unchanged in size and time; isotropic scans and slices up to 4
-times thicker than the pixels get bit-identical files.
-
-**`--thin-slices`** (linear interpolation along the thick axis before augmenting) lowered the error in one of the
-eight views above (the chest's soft tissue, oblique: 0.0159 against 0.0193) and raised it in the others (7 mm CT
-head 0.0402 against 0.0360, MRI head 0.0688 against 0.0625, chest bone 0.0088 against 0.0080, side views); it
-removed no band. The default, post-classified sampler already interpolates linearly between slices, which is what
-`--thin-slices` stores, and the normals of the interpolated slices, differenced over 1.75 mm of a linear ramp, are
-noisier. Its cost (table above): 4 times the file at 7 mm (8.4 -> 33.3 MB), 2 times at 2.5 mm, more augment time
-and peak memory (the ratios under the table; the times are whole processes, start-up included, and vary with the
-machine's load between runs), growing with the scan, since the volume is held in memory (1.5 GiB on the issue's
-chest). It stays for pre-classified splatting (`render.classification = "pre"`),
-where docs/sheets.md measures it 5-12 times closer to the trilinear field; `isplat augment`'s line about thick
-slices and its `--help` now say so.
-"""
-
-
-# ---- the sampler's shading, prototyped in a ray caster (issue 28: a proposal for isplat/splat/post.py) -------------
-def _factor_integrator():
-    """A copy of tests/ray_reference.py's integrator (GRID, orthographic) that shades each sample with the
-    trilinear interpolation of the eight voxels' Phong factors, each weighted by ``wgt`` (all ones: what
-    isplat's post-classified sampler does, per slice; the gradient magnitudes: the proposal)."""
-    import math
-
-    import numba
-
-    rr = _rr()
-    trilinear, pwl, box_range = rr._trilinear, rr._pwl, rr._box_range
-
-    @numba.njit(parallel=True, nogil=True)
-    def integrate(vol, fac, wgt, orig, dirs, t_lo, n, step, ox, oy, cx, cy, unit, out):
-        for r in numba.prange(orig.shape[0]):
-            o = orig[r]
-            d = dirs[r]
-            t0, t1 = box_range(o, d, n, t_lo[r])
-            acc = np.zeros(3)
-            T = 1.0
-            if t1 > t0:
-                nseg = max(1, int(math.ceil((t1 - t0) / step)))
-                dt = (t1 - t0) / nseg
-                for m in range(nseg):
-                    t = t0 + (m + 0.5) * dt
-                    gi, gj, gk = o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]
-                    dens = trilinear(vol, gi, gj, gk)
-                    a = pwl(ox, oy, dens, True)
-                    if a <= 0.0:
-                        continue
-                    alpha = -math.expm1(math.log1p(-min(a, 1.0 - 2.0 ** -40)) / unit * dt)
-                    w = trilinear(wgt, gi, gj, gk)
-                    for ch in range(3):
-                        c = pwl(cx, cy[:, ch], dens, False)
-                        if w > 0.0:
-                            c = c * trilinear(fac[ch], gi, gj, gk) / w + trilinear(fac[3 + ch], gi, gj, gk) / w
-                        acc[ch] += T * alpha * c
-                    T *= 1.0 - alpha
-                    if T < 1e-9:
-                        break
-            out[r, 0], out[r, 1], out[r, 2], out[r, 3] = acc[0], acc[1], acc[2], 1.0 - T
-    return integrate
-
-
-def phong_factor_render(sc, c, weighted: bool, step: float = 1.0) -> np.ndarray:
-    """The thick data ``c`` rendered by :func:`_factor_integrator` with ``c``'s own (oct16) normals: per voxel
-    the Phong factors of its decoded normal, interpolated unweighted (isplat's sampler) or weighted by the
-    gradient magnitude codes (the proposal)."""
-    from isplat.frame import views_for
-    from isplat.normals import decode
-    from isplat.splat.composite import finish
-
-    rr = _rr()
-    sel = _selection(sc, c)
-    view = views_for(sc, sel)[0]
-    f, g = view.frame, view.geom
-    sh = sc.shading
-    lights = rr.light_rows(sh, f, g)
-    shv = np.array([sh.ambient, sh.diffuse, sh.specular, sh.shininess, 1.0 if sh.two_sided else 0.0])
-    nrm = decode(c["normal"]).astype(np.float64)
-    fac = np.empty((6,) + c["normal"].shape)
-    flat = nrm.reshape(-1, 3)
-    table = {}
-    out6 = fac.reshape(6, -1)
-    codes = c["normal"].ravel()
-    for code in np.unique(codes):                  # one Phong evaluation per distinct code
-        table[int(code)] = rr._phong(*map(float, decode(np.array([code]))[0]), lights, shv)
-    lut = np.zeros((65536, 6))
-    for code, v in table.items():
-        lut[code] = v
-    out6[:] = lut[codes].T
-    wgt = c["gm"].astype(np.float64) if weighted else np.ones(c["gm"].shape)
-    fac *= wgt[None]
-    op, col = np.asarray(sc.transfer.opacity, float), np.asarray(sc.transfer.color, float)
-    o, d, t_lo = rr.rays(view)
-    out = np.empty((len(o), 4))
-    vol = np.ascontiguousarray(c["density"], np.float32)
-    _factor_integrator()(vol, np.ascontiguousarray(fac), np.ascontiguousarray(wgt), o, d, t_lo,
-                         np.asarray(g.n_ijk, float), float(step) * float(g.spacing.min()),
-                         np.ascontiguousarray(op[:, 0]), np.ascontiguousarray(op[:, 1]),
-                         np.ascontiguousarray(col[:, 0]), np.ascontiguousarray(col[:, 1:4]),
-                         float(sc.transfer.unit_distance or g.spacing.min()), out)
-    img = out.reshape(f.height, f.width, 4)
-    rgba = np.empty_like(img)
-    finish(img, np.asarray(view.background, dtype=np.float64), rgba)
-    return rgba
+def reading(rows, costs) -> str:
+    """The page's reading: the causes (from the earlier runs of this page, named by commit) and, with this run's
+    numbers, what the fix does."""
+    out = ["## Reading", "",
+           "**What makes the rings and terraces.** The earlier runs of this page (git log docs/thick-slices.md; "
+           "b27b5b8 measured them with a converged ray caster and unshaded renders) found two causes on shaded "
+           "opaque surfaces, and neither the opacity correction nor the density's linear interpolation between "
+           "slices: (1) the normals, central differences spanning two in-slice voxels but two thick slices, which "
+           "swing slice by slice; fixed before this run by smoothing the density along the thin axes before the "
+           "differences above 4:1 (`isplat.augment.normal_sigmas`); (2) the sampler's shading, here: it mixed the "
+           "four corners' Phong factors with the bilinear weights only, so where a surface is nearly parallel to "
+           "the slices (the top of the skull) a corner just off the surface (air or soft tissue, a short gradient "
+           "whose direction is mostly along the slice axis) shades as much as the corner on it, and the shading "
+           "jumps each time the surface crosses a slice: rings. Weighting each corner by its gradient magnitude "
+           "too lets the corners on the surface give its shading.", ""]
+    items = []
+    for r in rows:
+        s, e = r["streak"], r["rmse"]
+        items.append(f"- *{r['case']}*, {r['view']}: streak {s['before']:.4f} -> {s['after']:.4f} "
+                     f"({(s['after'] / s['before'] - 1) * 100 if s['before'] else 0:+.0f}%; object "
+                     f"{s['object']:.4f}), RMSE {e['before']:.4f} -> "
+                     f"{e['after']:.4f}" + (f"; band {r['band']['before']:.4f} -> {r['band']['after']:.4f} (object "
+                                             f"{r['band']['object']:.4f})" if "band" in r else "") + ".")
+    out += ["**This run, before -> after** (each against the object rendered by the same sampler):", ""] + items
+    mr = [r for r in rows if r["case"].startswith("mr-")]
+    if mr:
+        out += ["", "The *MRI head* (semi-transparent, a colour ramp over a bright scalp thinner than a slice) keeps "
+                "terraces after the weighting: the earlier runs found them in the unshaded renders too, so they come "
+                "from the density's linear interpolation between 7 mm slices (a shell thinner than a slice "
+                "cross-fades between slices), which shading cannot remove; a reconstruction across slices that "
+                "follows the edges (shape-based interpolation) would be needed, in the sampler. Not built."]
+    near = [r for r in rows if r["streak"]["before"] <= 1.2 * r["streak"]["object"]]
+    if near:
+        out += ["", "Already within 20% of the object's own streak before the change (nothing locked to the "
+                "slices to remove): " + ", ".join(f"{r['case']} {r['view']}" for r in near) + "."]
+    thin = [r for r in rows if r["streak"]["thin"] < 0.95 * r["streak"]["after"]]
+    out += ["", f"**`--thin-slices`** lowers the streak measure more than 5% below *after* in {len(thin)} of the "
+            f"{len(rows)} views above" + (" (" + ", ".join(f"{r['case']} {r['view']}" for r in thin) + ")" if thin else "") +
+            "; it stores the linear interpolation between slices that the post-classified sampler already "
+            "computes, so it cannot remove what that interpolation makes, and its normals, differenced over a "
+            "linear ramp, are no better. Its cost is in the table above (file and memory grow with the factor of "
+            "thinning, since the volume is held in memory). It stays for pre-classified splatting "
+            "(`render.classification = \"pre\"`), where docs/sheets.md measures it closer to the trilinear field."]
+    return "\n".join(out)

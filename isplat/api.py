@@ -62,7 +62,7 @@ def render(volume, *, preset: str | None = None, opacity=None, color=None, azimu
     keys += [f"transfer.opacity={_toml(opacity)}"] if opacity is not None else []
     keys += [f"transfer.color={_toml(color)}"] if color is not None else []
     keys += [f"image.background={_toml(background)}"] if background is not None else []
-    scene = _scene(keys + list(set), aug["density_window"])
+    scene = _scene(keys + list(set), aug)
     return _render_scene(scene, aug, spacing, identity, axes_lps)
 
 
@@ -96,11 +96,15 @@ def _augment(arr, spacing, window) -> dict:
     return augment_array(arr, spacing, window)
 
 
-def _scene(overrides, density_window):
-    from .scene import SCENE_VERSION, parse_scene
+def _scene(overrides, aug):
+    """The scene of ``overrides``; data units through the augmented volume's window, a preset placed from the
+    data on its density histogram."""
+    from .scene import SCENE_VERSION, DensityWindow, parse_scene
 
+    window = DensityWindow(tuple(aug["density_window"]), "the volume", None, aug.get("density_units", "HU"),
+                           histogram=lambda: np.bincount(np.asarray(aug["density"]).ravel(), minlength=256))
     return parse_scene(f"version = {SCENE_VERSION}\n", ".", "isplat.render", overrides, data_required=False,
-                       density_window=tuple(density_window))
+                       density_window=window)
 
 
 def _digest(arr: np.ndarray) -> str:

@@ -1,9 +1,12 @@
 """Transfer-function presets in the scan's own units, for ``transfer.preset = "NAME"`` (docs/presets.md).
 
 CT presets are in Hounsfield units (``units = "data"``): they need an augmented file made from Hounsfield data,
-and are converted through its density window like any ``transfer.units = "data"`` point. MRI and micro-CT
-values have no calibrated unit, so those presets are written as fractions 0..1 of the density window
-(``units = "window"``). Sources are stated per preset; where isplat adapted published values it says so.
+and are converted through its density window like any ``transfer.units = "data"`` point. MRI values have no
+calibrated unit and their background is not always zero (a template's 350-550, a proton-density series' noise),
+so the MRI preset is placed from the data (``units = "tissue"``): its points are fractions 0..1 of the *tissue
+range* of the file's density histogram, 0 at the background threshold and 1 at the tissue's 99th percentile
+(:func:`tissue_range`), computed when the scene is read. The micro-CT preset is in fractions 0..1 of the density
+window (``units = "window"``). Sources are stated per preset; where isplat adapted published values it says so.
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ SLICER = "3D Slicer, Modules/Loadable/VolumeRendering/Resources/presets.xml"
 class Preset:
     name: str
     modality: str
-    units: str                      # "data" (Hounsfield units) or "window" (fraction of the density window)
+    units: str                      # "data" (Hounsfield units), "window" (fraction of the density window) or
+                                    # "tissue" (fraction of the tissue range: tissue_range)
     summary: str
     source: str
     opacity: tuple
@@ -63,11 +67,12 @@ PRESETS = {p.name: p for p in [
            "opacity isplat's own over the attenuation of aerated lung, inside the lung display window W1500/L-600; "
            f"colours from {SLICER} CT-Lung",
            _p([-950, 0], [-870, 0.05], [-700, 0.05], [-580, 0]), _SLICER_LUNG_COLOR),
-    Preset("mri-t1-head", "MRI", "window", "head tissue over the background of a T1 MRI",
-           f"{SLICER} MR-Default with its points (0..1024 scanner values) divided by 1024 into fractions of the "
-           "density window (isplat's adaptation: MRI values have no calibrated unit)",
-           tuple((x / 1024, a) for x, a in zip(_MR_DEFAULT_X[1:], (0, 0.15, 0.3, 0.375, 0.5))),
-           tuple((x / 1024, *c) for x, c in zip(_MR_DEFAULT_X[1:], (
+    Preset("mri-t1-head", "MRI", "tissue", "head tissue over the background of a T1 MRI",
+           f"{SLICER} MR-Default, its points placed from the data by isplat (MRI values have no calibrated unit, "
+           "and the background is not always zero): its 20 (where the opacity starts) at the background threshold "
+           "and its 1024 at the tissue's 99th percentile, the points between in proportion (tissue_range)",
+           tuple(((x - 20) / 1004, a) for x, a in zip(_MR_DEFAULT_X[1:], (0, 0.15, 0.3, 0.375, 0.5))),
+           tuple(((x - 20) / 1004, *c) for x, c in zip(_MR_DEFAULT_X[1:], (
                (0.168627, 0, 0), (0.403922, 0.145098, 0.0784314), (0.780392, 0.607843, 0.380392),
                (0.847059, 0.835294, 0.788235), (1, 1, 1))))),
     Preset("micro-ct", "micro-CT", "window", "dense phases opaque, the lighter solid translucent, air hidden",
@@ -84,22 +89,80 @@ PRESETS = {p.name: p for p in [
 ]}
 
 
+TISSUE_PERCENTILE = 99.0   # the tissue range's top: this percentile of the voxels above the background threshold
+
+
+def otsu_threshold(counts) -> int:
+    """Otsu's threshold of a histogram of density codes: the code ``t`` that maximises the between-class
+    variance of ``codes <= t`` and ``codes > t`` (Otsu 1979; the usual head/background split of MRI, e.g. dipy's
+    ``median_otsu``). 0 when the histogram holds one code or none."""
+    import numpy as np
+
+    h = np.asarray(counts, dtype=np.float64)
+    n = h.sum()
+    if n <= 0:
+        return 0
+    codes = np.arange(h.size, dtype=np.float64)
+    w0 = np.cumsum(h)[:-1]                    # voxels with code <= t, t = 0..254
+    m0 = np.cumsum(h * codes)[:-1]
+    w1 = n - w0
+    mu = (h * codes).sum()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = np.where((w0 > 0) & (w1 > 0), (m0 * n - mu * w0) ** 2 / (w0 * w1), -1.0)
+    return int(np.argmax(between)) if between.max() > 0 else 0
+
+
+def tissue_range(counts) -> tuple[float, float]:
+    """``(start, top)`` in density codes, from the file's histogram (int[256] voxels per density code): where
+    a ``units = "tissue"`` preset's 0 and 1 lie. *start* is half a code above Otsu's threshold ``t``
+    (:func:`otsu_threshold`: the background, air or a template's or scanner's offset and its noise, is the
+    lower class), so the background's codes get a preset's first point; *top* is the :data:`TISSUE_PERCENTILE`
+    percentile (numpy's ``inverted_cdf``) of the voxels above ``t``, at least one code above *start*."""
+    import numpy as np
+
+    h = np.asarray(counts, dtype=np.int64)
+    t = otsu_threshold(h)
+    above = h[t + 1:]
+    start = t + 0.5
+    if above.sum() == 0:
+        return start, min(255.0, start + 1.0)
+    cum = np.cumsum(above) / above.sum()
+    top = float(t + 1 + int(np.searchsorted(cum, TISSUE_PERCENTILE / 100.0)))
+    return start, max(top, start + 1.0)
+
+
+def place(points, counts) -> tuple:
+    """A ``units = "tissue"`` preset's points (fractions of the tissue range) as density codes for the data whose
+    histogram is ``counts``."""
+    start, top = tissue_range(counts)
+    return tuple((start + x * (top - start), *rest) for x, *rest in points)
+
+
 def get(name: str) -> Preset:
     return PRESETS[name]
 
 
 def describe(p: Preset) -> str:
     """One line: name, modality, units, summary and source."""
-    unit = "HU" if p.units == "data" else "fraction of the window"
+    unit = {"data": "HU", "window": "fraction of the window", "tissue": "fraction of the tissue range"}[p.units]
     return f"{p.name}\t{p.modality}\t{unit}\t{p.summary}\t(source: {p.source})"
 
 
-def as_toml(p: Preset) -> str:
-    """The preset as a [transfer] table to copy into a scene."""
+def as_toml(p: Preset, counts=None) -> str:
+    """The preset as a [transfer] table to copy into a scene; a ``tissue`` preset placed on the histogram
+    ``counts`` (int[256]), or as ``transfer.preset`` with its fractions in comments when none is given."""
     def rows(points):
         return "[" + ", ".join("[" + ", ".join(f"{x:g}" for x in r) + "]" for r in points) + "]"
     def codes(points):  # window fractions as density codes
+        if p.units == "tissue":
+            return place(points, counts)
         return points if p.units == "data" else tuple((x * 255.0, *rest) for x, *rest in points)
+    if p.units == "tissue" and counts is None:
+        return "\n".join([f"# {p.name}: {p.summary}", f"# source: {p.source}",
+                          "# placed from the data when the scene is read: opacity and colour in fractions of the "
+                          "tissue range", f"#   opacity = {rows(p.opacity)}", f"#   color = {rows(p.color)}",
+                          "# (isplat presets NAME FILE.aug.h5 prints them in density codes for that file)",
+                          "[transfer]", f'preset = "{p.name}"']) + "\n"
     lines = [f"# {p.name}: {p.summary}", f"# source: {p.source}", "[transfer]",
              f'units = "{"data" if p.units == "data" else "code"}"',
              f"opacity = {rows(codes(p.opacity))}", f"color = {rows(codes(p.color))}"]

@@ -229,14 +229,21 @@ def _ct_chest(shape, seed):
 T1 = {"background": 0.0, "scalp": 900.0, "bone": 60.0, "csf": 120.0, "grey": 420.0, "white": 620.0, "eye": 150.0}
 
 
-def _mr_head(shape, seed):
-    """A T1 MRI head: the head sample's geometry with T1 signal, white matter inside grey, noise on top."""
+def _mr_head(shape, seed, background=0.0):
+    """A T1 MRI head: the head sample's geometry with T1 signal, white matter inside grey, noise on top.
+    ``background`` > 0: every voxel raised by it and the air's noise widened to ``background / 8`` (a template's
+    or a scanner's offset, as the MNI152 template's 350-550 around the head)."""
     E = ELLIPSOID
     to_t1 = {AIR: T1["background"], CSF: T1["csf"], BRAIN: T1["grey"], EYE: T1["eye"], SOFT: T1["scalp"],
              BONE: T1["bone"], TOOTH: T1["bone"], 1075.0: T1["grey"]}
     items = [(kind, c, h, axis, to_t1[val]) for kind, c, h, axis, val in _HEAD_ITEMS]
     items.insert(4, (E, (0.0, 0.0, 0.12), (0.45, 0.60, 0.55), 0, T1["white"]))   # white matter
     vol = _painted(shape, T1["background"], items)
+    if background > 0:
+        air = vol == T1["background"]
+        noise = np.random.default_rng(seed + 1).normal(0.0, background / 8.0, size=int(air.sum()))
+        vol[air] += noise.astype(np.float32)
+        vol += np.float32(background)
     _add_noise(vol, 5.0, seed, -1e9, 1e9)
     np.abs(vol, out=vol)                       # magnitude images: Rician-like background
     np.rint(vol, out=vol)
@@ -301,10 +308,11 @@ def _two_density_cube(shape, dtype):
     return vol.astype(np.float32) / 255 if dtype == "float32" else vol
 
 
-def make_sample(name: str, shape=None, seed: int = 0, dtype: str | None = None):
+def make_sample(name: str, shape=None, seed: int = 0, dtype: str | None = None, background: float = 0.0):
     """Return ``(array[k, j, i], spacing_ijk)`` for sample ``name``; ``shape`` is ``(n_i, n_j, n_k)``.
 
-    ``dtype`` (``uint8`` or ``float32``) applies to ``sphere`` and ``two-density-cube`` only.
+    ``dtype`` (``uint8`` or ``float32``) applies to ``sphere`` and ``two-density-cube`` only; ``background``
+    (a value offset with its noise, see ``_mr_head``) to ``mr-head`` only.
     """
     if name not in DEFAULT_SHAPES:
         raise IsplatError(f"sample {name!r}: unknown; expected one of {', '.join(NAMES)}")
@@ -324,6 +332,12 @@ def make_sample(name: str, shape=None, seed: int = 0, dtype: str | None = None):
         return _engine(shape, seed)
     if name == "marschner-lobb":
         return _marschner_lobb(shape)
+    if background:
+        if name != "mr-head":
+            raise IsplatError(f"sample {name!r}: --background applies to mr-head only")
+        if not (0 < background <= 20000):
+            raise IsplatError(f"sample {name!r}: background {background:g} invalid; expected a value in (0, 20000]")
+        return _mr_head(shape, seed, float(background))
     if name in ("ct-head", "ct-chest", "mr-head"):
         return {"ct-head": _ct_head, "ct-chest": _ct_chest, "mr-head": _mr_head}[name](shape, seed)
     if name == "sphere":

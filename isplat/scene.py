@@ -62,7 +62,22 @@ def augmented_window(data: Data, opened: dict | None = None) -> DensityWindow:
         raise WindowUnavailable(f"{why}: {exc}") from None
     if opened is not None:
         opened[data.augmented] = aug
-    return DensityWindow(aug.density_window, data.written, aug.attrs.get("source"), aug.attrs.get("density_units"))
+    return DensityWindow(aug.density_window, data.written, aug.attrs.get("source"), aug.attrs.get("density_units"),
+                         histogram=_histogram_of(aug))
+
+
+def _histogram_of(aug):
+    """The file's density histogram, counted from its density channel on the first call (only a preset placed
+    from the data asks: isplat.presets.tissue_range), kept for the next."""
+    kept = []
+
+    def histogram():
+        if not kept:
+            from .stats import density_histogram
+
+            kept.append(density_histogram(aug))
+        return kept[0]
+    return histogram
 
 
 def _toml(text: str, source_name: str) -> dict:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import difflib
 import logging
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Union
 
 from . import units as _units
@@ -42,6 +42,9 @@ class DensityWindow:
     name: str = "the given density window"   # "... outside the density window LO..HI of NAME"
     source: str | None = None                 # the scan the file was augmented from (the re-augment hint)
     units: str | None = "HU"                  # the file's density_units; a given window is taken as HU
+    # () -> int[256] voxels per density code (the file's histogram), asked for only by a preset placed from the
+    # data (isplat.presets.tissue_range); None: there is none (a window given alone)
+    histogram: Callable[[], Any] | None = field(default=None, compare=False, hash=False, repr=False)
 
 
 class WindowUnavailable(Exception):
@@ -332,6 +335,15 @@ class _Units:
         points = getattr(preset, key)
         if preset.units == "window":
             codes = tuple((x * 255.0, *rest) for x, *rest in points)
+        elif preset.units == "tissue":
+            from .presets import place
+
+            self.window(("transfer", "preset"), preset.name)
+            if self.info.histogram is None:
+                self.ctx.fail(("transfer", "preset"), preset.name,
+                              f"preset {preset.name} is placed from the data's density histogram, which "
+                              f"{self.info.name} does not give (give the augmented file as data.augmented)")
+            codes = place(points, self.info.histogram())
         else:
             window = self.window(("transfer", "preset"), preset.name)
             codes = tuple((float(_units.to_code(x, window)), *rest) for x, *rest in points)

@@ -208,6 +208,8 @@ def select_arrays(request, chans: dict) -> Selection:
     """The selection of ``request`` from channels in memory (``{channel: array [k, j, i]}``, the channels the
     request uses): the index built in memory (:func:`isplat.index.memory.load_axis_in_memory`)."""
     sel = _empty_selection(request)
+    if not sel.use_gm and "gradient_magnitude" in sel.report.channels and chans.get("gradient_magnitude") is None:
+        sel.report.channels.remove("gradient_magnitude")    # only the shading's weights: optional (splat.post)
     read = lambda ch, k0, k1: chans[ch][k0:k1]      # noqa: E731
     if sel.method == "full" or sel.post:
         sel = replace(sel, whole=_whole(sel, read))
@@ -227,7 +229,10 @@ def _empty_selection(request) -> Selection:
                     request.shading and not empty, luts.gradient is not None and not empty, request.post,
                     request=request)
     sel.report.intervals = luts.intervals.tolist()
-    sel.report.channels = (["normal"] if sel.use_shade else []) + (["gradient_magnitude"] if sel.use_gm else [])
+    # post-classified and shaded: the gradient magnitudes too, which weight the corners' Phong factors
+    # (isplat.splat.post._sample)
+    gm = sel.use_gm or (sel.use_shade and request.post)
+    sel.report.channels = (["normal"] if sel.use_shade else []) + (["gradient_magnitude"] if gm else [])
     return sel
 
 

@@ -458,7 +458,11 @@ def histogram_section(aug, bins: int = 32) -> dict:
     pct = {f"p{q:g}": float(lo + int(np.searchsorted(cum, q / 100.0)) * (hi - lo) / 255.0)
            for q in HISTOGRAM_PERCENTILES}
     clipped = aug.attrs.get("density_clipped_fraction")
-    return {"units": "HU" if aug.attrs.get("density_units") == "HU" else "input units",
+    from .presets import tissue_range
+
+    start, top = tissue_range(codes)
+    return {"tissue_range": [float(lo + start * (hi - lo) / 255.0), float(lo + top * (hi - lo) / 255.0)],
+            "units": "HU" if aug.attrs.get("density_units") == "HU" else "input units",
             "density_window": list(aug.density_window), "bins": bins, "codes_per_bin": per,
             "edges": code_edges(aug.density_window, np.arange(0, 257, per)).tolist(),
             "counts": counts.tolist(), "code_counts": codes.tolist(), "voxels": n, "percentiles": pct,
@@ -480,22 +484,32 @@ def format_histogram(h: dict) -> str:
         bar = "#" * int(round(40 * c / top))
         lines.append(f"  {a:>{width}.6g} .. {b:>{width}.6g}  {c:>12,}  {100 * c / n:6.2f}%  {bar}")
     lines.append("  percentiles: " + ", ".join(f"{k} {v:.6g}" for k, v in h["percentiles"].items()))
+    if h["units"] != "HU" and "tissue_range" in h:
+        a, b = h["tissue_range"]
+        lines.append(f"  tissue range (where an MRI preset is placed: Otsu's background threshold .. the 99th "
+                     f"percentile above it): {a:.6g} .. {b:.6g}")
     return "\n".join(lines) + "\n"
 
 
 def preset_ramps(h: dict) -> dict:
     """Opacity ramps of the presets that apply to the data, in data units: the CT presets (Hounsfield units)
-    for Hounsfield data, else the window presets (fractions of the window). {name: (values, opacities)}."""
-    from .presets import PRESETS
+    for Hounsfield data, else the window presets (fractions of the window) and the MRI presets placed on this
+    histogram as a scene would place them (isplat.presets.place). {name: (values, opacities)}."""
+    from .presets import PRESETS, place
 
     lo, hi = h["density_window"]
-    want = "data" if h["units"] == "HU" else "window"
+    want = ("data",) if h["units"] == "HU" else ("window", "tissue")
+    step = (hi - lo) / 255.0
     out = {}
     for p in PRESETS.values():
-        if p.units != want:
+        if p.units not in want:
             continue
         xs = np.array([r[0] for r in p.opacity], dtype=np.float64)
-        out[p.name] = ((lo + xs * (hi - lo) if want == "window" else xs).tolist(), [r[1] for r in p.opacity])
+        if p.units == "window":
+            xs = lo + xs * (hi - lo)
+        elif p.units == "tissue":
+            xs = lo + np.array([r[0] for r in place(p.opacity, h["code_counts"])]) * step
+        out[p.name] = (xs.tolist(), [r[1] for r in p.opacity])
     return out
 
 

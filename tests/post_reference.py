@@ -4,7 +4,9 @@ Its own rays (pixel centres on the image plane, the eye for perspective), their 
 planes of the principal axis, bilinear interpolation of the density in the slice (the edge voxel repeated up
 to half a voxel beyond the outer centres), the transfer function from its control points (tabulated per code,
 corrected for the path through the slice, and interpolated between codes, as the model says), Phong shading of
-each corner's decoded normal weighted like the density, and 'over' front to back. A quad (the square between
+each corner's decoded normal weighted by its bilinear weight times its gradient magnitude code (normalised; the
+bilinear weights alone when the four codes are 0; ``weighted=False``: the bilinear weights, as before), and
+'over' front to back. A quad (the square between
 four voxels) is sampled only when one of its voxels has a density of non-zero opacity.
 """
 
@@ -23,11 +25,12 @@ from phong_reference import camera_lights, phong
 ALPHA_MAX = 1 - 2.0 ** -40
 
 
-def post_reference(scene, view=0, et=1.0):
+def post_reference(scene, view=0, et=1.0, weighted=True):
     """Straight RGBA (H, W, 4) over the scene's background."""
     aug = open_augmented(scene.data.augmented)
     dens = aug.read("density").astype(np.float64)
     nrm = aug.read("normal")
+    gm = aug.read("gradient_magnitude").astype(np.float64) if weighted else None
     sp = scene.volume.spacing or aug.spacing_ijk
     geom = C.volume_geometry(aug.shape, sp, scene.volume.origin, scene.volume.axes)
     W, H = scene.image.width, scene.image.height
@@ -70,7 +73,7 @@ def post_reference(scene, view=0, et=1.0):
                 X = geom.q + g @ geom.steps
                 if any((X - np.asarray(cut.point)) @ np.asarray(cut.normal) < 0 for cut in scene.cuts):
                     continue
-                s = _sample(dens, nrm, g[ia], g[ib], c, (ia, ib, ic), n_ijk, opac, col, sh, lights, geom)
+                s = _sample(dens, nrm, g[ia], g[ib], c, (ia, ib, ic), n_ijk, opac, col, sh, lights, geom, gm)
                 if s is None:
                     continue
                 lo, hi, f, rgb = s
@@ -97,7 +100,7 @@ def post_reference(scene, view=0, et=1.0):
     return np.clip(out, 0, 1)
 
 
-def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom):
+def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=None):
     """The sample at (u, v) of slice c: the opacities of the two codes around the interpolated density, the
     fraction between them and the shaded colour; None when outside the volume, in a quad of no interest, or
     transparent."""
@@ -123,6 +126,9 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom):
     rgb = col[di] + f * (col[di + 1] - col[di])
     if sh.enabled:
         diff, spec = np.zeros(3), np.zeros(3)
+        if gm is not None and sum(w * gm[k] for w, k in zip(weights, corners)) > 0:
+            total = sum(w * gm[k] for w, k in zip(weights, corners))
+            weights = [w * gm[k] / total for w, k in zip(weights, corners)]
         for w, k in zip(weights, corners):
             n = decode(np.array([nrm[k]]))[0].astype(float) @ geom.unit_axes
             dd, ss = phong(n, sh, lights)

@@ -317,3 +317,27 @@ def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, 
         read = {(c * sc + offset + a * sa + b * sb) * arr.itemsize // 64
                 for a in range(a0, min(a0 + unit, n_a - 1) + 1) for b in range(b0, min(b0 + unit, n_b - 1) + 1)}
         assert read <= asked[id(arr)]
+
+
+def test_reference_weighting_is_what_the_kernel_does(tmp_path, make_scene):
+    """The corners' Phong factors weighted by their gradient magnitudes (isplat.splat.post._sample): the kernel
+    agrees with the weighted reference and not with the bilinear one on random gradient magnitudes, and with
+    the bilinear one when the sampler's weighting is switched off."""
+    from isplat.splat import post
+
+    shape = (5, 6, 7)
+    gm = np.random.default_rng(3).integers(0, 256, shape)
+    gm.flat[::5] = 0                    # corners that count for nothing (and quads whose four are all 0)
+    aug, idx = write_volume(tmp_path, rng_volume(3, shape), spacing=(1.0, 1.2, 0.8), normal=random_normals(3, shape),
+                            gm=gm)
+    sc = post_scene(make_scene, aug, idx, CAMERAS[0], "orthographic")
+    img, _ = render(sc, "full")
+    weighted, plain = post_reference(sc), post_reference(sc, weighted=False)
+    assert np.abs(img - weighted).max() <= 2e-4 < np.abs(img - plain).max()
+    old = post.WEIGHTED_SHADING
+    post.WEIGHTED_SHADING = False
+    try:
+        img, _ = render(sc, "full")
+    finally:
+        post.WEIGHTED_SHADING = old
+    assert np.abs(img - plain).max() <= 2e-4

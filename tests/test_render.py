@@ -328,11 +328,13 @@ def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
     r = Renderer(make_scene(aug, idx, views="list = [{azimuth = 0}, {azimuth = 90}]", **base))
     assert r.report.axes == ["i", "j"]
     # post-classification (the default) samples the neighbours of the voxels of interest too: the whole
-    # density channel, and the normals when shaded; from the index only the blocks, no values
+    # density channel, and the normals and gradient magnitudes (which weight the shading) when shaded; from the
+    # index only the blocks, no values
     del base["render"]
     r = Renderer(make_scene(aug, idx, shading="enabled = true", **base))
-    assert r.report.channels == ["density", "normal"] and r.report.values_from == "whole channels"
-    assert r.report.augmented_bytes == 3 * dens_size(shape) and r.report.index_bytes == blocks
+    assert r.report.channels == ["density", "normal", "gradient_magnitude"]
+    assert r.report.values_from == "whole channels"
+    assert r.report.augmented_bytes == 4 * dens_size(shape) and r.report.index_bytes == blocks
 
 
 def dens_size(shape):

@@ -54,3 +54,20 @@ def test_bad_names_and_shapes():
         make_sample("sphere", (1, 4, 4))
     with pytest.raises(IsplatError, match="dtype"):
         make_sample("head", (8, 8, 8), dtype="uint8")
+
+
+def test_mr_head_background_raises_every_voxel_and_widens_the_airs_noise():
+    """``isplat sample mr-head --background B``: an MRI whose background is not zero (docs/presets.md)."""
+    from isplat.errors import IsplatError
+    from isplat.samples import T1
+
+    plain, _ = make_sample("mr-head", (32, 32, 28))
+    raised, _ = make_sample("mr-head", (32, 32, 28), background=450.0)
+    air = plain <= 20
+    grey = np.abs(plain.astype(float) - T1["grey"]) <= 15
+    assert 400 < np.median(raised[air]) < 500 and 30 < raised[air].std() < 90
+    assert np.median(raised[grey]) == pytest.approx(np.median(plain[grey]) + 450, abs=3)
+    with pytest.raises(IsplatError, match="--background applies to mr-head only"):
+        make_sample("ct-head", (8, 8, 8), background=450.0)
+    with pytest.raises(IsplatError, match=r"background -3 invalid; expected a value in \(0, 20000\]"):
+        make_sample("mr-head", (8, 8, 8), background=-3.0)

@@ -339,6 +339,10 @@ def test_plot_ramps_fit_the_data(tmp_path):
     ramps = preset_ramps(histogram_section(open_augmented(q)))
     assert set(ramps) == {"mri-t1-head", "micro-ct"}
     assert ramps["micro-ct"][0][0] == pytest.approx(250.0)          # 0.25 of the window 0..1000
+    # the MRI preset drawn where a scene places it: its first point at the start of the histogram's tissue range
+    h = histogram_section(open_augmented(q))
+    assert ramps["mri-t1-head"][0][0] == pytest.approx(h["tissue_range"][0])
+    assert ramps["mri-t1-head"][0][-1] == pytest.approx(h["tissue_range"][1])
 
 
 def test_plot_without_matplotlib_is_one_line(capsys, tmp_path, monkeypatch):

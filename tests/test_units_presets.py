@@ -87,11 +87,15 @@ def test_window_provider_is_asked_once_and_only_for_data_units(tmp_path, monkeyp
 
     data = ('units = "data"\nopacity = [[300, 0], [1000, 1]]\ncolor = [[300, 1, 1, 1]]\n'
             'gradient_opacity = [[0, 0], [9, 1]]')
-    for transfer, n in (("opacity = [[10, 0], [20, 1]]", 0), ('preset = "mri-t1-head"', 0), (data, 1),
+    for transfer, n in (("opacity = [[10, 0], [20, 1]]", 0), ('preset = "micro-ct"', 0), (data, 1),
                         ('preset = "ct-bone"', 1)):
         calls.clear()
         t = _scene(tmp_path, transfer, window=provider).transfer
         assert calls == ["v.aug.h5"] * n and t.density_window == ((-1024.0, 3071.0) if n else None)
+    with pytest.raises(IsplatError, match=r"s\.toml:6: transfer\.preset = \"mri-t1-head\": preset mri-t1-head is "
+                                          r"placed from the data's density histogram, which ct\.aug\.h5 does not "
+                                          r"give"):
+        _scene(tmp_path, 'preset = "mri-t1-head"', window=provider)   # a window alone has no histogram
     with pytest.raises(IsplatError, match=r"of ct\.aug\.h5; re-augment .*isplat augment ct\.nii "):
         _scene(tmp_path, 'units = "data"\nopacity = [[300, 0], [5000, 1]]', window=provider)
 
@@ -144,6 +148,13 @@ VALUES = {"ct-head": HU, "ct-chest": HU, "mr-head": T1, "engine": {"air": 0.0, "
 TOL = {"ct-head": 15, "ct-chest": 24, "mr-head": 15, "engine": 6}
 
 
+def _with_histogram(aug):
+    from isplat.scene import DensityWindow
+
+    return DensityWindow(tuple(aug["density_window"]), "v.aug.h5",
+                         histogram=lambda: np.bincount(aug["density"].ravel(), minlength=256))
+
+
 def test_every_preset_has_a_case():
     assert set(CASES) == set(PRESETS)
 
@@ -153,7 +164,7 @@ def test_preset_selects_its_material(tmp_path, name):
     sample, window, show, hide = CASES[name]
     x, spacing = make_sample(sample, SHAPE)
     aug = augment_array(x, spacing, window=window)
-    scene = _scene(tmp_path, f'preset = "{name}"', window=aug["density_window"])
+    scene = _scene(tmp_path, f'preset = "{name}"', window=_with_histogram(aug))
     alpha = build_luts(scene.transfer, aug["gradient_magnitude_scale"]).opacity[aug["density"]]
     for m in show:
         sel = _material(x, VALUES[sample][m], TOL[sample])
@@ -219,3 +230,73 @@ def test_hounsfield_preset_on_non_hounsfield_file_warns(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err == ("isplat: warning: s.toml:6: preset ct-bone is in Hounsfield units, but w.aug.h5 does not record "
                    "Hounsfield data (its window 0..4095 is taken as HU)\n")
+
+
+@pytest.mark.parametrize("background", [0.0, 450.0])
+def test_mri_preset_is_placed_above_the_background(tmp_path, background):
+    """mri-t1-head on the T1 sample with its background raised (every voxel + B, the air's noise B/8, as the
+    MNI152 template's 350-550): the opacity is zero on the background's voxels (not an opaque cube) and on the dark
+    bone, and starts above them, below grey matter; through the whole pipeline from a file on disk. Before, the
+    preset's fixed points (2% of the window) made the raised background opaque."""
+    from isplat.presets import tissue_range
+    from isplat.renderer import Renderer
+
+    x, spacing = make_sample("mr-head", SHAPE, background=background)
+    aug = augment_array(x, spacing)
+    write_augmented(tmp_path / "v.aug.h5", aug["density"], aug["gradient_magnitude"], aug["normal"], spacing,
+                    aug["density_window"], aug["gradient_magnitude_scale"])
+    scene = _scene(tmp_path, 'preset = "mri-t1-head"')
+    alpha = build_luts(scene.transfer, aug["gradient_magnitude_scale"]).opacity[aug["density"]]
+    air = _material(x, T1["background"] + background, 15) if not background else \
+        make_sample("mr-head", SHAPE)[0] == 0      # the air of the same head
+    assert np.percentile(alpha[air], 99) == 0.0
+    start = scene.transfer.opacity[0][0]
+    assert np.percentile(aug["density"][air], 99) < start
+    grey = _material(x, T1["grey"] + background, 15)
+    assert start < np.median(aug["density"][grey]) and np.median(alpha[grey]) > 0.02
+    counts = np.bincount(aug["density"].ravel(), minlength=256)
+    assert start == tissue_range(counts)[0]
+    # rendered: the background is not an opaque cube (the corners of the picture, outside the head, stay clear)
+    scene = _scene(tmp_path, 'preset = "mri-t1-head"\n[image]\nwidth = 32\nheight = 32\n'
+                   'background = [0, 0, 0, 0]\n')
+    rgba, _ = Renderer(scene).render_view(0)
+    assert rgba[0, 0, 3] == 0.0 and rgba[-1, -1, 3] == 0.0 and np.count_nonzero(rgba[..., 3] > 0.3) > 20
+
+
+def test_ct_preset_keeps_its_hounsfield_points(tmp_path):
+    """A pure CT file keeps its Hounsfield preset: ct-bone's codes are its HU points through the window, whatever
+    the histogram (the data-placed branch is for the MRI preset only)."""
+    x, spacing = make_sample("ct-head", SHAPE)
+    aug = augment_array(x, spacing)
+    write_augmented(tmp_path / "v.aug.h5", aug["density"], aug["gradient_magnitude"], aug["normal"], spacing,
+                    aug["density_window"], aug["gradient_magnitude_scale"], {"density_units": "HU"})
+    t = _scene(tmp_path, 'preset = "ct-bone"').transfer
+    lo, hi = aug["density_window"]
+    assert t.opacity[0][0] == pytest.approx(units.to_code(200.0, (lo, hi)))
+    assert [p[1] for p in t.opacity] == [p[1] for p in PRESETS["ct-bone"].opacity]
+
+
+def test_otsu_threshold_splits_two_modes():
+    """Otsu's threshold on two separated modes lies between them; on one code it is 0."""
+    from isplat.presets import otsu_threshold, tissue_range
+
+    h = np.zeros(256, np.int64)
+    h[30:40] = 1000
+    h[150:200] = 100
+    assert 39 <= otsu_threshold(h) < 150
+    start, top = tissue_range(h)
+    assert 39 < start < 150 and top == 199          # 99th percentile of 150..199, inverted cdf
+    one = np.zeros(256, np.int64)
+    one[7] = 5
+    assert otsu_threshold(one) == 0 and tissue_range(np.zeros(256, np.int64)) == (0.5, 1.5)
+
+
+def test_presets_command_places_an_mri_preset_on_a_file(tmp_path, capsys):
+    x, spacing = make_sample("mr-head", (32, 32, 28), background=450.0)
+    aug = augment_array(x, spacing)
+    write_augmented(tmp_path / "m.aug.h5", aug["density"], aug["gradient_magnitude"], aug["normal"], spacing,
+                    aug["density_window"], aug["gradient_magnitude_scale"])
+    code, out, _ = run(capsys, "presets", "mri-t1-head")
+    assert code == 0 and 'preset = "mri-t1-head"' in out and "tissue range" in out
+    code, out, _ = run(capsys, "presets", "mri-t1-head", str(tmp_path / "m.aug.h5"))
+    assert code == 0 and 'units = "code"' in out and "opacity = [[" in out

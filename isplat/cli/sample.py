@@ -72,9 +72,12 @@ def write_sample(arr: np.ndarray, spacing_ijk, out: str, force: bool, orientatio
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the noise (head, engine).")
 @click.option("--dtype", type=click.Choice(["uint8", "float32"]),
               help="Voxel type for sphere and two-density-cube (default float32 / uint8).")
+@click.option("--background", type=float, default=0.0, metavar="VALUE",
+              help="mr-head: raise every voxel by VALUE and widen the air's noise to VALUE/8 (a background that is "
+                   "not zero, as the MNI152 template's 350-550).")
 @force_option
 @quiet_option
-def sample(name, out, shape, seed, dtype, force):
+def sample(name, out, shape, seed, dtype, background, force):
     """Write the synthetic volume NAME to FILE and print the `isplat augment` command that reads it back.
 
     \b
@@ -94,9 +97,10 @@ def sample(name, out, shape, seed, dtype, force):
     Example:
       isplat sample head -o head.npy
       isplat sample engine -o engine.raw --shape 128,128,55 | sh   # runs the printed augment command
+      isplat sample mr-head -o mni-like.npy --background 450        # an MRI whose background is not zero
     """
     shp = parse_triple(shape, "--shape", int) if shape else None
-    arr, spacing = make_sample(name, shp, seed, dtype)
+    arr, spacing = make_sample(name, shp, seed, dtype, background)
     cmd = write_sample(arr, spacing, out, force, ORIENTATIONS.get(name))
     log.info(f"isplat sample: wrote {out} ({name}, {arr.dtype}, NI,NJ,NK={','.join(map(str, arr.shape[::-1]))}, "
              f"spacing {','.join(_fmt(s) for s in spacing)})")

@@ -21,7 +21,11 @@ The four voxels' densities come from the whole density channel (one byte per vox
 codes too when the scene uses them): the neighbours of the voxels of interest have any density, and the index
 does not hold them. Classification interpolates the 256-entry tables linearly between codes (the transfer
 function is applied to the interpolated value, not to a truncated code). Shading interpolates the four
-voxels' Phong factors (the shading of a trilinear ray caster that shades its grid points).
+voxels' Phong factors (the shading of a trilinear ray caster that shades its grid points), each weighted by its
+bilinear weight times its gradient magnitude code (normalised; the bilinear weights alone where all four are 0):
+on slices much thicker than the pixels a corner just off a surface nearly parallel to the slices (air, a short
+gradient whose direction is mostly along the slice axis) otherwise shades as much as the corner on it, which
+draws rings of the slices on the surface (docs/thick-slices.md).
 
 Each pixel samples a slice at most once (it belongs to one quad), so a sample is composited straight into the
 image: no sheet. Images do not depend on the thread bands. Counters: ``stats[band, 1]`` the voxels of interest
@@ -52,13 +56,17 @@ SCAN_PIXELS = 48          # the fewest pixels a scanned square should cover (sca
 # less than a pixel, so the scan visits hardly a pixel outside the square
 SPAN_MARGIN = 1e-4
 AHEAD = 1                 # squares prefetched ahead of the one sampled (_sample_squares; 2 measured alike)
+# shading weights each corner's Phong factors by its bilinear weight times its gradient magnitude code (_sample);
+# False: by the bilinear weight only, as before (python -m benchmarks thick renders both; docs/thick-slices.md)
+WEIGHTED_SHADING = True
 
 PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
 float64[256, 2G] (opacities per density and gradient code, corrected for the slice's path length when
 orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next code) and ``color`` float64[256, 6]
 (:func:`lerp_tables`); ``shade`` float32[65536, 2 or 6] Phong factors per normal code
-(:mod:`isplat.splat.shade`)."""
+(:mod:`isplat.splat.shade`); ``use_shade`` 0 unshaded, 1 the corners' Phong factors weighted bilinearly, 2
+weighted by the bilinear weights times the corners' gradient magnitude codes (:data:`WEIGHTED_SHADING`)."""
 PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
@@ -85,10 +93,12 @@ def plan(tables):
     # the tables with their steps between codes (the full method's search reads the opacities, the first half
     # of the columns)
     alpha, color = lerp_tables(tables.atab, sel.luts.color)
-    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, sel.use_shade)
+    whole = sel.whole_volume(tables.axis)
+    # 2: the corners' Phong factors weighted by their gradient magnitudes too (_sample), when those were read
+    shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
+    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading)
     ex, ey = reach(tables.proj.coef)
     tent = (float(ex), float(ey))
-    whole = sel.whole_volume(tables.axis)
     source = whole if sel.method == "full" else \
         indexed_source(view.order, sel.voxels(tables.axis), tables.geo, tent, tables.rows, view.frame.width)
     n_cells = max_cells(sel, tables.axis)
@@ -292,7 +302,7 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
             prefetch(density, i)
             if use_shade:
                 prefetch(nrm, i)    # 2 bytes a voxel: hence the half lines
-            if use_gm:
+            if use_gm or use_shade == 2:
                 prefetch(gm, i)
 
 
@@ -394,7 +404,8 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
             img, sat, tile_sat, et):
     """One sample: the bilinear density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
     volume's edge, which repeats the edge voxel) at (fu, fv) in it, classified with the tables interpolated
-    between codes, shaded with the corners' Phong factors, composited over pixel (x, y). Returns 0 when
+    between codes, shaded with the corners' Phong factors (weighted by their gradient magnitudes too when
+    ``use_shade == 2``), composited over pixel (x, y). Returns 0 when
     transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity."""
     # unsigned indices: numba adds no negative-index wrap-around to them (all are >= 0 here)
     w00 = (1.0 - fu) * (1.0 - fv)
@@ -426,6 +437,15 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     cb = color[di, c2] + f * color[di, np.uint64(5)]
     if use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
+        if use_shade == 2:      # weighted by the gradient magnitudes: a corner off the surface (air, a short
+            v00 = w00 * gm[i00]     # gradient whose direction is mostly the slices') counts for little
+            v10 = w10 * gm[i10]
+            v01 = w01 * gm[i01]
+            v11 = w11 * gm[i11]
+            wsum = v00 + v10 + v01 + v11
+            if wsum > 0.0:
+                r = 1.0 / wsum
+                w00, w10, w01, w11 = v00 * r, v10 * r, v01 * r, v11 * r
         s0 = w00 * shade[n00, 0] + w10 * shade[n10, 0] + w01 * shade[n01, 0] + w11 * shade[n11, 0]
         s1 = w00 * shade[n00, 1] + w10 * shade[n10, 1] + w01 * shade[n01, 1] + w11 * shade[n11, 1]
         if shade.shape[1] == 6:

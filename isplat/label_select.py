@@ -1,0 +1,96 @@
+"""The selection of a scene that shows segmentation labels (docs/labels.md).
+
+The post-classified technique samples the quads that touch a voxel of interest; with labels, a voxel is of
+interest when its density lies in the transfer function's intervals *or* its label is shown. The label channel
+is read whole (its ids are the neighbours' too: a sample's label and normal come from its quad's corners and
+their neighbours), each chunk checked against the file's chunk hashes and every id against ``label_voxels``
+(:meth:`isplat.augfile.AugmentedVolume.read`), so the numba kernels index the colour table only with ids it has.
+The voxels of interest are then listed in memory (:func:`isplat.index.memory.load_axis_in_memory` of the
+interest mask), as the index lists those of a density interval.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import grid
+from .errors import IsplatError
+
+
+@dataclass(frozen=True, eq=False)
+class LabelSelection:
+    """The label channel (flat ``[k, j, i]``, uint16) and the colour table of the shown labels (float64[L + 1,
+    4]: r, g, b, opacity; opacity 0 for ids not shown)."""
+
+    ids: np.ndarray
+    table: np.ndarray
+    shape: tuple[int, int, int]
+    spacing_ijk: tuple[float, float, float]
+
+    def frame_steps(self, axis: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(steps, spacing, perm)`` of :mod:`isplat.splat.labels` for slices along ``axis``."""
+        ia, ib, ic = grid.SLICE_AXES[axis]
+        steps = np.append(grid.flat_strides(self.shape, axis), grid.slice_shape(self.shape, axis)[0])
+        spacing = np.array([self.spacing_ijk[x] for x in (ia, ib, ic)], dtype=np.float64)
+        return steps.astype(np.int64), spacing, np.array([ia, ib, ic], dtype=np.int64)
+
+
+def label_table(shown, counts: np.ndarray, path) -> np.ndarray:
+    """The colour table of ``shown`` (LabelStyle) for a file whose ``label_voxels`` are ``counts``: refuses a
+    label no voxel has, naming where the scene gave it."""
+    table = np.zeros((counts.shape[0], 4), dtype=np.float64)
+    for st in shown:
+        if st.id >= counts.shape[0] or counts[st.id] == 0:
+            present = np.flatnonzero(counts[1:] > 0) + 1
+            listed = ", ".join(str(int(i)) for i in present[:12]) + (", ..." if present.size > 12 else "")
+            raise IsplatError(f"{st.where or 'scene'}: label {st.id}{f' ({st.name})' if st.name else ''} is not in "
+                              f"{path} (ids present: {listed or 'none'})")
+        table[st.id] = (*st.color, st.opacity)
+    return table
+
+
+def select_labels(request, aug):
+    """The selection of ``request`` (which shows labels) from the open augmented file ``aug``."""
+    from .index.memory import load_axis_in_memory
+    from .selection import _empty_selection, _needed, _select, _whole
+
+    if not aug.has_labels:
+        where = request.labels[0].where or "scene"
+        raise IsplatError(f"{where}: {aug.path} has no label channel; add one: isplat augment SCAN -o "
+                          f"{aug.path} --labels MASK --force")
+    if not request.post:
+        raise IsplatError("labels are shown by the post-classified technique only: set render.classification = "
+                          "\"post\" (render.sheets = \"axis\")")
+    if request.slab is not None:
+        raise IsplatError("labels: a frame is rendered in one piece (no --slabs, no --scheduler)")
+    table = label_table(request.labels, aug.label_voxels, aug.path)
+    sel = _empty_selection(request)
+    sel = replace(sel, method="indexed", whole=_whole(sel, aug.read))
+    ids = aug.read("labels").reshape(-1)
+    interest = _interest(sel, ids, table, request.shape)
+    loaded = {ax: load_axis_in_memory(interest, ax, [(1, 1)]) for ax in request.axes}
+    _select(sel, loaded, None, str(aug.path), [(1, 1)])
+    sel = replace(sel, labels=LabelSelection(ids, table, request.shape, request.spacing_ijk))
+    rep = sel.report
+    rep.axes = sorted(request.axes)
+    rep.values_from = "whole channels"
+    rep.channels = rep.channels + ["labels"]
+    rep.voxels_of_interest = int(next(iter(loaded.values())).n_voxels) if loaded else 0
+    rep.augmented_bytes = int(aug.bytes_read)
+    rep.augmented_file_bytes = int(aug.io.bytes)
+    _needed(sel)
+    return sel
+
+
+def _interest(sel, ids: np.ndarray, table: np.ndarray, shape) -> np.ndarray:
+    """uint8 ``[k, j, i]``: 1 where the density is in the intervals or the label is shown."""
+    mask = table[:, 3] > 0
+    out = mask[ids]
+    if sel.whole.density.size:
+        wanted = np.zeros(256, dtype=bool)
+        for lo, hi in sel.luts.intervals:
+            wanted[int(lo):int(hi) + 1] = True
+        out |= wanted[sel.whole.density]
+    return out.astype(np.uint8).reshape(shape)

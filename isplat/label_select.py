@@ -2,8 +2,8 @@
 
 The post-classified technique samples the quads that touch a voxel of interest; with labels, a voxel is of
 interest when its density lies in the transfer function's intervals *or* its label is shown. The label channel
-is read whole (its ids are the neighbours' too: a sample's label and normal come from its quad's corners and
-their neighbours), each chunk checked against the file's chunk hashes and every id against ``label_voxels``
+is read whole (its ids are the neighbours' too: a sample's label comes from its quad's corners, and a label's
+normals from its indicator smoothed over its neighbours, :func:`isplat.labels.label_normals`), each chunk checked against the file's chunk hashes and every id against ``label_voxels``
 (:meth:`isplat.augfile.AugmentedVolume.read`), so the numba kernels index the colour table only with ids it has.
 The voxels of interest are then listed in memory (:func:`isplat.index.memory.load_axis_in_memory` of the
 interest mask), as the index lists those of a density interval.
@@ -27,14 +27,13 @@ class LabelSelection:
     ids: np.ndarray
     table: np.ndarray
     shape: tuple[int, int, int]
-    spacing_ijk: tuple[float, float, float]
+    normals: np.ndarray             # uint16, flat: the labels' own normals (isplat.labels.label_normals), or empty
 
-    def frame_steps(self, axis: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(steps, spacing, perm)`` of :mod:`isplat.splat.labels` for slices along ``axis``."""
-        ia, ib, ic = grid.SLICE_AXES[axis]
+    def frame_steps(self, axis: str) -> np.ndarray:
+        """The ``steps`` of :mod:`isplat.splat.labels` for slices along ``axis``: the flat steps of a, b, c and
+        the number of slices."""
         steps = np.append(grid.flat_strides(self.shape, axis), grid.slice_shape(self.shape, axis)[0])
-        spacing = np.array([self.spacing_ijk[x] for x in (ia, ib, ic)], dtype=np.float64)
-        return steps.astype(np.int64), spacing, np.array([ia, ib, ic], dtype=np.int64)
+        return steps.astype(np.int64)
 
 
 def label_table(shown, counts: np.ndarray, path) -> np.ndarray:
@@ -72,7 +71,13 @@ def select_labels(request, aug):
     interest = _interest(sel, ids, table, request.shape)
     loaded = {ax: load_axis_in_memory(interest, ax, [(1, 1)]) for ax in request.axes}
     _select(sel, loaded, None, str(aug.path), [(1, 1)])
-    sel = replace(sel, labels=LabelSelection(ids, table, request.shape, request.spacing_ijk))
+    nrm = np.zeros(0, np.uint16)
+    if sel.use_shade:
+        from .labels import label_normals
+
+        nrm = label_normals(ids.reshape(request.shape), [st.id for st in request.labels],
+                            request.spacing_ijk).reshape(-1)
+    sel = replace(sel, labels=LabelSelection(ids, table, request.shape, nrm))
     rep = sel.report
     rep.axes = sorted(request.axes)
     rep.values_from = "whole channels"

@@ -126,3 +126,64 @@ def _csv_pairs(path, text):
             raise IsplatError(f"{path}:{n}: id {ident!r}, expected a whole number")
         out.append((int(ident), name))
     return out
+
+
+SMOOTH_SIGMA = 1.0              # voxels: the Gaussian the indicator is smoothed with before its gradient
+_RADIUS = 3
+
+
+def label_normals(ids: np.ndarray, shown, spacing_ijk) -> np.ndarray:
+    """uint16 ``[k, j, i]`` oct16 codes (formats/augmented.md §5): at each voxel of a shown label, the direction
+    of the gradient of that label's indicator smoothed by a Gaussian of :data:`SMOOTH_SIGMA` voxels (central
+    differences in physical units, along i, j, k); ``NO_NORMAL`` elsewhere. Each label is worked in its bounding
+    box (with a margin), so small labels cost little."""
+    from . import normals
+
+    out = np.full(ids.shape, normals.NO_NORMAL, dtype=np.uint16)
+    for lid in sorted({int(x) for x in shown}):
+        mask = ids == lid
+        box = _box(mask, _RADIUS + 1)
+        if box is None:
+            continue
+        sub = _smooth(mask[box].astype(np.float32))
+        gk, gj, gi = np.gradient(sub) if min(sub.shape) > 1 else _gradient_thin(sub)
+        vec = np.stack([gi / spacing_ijk[0], gj / spacing_ijk[1], gk / spacing_ijk[2]], axis=-1)
+        inside = mask[box]
+        codes = out[box]
+        codes[inside] = normals.encode(vec[inside])
+        out[box] = codes
+    return out
+
+
+def _box(mask: np.ndarray, margin: int):
+    """The slices of ``mask``'s bounding box grown by ``margin`` (None when empty)."""
+    out = []
+    for ax in range(3):
+        other = tuple(x for x in range(3) if x != ax)
+        hit = np.flatnonzero(mask.any(axis=other))
+        if hit.size == 0:
+            return None
+        out.append(slice(max(0, hit[0] - margin), min(mask.shape[ax], hit[-1] + margin + 1)))
+    return tuple(out)
+
+
+def _smooth(a: np.ndarray) -> np.ndarray:
+    """``a`` smoothed by a separable Gaussian of SMOOTH_SIGMA voxels (edges extended)."""
+    x = np.arange(-_RADIUS, _RADIUS + 1, dtype=np.float64)
+    w = np.exp(-0.5 * (x / SMOOTH_SIGMA) ** 2)
+    w /= w.sum()
+    for ax in range(3):
+        pad = [(0, 0)] * 3
+        pad[ax] = (_RADIUS, _RADIUS)
+        p = np.pad(a, pad, mode="edge")
+        acc = np.zeros_like(a)
+        n = a.shape[ax]
+        for t, wt in enumerate(w):
+            acc += np.float32(wt) * np.take(p, np.arange(t, t + n), axis=ax)
+        a = acc
+    return a
+
+
+def _gradient_thin(a: np.ndarray):
+    """np.gradient of a volume with an axis of length 1 (zero along it)."""
+    return tuple(np.gradient(a, axis=ax) if a.shape[ax] > 1 else np.zeros_like(a) for ax in range(3))

@@ -107,7 +107,7 @@ def _labels_of(tables):
     if lab is None:
         return no_labels()
     r = None if tables.geo.persp else float(tables.proj.ds / tables.unit)
-    return (lab.ids, frame_table(lab.table, tables.geo.persp, r), *lab.frame_steps(tables.axis))
+    return lab.ids, frame_table(lab.table, tables.geo.persp, r), lab.frame_steps(tables.axis), lab.normals
 
 
 @stage

@@ -55,8 +55,8 @@ def parse_labels(ctx: Ctx, tree: dict) -> Labels:
         ctx.fail(("labels", "show"), show, "expected a list of label ids or names")
     for n, item in enumerate(show):
         ident, name = _ident(ctx, ("labels", "show", n), item, names, names_path)
-        shown[ident] = LabelStyle(ident, default_color(ident), opacity, name, ctx.where(("labels", "show")) +
-                                  f": labels.show[{n}]")
+        shown[ident] = _placed(LabelStyle(ident, default_color(ident), opacity, name),
+                               f"{ctx.where(('labels', 'show'))}: labels.show[{n}]")
     for key, sub in raw.items():
         if key in LABELS_KEYS:
             continue
@@ -69,8 +69,13 @@ def parse_labels(ctx: Ctx, tree: dict) -> Labels:
         lt = Table(ctx, sub, path, {"color": default_color(ident), "opacity": opacity})
         color = lt.vector("color", lo=0.0, hi=1.0, expected="expected 3 numbers in [0, 1] (r, g, b)")
         op = lt.number("opacity", "expected an opacity in [0, 1]", lo=0.0, hi=1.0)
-        shown[ident] = LabelStyle(ident, color, op, name, f"{ctx.where(path)}: labels.{key}")
+        shown[ident] = _placed(LabelStyle(ident, color, op, name), f"{ctx.where(path)}: labels.{key}")
     return Labels(tuple(shown[i] for i in sorted(shown)), names_path, opacity)
+
+
+def _placed(style: LabelStyle, where: str) -> LabelStyle:
+    object.__setattr__(style, "_where", where)
+    return style
 
 
 def _ident(ctx: Ctx, path: tuple, key, names: dict | None, names_path) -> tuple[int, str | None]:

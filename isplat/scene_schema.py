@@ -16,7 +16,7 @@ defaults that depend on other keys or on the file's ``version`` are said next to
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, fields
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -165,14 +165,18 @@ class RenderOptions:
 @dataclass(frozen=True)
 class LabelStyle:
     """A shown segmentation label (docs/labels.md): its id in the augmented file's label channel, colour and
-    opacity (per unit distance, as the transfer function's), its name when a names map gave it, and where the
-    scene gave it (``FILE:LINE: labels.ID``, for messages about the data)."""
+    opacity (per unit distance, as the transfer function's), its name when a names map gave it."""
 
     id: int
     color: Vec3
     opacity: float = 1.0
     name: str | None = None
-    where: str = field(default="", compare=False)
+
+    @property
+    def where(self) -> str:
+        """Where the scene gave it (``FILE:LINE: labels.ID``, for messages about the data; set by the reader,
+        not a field: it is not part of the scene's value)."""
+        return self.__dict__.get("_where", "")
 
 
 @dataclass(frozen=True)

@@ -35,12 +35,23 @@ LABEL_VOXELS = "label_voxels"
 LABEL_DTYPES = {"|u1": np.uint8, "<u2": np.uint16}
 CHANNELS = {"density": np.uint8, "gradient_magnitude": np.uint8, "normal": np.uint16}
 CHANNEL_DTYPES = {"density": "|u1", "gradient_magnitude": "|u1", "normal": "<u2"}
-OPTIONAL_STRINGS = ("source", "source_format", "source_dtype", "density_window_method")
+OPTIONAL_STRINGS = ("source", "source_format", "source_dtype", "density_window_method", "labels_sha256")
 # the attributes the file key covers (formats/augmented.md §1.1): every attribute of §3 but created_by, in its order
 HASHED_ATTRIBUTES = tuple(("", n) for n in (
     "format", "format_version", "shape", "spacing_ijk", "density_window", "gradient_magnitude_scale", "density_sha256",
     "source", "source_format", "source_dtype", "density_window_method", "density_units",
-    "density_clipped_fraction", "axes_lps"))
+    "density_clipped_fraction", "axes_lps", "labels_sha256"))
+
+
+def labels_sha256(labels: np.ndarray) -> str:
+    """Identity of a label channel: SHA-256 of its shape (3 little-endian int64) then its ids as little-endian
+    uint16 in C order (whatever the stored type), so an index of the labels can be tied to them."""
+    h = hashlib.sha256(np.asarray(labels.shape, dtype="<i8").tobytes())
+    a = np.asarray(labels)
+    step = max(1, (1 << 25) // max(1, a[0].size))
+    for k0 in range(0, a.shape[0], step):
+        h.update(np.ascontiguousarray(a[k0:k0 + step], dtype="<u2").tobytes())
+    return h.hexdigest()
 
 
 def density_sha256(density: np.ndarray) -> str:
@@ -203,6 +214,10 @@ def _check_labels(p, f, shape, verifier) -> np.ndarray:
                           f"with 1 <= L < {most} (the largest label id)")
     check_checked_dataset(f"{p}: dataset 'label_voxels'", cv)
     counts = np.asarray(verifier.read(f, LABEL_VOXELS), dtype=np.int64)
+    sha = attr_string(f.attrs, "labels_sha256") if "labels_sha256" in f.attrs else None
+    if sha is None or len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+        raise IsplatError(f"{p}: attribute 'labels_sha256' is missing or not 64 lower-case hex digits (a file with "
+                          f"labels has it)")
     if counts.min() < 0 or int(counts.sum()) != int(np.prod(shape)):
         raise IsplatError(f"{p}: dataset 'label_voxels' holds counts summing to {int(counts.sum())} (smallest "
                           f"{int(counts.min())}), expected non-negative counts of the {int(np.prod(shape))} voxels")
@@ -242,9 +257,12 @@ def write_labels(f: h5py.File, labels, counts=None) -> None:
         counts = label_counts(arr)
         labels = [(0, shape[0], arr)]
     ds = create_checked_dataset(f, LABELS, shape, label_dtype(len(counts) - 1))
+    h = hashlib.sha256(np.asarray(shape, dtype="<i8").tobytes())
     for k0, k1, slab in labels:
         ds[k0:k1] = slab
+        h.update(np.ascontiguousarray(slab, dtype="<u2").tobytes())
     create_checked_dataset(f, LABEL_VOXELS, (len(counts),), "<i8", np.asarray(counts, "<i8"))
+    set_string_attr(f, "labels_sha256", h.hexdigest())
 
 
 def label_counts(arr) -> np.ndarray:

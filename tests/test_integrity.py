@@ -356,7 +356,7 @@ def test_chunk_hashes_follow_the_spec(rel):
 
     aug_attrs = ["format", "format_version", "shape", "spacing_ijk", "density_window", "gradient_magnitude_scale",
                  "density_sha256", "source", "source_format", "source_dtype", "density_window_method",
-                 "density_units", "density_clipped_fraction", "axes_lps"]
+                 "density_units", "density_clipped_fraction", "axes_lps", "labels_sha256"]
     with h5py.File(EXAMPLES / rel, "r") as f:
         if rel.startswith("augmented"):
             datasets, attributes = ["density", "gradient_magnitude", "normal"], [("", n) for n in aug_attrs]

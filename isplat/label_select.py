@@ -5,7 +5,9 @@ interest when its density lies in the transfer function's intervals *or* its lab
 is read whole (its ids are the neighbours' too: a sample's label comes from its quad's corners, and a label's
 normals from its indicator smoothed over its neighbours, :func:`isplat.labels.label_normals`), each chunk checked against the file's chunk hashes and every id against ``label_voxels``
 (:meth:`isplat.augfile.AugmentedVolume.read`), so the numba kernels index the colour table only with ids it has.
-The voxels of interest are then listed in memory (:func:`isplat.index.memory.load_axis_in_memory` of the
+With an index of the labels beside the scene's index (``NAME.labels.idx.h5``, :mod:`isplat.index.labels`) the
+shown labels' voxels come from its blocks of those ids alone and the label channel is not read. The voxels of
+interest are then listed in memory (:func:`isplat.index.memory.load_axis_in_memory` of the
 interest mask), as the index lists those of a density interval.
 """
 
@@ -67,7 +69,7 @@ def select_labels(request, aug):
     table = label_table(request.labels, aug.label_voxels, aug.path)
     sel = _empty_selection(request)
     sel = replace(sel, method="indexed", whole=_whole(sel, aug.read))
-    ids = aug.read("labels").reshape(-1)
+    ids, from_index = _label_ids(request, aug, sel.report)
     interest = _interest(sel, ids, table, request.shape)
     loaded = {ax: load_axis_in_memory(interest, ax, [(1, 1)]) for ax in request.axes}
     _select(sel, loaded, None, str(aug.path), [(1, 1)])
@@ -81,12 +83,31 @@ def select_labels(request, aug):
     rep = sel.report
     rep.axes = sorted(request.axes)
     rep.values_from = "whole channels"
-    rep.channels = rep.channels + ["labels"]
+    rep.channels = rep.channels + ([] if from_index else ["labels"])
     rep.voxels_of_interest = int(next(iter(loaded.values())).n_voxels) if loaded else 0
     rep.augmented_bytes = int(aug.bytes_read)
     rep.augmented_file_bytes = int(aug.io.bytes)
     _needed(sel)
     return sel
+
+
+def _label_ids(request, aug, rep) -> tuple[np.ndarray, bool]:
+    """The label ids the frames need, flat: from the index of the labels beside the request's index (the blocks of
+    the shown ids alone; every other voxel 0, which the kernels treat as an id not shown), else the label channel
+    whole. Returns them and whether they came from the index."""
+    from .index.labels import label_index_path, open_label_index, shown_ids_volume
+
+    path = label_index_path(request.index) if request.index is not None else None
+    if path is None or not path.exists():
+        return aug.read("labels").reshape(-1), False
+    idx = open_label_index(path, aug)
+    with idx.session():
+        ids, _ = shown_ids_volume(idx, sorted(request.axes)[0], [st.id for st in request.labels], request.shape)
+    rep.index_bytes = int(idx.bytes_read)
+    rep.index_file_bytes = int(idx.io.bytes)
+    rep.index_block_bytes = int(idx.bytes_read)
+    rep.index_format_version = idx.version
+    return ids, True
 
 
 def _interest(sel, ids: np.ndarray, table: np.ndarray, shape) -> np.ndarray:

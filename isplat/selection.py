@@ -522,6 +522,9 @@ def _open_matching_index(request, aug, idx=None):
         raise IsplatError("scene: data.index is required for render.method = 'indexed'")
     idx = idx or open_index(request.index)
     index = request.index
+    if getattr(idx, "channel", "density") != "density":
+        raise IsplatError(f"{index}: an index of the {idx.channel}, not of the density; data.index names the "
+                          f"density's index (NAME.idx.h5)")
     if tuple(idx.shape) != tuple(aug.shape) or idx.density_sha256 != aug.density_sha256:
         raise IsplatError(f"{index}: index was built from another volume "
                           f"(density_sha256 {idx.density_sha256[:12]}..., {aug.path.name} has "

@@ -73,6 +73,14 @@ def build(out_dir: Path) -> list[Path]:
         f.attrs["format_version"] = np.int64(5)
         set_string_attr(f, "created_by", "isplat 0.1.0")
 
+    from isplat.augfile import open_augmented
+    from isplat.index.labels import build_label_index_file
+
+    label_index = out_dir / "valid.labels.idx.h5"    # the index of valid.aug.h5's labels (formats/index.md §10)
+    build_label_index_file(open_augmented(valid), label_index, "ijk", force=True)
+    with h5py.File(label_index, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+
     v3 = out_dir / "valid-v3.aug.h5"                 # version 3 (no labels): still read
     write_augmented(v3, *args, extra_attrs=extra)
     with h5py.File(v3, "a") as f:
@@ -165,7 +173,7 @@ def build(out_dir: Path) -> list[Path]:
     }
     exp = out_dir / "valid.expected.json"
     exp.write_text(json.dumps(expected, indent=1) + "\n")
-    return [valid, v3, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes, bad_label, exp]
+    return [valid, label_index, v3, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes, bad_label, exp]
 
 
 if __name__ == "__main__":

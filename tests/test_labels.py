@@ -348,3 +348,70 @@ def test_sample_ct_chest_labels(capsys, tmp_path):
     assert (lab == 5).sum() > 0 and (lab == 3).sum() > 0
     code, _, err = run(capsys, "sample", "head", "-o", tmp_path / "h.npy", "--labels", tmp_path / "hl.npy")
     one_error(code, err, "only ct-chest")
+
+
+# ---- the index of the labels (formats/index.md §10) ----------------------------------------------------------------
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), largest=st.integers(1, 255), axis=st.sampled_from("ijk"))
+def test_label_index_gives_back_the_shown_labels(tmp_path_factory, seed, largest, axis):
+    from isplat.index.labels import build_label_index_file, open_label_index, shown_ids_volume
+
+    rng = np.random.default_rng(seed)
+    shape = tuple(int(x) for x in rng.integers(1, 7, size=3))
+    lab = (rng.random(shape) < 0.6) * rng.integers(1, largest + 1, size=shape)
+    lab.flat[0] = largest
+    d = tmp_path_factory.mktemp("li")
+    aug = open_augmented(write_labelled(d / "v.aug.h5", lab))
+    build_label_index_file(aug, d / "v.labels.idx.h5", "ijk")
+    idx = open_label_index(d / "v.labels.idx.h5", aug)
+    shown = sorted(set(rng.integers(1, largest + 1, size=3).tolist()))
+    ids, _ = shown_ids_volume(idx, axis, shown, aug.shape)
+    assert ids.tolist() == np.where(np.isin(lab, shown), lab, 0).reshape(-1).tolist()
+
+
+def test_a_scene_showing_one_label_reads_only_its_blocks(capsys, tmp_path):
+    """With the index of the labels beside the density's, a scene showing label 2 of 3 reads that label's blocks
+    and not the label channel; its image is bit for bit the one made from the label channel."""
+    from isplat.index import build_index_file
+
+    lab = three_boxes((24, 32, 72))
+    aug = write_labelled(tmp_path / "v.aug.h5", lab)
+    build_index_file(aug, tmp_path / "v.idx.h5")
+    assert (tmp_path / "v.labels.idx.h5").exists()
+    scene = label_scene(tmp_path, aug, shown=(2,))
+    scene.write_text(scene.read_text().replace('method = "full"', 'method = "indexed"')
+                     .replace(f'augmented = "{aug}"', f'augmented = "{aug}"\nindex = "{tmp_path / "v.idx.h5"}"'))
+    code, out, err = run(capsys, "stats", aug, tmp_path / "v.idx.h5", "--scene", scene, "--json")
+    assert code == 0, err
+    loaded = json.loads(out)["scene"]["loaded"]
+    assert "labels" not in loaded["channels"]
+    assert 0 < loaded["index_bytes"] < lab.size // 10       # label 2's blocks and table rows, not the channel
+    assert loaded["augmented_bytes"] == lab.size        # the density (shading is off here), not the labels
+    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "a.png", "-q")
+    assert code == 0, err
+    scene.write_text(scene.read_text().replace('method = "indexed"', 'method = "full"'))
+    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "b.png", "-q")
+    assert code == 0, err
+    from PIL import Image
+
+    a, b = (np.asarray(Image.open(tmp_path / n)) for n in ("a.png", "b.png"))
+    assert np.array_equal(a, b) and a[..., 1].max() > 200
+
+
+def test_a_label_index_of_other_labels_is_refused(capsys, tmp_path):
+    from isplat.index import build_index_file
+
+    lab = three_boxes()
+    aug = write_labelled(tmp_path / "v.aug.h5", lab)
+    build_index_file(aug, tmp_path / "v.idx.h5")
+    other = lab.copy()
+    other[other == 3] = 1
+    write_labelled(tmp_path / "w.aug.h5", other)
+    build_index_file(tmp_path / "w.aug.h5", tmp_path / "w.idx.h5")
+    (tmp_path / "w.labels.idx.h5").replace(tmp_path / "v.labels.idx.h5")
+    scene = label_scene(tmp_path, aug, shown=(2,))
+    scene.write_text(scene.read_text().replace('method = "full"', 'method = "indexed"')
+                     .replace(f'augmented = "{aug}"', f'augmented = "{aug}"\nindex = "{tmp_path / "v.idx.h5"}"'))
+    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "x.png")
+    one_error(code, err, "v.labels.idx.h5", "labels_sha256 differs", "isplat index")

@@ -7,7 +7,8 @@ Three datasets of one shape ``(n_k, n_j, n_i)``, C order, i fastest (the paper's
 * ``normal``              uint16 -- octahedral 16-bit code of the gradient direction (:mod:`isplat.normals`)
 
 and, OPTIONAL since version 4, ``labels`` (uint8 or uint16, a segmentation's label id per voxel, 0 = none) with
-``label_voxels`` (int64[L + 1], the voxels of each id). Together the first three are the paper's 4-byte augmented voxel, stored as three channels so that a scene reads
+``label_voxels`` (int64[L + 1], the voxels of each id). Together the first three are the paper's 4-byte
+augmented voxel, stored as three channels so that a scene reads
 only the channels it uses (no normals when shading is off, no magnitudes when the transfer function
 ignores them).
 """
@@ -196,7 +197,8 @@ def open_augmented(path) -> AugmentedVolume:
 
 def _check_labels(p, f, shape, verifier) -> np.ndarray:
     """The label datasets' types and shapes (formats/augmented.md §2.1); returns ``label_voxels`` (read and
-    checked against its chunk hashes): non-negative counts summing to the voxels, at most 256 entries for uint8 labels and 65,536 for uint16."""
+    checked against its chunk hashes): non-negative counts summing to the voxels, at most 256 entries for uint8
+    labels and 65,536 for uint16."""
     for name in (LABELS, LABEL_VOXELS):
         if name not in f or not isinstance(f[name], h5py.Dataset):
             raise IsplatError(f"{p}: dataset {name!r} is missing (a file with labels has both 'labels' and "

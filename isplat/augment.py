@@ -504,7 +504,8 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
     is then held in memory); the window is chosen on the scan as read, so it is the one the scan gets without
     them. ``orientation``: a code such as ``LPS`` (:mod:`isplat.orientation`) giving the patient directions
     of i, j, k, over the file's. ``labels``: a label map on the scan's grid (:func:`isplat.labels.read_label_volume`),
-    stored as the label channel (formats/augmented.md §2.1). Returns a summary dict (shape, window, gradient scale, sha256, ``axes_lps``
+    stored as the label channel (formats/augmented.md §2.1). Returns a summary dict (shape, window, gradient
+    scale, sha256, ``axes_lps``
     or None, ``hounsfield`` (why the data are taken as Hounsfield units, or None), and where spacing and
     orientation came from).
     """

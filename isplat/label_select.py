@@ -3,7 +3,8 @@
 The post-classified technique samples the quads that touch a voxel of interest; with labels, a voxel is of
 interest when its density lies in the transfer function's intervals *or* its label is shown. The label channel
 is read whole (its ids are the neighbours' too: a sample's label comes from its quad's corners, and a label's
-normals from its indicator smoothed over its neighbours, :func:`isplat.labels.label_normals`), each chunk checked against the file's chunk hashes and every id against ``label_voxels``
+normals from its indicator smoothed over its neighbours, :func:`isplat.labels.label_normals`), each chunk
+checked against the file's chunk hashes and every id against ``label_voxels``
 (:meth:`isplat.augfile.AugmentedVolume.read`), so the numba kernels index the colour table only with ids it has.
 With an index of the labels beside the scene's index (``NAME.labels.idx.h5``, :mod:`isplat.index.labels`) the
 shown labels' voxels come from its blocks of those ids alone and the label channel is not read. The voxels of

@@ -173,7 +173,8 @@ def build(out_dir: Path) -> list[Path]:
     }
     exp = out_dir / "valid.expected.json"
     exp.write_text(json.dumps(expected, indent=1) + "\n")
-    return [valid, label_index, v3, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes, bad_label, exp]
+    return [valid, label_index, v3, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes,
+            bad_label, exp]
 
 
 if __name__ == "__main__":

@@ -69,7 +69,8 @@ def parse_labels(ctx: Ctx, tree: dict) -> Labels:
         lt = Table(ctx, sub, path, {"color": default_color(ident), "opacity": opacity})
         color = lt.vector("color", lo=0.0, hi=1.0, expected="expected 3 numbers in [0, 1] (r, g, b)")
         op = lt.number("opacity", "expected an opacity in [0, 1]", lo=0.0, hi=1.0)
-        shown[ident] = _placed(LabelStyle(ident, color, op, name), f"{ctx.where(path)}: labels.{key}")
+        inner = path + (next(iter(sub)),) if sub else path       # (a --set names a key inside the table)
+        shown[ident] = _placed(LabelStyle(ident, color, op, name), f"{ctx.where(inner)}: labels.{key}")
     return Labels(tuple(shown[i] for i in sorted(shown)), names_path, opacity)
 
 

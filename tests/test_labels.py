@@ -415,3 +415,24 @@ def test_a_label_index_of_other_labels_is_refused(capsys, tmp_path):
                      .replace(f'augmented = "{aug}"', f'augmented = "{aug}"\nindex = "{tmp_path / "v.idx.h5"}"'))
     code, _, err = run(capsys, "render", scene, "-o", tmp_path / "x.png")
     one_error(code, err, "v.labels.idx.h5", "labels_sha256 differs", "isplat index")
+
+
+def test_uint16_labels_in_perspective(capsys, tmp_path):
+    """Ids above 255 (stored as uint16, not indexed: the channel is read) render in their colours, in perspective."""
+    from isplat.index import build_index_file
+
+    lab = three_boxes().astype(np.uint16)
+    lab[lab == 1], lab[lab == 3] = 300, 5464
+    aug = write_labelled(tmp_path / "v.aug.h5", lab)
+    build_index_file(aug, tmp_path / "v.idx.h5")
+    assert not (tmp_path / "v.labels.idx.h5").exists()
+    scene = label_scene(tmp_path, aug, shown=(2,), extra='[labels.300]\ncolor = [1, 0, 0]\n[labels.5464]\n'
+                                                          'color = [0, 0, 1]\n')
+    scene.write_text(scene.read_text().replace("[camera]\n", '[camera]\nprojection = "perspective"\n'))
+    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "p.png", "-q")
+    assert code == 0, err
+    from PIL import Image
+
+    img = np.asarray(Image.open(tmp_path / "p.png").convert("RGB")).astype(int)
+    for ch in range(3):
+        assert ((img[..., ch] > 200) & (img.sum(axis=-1) - img[..., ch] < 30)).sum() > 150, ch

@@ -7,7 +7,7 @@ OUT    ?= out
 STAMP  := $(VENV)/.installed
 PREBUILT := isplat/_prebuilt/manifest.json
 
-.PHONY: demo prebuilt test bench bench-check wheel-check data paper-table bench-peers accuracy reference stability clean venv readme-images presets-doc reliability fuzz-boundscheck docs-check docs-regen
+.PHONY: demo prebuilt test bench bench-check wheel-check data paper-table bench-peers accuracy reference stability clean venv readme-images labels-image presets-doc reliability fuzz-boundscheck docs-check docs-regen
 
 venv: $(STAMP)
 
@@ -87,6 +87,10 @@ bench-peers: $(STAMP)
 # The README's pictures: make demo, then 256-pixel copies of its images into docs/img/.
 readme-images: demo
 	$(BIN)/python scripts/readme_images.py $(OUT) docs/img
+
+# docs/img/demo-ct-chest-labels.png: the ct-chest sample with its segmentation labels (docs/labels.md).
+labels-image: $(STAMP)
+	OUT=$(OUT) ISPLAT=$(ISPLAT) bash scripts/labels_image.sh docs/img
 
 # docs/presets.md and docs/img/preset-*.png: every transfer-function preset on a synthetic scan.
 presets-doc: $(STAMP)

@@ -30,7 +30,7 @@ import numba
 import numpy as np
 
 from . import progress
-from .augfile import create_augmented, finish_augmented
+from .augfile import create_augmented, finish_augmented, label_counts, write_labels
 from .errors import IsplatError
 from .fileio import atomic_output, check_output, create_hdf5
 from .jit import jit, stage
@@ -496,14 +496,16 @@ def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None, smooth_normal
 
 def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, dtype=None,
                  byte_order="little", header_bytes=0, level=None, series=None, thin_slices=None,
-                 orientation=None) -> dict:
+                 orientation=None, labels=None) -> dict:
     """Augment the volume at ``inp`` (see :func:`isplat.volume_io.read_volume`) into ``out`` atomically.
 
     ``thin_slices``: a ratio (e.g. :data:`isplat.resample.THICK_RATIO`): axes whose spacing exceeds it times
     the smallest are first refined by linear interpolation (:func:`isplat.resample.thin_slices`; the volume
     is then held in memory); the window is chosen on the scan as read, so it is the one the scan gets without
     them. ``orientation``: a code such as ``LPS`` (:mod:`isplat.orientation`) giving the patient directions
-    of i, j, k, over the file's. Returns a summary dict (shape, window, gradient scale, sha256, ``axes_lps``
+    of i, j, k, over the file's. ``labels``: a label map on the scan's grid (:func:`isplat.labels.read_label_volume`),
+    stored as the label channel (formats/augmented.md §2.1). Returns a summary dict (shape, window, gradient
+    scale, sha256, ``axes_lps``
     or None, ``hounsfield`` (why the data are taken as Hounsfield units, or None), and where spacing and
     orientation came from).
     """
@@ -520,6 +522,7 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
         vol.meta.update(axes_lps=axes, orientation_source="--orientation")
     win, method = resolve_window(window, vol.array, vol.meta, name)
     hounsfield = hounsfield_reason(window, method, vol.array, vol.meta, name)
+    lab = _labels_for(labels, vol, thin_slices)
     if thin_slices:
         from .resample import thin_volume
 
@@ -540,6 +543,8 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
                     f["density"][k0:k1] = d
                     f["gradient_magnitude"][k0:k1] = mag
                     f["normal"][k0:k1] = nrm
+                if lab is not None:
+                    write_labels(f, lab)
                 finish_augmented(f)
     return {"shape_ijk": tuple(reversed(vol.array.shape)), "spacing_ijk": (sl.si, sl.sj, sl.sk),
             "density_window": (sl.lo, sl.hi), "gradient_magnitude_scale": gmax / 255.0, "density_sha256": sha,
@@ -547,7 +552,20 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
             "axes_lps": vol.meta.get("axes_lps"), "source_format": extra["source_format"],
             "spacing_source": vol.meta.get("spacing_source", "the file"),
             "orientation_source": vol.meta.get("orientation_source", f"the {extra['source_format']} header"),
-            "thinned_from": vol.meta.get("thinned_from")}
+            "thinned_from": vol.meta.get("thinned_from"),
+            "labels": None if lab is None else label_counts(lab)}
+
+
+def _labels_for(labels, vol: Volume, thin_slices):
+    """The label map of ``--labels`` (None without), checked against the scan's grid before any work."""
+    if labels is None:
+        return None
+    if thin_slices:
+        raise IsplatError(f"{labels}: --labels with --thin-slices: label ids cannot be interpolated; augment "
+                          f"without --thin-slices (the default, post-classified rendering does not need it)")
+    from .labels import read_label_volume
+
+    return read_label_volume(labels, vol)
 
 
 def _file_attrs(vol: Volume, sl: _Slabber, name: str, hounsfield) -> dict:

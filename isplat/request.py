@@ -70,6 +70,7 @@ class RenderRequest:
     classification: str              # "pre" or "post"
     axes: str                        # the index axes of the views, in i, j, k order
     slab: tuple | None = None        # runs of slices of the one axis, or None: every slice
+    labels: tuple = ()               # the segmentation labels shown (scene_schema.LabelStyle), () for none
 
     @property
     def unit_distance(self) -> float:
@@ -120,7 +121,8 @@ class RenderRequest:
             slab = tuple((int(a), int(b)) for a, b in slice_runs(slices, 1 << 62))
         return cls(source, augmented, None if index is None else Path(index), tuple(int(x) for x in shape),
                    tuple(float(x) for x in spacing), float(gscale), scene.transfer, bool(scene.shading.enabled),
-                   method, scene.render.classification, "".join(sorted(axes)), slab)
+                   method, scene.render.classification, "".join(sorted(axes)), slab,
+                   tuple(getattr(getattr(scene, "labels", None), "shown", ())))
 
 
 def _method(method: str) -> str:

@@ -206,10 +206,10 @@ def _ct_head(shape, seed):
     return vol.astype(np.int16), (1.0, 1.0, 1.0)
 
 
-def _ct_chest(shape, seed):
-    """A chest CT in Hounsfield units: fat and muscle wall, two lungs, heart, contrast-filled aorta, spine."""
+def _ct_chest_items():
+    """The chest's primitives, in painting order (the next paints over the last)."""
     E, C = ELLIPSOID, CYLINDER
-    items = [
+    return [
         (C, (0.0, 0.0, 0.0), (0.90, 1.0), 2, HU["fat"]),                 # body (subcutaneous fat)
         (C, (0.0, 0.0, 0.0), (0.82, 1.0), 2, HU["soft"]),                # chest wall muscle
         (E, (-0.40, 0.0, 0.05), (0.33, 0.55, 0.85), 0, HU["lung"]),      # lungs
@@ -219,7 +219,16 @@ def _ct_chest(shape, seed):
         (C, (0.0, 0.58, 0.0), (0.18, 1.0), 2, HU["bone"]),               # spine
         (C, (0.0, 0.58, 0.0), (0.06, 1.0), 2, HU["csf"]),                # spinal canal
     ]
-    vol = _painted(shape, HU["air"], items)
+
+
+# the ct-chest sample's solids as labels, in the order of _ct_chest_items (the body's fat and the chest wall are
+# ids 1 and 2; LPS: i towards the patient's left, so the lung at -i is the right lung)
+CT_CHEST_LABELS = ("body", "chest_wall", "lung_right", "lung_left", "heart", "aorta", "spine", "spinal_canal")
+
+
+def _ct_chest(shape, seed):
+    """A chest CT in Hounsfield units: fat and muscle wall, two lungs, heart, contrast-filled aorta, spine."""
+    vol = _painted(shape, HU["air"], _ct_chest_items())
     _add_noise(vol, 8.0, seed, -1024.0, 3071.0)
     np.rint(vol, out=vol)
     return vol.astype(np.int16), (1.0, 1.0, 1.5)
@@ -306,6 +315,20 @@ def _two_density_cube(shape, dtype):
     vol[sl] = 100
     vol[sl[0], sl[1], ni // 2:ni - ni // 4] = 200
     return vol.astype(np.float32) / 255 if dtype == "float32" else vol
+
+
+def make_sample_labels(name: str, shape=None) -> tuple[np.ndarray, dict[int, str]]:
+    """The painted solids of sample ``name`` as a label map (uint8 ``[k, j, i]``: each voxel the id of the last
+    solid whose surface, the half-coverage level of the density's edge, contains it; 0 outside all) and the
+    names of the ids. Only ``ct-chest`` has them (:data:`CT_CHEST_LABELS`)."""
+    if name != "ct-chest":
+        raise IsplatError(f"sample {name!r}: --labels: only ct-chest has labelled solids")
+    shape = tuple(int(x) for x in (shape or DEFAULT_SHAPES[name]))
+    items = [(kind, c, h, axis, float(n + 1)) for n, (kind, c, h, axis, _) in enumerate(_ct_chest_items())]
+    ni, nj, nk = shape
+    vol = np.zeros((nk, nj, ni), dtype=np.float32)
+    _paint(vol, *_prims(shape, items), 1e-6)        # an edge of no width: ids are not blended
+    return np.rint(vol).astype(np.uint8), {n + 1: name for n, name in enumerate(CT_CHEST_LABELS)}
 
 
 def make_sample(name: str, shape=None, seed: int = 0, dtype: str | None = None, background: float = 0.0):

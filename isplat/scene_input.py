@@ -155,6 +155,9 @@ def _printable(tree: dict, scene) -> str:
         data["augmented"] = str(scene.data.augmented)
         if scene.data.index is not None:
             data["index"] = str(scene.data.index)
+    labels = out.get("labels")
+    if isinstance(labels, dict) and scene.labels.names is not None:
+        labels["names"] = str(scene.labels.names)        # the names map's path absolute too
     return to_toml(out)
 
 

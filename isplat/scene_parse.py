@@ -615,4 +615,7 @@ def build_scene(ctx: Ctx, tree: dict, data_required: bool = True, density_window
     cuts = _cuts(ctx, tree)
     fps = Table(ctx, ctx.table(tree, ("views",), VIEWS_KEYS), ("views",), defaults(Scene)).number(
         "fps", "expected frames per second, 0 < fps <= 100", lo=0.0, hi=100.0, lo_open=True)
-    return Scene(None, data, image, volume, camera, transfer, shading, cuts, render, views, fps)
+    from .scene_labels import parse_labels
+
+    return Scene(None, data, image, volume, camera, transfer, shading, cuts, render, views, fps,
+                 parse_labels(ctx, tree))

@@ -23,15 +23,18 @@ from typing import Any
 
 __all__ = [
     "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "OLD_DEFAULT_MEANING", "Scene", "Data", "Image", "Volume", "Camera", "Transfer",
-    "Shading", "Light", "Cut", "RenderOptions", "defaults", "default_for", "spacing_problem",
+    "Shading", "Light", "Cut", "RenderOptions", "Labels", "LabelStyle", "defaults", "default_for", "spacing_problem",
 ]
 
-SCENE_VERSION = 5
+SCENE_VERSION = 6
 IDENTITY_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 # keys added by each version after 1: a file that says an older version must not use them
 KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
               ("views", "fps"): 2, ("render", "sheets"): 3,
-              ("render", "classification"): 4, ("render", "supersample"): 4, ("camera", "view"): 5}
+              ("render", "classification"): 4, ("render", "supersample"): 4, ("camera", "view"): 5,
+              ("labels", "names"): 6, ("labels", "show"): 6, ("labels", "opacity"): 6}
+# tables added by a version after 1 (the whole table is new)
+TABLES_SINCE = {"labels": 6}
 # defaults a version changed: (table, key) -> (that version, the default of a file that says an older one)
 DEFAULTS_BEFORE = {("render", "classification"): (4, "pre"), ("camera", "view"): (5, "none"),
                    ("volume", "axes"): (5, IDENTITY_AXES)}
@@ -164,6 +167,30 @@ class RenderOptions:
 
 
 @dataclass(frozen=True)
+class LabelStyle:
+    """A shown segmentation label (docs/labels.md): its id in the augmented file's label channel, colour and
+    opacity (per unit distance, as the transfer function's), its name when a names map gave it."""
+
+    id: int
+    color: Vec3
+    opacity: float = 1.0
+    name: str | None = None
+
+    @property
+    def where(self) -> str:
+        """Where the scene gave it (``FILE:LINE: labels.ID``, for messages about the data; set by the reader,
+        not a field: it is not part of the scene's value)."""
+        return self.__dict__.get("_where", "")
+
+
+@dataclass(frozen=True)
+class Labels:
+    shown: tuple[LabelStyle, ...] = ()   # none: the label channel is not read
+    names: Path | None = None            # the names map (CSV or JSON) the scene named
+    opacity: float = 1.0                 # the opacity of a shown label that gives none
+
+
+@dataclass(frozen=True)
 class Scene:
     path: Path | None
     data: Data
@@ -176,6 +203,7 @@ class Scene:
     render: RenderOptions
     views: tuple[Camera, ...]
     fps: float = 12.0            # frames per second of a GIF or MP4 of the views
+    labels: Labels = Labels()    # segmentation labels shown (scene version 6)
 
 
 @cache
@@ -195,7 +223,9 @@ def default_for(version: Any, cls: type, table: str, key: str) -> Any:
 # --------------------------------------------------------------------------------------------------------------------
 # Known keys per table, and the limits of the checks
 
-TOP_KEYS = ("version", "data", "image", "volume", "camera", "transfer", "shading", "cut", "render", "views")
+TOP_KEYS = ("version", "data", "image", "volume", "camera", "transfer", "shading", "cut", "render", "views", "labels")
+LABELS_KEYS = ("names", "show", "opacity")   # and one sub-table per shown label: [labels.ID] or [labels.NAME]
+LABEL_KEYS = ("color", "opacity")
 DATA_KEYS = ("augmented", "index")
 IMAGE_KEYS = ("width", "height", "background", "bit_depth")
 VOLUME_KEYS = ("spacing", "origin", "axes")

@@ -143,11 +143,12 @@ class Selection:
     report: LoadReport = field(default_factory=LoadReport)
     slab: tuple | None = None              # (axis, c0, c1): ``whole`` holds only these slices (post, a slab)
     request: object = field(default=None, repr=False)   # the RenderRequest it was made from
+    labels: object = None                  # label_select.LabelSelection: the labels shown, or None
 
     @property
     def empty(self) -> bool:
-        """True when the transfer function makes every density transparent."""
-        return len(self.luts.intervals) == 0
+        """True when the transfer function makes every density transparent and no label is shown."""
+        return len(self.luts.intervals) == 0 and not _shows_labels(self.request)
 
     def voxels(self, axis: str):
         """The kernel's view of the voxels of ``axis``: IndexedVoxels or WholeVolume."""
@@ -204,9 +205,16 @@ class Selection:
         return select_arrays(req, chans)
 
 
+def _shows_labels(request) -> bool:
+    return bool(getattr(request, "labels", ()))
+
+
 def select_arrays(request, chans: dict) -> Selection:
     """The selection of ``request`` from channels in memory (``{channel: array [k, j, i]}``, the channels the
     request uses): the index built in memory (:func:`isplat.index.memory.load_axis_in_memory`)."""
+    if _shows_labels(request):
+        raise IsplatError("labels are shown from an augmented file with a label channel (isplat augment "
+                          "--labels), not from arrays in memory")
     sel = _empty_selection(request)
     if not sel.use_gm and "gradient_magnitude" in sel.report.channels and chans.get("gradient_magnitude") is None:
         sel.report.channels.remove("gradient_magnitude")    # only the shading's weights: optional (splat.post)
@@ -224,7 +232,7 @@ def select_arrays(request, chans: dict) -> Selection:
 def _empty_selection(request) -> Selection:
     """A selection of ``request`` with nothing selected yet: its tables, what it reads, its report."""
     luts = build_luts(request.transfer, request.gradient_magnitude_scale)
-    empty = len(luts.intervals) == 0
+    empty = len(luts.intervals) == 0 and not _shows_labels(request)
     sel = Selection(request.method, request.shape, request.spacing_ijk, luts, request.unit_distance,
                     request.shading and not empty, luts.gradient is not None and not empty, request.post,
                     request=request)
@@ -247,14 +255,15 @@ def _whole(sel: Selection, read) -> WholeChannels:
     return WholeChannels(whole["density"], whole.get("gradient_magnitude", _EMPTY_U8), whole.get("normal", _EMPTY_U16))
 
 
-def _select(sel: Selection, loaded: dict, gather, source: str) -> None:
+def _select(sel: Selection, loaded: dict, gather, source: str, intervals=None) -> None:
     """Select the voxels of every loaded axis (``{axis: LoadedAxis}``) and gather their channel values with
     ``gather(loaded, channels, shape)`` (:func:`gather_channels` or :func:`gather_from_index`); none when the
-    selection is post-classified (its frames read the whole channels)."""
+    selection is post-classified (its frames read the whole channels). ``intervals``: the codes the loaded blocks
+    are selected by, when not the transfer function's (labels: :mod:`isplat.label_select`)."""
     from .splat.select import select_voxels
 
     channels = [] if sel.post else [ch for ch in sel.report.channels if ch != "density"]
-    ivs = sel.luts.intervals.astype(np.int64)
+    ivs = (sel.luts.intervals if intervals is None else np.asarray(intervals)).astype(np.int64).reshape(-1, 2)
     picked = {}
     for ax, la in loaded.items():
         if max(la.n_a, la.n_b) > MAX_IN_SLICE:
@@ -394,6 +403,10 @@ def select(request, aug=None, idx=None) -> Selection:
     from .augfile import open_augmented
 
     aug = aug or open_augmented(request.augmented)
+    if _shows_labels(request):
+        from .label_select import select_labels
+
+        return select_labels(request, aug)
     sel = _empty_selection(request)
     axes, slices = request.axes, request.slices
     sel.report.axes = sorted(axes)
@@ -514,6 +527,9 @@ def _open_matching_index(request, aug, idx=None):
         raise IsplatError("scene: data.index is required for render.method = 'indexed'")
     idx = idx or open_index(request.index)
     index = request.index
+    if getattr(idx, "channel", "density") != "density":
+        raise IsplatError(f"{index}: an index of the {idx.channel}, not of the density; data.index names the "
+                          f"density's index (NAME.idx.h5)")
     if tuple(idx.shape) != tuple(aug.shape) or idx.density_sha256 != aug.density_sha256:
         raise IsplatError(f"{index}: index was built from another volume "
                           f"(density_sha256 {idx.density_sha256[:12]}..., {aug.path.name} has "

@@ -223,6 +223,9 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_ind
     r = Renderer(scene, (scene.views[view],), slabs=1)      # the whole selection: its held bytes are reported
     _, st = r.render_view(0)
     rep = r.report
+    labels = _labels_entry(scene, aug)
+    if labels:                  # the voxels of the shown labels are of interest too (isplat.label_select)
+        voi, source = int(rep.voxels_of_interest), "labels and augmented density"
     decoded = int(rep.index_decoded_bytes)
     held = r.held_bytes()
     return {
@@ -260,7 +263,15 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_ind
             "held_bytes": int(held),
             "held_bytes_per_voxel_of_interest": _ratio(held, voi),
         },
+        "labels": labels,
     }, scene
+
+
+def _labels_entry(scene, aug) -> list:
+    """The scene's shown labels with their voxels in the file (``[]`` without labels)."""
+    counts = aug.label_voxels if aug.has_labels else np.zeros(0, np.int64)
+    return [{"id": st.id, "name": st.name, "voxels": int(counts[st.id]) if st.id < counts.shape[0] else 0}
+            for st in scene.labels.shown]
 
 
 def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> dict:
@@ -386,6 +397,8 @@ def format_table(s: dict) -> str:
         if sc["intervals"]:
             row("  in input units", ", ".join(f"{lo:g}..{hi:g}" for lo, hi in sc["intervals_input_units"]))
         row("voxels of interest", f"{sc['voxels_of_interest']:,} (counted from the {sc['ratio_source']})")
+        for lab in sc.get("labels") or []:
+            row(f"  label {lab['id']}{' ' + lab['name'] if lab['name'] else ''}", f"{lab['voxels']:,} voxels")
         row("spatial ratio", f"{sc['spatial_ratio']:.4f}")
         row("view axis", f"{sc['axis']} ({sc['slices']} slices composited)")
         row("voxels examined", f"{sc['voxels_examined']:,}")

@@ -226,6 +226,19 @@ def test_valid_example_decodes_to_expected_values():
     assert density_sha256(aug.read("density")) == exp["density_sha256"]
     assert aug.axes_lps.tolist() == exp["axes_lps"]
     assert exp["normal"][0][0][0] == N.NO_NORMAL
+    assert aug.format_version == 4 and aug.read("labels").tolist() == exp["labels"]
+    assert aug.label_voxels.tolist() == exp["label_voxels"]
+    from isplat.index.labels import open_label_index, shown_ids_volume
+
+    li = open_label_index(EXAMPLES / "valid.labels.idx.h5", aug)       # the index of its labels (index format 5)
+    assert li.version == 5 and li.channel == "labels" and li.density_ranges == [(1, 2)]
+    lab = np.asarray(exp["labels"])
+    for axis in "ijk":
+        for shown in ([1], [2], [1, 2]):
+            ids, _ = shown_ids_volume(li, axis, shown, aug.shape)
+            assert ids.tolist() == np.where(np.isin(lab, shown), lab, 0).reshape(-1).tolist()
+    old = open_augmented(EXAMPLES / "valid-v3.aug.h5")             # version 3: read, without labels
+    assert old.format_version == 3 and not old.has_labels and old.read("density").tolist() == exp["density"]
 
 
 @pytest.mark.parametrize("name,what", [("invalid-wrong-version.aug.h5", "format_version"),
@@ -238,11 +251,12 @@ def test_valid_example_decodes_to_expected_values():
                                        ("invalid-edited-value.aug.h5", "dataset 'density', chunk at \\(0, 0, 0\\): "
                                                                        ".* rebuild it: isplat augment"),
                                        ("invalid-flipped-bit.aug.h5", "'normal'.*Fletcher-32"),
-                                       ("invalid-axes-lps.aug.h5", "'axes_lps'.*orthonormal")])
+                                       ("invalid-axes-lps.aug.h5", "'axes_lps'.*orthonormal"),
+                                       ("invalid-label-id.aug.h5", "'labels' holds id 7, expected ids below 3")])
 def test_invalid_examples_refused(name, what):
     with pytest.raises(IsplatError, match=what):
         aug = open_augmented(EXAMPLES / name)
-        for ch in ("density", "gradient_magnitude", "normal"):
+        for ch in ("density", "gradient_magnitude", "normal") + (("labels",) if aug.has_labels else ()):
             aug.read(ch)
 
 

@@ -348,20 +348,23 @@ def _spec_key(f, datasets, attributes) -> bytes:
     return h.digest()
 
 
-@pytest.mark.parametrize("rel", ["augmented/valid.aug.h5", "index/gaps.idx.h5", "index/gaps.novalues.idx.h5"])
+@pytest.mark.parametrize("rel", ["augmented/valid.aug.h5", "augmented/valid-v3.aug.h5", "index/gaps.idx.h5",
+                                 "index/gaps.novalues.idx.h5", "augmented/valid.labels.idx.h5"])
 def test_chunk_hashes_follow_the_spec(rel):
     """Every row of every table of the committed examples, recomputed from the spec's text (not isplat's code)."""
     import hashlib
 
     aug_attrs = ["format", "format_version", "shape", "spacing_ijk", "density_window", "gradient_magnitude_scale",
                  "density_sha256", "source", "source_format", "source_dtype", "density_window_method",
-                 "density_units", "density_clipped_fraction", "axes_lps"]
+                 "density_units", "density_clipped_fraction", "axes_lps", "labels_sha256"]
     with h5py.File(EXAMPLES / rel, "r") as f:
-        if rel.startswith("augmented"):
+        if rel.startswith("augmented") and not rel.endswith(".idx.h5"):
             datasets, attributes = ["density", "gradient_magnitude", "normal"], [("", n) for n in aug_attrs]
+            datasets += ["labels", "label_voxels"] if "labels" in f else []
         else:
             datasets = [f"values/{n}" for n in ("density_voxel_ptr", "gradient_magnitude", "normal") if "values" in f]
             attributes = [("", n) for n in ("format", "format_version", "shape", "density_sha256", "density_ranges")]
+            attributes += [("", n) for n in ("channel", "labels_sha256") if "channel" in f.attrs]   # version 5
             attributes += [("values", n) for n in ("spacing_ijk", "gradient_magnitude_scale") if "values" in f]
             for a in "ijk":
                 if a in f["axes"]:

@@ -286,7 +286,7 @@ def test_version_must_be_integer_one(value):
 
 
 def test_version_is_checked_before_unknown_keys():
-    assert "version = 6: this isplat reads scene versions 1 to 5" in error("version = 6\n" + BASE + "[future]\nx = 1\n")
+    assert "version = 7: this isplat reads scene versions 1 to 6" in error("version = 7\n" + BASE + "[future]\nx = 1\n")
 
 
 @pytest.mark.parametrize("key, table", [("units", "transfer"), ("preset", "transfer"), ("frames", "views"),
@@ -327,7 +327,7 @@ fov = 1
 '''
     # a multi-line string that looks like a table: the locator must not be fooled
     assert error(text + BASE) == \
-        "s.toml:1: unknown key 'title' (known top-level keys: camera, cut, data, image, render, shading, " \
+        "s.toml:1: unknown key 'title' (known top-level keys: camera, cut, data, image, labels, render, shading, " \
         "transfer, version, views, volume)"
 
 

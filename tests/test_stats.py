@@ -166,7 +166,7 @@ def test_json_keys(vol, capsys):
             "block_bytes_per_voxel", "decoded_bytes"} == set(s["index"]["per_axis"]["k"])
     assert {"path", "view", "method", "projection", "image", "intervals", "intervals_input_units", "ratio_source",
             "voxels_of_interest", "spatial_ratio", "axis", "slices", "voxels_examined", "classification",
-            "voxels_splatted", "splatted_ratio", "samples", "render_seconds", "loaded"} == set(s["scene"])
+            "voxels_splatted", "splatted_ratio", "samples", "render_seconds", "loaded", "labels"} == set(s["scene"])
     assert {"channels", "axes", "augmented_bytes", "index_bytes", "bytes", "index_decoded_bytes", "held_bytes",
             "augmented_fraction", "index_fraction", "files_bytes", "files_fraction", "values_from",
             "augmented_file_bytes_read", "index_file_bytes_read", "file_bytes_read", "bytes_needed", "read_ratio",

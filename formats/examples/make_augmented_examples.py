@@ -35,6 +35,22 @@ def example_volume() -> np.ndarray:
     return (30.0 * i * j + 40.0 * k * (j == 2)).astype(np.float32)
 
 
+def example_labels() -> np.ndarray:
+    """labels[k, j, i] = 1 + (i >= 2) in slice k = 1, 0 in slice k = 0 (uint8: ids 0, 1, 2)."""
+    ni, nj, nk = SHAPE_IJK
+    k, j, i = np.meshgrid(np.arange(nk), np.arange(nj), np.arange(ni), indexing="ij")
+    return ((k == 1) * (1 + (i >= 2))).astype(np.uint8)
+
+
+def _rehash(f) -> None:
+    """Recompute the chunk hashes of open file ``f`` (an edit made as a writer would)."""
+    from isplat.augfile import finish_augmented
+
+    del f["chunk_hashes"]
+    del f.attrs["chunk_hash_check"]
+    finish_augmented(f)
+
+
 def build(out_dir: Path) -> list[Path]:
     """Write the valid and invalid examples and the expected values into ``out_dir``; return the paths."""
     out_dir = Path(out_dir)
@@ -46,7 +62,7 @@ def build(out_dir: Path) -> list[Path]:
     args = (aug["density"], aug["gradient_magnitude"], aug["normal"], aug["spacing_ijk"],
             aug["density_window"], aug["gradient_magnitude_scale"])
     valid = out_dir / "valid.aug.h5"
-    write_augmented(valid, *args, extra_attrs=extra)
+    write_augmented(valid, *args, extra_attrs=extra, labels=example_labels())
     # the tool version would make the file change with every release; pin it for the committed example
     with h5py.File(valid, "a") as f:
         set_string_attr(f, "created_by", "isplat 0.1.0")
@@ -54,8 +70,30 @@ def build(out_dir: Path) -> list[Path]:
     wrong_version = out_dir / "invalid-wrong-version.aug.h5"
     write_augmented(wrong_version, *args, extra_attrs=extra)
     with h5py.File(wrong_version, "a") as f:
-        f.attrs["format_version"] = np.int64(4)
+        f.attrs["format_version"] = np.int64(5)
         set_string_attr(f, "created_by", "isplat 0.1.0")
+
+    from isplat.augfile import open_augmented
+    from isplat.index.labels import build_label_index_file
+
+    label_index = out_dir / "valid.labels.idx.h5"    # the index of valid.aug.h5's labels (formats/index.md §10)
+    build_label_index_file(open_augmented(valid), label_index, "ijk", force=True)
+    with h5py.File(label_index, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+
+    v3 = out_dir / "valid-v3.aug.h5"                 # version 3 (no labels): still read
+    write_augmented(v3, *args, extra_attrs=extra)
+    with h5py.File(v3, "a") as f:
+        f.attrs["format_version"] = np.int64(3)
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+        _rehash(f)
+
+    bad_label = out_dir / "invalid-label-id.aug.h5"   # a label id beyond label_voxels, hashes recomputed
+    write_augmented(bad_label, *args, extra_attrs=extra, labels=example_labels())
+    with h5py.File(bad_label, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+        f["labels"][1, 2, 3] = 7
+        _rehash(f)
 
     wrong_name = out_dir / "invalid-wrong-format.aug.h5"
     write_augmented(wrong_name, *args, extra_attrs=extra)
@@ -118,6 +156,9 @@ def build(out_dir: Path) -> list[Path]:
         "gradient_magnitude": aug["gradient_magnitude"].tolist(),
         "normal": nrm.tolist(),
         "normal_decoded": np.round(normals.decode(nrm).astype(np.float64), 6).tolist(),
+        "labels": example_labels().tolist(),
+        "label_voxels": np.bincount(example_labels().reshape(-1)).tolist(),
+        "read": ["valid-v3.aug.h5"],
         "refused": {
             "invalid-wrong-version.aug.h5": "format_version",
             "invalid-wrong-format.aug.h5": "format",
@@ -127,11 +168,13 @@ def build(out_dir: Path) -> list[Path]:
             "invalid-axes-lps.aug.h5": "axes_lps",
             "invalid-version-2.aug.h5": "format_version",
             "invalid-edited-value.aug.h5": "chunk at (0, 0, 0)",
+            "invalid-label-id.aug.h5": "labels",
         },
     }
     exp = out_dir / "valid.expected.json"
     exp.write_text(json.dumps(expected, indent=1) + "\n")
-    return [valid, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes, exp]
+    return [valid, label_index, v3, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes,
+            bad_label, exp]
 
 
 if __name__ == "__main__":

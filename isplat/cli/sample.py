@@ -64,6 +64,26 @@ def write_sample(arr: np.ndarray, spacing_ijk, out: str, force: bool, orientatio
     return shlex.join(cmd)
 
 
+def _write_labels(name: str, shape, out: str, force: bool) -> None:
+    """The sample's label map at ``out`` (.npy) and its names at ``out`` with .json."""
+    import json
+
+    from ..samples import make_sample_labels
+
+    if not out.lower().endswith(".npy"):
+        raise IsplatError(f"{out}: --labels writes a .npy label map")
+    names_out = out[:-4] + ".json"
+    check_output(out, force)
+    check_output(names_out, force)
+    lab, names = make_sample_labels(name, shape)
+    with atomic_output(out, force) as tmp, open(tmp, "wb") as fh:
+        np.save(fh, lab)
+    with atomic_output(names_out, force) as tmp:
+        tmp.write_text(json.dumps({str(k): v for k, v in names.items()}, indent=1) + "\n")
+    log.info(f"isplat sample: wrote {out} (labels {', '.join(f'{k} {v}' for k, v in names.items())}) and "
+             f"{names_out} (their names)")
+
+
 @click.command(epilog=f"\b\nSamples (dtype, default NI,NJ,NK):\n{_NAME_HELP}")
 @click.argument("name", metavar="NAME", type=click.Choice(NAMES))
 @click.option("-o", "--output", "out", required=True, metavar="FILE",
@@ -75,9 +95,12 @@ def write_sample(arr: np.ndarray, spacing_ijk, out: str, force: bool, orientatio
 @click.option("--background", type=float, default=0.0, metavar="VALUE",
               help="mr-head: raise every voxel by VALUE and widen the air's noise to VALUE/8 (a background that is "
                    "not zero, as the MNI152 template's 350-550).")
+@click.option("--labels", "labels", metavar="FILE.npy", default=None,
+              help="ct-chest: also write its painted solids as a label map (uint8 [k,j,i]) and their names beside "
+                   "it (FILE.json), for isplat augment --labels and a scene's [labels] (docs/labels.md).")
 @force_option
 @quiet_option
-def sample(name, out, shape, seed, dtype, background, force):
+def sample(name, out, shape, seed, dtype, background, force, labels):
     """Write the synthetic volume NAME to FILE and print the `isplat augment` command that reads it back.
 
     \b
@@ -101,7 +124,11 @@ def sample(name, out, shape, seed, dtype, background, force):
     """
     shp = parse_triple(shape, "--shape", int) if shape else None
     arr, spacing = make_sample(name, shp, seed, dtype, background)
+    if labels is not None:
+        _write_labels(name, shp, labels, force)
     cmd = write_sample(arr, spacing, out, force, ORIENTATIONS.get(name))
+    if labels is not None:
+        cmd += f" --labels {shlex.quote(labels)}"
     log.info(f"isplat sample: wrote {out} ({name}, {arr.dtype}, NI,NJ,NK={','.join(map(str, arr.shape[::-1]))}, "
              f"spacing {','.join(_fmt(s) for s in spacing)})")
     click.echo(cmd)

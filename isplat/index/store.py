@@ -25,7 +25,9 @@ from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry
 
 FORMAT_NAME = "isplat-index"
 FORMAT_VERSION = 4              # version 4: + /chunk_hashes (a keyed hash per chunk); /values OPTIONAL
-OLDER_VERSIONS = ()             # versions 2 and 3 (no chunk hashes) are refused with the command that rebuilds them
+OLDER_VERSIONS = (5,)           # versions 2 and 3 (no chunk hashes) are refused with the command that rebuilds them
+FORMAT_VERSION_LABELS = 5       # version 5: an index of the labels (@channel = "labels", @labels_sha256; §10),
+                                # read beside version 4 (the density index, unchanged)
 DATASET_DTYPES = {
     "density_entry_ptr": "<i8",
     "entry_slice": "<u4",
@@ -142,6 +144,8 @@ def hashed_layout(f: h5py.File):
     when present, then the present axes in i, j, k order, each dataset in the order of the spec's tables."""
     datasets, attrs = [], [("", n) for n in ("format", "format_version", "shape", "density_sha256",
                                               "density_ranges")]
+    if "channel" in f.attrs:            # version 5 (formats/index.md §10)
+        attrs += [("", "channel"), ("", "labels_sha256")]
     if "values" in f:
         datasets += [f"values/{n}" for n in VALUE_DTYPES]
         attrs += [("values", "spacing_ijk"), ("values", "gradient_magnitude_scale")]
@@ -225,7 +229,8 @@ def copy_values(f: h5py.File, aug, density: np.ndarray | None, ranges, budget: i
 
 
 def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False,
-                     values: bool = True, budget: int = BUILD_BUDGET, slab_voxels: int | None = None) -> Path:
+                     values: bool = True, budget: int = BUILD_BUDGET, slab_voxels: int | None = None,
+                     labels: bool = True) -> Path:
     """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), with the indexed
     voxels' channel values in density order (formats/index.md §9); ``values=False`` writes no ``/values``
     (as isplat's format version 2 did), still of format version 4 with chunk hashes.
@@ -233,12 +238,19 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
     Streams: the density is read in k-slabs (of about ``slab_voxels``), never whole. One pass measures every
     axis's blocks (which fixes the tables); then each axis's byte stream is encoded and written in windows of
     at most ``budget`` bytes, one pass over the slabs per window (docs/design.md, "isplat index streams"), and
-    the values likewise. The file equals that of :func:`write_index` on the in-memory build."""
+    the values likewise. The file equals that of :func:`write_index` on the in-memory build. With ``labels`` and
+    an augmented file with labels, the index of the labels is written beside (:mod:`isplat.index.labels`)."""
     from ..augfile import open_augmented
+    from .labels import build_label_index_file, label_index_path
 
     axes = parse_axes(axes)
     ranges = normalize_ranges(ranges)
     aug = open_augmented(aug_path)
+    labels = labels and aug.has_labels
+    if labels:
+        from ..fileio import check_output
+
+        check_output(label_index_path(out_path), force)     # before any work
     for a in axes:
         escape_width(*axis_geometry(aug.shape, a)[1:])     # refuse impossible sizes before any work
     slabs = k_slabs(aug.shape[0], aug.shape[1] * aug.shape[2], **({} if slab_voxels is None else
@@ -259,6 +271,8 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
                     del window                           # before the next window is made
                 del lay
             finish_index(f)
+    if labels:
+        build_label_index_file(aug, label_index_path(out_path), axes, force)
     return Path(out_path)
 
 
@@ -330,6 +344,7 @@ class IndexFile:
         self._meta = axes_meta
         self.attrs = attrs
         self.version = int(version)
+        self.channel = "density"       # "labels": an index of the label channel (version 5, formats/index.md §10)
         self.values = values
         self.io = io if io is not None else ReadCounter()
         self.verifier = verifier       # isplat.chunkhash.Verifier: checks each chunk read
@@ -701,10 +716,29 @@ def open_index(path) -> IndexFile:
                 raise IsplatError(f"{p}: unknown axis group '/axes/{name}'; expected i, j or k")
             meta[name] = _check_axis_group(p, f["axes"][name], name, shape)
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
+        channel = _check_channel(p, a, version, values)
         datasets, hashed = hashed_layout(f)
         verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed),
                                            _rebuild_hint(p, f))
-    return IndexFile(p, shape, sha, ranges, meta, attrs, version, values, counter, verifier)
+    idx = IndexFile(p, shape, sha, ranges, meta, attrs, version, values, counter, verifier)
+    idx.channel = channel
+    return idx
+
+
+def _check_channel(p, a, version: int, values) -> str:
+    """What the index indexes: ``"density"`` (version 4) or ``"labels"`` (version 5, formats/index.md §10: the
+    attributes ``channel`` and ``labels_sha256``, no ``/values``)."""
+    if version < FORMAT_VERSION_LABELS:
+        return "density"
+    check_string_attrs(p, a, ("channel", "labels_sha256"))
+    channel, sha = attr_string(a, "channel"), attr_string(a, "labels_sha256")
+    if channel != "labels":
+        raise IsplatError(f"{p}: attribute 'channel' is {channel!r}, expected 'labels' (format version 5)")
+    if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+        raise IsplatError(f"{p}: attribute 'labels_sha256' is not 64 lower-case hex digits")
+    if values is not None:
+        raise IsplatError(f"{p}: an index of the labels has no '/values'")
+    return channel
 
 
 def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:

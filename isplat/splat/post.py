@@ -45,6 +45,7 @@ import numpy as np
 
 from ..jit import leaf, prefetch, stage
 from .composite import TILE
+from .labels import sample_label
 from .select import BLOCK, CELL
 from .traverse import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, box_args, build_sat, cut_away, indexed_source,
                        max_cells, path_alpha, rect_hull, register, slice_bases, slice_regions, source_scratch,
@@ -60,13 +61,15 @@ AHEAD = 1                 # squares prefetched ahead of the one sampled (_sample
 # False: by the bilinear weight only, as before (python -m benchmarks thick renders both; docs/thick-slices.md)
 WEIGHTED_SHADING = True
 
-PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade")
+PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
 float64[256, 2G] (opacities per density and gradient code, corrected for the slice's path length when
 orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next code) and ``color`` float64[256, 6]
 (:func:`lerp_tables`); ``shade`` float32[65536, 2 or 6] Phong factors per normal code
 (:mod:`isplat.splat.shade`); ``use_shade`` 0 unshaded, 1 the corners' Phong factors weighted bilinearly, 2
-weighted by the bilinear weights times the corners' gradient magnitude codes (:data:`WEIGHTED_SHADING`)."""
+weighted by the bilinear weights times the corners' gradient magnitude codes (:data:`WEIGHTED_SHADING`);
+``lab`` the segmentation labels shown (:mod:`isplat.splat.labels`: the label
+channel, the colour table, steps; empty without labels)."""
 PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
@@ -96,7 +99,7 @@ def plan(tables):
     whole = sel.whole_volume(tables.axis)
     # 2: the corners' Phong factors weighted by their gradient magnitudes too (_sample), when those were read
     shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
-    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading)
+    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables))
     ex, ey = reach(tables.proj.coef)
     tent = (float(ex), float(ey))
     source = whole if sel.method == "full" else \
@@ -104,6 +107,18 @@ def plan(tables):
     n_cells = max_cells(sel, tables.axis)
     lists = [np.empty((n_cells, 4), np.int64) for _ in range(tables.threads)]
     return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent), lists, None
+
+
+def _labels_of(tables):
+    """The frame's ``lab`` tuple (:mod:`isplat.splat.labels`): the selection's labels with their opacities
+    corrected for this view's path length, or none."""
+    from .labels import frame_table, no_labels
+
+    lab = getattr(tables.sel, "labels", None)
+    if lab is None:
+        return no_labels()
+    r = None if tables.geo.persp else float(tables.proj.ds / tables.unit)
+    return lab.ids, frame_table(lab.table, tables.geo.persp, r), lab.frame_steps(tables.axis), lab.normals
 
 
 @stage
@@ -189,7 +204,7 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, b
     voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c)
     inv = _ortho_inverse(base, geo.coef)
     _sample_squares(todo, nt, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
-                    cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts)
+                    cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts, cls.lab)
     for t in range(nm):
         mark[marked[t]] = 0
     for t in range(ns):
@@ -270,7 +285,7 @@ def _plan_squares(squares, ns, smark, mark, nca, ncb, unit, todo):
 
 @leaf(inline="always")
 def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
-                    sat, tile_sat, band, counts):
+                    sat, tile_sat, band, counts, lab):
     """Sample the squares and cells ``todo[:nt]`` (:func:`_sample_square`). One call per slice: the per-square
     stage is inlined here, since handing a stage this many arrays costs more than a small square."""
     for t in range(min(nt, AHEAD)):
@@ -279,7 +294,7 @@ def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shad
         if t + AHEAD < nt:          # the voxels of squares ahead come from memory while this one is sampled
             _prefetch_square(todo[t + AHEAD, 1], todo[t + AHEAD, 2], todo[t + AHEAD, 3], voxel, use_gm, use_shade)
         _sample_square(todo[t, 0], todo[t, 1], todo[t, 2], todo[t, 3], mark, voxel, alpha, color, shade, use_gm,
-                       use_shade, base, cs, geo, inv, img, sat, tile_sat, band, counts)
+                       use_shade, base, cs, geo, inv, img, sat, tile_sat, band, counts, lab)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
@@ -308,7 +323,7 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
 
 @leaf(forceinline=True)
 def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
-                   sat, tile_sat, band, counts):
+                   sat, tile_sat, band, counts, lab):
     """Sample the quads of square ``sq`` (``unit`` voxels a side, from voxel (a0, b0); a cell's index when
     ``unit`` is a cell) that their cells' flags ask for, at the pixels
     whose point on the slice plane lies in them (each pixel of the slice falls in one quad), and composite the
@@ -366,9 +381,16 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                     continue                # a quad no voxel of interest touches
             if geo.cuts.shape[0] > 0 and cut_away(u, v, geo.cuts, cs):
                 continue
-            done = _sample(x, y, max(u - qa, 0.0), max(v - qb, 0.0), cbase + qa * strides[0] + qb * strides[1],
-                           strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v, density, gm,
-                           nrm, alpha, color, shade, use_gm, use_shade, base, geo, img, sat, tile_sat, et)
+            fu, fv = max(u - qa, 0.0), max(v - qb, 0.0)
+            done = 0            # a shown label's sample in front of the density's (isplat.splat.labels)
+            if lab[0].shape[0] > 0:
+                done = sample_label(x, y, fu, fv, qa, qb, c, u, v, lab, n_a, n_b, shade, use_shade, base, geo, img,
+                                    sat, tile_sat, et)
+            if done < 2:
+                done = max(done, _sample(x, y, fu, fv, cbase + qa * strides[0] + qb * strides[1],
+                                         strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v,
+                                         density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo, img,
+                                         sat, tile_sat, et))
             drawn += done > 0
             newly += done > 1
     counts[0] += drawn

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import scene_text, write_volume
+from isplat.scene_schema import SCENE_VERSION
 
 
 def run(*args, cwd=None, input=None):
@@ -126,7 +127,7 @@ def test_an_old_version_says_once_which_defaults_it_keeps(data):
     assert res.returncode == 0, res.stderr
     notes = [ln for ln in res.stderr.decode().splitlines() if "keeps version-1 defaults" in ln]
     assert len(notes) == 1 and notes[0].startswith("orbit_v1.toml: version = 1 keeps version-1 defaults: "), notes
-    assert 'render.classification = "pre"' in notes[0] and "say version = 5" in notes[0]
+    assert 'render.classification = "pre"' in notes[0] and f"say version = {SCENE_VERSION}" in notes[0]
     assert "4 views, pre-classified" in res.stderr.decode()
     res = run("render", "orbit.toml", "-o", "v5.gif", cwd=data)
     assert res.returncode == 0 and b"keeps version-" not in res.stderr and b"post-classified" in res.stderr

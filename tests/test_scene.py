@@ -538,7 +538,9 @@ def test_old_defaults_note_names_what_an_old_version_keeps(text, kept):
         return
     v = text.split("\n")[0].split("= ")[1]
     assert note.startswith(f"s.toml: version = {v} keeps version-{v} defaults: ") and "\n" not in note
-    assert note.endswith("say version = 5 for the current defaults")
+    from isplat.scene_schema import SCENE_VERSION
+
+    assert note.endswith(f"say version = {SCENE_VERSION} for the current defaults")
     for k in kept:
         assert k in note
     assert ("render.classification" in note) == any(k.startswith("render.") for k in kept)

@@ -571,7 +571,7 @@ def old_defaults_note(tree: dict, source_name: str) -> str | None:
     >>> print(old_defaults_note({"version": 1}, "head.toml"))   # doctest: +NORMALIZE_WHITESPACE
     head.toml: version = 1 keeps version-1 defaults: render.classification = "pre" (the paper's splatting),
     camera.view = "none" (the orbit about camera.up, not the anatomical front), volume.axes = identity (grid
-    space, not the file's patient orientation); say version = 5 for the current defaults
+    space, not the file's patient orientation); say version = 6 for the current defaults
     >>> old_defaults_note({"version": 4, "camera": {"up": [0, 0, 1]}, "volume": {"axes": [[1, 0, 0]] * 3}}, "s")
     >>> old_defaults_note({}, "s") is None and old_defaults_note({"version": 5}, "s") is None
     True

@@ -490,6 +490,19 @@ def _mode(ctx: Ctx, t: Table, classification: str, sheets: str) -> tuple[str, st
     return mode, color
 
 
+def _not_applied(ctx: Ctx, tree: dict, render: RenderOptions) -> None:
+    """One warning line per key the scene gives that an intensity projection does not use (shading, early
+    termination, the footprint's keys: it reconstructs with the tent and finishes pixels by their bound)."""
+    if render.mode == "composite":
+        return
+    given = [("shading",)] if "shading" in tree else []
+    given += [("render", k) for k in ("early_termination", "footprint_radius", "footprint_sigma", "footprint_table")
+              if k in (tree.get("render") or {})]
+    for path in given:
+        log.warning(f"isplat: warning: {ctx.where(path)}: {dotted(path)} does not apply to render.mode = "
+                    f'"{render.mode}" (ignored)')
+
+
 def _window(ctx: Ctx, tree: dict, render: RenderOptions, units: str, conv: "_Units") -> RenderOptions:
     """``render.window`` (an intensity projection's grey ramp: [LO, HI] in the transfer function's units, or a
     named window of isplat augment, in Hounsfield units) as density codes; absent: the whole range, 0..255."""
@@ -616,6 +629,7 @@ def build_scene(ctx: Ctx, tree: dict, data_required: bool = True, density_window
     transfer = _transfer(ctx, tree, data, conv)
     render = _window(ctx, tree, render, transfer.units, conv)
     shading = _shading(ctx, tree)
+    _not_applied(ctx, tree, render)
     cuts = _cuts(ctx, tree)
     fps = Table(ctx, ctx.table(tree, ("views",), VIEWS_KEYS), ("views",), defaults(Scene)).number(
         "fps", "expected frames per second, 0 < fps <= 100", lo=0.0, hi=100.0, lo_open=True)

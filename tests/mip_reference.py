@@ -83,3 +83,58 @@ def grey(held, background, window=(0.0, 255.0)):
     out[..., :3] = np.where(np.isnan(held)[..., None], np.asarray(background[:3], float), g[..., None])
     out[..., 3] = 1.0
     return out
+
+
+def mip_reference_vectorized(density, view, interest, mode="mip", cuts=()):
+    """The same as :func:`mip_reference` (float64 (H, W), NaN where no sample) with the pixels of a slice at once
+    (numpy), for benchmark sizes; ``interest`` bool[256]: the densities of non-zero opacity. The same obvious
+    steps: every slice, every pixel, no skipping."""
+    frame, geom = view.frame, view.geom
+    axis, _ = C.principal_axis(frame, geom)
+    ia, ib, ic = C.SLICE_AXES[axis]
+    n_ijk = density.shape[::-1]
+    n_a, n_b = n_ijk[ia], n_ijk[ib]
+    persp = frame.projection == "perspective"
+    to_grid = geom.unit_axes / geom.spacing[:, None]
+    W, H = frame.width, frame.height
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    P = (frame.p + ((xs - (W / 2.0 - 0.5)) * frame.pixel_size)[..., None] * frame.u
+         - ((ys - (H / 2.0 - 0.5)) * frame.pixel_size)[..., None] * frame.v)
+    if persp:
+        d = P - frame.e
+        o = np.broadcast_to(frame.e, P.shape)
+    else:
+        d = np.broadcast_to(-frame.w, P.shape)
+        o = P
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    og, dg = (o - geom.q) @ to_grid.T, d @ to_grid.T
+    sign = 1.0 if mode == "mip" else -1.0
+    best = np.full((H, W), -np.inf)
+    ok_ray = np.abs(dg[..., ic]) >= 1e-15
+    for c in range(n_ijk[ic]):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (c - og[..., ic]) / dg[..., ic]
+        g = og + t[..., None] * dg
+        u, v = g[..., ia], g[..., ib]
+        ok = ok_ray & (u >= -0.5) & (u < n_a - 0.5) & (v >= -0.5) & (v < n_b - 0.5)
+        if persp:
+            ok &= t * (-(d @ frame.w)) >= frame.near
+        if cuts:
+            X = geom.q + g @ geom.steps
+            for cut in cuts:
+                ok &= (X - np.asarray(cut.point)) @ np.asarray(cut.normal) >= 0
+        u, v = np.where(ok, u, 0.0), np.where(ok, v, 0.0)
+        qa, qb = np.maximum(np.floor(u), 0).astype(np.int64), np.maximum(np.floor(v), 0).astype(np.int64)
+        fu, fv = np.maximum(u - qa, 0.0), np.maximum(v - qb, 0.0)
+        qa1, qb1 = np.minimum(qa + 1, n_a - 1), np.minimum(qb + 1, n_b - 1)
+        total, hit = 0.0, np.zeros(ok.shape, bool)
+        for a_, b_, w in ((qa, qb, (1 - fu) * (1 - fv)), (qa1, qb, fu * (1 - fv)), (qa, qb1, (1 - fu) * fv),
+                          (qa1, qb1, fu * fv)):
+            ijk = [None, None, None]
+            ijk[ia], ijk[ib], ijk[ic] = a_, b_, c
+            val = density[ijk[2], ijk[1], ijk[0]]
+            hit |= interest[val]
+            total = total + w * val
+        ok &= hit
+        best = np.where(ok, np.maximum(best, sign * total), best)
+    return np.where(np.isinf(best), np.nan, sign * best)

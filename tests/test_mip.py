@@ -207,3 +207,19 @@ def test_cli_set_mode_reports_the_leave_out_figure(data):
     res = run("render", "s.toml", "--set", 'render.mode="mip"', "--slabs", "2", "-o", "n.png", cwd=tmp)
     err = res.stderr.decode().strip().splitlines()
     assert res.returncode != 0 and len(err) == 1 and "renders each frame in one pass" in err[0], err
+
+
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+@pytest.mark.parametrize("mode", ["mip", "minip"])
+def test_vectorized_reference_is_the_slow_one(data, proj, mode):
+    """The benchmark's reference (numpy, a slice's pixels at once) against the per-pixel one."""
+    from mip_reference import mip_reference_vectorized
+    from isplat.transfer import piecewise_linear
+
+    tmp, aug, idx, dens = data
+    sc = scene_for(aug, idx, tmp, mode, f'projection = "{proj}"\nazimuth = 40\nelevation = 15', cut=CUT)
+    view = Renderer(sc).views[0]
+    interest = piecewise_linear(sc.transfer.opacity, np.arange(256.0), True)[:, 0] > 0
+    a = mip_reference(dens, view, sc, mode)
+    b = mip_reference_vectorized(dens, view, interest, mode, sc.cuts)
+    assert np.array_equal(np.isnan(a), np.isnan(b)) and np.nanmax(np.abs(a - b)) < 1e-9

@@ -33,7 +33,8 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..jit import jit, leaf, stage
+from ..jit import jit, leaf, prefetch, stage
+from .composite import TILE
 from .select import BLOCK, CELL, REGION
 from .traverse import cut_away, register, slice_bases
 from .post import _cell_pixels, _ortho_inverse, _row_span, _slice_point
@@ -43,27 +44,43 @@ Units.__doc__ = """The units of one axis of a selection (one row per cell holdin
 ``c``, the cell's first voxel ``(a0, b0)``, ``mask`` its voxels of interest (bit ``4 b + a`` in the cell),
 ``count`` how many, and the highest (``hi``) and lowest (``lo``) density of the corners of the quads that touch
 them (int32 each)."""
-MipPlan = namedtuple("MipPlan", "units order in_frame whole geo sign window color use_color held")
-MipPlan.__doc__ = """A frame's tables: ``units`` (:data:`Units`), ``order`` the units by bound (high to low for MIP,
-low to high for MinIP), ``in_frame`` uint8 per slice (1: a slice of the view's order), ``whole`` the whole
+MipPlan = namedtuple("MipPlan", "units in_frame whole geo sign window color use_color held")
+MipPlan.__doc__ = """A frame's tables: ``units`` (:data:`Units`) by bound (high to low for MIP, low to high for
+MinIP, :func:`sorted_units`), ``in_frame`` uint8 per slice (1: a slice of the view's order), ``whole`` the whole
 channels (:data:`isplat.splat.traverse.WholeVolume`), ``geo`` :data:`isplat.splat.traverse.SliceGeometry`,
 ``sign`` 1.0 (MIP) or -1.0 (MinIP; a pixel holds ``sign * density``), ``window`` (lo, hi) the codes mapped to
 black and white, ``color`` float64[256, 6] the transfer function's colour with its steps to the next code
-(:func:`isplat.splat.post.lerp_tables`) and ``use_color``; ``held`` float64 (H, W), each pixel's ``sign *``
-extreme so far (-inf: no sample), shared by the threads (each writes its bands' rows)."""
+(:func:`isplat.splat.post.lerp_tables`) and ``use_color``; ``held`` (:data:`Held`), shared by the threads (each
+writes its bands' rows, whole tiles)."""
+Held = namedtuple("Held", "px tile_done")
+Held.__doc__ = """What the pixels hold: ``px`` float64 (H, W) each pixel's ``sign *`` extreme so far (-inf: no
+sample); per TILE x TILE tile ``tile_done`` how many of its pixels, in row order, are known to hold the bound of
+the unit being drawn (TILE * TILE: all, the tile is finished). Held values only grow and the bounds only fall
+as a frame goes on, so a pixel once found finished stays finished: the count only grows (:func:`_tiles_hold`,
+each pixel looked at about once per frame), and a unit whose tiles are all finished is skipped with a few
+tests instead of a scan of its pixels."""
 
 
 # ---- the units, once per selection and axis ---------------------------------------------------------------------
-_UNITS = {}             # (id(selection), axis) -> Units, dropped with the selection
+_UNITS = {}             # (id(selection), axis, sign) -> Units, dropped with the selection
+AHEAD = 4               # units prefetched ahead of the one sampled
 
 
-def units_of(sel, axis: str) -> Units:
+def units_of(sel, axis: str, sign: float = 0.0) -> Units:
     """The :data:`Units` of ``axis`` of the selection ``sel`` (the index's voxels of interest; with the full method
-    every voxel whose opacity is not zero), made once and kept while the selection lives."""
-    key = (id(sel), axis)
+    every voxel whose opacity is not zero), made once and kept while the selection lives; with ``sign`` 1 (MIP) or
+    -1 (MinIP) in the frame's order (:func:`sorted_units`), a copy, so that a frame reads them in sequence."""
+    key = (id(sel), axis, sign)
     got = _UNITS.get(key)
     if got is not None:
         return got
+    if sign != 0.0:
+        units = units_of(sel, axis)
+        order = sorted_units(units, sign)
+        out = Units(*(np.ascontiguousarray(x[order]) for x in units))
+        _UNITS[key] = out
+        weakref.finalize(sel, _UNITS.pop, key, None)
+        return out
     w = sel.whole_volume(axis)
     if sel.method == "full":
         from ..transfer import alpha_table
@@ -185,14 +202,15 @@ def plan(tables):
     ro = view.render
     if not sel.post or sel.whole is None:
         raise IsplatError(f"render.mode = {ro.mode!r} needs a selection made for it (the whole density channel)")
-    units = units_of(sel, tables.axis)
     sign = 1.0 if ro.mode == "mip" else -1.0
+    units = units_of(sel, tables.axis, sign)
     in_frame = np.zeros(_n_slices(sel, tables.axis), np.uint8)
     in_frame[view.order] = 1
     _, color = lerp_tables(tables.atab, sel.luts.color)
     window = tuple(float(x) for x in (ro.window or (0.0, 255.0)))
-    held = np.empty((view.frame.height, view.frame.width), np.float64)
-    p = MipPlan(units, sorted_units(units, sign), in_frame, sel.whole_volume(tables.axis), tables.geo, sign, window,
+    H, W = view.frame.height, view.frame.width
+    held = Held(np.empty((H, W), np.float64), np.empty((-(-H // TILE), -(-W // TILE)), np.int32))
+    p = MipPlan(units, in_frame, sel.whole_volume(tables.axis), tables.geo, sign, window,
                 color, ro.intensity_color == "transfer", held)
     return p, [np.empty(0, np.int64) for _ in range(tables.threads)], np.zeros(1, np.int64)
 
@@ -215,18 +233,23 @@ def _band_units(plan, cs, buf, band):
     bi, y0b, y1b = band[0], band[1], band[2]
     held = plan.held
     for y in range(y0b, y1b):
-        for x in range(held.shape[1]):
-            held[y, x] = -math.inf
+        for x in range(held.px.shape[1]):
+            held.px[y, x] = -math.inf
+    for ty in range(y0b // TILE, (y1b + TILE - 1) // TILE):
+        for tx in range(held.tile_done.shape[1]):
+            held.tile_done[ty, tx] = 0
     units, w = plan.units, plan.whole
     img_w = buf.img.shape[1]
     total = 0
     visited = 0
     samples = 0
-    for t in range(plan.order.shape[0]):
-        u = plan.order[t]
+    n_units = units.c.shape[0]
+    for u in range(n_units):
         c = units.c[u]
         if plan.in_frame[c] == 0:
             continue
+        if u + AHEAD < n_units:     # the voxels of the units ahead come from memory while this one is sampled
+            _prefetch_unit(units.c[u + AHEAD], units.a0[u + AHEAD], units.b0[u + AHEAD], w)
         total += units.count[u]
         bound = plan.sign * (units.hi[u] if plan.sign > 0 else units.lo[u])
         n = _unit(c, units.a0[u], units.b0[u], units.mask[u], bound, w, plan.geo, plan.sign, cs, held, img_w,
@@ -238,7 +261,23 @@ def _band_units(plan, cs, buf, band):
     buf.stats[bi, 1] += visited
     buf.stats[bi, 2] += samples
     buf.stats[bi, 3] += 1
-    _write_band(held, plan.sign, plan.window, plan.color, plan.use_color, buf.img, y0b, y1b)
+    _write_band(held.px, plan.sign, plan.window, plan.color, plan.use_color, buf.img, y0b, y1b)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _prefetch_unit(c, a0, b0, w):
+    """Ask the CPU for the cache lines of the densities a unit's quads read (rows b0 - 1 .. b0 + 4 of its slice,
+    columns a0 - 1 .. a0 + 4): the units go by bound, not by place, so each unit's rows are lines of their own
+    (as :func:`isplat.splat.post._prefetch_square`)."""
+    sa, sb = w.strides[0], w.strides[1]
+    cbase = c * w.strides[2] + w.strides[3]
+    a_lo = max(a0 - 1, 0)
+    a_hi = min(a0 + CELL, w.n_a - 1)
+    da = max(1, 32 // sa)
+    for b in range(max(b0 - 1, 0), min(b0 + CELL, w.n_b - 1) + 1):
+        row = cbase + b * sb
+        for a in range(a_lo, a_hi + da, da):
+            prefetch(w.density, np.uint64(row + min(a, a_hi) * sa))
 
 
 @leaf(forceinline=True)
@@ -255,8 +294,9 @@ def _unit(c, a0, b0, m, bound, w, geo, sign, cs, held, img_w, y0b, y1b):
     base = slice_bases(c, geo, cs)
     coef, persp = geo.coef, geo.persp
     x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b)
-    if x0 > x1 or y0 > y1:
+    if x0 > x1 or y0 > y1 or _tiles_hold(held, x0, x1, y0, y1, bound):
         return -1
+    px = held.px
     inv = _ortho_inverse(base, coef)
     sa, sb = w.strides[0], w.strides[1]
     cbase = c * w.strides[2] + w.strides[3]
@@ -268,7 +308,7 @@ def _unit(c, a0, b0, m, bound, w, geo, sign, cs, held, img_w, y0b, y1b):
         if not persp:
             xa, xb = _row_span(y, u0, u1, v0, v1, inv, x0, x1)
         for x in range(xa, xb + 1):
-            h = held[np.uint64(y), np.uint64(x)]
+            h = px[np.uint64(y), np.uint64(x)]
             if h >= bound:
                 continue                                # finished for this unit and every one after it
             if persp:
@@ -299,8 +339,29 @@ def _unit(c, a0, b0, m, bound, w, geo, sign, cs, held, img_w, y0b, y1b):
                  + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
             n += 1
             if sign * d > h:
-                held[np.uint64(y), np.uint64(x)] = sign * d
+                px[np.uint64(y), np.uint64(x)] = sign * d
     return n if open_ else -1
+
+
+@leaf
+def _tiles_hold(held, x0, x1, y0, y1, bound):
+    """True when every pixel of the tiles that the box [x0, x1] x [y0, y1] (inside one band) touches holds at least
+    ``bound`` (bounds must not grow from one call to the next within a band: see :data:`Held`)."""
+    done, px = held.tile_done, held.px
+    h, w = px.shape[0], px.shape[1]
+    for ty in range(y0 // TILE, y1 // TILE + 1):
+        for tx in range(x0 // TILE, x1 // TILE + 1):
+            k = done[ty, tx]
+            while k < TILE * TILE:
+                y = ty * TILE + k // TILE
+                x = tx * TILE + k % TILE
+                if y < h and x < w and px[y, x] < bound:
+                    break
+                k += 1
+            done[ty, tx] = k
+            if k < TILE * TILE:
+                return False
+    return True
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf

@@ -7,14 +7,17 @@ between four voxels) one of whose voxels is of interest (a density of non-zero o
 largest (MIP) or smallest (MinIP) sample: what a ray caster's MIP shows at the same sampling.
 
 The order is the index's, not the slices': the unit of work is a cell of the selection (4 x 4 voxels of one slice,
-the voxels of interest among them as a 16-bit mask) with the quads that touch its voxels of interest, and its
-*bound*, the highest density of those quads' corners (MIP; the lowest for MinIP): no sample of the unit can
-exceed it, since a bilinear sample lies between its corners. The units of a selection's axis are listed once
-(:func:`units_of`, kept beside the selection) and sorted by bound, from high to low (MIP) or from low to high
-(MinIP), so a frame visits the high densities first. A unit is skipped when every pixel it reaches already
-holds at least its bound (:func:`_unit`: such pixels are finished for it and for every unit after it, whose
-bounds are no higher); otherwise its quads are sampled at the pixels that are not. Exact whatever the order: a
-skipped unit cannot raise any pixel. Early termination, footprints, shading and slab compositing do not apply
+the voxels of interest among them) with the quads it owns (those whose first corner of interest is one of its
+voxels, so that each quad belongs to one unit), and its *bound*, the highest density of those quads' corners
+(MIP; the lowest for MinIP): no sample of the unit can exceed it, since a bilinear sample lies between its
+corners. The units of a selection's axis are made once (:func:`units_of`, kept beside the selection) and copied
+in order of bound, from high to low (MIP) or from low to high (MinIP), so a frame visits the high densities
+first and reads the units in sequence. A unit is skipped when every pixel it reaches already holds at least
+its bound: such pixels are finished for it and for every unit after it, whose bounds are no higher, so a tile
+of pixels once found finished stays so (:data:`Held`, :func:`_tiles_hold`: a few tests per unit), else its
+pixels are looked at one by one (:func:`_unit`) and its quads sampled at the pixels that are not finished.
+Exact whatever the order: a skipped unit cannot raise any pixel. Each band lists the units that reach its rows
+first, then walks them with the next units' densities prefetched (they lie anywhere in the volume). Early termination, footprints, shading and slab compositing do not apply
 (docs/mip.md).
 
 A technique of :mod:`isplat.splat.traverse`: its plan (:data:`MipPlan`) has one "sheet" (the frame's one pass
@@ -39,11 +42,12 @@ from .select import BLOCK, CELL, REGION
 from .traverse import cut_away, register, slice_bases
 from .post import _cell_pixels, _ortho_inverse, _row_span, _slice_point
 
-Units = namedtuple("Units", "c a0 b0 mask count hi lo")
+Units = namedtuple("Units", "c a0 b0 owned ext count hi lo")
 Units.__doc__ = """The units of one axis of a selection (one row per cell holding a voxel of interest): slice
-``c``, the cell's first voxel ``(a0, b0)``, ``mask`` its voxels of interest (bit ``4 b + a`` in the cell),
-``count`` how many, and the highest (``hi``) and lowest (``lo``) density of the corners of the quads that touch
-them (int32 each)."""
+``c``, the cell's first voxel ``(a0, b0)``, ``owned`` the quads it samples (bit ``5 (qb - b0 + 1) + qa - a0 + 1``
+of the 5 x 5 quads from (a0 - 1, b0 - 1); :func:`_put`), ``ext`` the columns and rows of the 5 x 5 that hold
+an owned quad (first and one past the last, 3 bits each: ka0, ka1, kb0, kb1), ``count`` its voxels of interest, and the highest
+(``hi``) and lowest (``lo``) density of its quads' corners (int32 each)."""
 MipPlan = namedtuple("MipPlan", "units in_frame whole geo sign window color use_color held")
 MipPlan.__doc__ = """A frame's tables: ``units`` (:data:`Units`) by bound (high to low for MIP, low to high for
 MinIP, :func:`sorted_units`), ``in_frame`` uint8 per slice (1: a slice of the view's order), ``whole`` the whole
@@ -82,20 +86,25 @@ def units_of(sel, axis: str, sign: float = 0.0) -> Units:
         weakref.finalize(sel, _UNITS.pop, key, None)
         return out
     w = sel.whole_volume(axis)
+    interest = interest_table(sel.luts.intervals)
     if sel.method == "full":
-        from ..transfer import alpha_table
-
-        table = (alpha_table(sel.luts, 1.0) != 0).astype(np.uint8)
-        gm = w.gm if sel.use_gm else np.zeros(0, np.uint8)
-        out = Units(*_full_units(w.density, gm, table, w.strides, w.n_a, w.n_b, _n_slices(sel, axis)))
+        out = Units(*_full_units(w.density, interest, w.strides, w.n_a, w.n_b, _n_slices(sel, axis)))
     else:
         v = sel.voxels(axis)
         out = Units(*_indexed_units(v.slice_ptr, v.region_ptr, v.region_id, v.block_pos, v.block_ptr,
-                                    v.block_voxel, v.cell_pos, v.cell_count, v.offset, w.density, w.strides,
-                                    w.n_a, w.n_b))
+                                    v.block_voxel, v.cell_pos, v.cell_count, v.offset, w.density, interest,
+                                    w.strides, w.n_a, w.n_b))
     _UNITS[key] = out
     weakref.finalize(sel, _UNITS.pop, key, None)
     return out
+
+
+def interest_table(intervals) -> np.ndarray:
+    """uint8[256]: 1 for the densities of interest (the transfer function's intervals ``[lo, hi]``, inclusive)."""
+    table = np.zeros(256, np.uint8)
+    for lo, hi in np.asarray(intervals, np.int64).reshape(-1, 2):
+        table[max(lo, 0):min(hi, 255) + 1] = 1
+    return table
 
 
 def _n_slices(sel, axis: str) -> int:
@@ -106,12 +115,12 @@ def _n_slices(sel, axis: str) -> int:
 
 @jit
 def _indexed_units(slice_ptr, region_ptr, region_id, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
-                   offset, density, strides, n_a, n_b):
+                   offset, density, interest, strides, n_a, n_b):
     """:data:`Units` from the index's hierarchy of one axis (slices, regions, blocks, cells, voxels)."""
     n_cells = block_ptr[region_ptr[slice_ptr[slice_ptr.shape[0] - 1]]]
     if n_cells < 0 or n_cells > cell_pos.shape[0]:
         raise ValueError("mip: the selection's cell table is inconsistent")
-    c_of, a_of, b_of, mask, count, hi, lo = _unit_arrays(n_cells)
+    c_of, a_of, b_of, owned, ext, count, hi, lo = _unit_arrays(n_cells)
     nra = (n_a + REGION - 1) // REGION
     for c in range(slice_ptr.shape[0] - 1):
         for g in range(slice_ptr[c], slice_ptr[c + 1]):
@@ -126,18 +135,17 @@ def _indexed_units(slice_ptr, region_ptr, region_id, block_pos, block_ptr, block
                     for t in range(n, n + cell_count[q]):
                         m |= 1 << offset[t]
                     n += cell_count[q]
-                    _put(q, c, ba0 + (cell_pos[q] % 4) * CELL, bb0 + (cell_pos[q] // 4) * CELL, m, density, strides,
-                         n_a, n_b, c_of, a_of, b_of, mask, count, hi, lo)
-    return c_of, a_of, b_of, mask, count, hi, lo
+                    _put(q, c, ba0 + (cell_pos[q] % 4) * CELL, bb0 + (cell_pos[q] // 4) * CELL, m, density,
+                         interest, strides, n_a, n_b, c_of, a_of, b_of, owned, ext, count, hi, lo)
+    return c_of, a_of, b_of, owned, ext, count, hi, lo
 
 
 @jit
-def _full_units(density, gm, table, strides, n_a, n_b, n_slices):
-    """:data:`Units` of every voxel whose opacity is not zero (``table`` uint8[256, G]: 1 where not; the
-    gradient code from ``gm`` when given), for the full method."""
+def _full_units(density, interest, strides, n_a, n_b, n_slices):
+    """:data:`Units` of every voxel whose density is of interest (``interest`` uint8[256]), for the full method."""
     nca = (n_a + CELL - 1) // CELL
     ncb = (n_b + CELL - 1) // CELL
-    c_of, a_of, b_of, mask, count, hi, lo = _unit_arrays(n_slices * nca * ncb)
+    c_of, a_of, b_of, owned, ext, count, hi, lo = _unit_arrays(n_slices * nca * ncb)
     nu = 0
     for c in range(n_slices):
         cbase = c * strides[2] + strides[3]
@@ -146,42 +154,57 @@ def _full_units(density, gm, table, strides, n_a, n_b, n_slices):
                 m = 0
                 for b in range(cb * CELL, min(cb * CELL + CELL, n_b)):
                     for a in range(ca * CELL, min(ca * CELL + CELL, n_a)):
-                        fi = cbase + a * strides[0] + b * strides[1]
-                        if table[density[fi], gm[fi] if gm.shape[0] else 0]:
+                        if interest[density[cbase + a * strides[0] + b * strides[1]]]:
                             m |= 1 << ((b - cb * CELL) * CELL + a - ca * CELL)
                 if m:
-                    _put(nu, c, ca * CELL, cb * CELL, m, density, strides, n_a, n_b, c_of, a_of, b_of, mask, count,
-                         hi, lo)
+                    _put(nu, c, ca * CELL, cb * CELL, m, density, interest, strides, n_a, n_b, c_of, a_of, b_of,
+                         owned, ext, count, hi, lo)
                     nu += 1
-    return c_of[:nu], a_of[:nu], b_of[:nu], mask[:nu], count[:nu], hi[:nu], lo[:nu]
+    return c_of[:nu], a_of[:nu], b_of[:nu], owned[:nu], ext[:nu], count[:nu], hi[:nu], lo[:nu]
 
 
 @stage
 def _unit_arrays(n):
     return (np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32),
-            np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32))
+            np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32))
 
 
 @leaf
-def _put(u, c, a0, b0, m, density, strides, n_a, n_b, c_of, a_of, b_of, mask, count, hi, lo):
-    """Unit ``u``: the cell from (a0, b0) of slice ``c`` with voxels of interest ``m``; its bounds are the
-    extremes of the 3 x 3 voxels around each (the corners of the four quads it is a corner of)."""
+def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, c_of, a_of, b_of, owned, ext, count, hi, lo):
+    """Unit ``u``: the cell from (a0, b0) of slice ``c`` with voxels of interest ``m``. Its quads are those whose
+    first corner of interest (in the order (qa, qb), (qa + 1, qb), (qa, qb + 1), (qa + 1, qb + 1), clamped at
+    the slice's edge) is one of its voxels, so every quad with a corner of interest belongs to exactly one unit
+    (the quads from (a0 - 1, b0 - 1) to (a0 + 3, b0 + 3) are the only ones that can); its bounds are the extremes
+    of those quads' corners."""
     cbase = c * strides[2] + strides[3]
+    sa, sb = strides[0], strides[1]
     dmax = 0
     dmin = 255
+    bits = 0
+    for qb in range(max(b0 - 1, 0), min(b0 + CELL, n_b)):
+        for qa in range(max(a0 - 1, 0), min(a0 + CELL, n_a)):
+            first = -1
+            dq_max = 0
+            dq_min = 255
+            for corner in range(4):
+                ca = min(qa + (corner & 1), n_a - 1)
+                cb = min(qb + (corner >> 1), n_b - 1)
+                d = np.int32(density[cbase + ca * sa + cb * sb])
+                dq_max = max(dq_max, d)
+                dq_min = min(dq_min, d)
+                if first < 0 and interest[d]:
+                    first = corner
+                    mine = a0 <= ca < a0 + CELL and b0 <= cb < b0 + CELL
+            if first >= 0 and mine:
+                bits |= 1 << ((qb - b0 + 1) * 5 + qa - a0 + 1)
+                dmax = max(dmax, dq_max)
+                dmin = min(dmin, dq_min)
     k = 0
     for t in range(CELL * CELL):
-        if m & (1 << t) == 0:
-            continue
-        k += 1
-        a = a0 + t % CELL
-        b = b0 + t // CELL
-        for bb in range(max(b - 1, 0), min(b + 2, n_b)):
-            for aa in range(max(a - 1, 0), min(a + 2, n_a)):
-                d = np.int32(density[cbase + aa * strides[0] + bb * strides[1]])
-                dmax = max(dmax, d)
-                dmin = min(dmin, d)
-    c_of[u], a_of[u], b_of[u], mask[u], count[u], hi[u], lo[u] = c, a0, b0, m, k, dmax, dmin
+        k += (m >> t) & 1
+    ka0, ka1, kb0, kb1 = _owned_extent(bits)
+    c_of[u], a_of[u], b_of[u], owned[u], count[u], hi[u], lo[u] = c, a0, b0, bits, k, dmax, dmin
+    ext[u] = ka0 | (ka1 << 3) | (kb0 << 6) | (kb1 << 9)
 
 
 def sorted_units(units: Units, sign: float) -> np.ndarray:
@@ -217,19 +240,20 @@ def plan(tables):
 
 @stage
 def _scratch(plan):
-    """The cutting planes' offsets of a slice."""
-    return np.empty(max(plan.geo.cuts.shape[0], 1), dtype=np.float64)
+    """The cutting planes' offsets of a slice, and the list of the units that reach a band."""
+    return np.empty(max(plan.geo.cuts.shape[0], 1), dtype=np.float64), np.empty(plan.units.c.shape[0], np.int32)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
-def _slice(plan, lists, cs, c, pos, buf, band):
+def _slice(plan, lists, scratch, c, pos, buf, band):
     """The frame's one sheet for one band: every unit (:func:`_band_units`), then the band's pixels."""
-    _band_units(plan, cs, buf, band)
+    _band_units(plan, scratch[0], scratch[1], buf, band)
 
 
 @leaf
-def _band_units(plan, cs, buf, band):
-    """Walk the units by bound for the band's rows, then write its pixels (:func:`_write_band`)."""
+def _band_units(plan, cs, mine, buf, band):
+    """Walk the units by bound for the band's rows (first listing, into ``mine``, those of the frame's slices that
+    reach the band), then write its pixels (:func:`_write_band`)."""
     bi, y0b, y1b = band[0], band[1], band[2]
     held = plan.held
     for y in range(y0b, y1b):
@@ -243,17 +267,25 @@ def _band_units(plan, cs, buf, band):
     total = 0
     visited = 0
     samples = 0
-    n_units = units.c.shape[0]
-    for u in range(n_units):
+    nm = 0
+    for u in range(units.c.shape[0]):
         c = units.c[u]
         if plan.in_frame[c] == 0:
             continue
-        if u + AHEAD < n_units:     # the voxels of the units ahead come from memory while this one is sampled
-            _prefetch_unit(units.c[u + AHEAD], units.a0[u + AHEAD], units.b0[u + AHEAD], w)
         total += units.count[u]
+        _, _, _, _, _, x0, x1, y0, y1 = _unit_box(c, units.a0[u], units.b0[u], units.ext[u], w, plan.geo, cs, img_w,
+                                                  y0b, y1b)
+        if x0 <= x1 and y0 <= y1:
+            mine[nm] = u
+            nm += 1
+    for t in range(nm):
+        u = mine[t]
+        if t + AHEAD < nm:          # the voxels of the units ahead come from memory while this one is sampled
+            k = mine[t + AHEAD]
+            _prefetch_unit(units.c[k], units.a0[k], units.b0[k], w)
         bound = plan.sign * (units.hi[u] if plan.sign > 0 else units.lo[u])
-        n = _unit(c, units.a0[u], units.b0[u], units.mask[u], bound, w, plan.geo, plan.sign, cs, held, img_w,
-                  y0b, y1b)
+        n = _unit(units.c[u], units.a0[u], units.b0[u], units.owned[u], units.ext[u], bound, w, plan.geo, plan.sign,
+                  cs, held, img_w, y0b, y1b)
         if n >= 0:
             visited += units.count[u]
             samples += n
@@ -281,19 +313,14 @@ def _prefetch_unit(c, a0, b0, w):
 
 
 @leaf(forceinline=True)
-def _unit(c, a0, b0, m, bound, w, geo, sign, cs, held, img_w, y0b, y1b):
-    """Sample the quads of one unit (the cell from (a0, b0) of slice ``c``, voxels of interest ``m``) at the
-    pixels of rows ``[y0b, y1b)`` that do not yet hold ``bound`` (``sign *`` density); returns the samples
-    taken, or -1 when every pixel it reaches already held its bound (skipped). One function of over 60 lines: the
-    per-pixel scan is its inner loop, as :func:`isplat.splat.post._sample_square`'s."""
+def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b):
+    """Sample the quads ``owned`` by one unit (:func:`_put`; the cell from (a0, b0) of slice ``c``) at the pixels
+    of rows ``[y0b, y1b)`` that do not yet hold ``bound`` (``sign *`` density); returns the samples taken, or -1
+    when every pixel it reaches already held its bound (skipped). One function of over 60 lines: the per-pixel
+    scan is its inner loop, as :func:`isplat.splat.post._sample_square`'s."""
     n_a, n_b = w.n_a, w.n_b
-    u0 = -0.5 if a0 == 0 else a0 - 1.0          # its quads: from the one before the cell to its last voxel's
-    v0 = -0.5 if b0 == 0 else b0 - 1.0
-    u1 = min(a0 + CELL, n_a - 0.5)
-    v1 = min(b0 + CELL, n_b - 0.5)
-    base = slice_bases(c, geo, cs)
+    base, u0, u1, v0, v1, x0, x1, y0, y1 = _unit_box(c, a0, b0, ext, w, geo, cs, img_w, y0b, y1b)
     coef, persp = geo.coef, geo.persp
-    x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b)
     if x0 > x1 or y0 > y1 or _tiles_hold(held, x0, x1, y0, y1, bound):
         return -1
     px = held.px
@@ -323,24 +350,50 @@ def _unit(c, a0, b0, m, bound, w, geo, sign, cs, held, img_w, y0b, y1b):
             open_ = True
             qa = max(int(u + 1.0) - 1, 0)               # floor: u, v >= -0.5 here
             qb = max(int(v + 1.0) - 1, 0)
-            qa1 = min(qa + 1, n_a - 1)
-            qb1 = min(qb + 1, n_b - 1)
-            if not _touches(m, qa - a0, qa1 - a0, qb - b0, qb1 - b0):
-                continue                                # a quad none of this unit's voxels of interest is in
+            la = qa - a0 + 1
+            lb = qb - b0 + 1
+            if la < 0 or la > 4 or lb < 0 or lb > 4 or (owned >> (lb * 5 + la)) & 1 == 0:
+                continue                                # another unit's quad, or one with no corner of interest
             if geo.cuts.shape[0] > 0 and cut_away(u, v, geo.cuts, cs):
                 continue
             fu = max(u - qa, 0.0)
             fv = max(v - qb, 0.0)
-            i00 = np.uint64(cbase + qa * sa + qb * sb)
-            i10 = np.uint64(cbase + qa1 * sa + qb * sb)
-            i01 = np.uint64(cbase + qa * sa + qb1 * sb)
-            i11 = np.uint64(cbase + qa1 * sa + qb1 * sb)
-            d = ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
-                 + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
+            qa1 = min(qa + 1, n_a - 1)
+            qb1 = min(qb + 1, n_b - 1)
+            d = ((1.0 - fu) * (1.0 - fv) * density[np.uint64(cbase + qa * sa + qb * sb)]
+                 + fu * (1.0 - fv) * density[np.uint64(cbase + qa1 * sa + qb * sb)]
+                 + (1.0 - fu) * fv * density[np.uint64(cbase + qa * sa + qb1 * sb)]
+                 + fu * fv * density[np.uint64(cbase + qa1 * sa + qb1 * sb)])
             n += 1
             if sign * d > h:
                 px[np.uint64(y), np.uint64(x)] = sign * d
     return n if open_ else -1
+
+
+@leaf(forceinline=True)
+def _unit_box(c, a0, b0, ext, w, geo, cs, img_w, y0b, y1b):
+    """The slice's bases, the part ``[u0, u1) x [v0, v1)`` of the slice plane a unit's quads cover (``ext``, see
+    :data:`Units`), and its pixels ``x0, x1, y0, y1`` in the band (empty: x0 > x1)."""
+    u0 = -0.5 if a0 - 1 + (ext & 7) <= 0 else a0 - 1.0 + (ext & 7)
+    v0 = -0.5 if b0 - 1 + ((ext >> 6) & 7) <= 0 else b0 - 1.0 + ((ext >> 6) & 7)
+    u1 = min(a0 - 1.0 + ((ext >> 3) & 7), w.n_a - 0.5)
+    v1 = min(b0 - 1.0 + ((ext >> 9) & 7), w.n_b - 0.5)
+    base = slice_bases(c, geo, cs)
+    x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, geo.coef, geo.persp, img_w, y0b, y1b)
+    return base, u0, u1, v0, v1, x0, x1, y0, y1
+
+
+@leaf
+def _owned_extent(owned):
+    """The first and one-past-last column and row (0..5) of the 5 x 5 quads that hold an owned quad."""
+    ka0, ka1, kb0, kb1 = 5, 0, 5, 0
+    for k in range(25):
+        if (owned >> k) & 1:
+            ka0 = min(ka0, k % 5)
+            ka1 = max(ka1, k % 5 + 1)
+            kb0 = min(kb0, k // 5)
+            kb1 = max(kb1, k // 5 + 1)
+    return ka0, ka1, kb0, kb1
 
 
 @leaf
@@ -362,17 +415,6 @@ def _tiles_hold(held, x0, x1, y0, y1, bound):
             if k < TILE * TILE:
                 return False
     return True
-
-
-@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
-def _touches(m, la0, la1, lb0, lb1):
-    """True when one of the quad's corners (cell-local columns la0, la1 and rows lb0, lb1) is in the mask."""
-    for lb in (lb0, lb1):
-        if 0 <= lb < CELL:
-            for la in (la0, la1):
-                if 0 <= la < CELL and m & (1 << (lb * CELL + la)):
-                    return True
-    return False
 
 
 @leaf

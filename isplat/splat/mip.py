@@ -278,11 +278,14 @@ def _band_units(plan, cs, mine, buf, band):
         if x0 <= x1 and y0 <= y1:
             mine[nm] = u
             nm += 1
+    for t in range(min(AHEAD, nm)):
+        _look_ahead(plan, mine, t, cs, held, img_w, y0b, y1b)
     for t in range(nm):
-        u = mine[t]
         if t + AHEAD < nm:          # the voxels of the units ahead come from memory while this one is sampled
-            k = mine[t + AHEAD]
-            _prefetch_unit(units.c[k], units.a0[k], units.b0[k], w)
+            _look_ahead(plan, mine, t + AHEAD, cs, held, img_w, y0b, y1b)
+        u = mine[t]
+        if u < 0:
+            continue                # its tiles were finished when looked at ahead, and stay so
         bound = plan.sign * (units.hi[u] if plan.sign > 0 else units.lo[u])
         n = _unit(units.c[u], units.a0[u], units.b0[u], units.owned[u], units.ext[u], bound, w, plan.geo, plan.sign,
                   cs, held, img_w, y0b, y1b)
@@ -294,6 +297,22 @@ def _band_units(plan, cs, mine, buf, band):
     buf.stats[bi, 2] += samples
     buf.stats[bi, 3] += 1
     _write_band(held.px, plan.sign, plan.window, plan.color, plan.use_color, buf.img, y0b, y1b)
+
+
+@leaf(forceinline=True)
+def _look_ahead(plan, mine, t, cs, held, img_w, y0b, y1b):
+    """The unit ``mine[t]``, a few ahead of the one drawn: when the tiles it reaches are all known finished already
+    it is marked skipped (``-1 - u``: tiles stay finished), else its densities are asked for
+    (:func:`_prefetch_unit`), so that units skipped at once cost no memory traffic. Only looks: the tiles' counts
+    advance with the bound of the unit being drawn (:func:`_tiles_hold`), never with a later, lower one."""
+    units, w = plan.units, plan.whole
+    u = mine[t]
+    _, _, _, _, _, x0, x1, y0, y1 = _unit_box(units.c[u], units.a0[u], units.b0[u], units.ext[u], w, plan.geo, cs,
+                                              img_w, y0b, y1b)
+    if _tiles_finished(held, x0, x1, y0, y1):
+        mine[t] = -1 - u
+    else:
+        _prefetch_unit(units.c[u], units.a0[u], units.b0[u], w)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
@@ -394,6 +413,16 @@ def _owned_extent(owned):
             kb0 = min(kb0, k // 5)
             kb1 = max(kb1, k // 5 + 1)
     return ka0, ka1, kb0, kb1
+
+
+@leaf
+def _tiles_finished(held, x0, x1, y0, y1):
+    """True when every tile the box [x0, x1] x [y0, y1] touches is known finished (all its pixels counted)."""
+    for ty in range(y0 // TILE, y1 // TILE + 1):
+        for tx in range(x0 // TILE, x1 // TILE + 1):
+            if held.tile_done[ty, tx] < TILE * TILE:
+                return False
+    return True
 
 
 @leaf

@@ -39,8 +39,8 @@ import numpy as np
 from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
 from .select import BLOCK, CELL, REGION
-from .traverse import cut_away, register, slice_bases
-from .post import _cell_pixels, _ortho_inverse, _row_span, _slice_point
+from .traverse import X0, XA, XB, XC, Y0, YA, YB, YC, cut_away, register, slice_bases
+from .post import SPAN_MARGIN, _cell_pixels, _ortho_inverse, _row_span, _slice_point
 
 Units = namedtuple("Units", "c a0 b0 owned ext count hi lo")
 Units.__doc__ = """The units of one axis of a selection (one row per cell holding a voxel of interest): slice
@@ -268,16 +268,26 @@ def _band_units(plan, cs, mine, buf, band):
     visited = 0
     samples = 0
     nm = 0
+    coef = plan.geo.coef
+    # orthographic: a unit's 5 x 5 quads lie within 2.5 steps along a and b of its middle, so its rows are within
+    # that reach (and a pixel of rounding) of its middle's row; its exact pixels are _unit's
+    reach = 2.5 * (abs(coef[YA]) + abs(coef[YB])) + 1.0
     for u in range(units.c.shape[0]):
         c = units.c[u]
         if plan.in_frame[c] == 0:
             continue
         total += units.count[u]
-        _, _, _, _, _, x0, x1, y0, y1 = _unit_box(c, units.a0[u], units.b0[u], units.ext[u], w, plan.geo, cs, img_w,
-                                                  y0b, y1b)
-        if x0 <= x1 and y0 <= y1:
-            mine[nm] = u
-            nm += 1
+        if plan.geo.persp:
+            _, _, _, _, _, x0, x1, y0, y1 = _unit_box(c, units.a0[u], units.b0[u], units.ext[u], w, plan.geo, cs,
+                                                      img_w, y0b, y1b)
+            if x0 > x1 or y0 > y1:
+                continue
+        else:
+            ym = coef[Y0] + (units.a0[u] + 1.5) * coef[YA] + (units.b0[u] + 1.5) * coef[YB] + c * coef[YC]
+            if ym + reach < y0b or ym - reach > y1b - 1:
+                continue
+        mine[nm] = u
+        nm += 1
     for t in range(min(AHEAD, nm)):
         _look_ahead(plan, mine, t, cs, held, img_w, y0b, y1b)
     for t in range(nm):
@@ -307,8 +317,12 @@ def _look_ahead(plan, mine, t, cs, held, img_w, y0b, y1b):
     advance with the bound of the unit being drawn (:func:`_tiles_hold`), never with a later, lower one."""
     units, w = plan.units, plan.whole
     u = mine[t]
-    _, _, _, _, _, x0, x1, y0, y1 = _unit_box(units.c[u], units.a0[u], units.b0[u], units.ext[u], w, plan.geo, cs,
-                                              img_w, y0b, y1b)
+    if plan.geo.persp:
+        _, _, _, _, _, x0, x1, y0, y1 = _unit_box(units.c[u], units.a0[u], units.b0[u], units.ext[u], w, plan.geo,
+                                                  cs, img_w, y0b, y1b)
+    else:
+        _, _, _, _, x0, x1, y0, y1 = _ortho_box(units.c[u], units.a0[u], units.b0[u], units.ext[u], w, plan.geo.coef,
+                                                img_w, y0b, y1b)
     if _tiles_finished(held, x0, x1, y0, y1):
         mine[t] = -1 - u
     else:
@@ -338,10 +352,15 @@ def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b)
     when every pixel it reaches already held its bound (skipped). One function of over 60 lines: the per-pixel
     scan is its inner loop, as :func:`isplat.splat.post._sample_square`'s."""
     n_a, n_b = w.n_a, w.n_b
-    base, u0, u1, v0, v1, x0, x1, y0, y1 = _unit_box(c, a0, b0, ext, w, geo, cs, img_w, y0b, y1b)
     coef, persp = geo.coef, geo.persp
+    if persp:
+        base, u0, u1, v0, v1, x0, x1, y0, y1 = _unit_box(c, a0, b0, ext, w, geo, cs, img_w, y0b, y1b)
+    else:
+        u0, u1, v0, v1, x0, x1, y0, y1 = _ortho_box(c, a0, b0, ext, w, coef, img_w, y0b, y1b)
     if x0 > x1 or y0 > y1 or _tiles_hold(held, x0, x1, y0, y1, bound):
         return -1
+    if not persp:
+        base = slice_bases(c, geo, cs)
     px = held.px
     inv = _ortho_inverse(base, coef)
     sa, sb = w.strides[0], w.strides[1]
@@ -400,6 +419,32 @@ def _unit_box(c, a0, b0, ext, w, geo, cs, img_w, y0b, y1b):
     base = slice_bases(c, geo, cs)
     x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, geo.coef, geo.persp, img_w, y0b, y1b)
     return base, u0, u1, v0, v1, x0, x1, y0, y1
+
+
+@leaf(forceinline=True)
+def _ortho_box(c, a0, b0, ext, w, coef, img_w, y0b, y1b):
+    """:func:`_unit_box` of an orthographic view without the slice's bases and cuts (the same numbers: the bases'
+    first two and :func:`isplat.splat.post._cell_pixels`' orthographic box, written out), for the units that are
+    only tested: ``u0, u1, v0, v1, x0, x1, y0, y1``."""
+    u0 = -0.5 if a0 - 1 + (ext & 7) <= 0 else a0 - 1.0 + (ext & 7)
+    v0 = -0.5 if b0 - 1 + ((ext >> 6) & 7) <= 0 else b0 - 1.0 + ((ext >> 6) & 7)
+    u1 = min(a0 - 1.0 + ((ext >> 3) & 7), w.n_a - 0.5)
+    v1 = min(b0 - 1.0 + ((ext >> 9) & 7), w.n_b - 0.5)
+    xs = coef[X0] + c * coef[XC]
+    ys = coef[Y0] + c * coef[YC]
+    xa0, xa1 = u0 * coef[XA], u1 * coef[XA]
+    xb0, xb1 = v0 * coef[XB], v1 * coef[XB]
+    ya0, ya1 = u0 * coef[YA], u1 * coef[YA]
+    yb0, yb1 = v0 * coef[YB], v1 * coef[YB]
+    cx0 = xs + min(xa0, xa1) + min(xb0, xb1)
+    cx1 = xs + max(xa0, xa1) + max(xb0, xb1)
+    cy0 = ys + min(ya0, ya1) + min(yb0, yb1)
+    cy1 = ys + max(ya0, ya1) + max(yb0, yb1)
+    if cx1 < 0.0 or cy1 < y0b or cx0 > img_w - 1 or cy0 > y1b - 1:
+        return u0, u1, v0, v1, 1, 0, 1, 0
+    return (u0, u1, v0, v1, max(int(math.ceil(cx0 - SPAN_MARGIN)), 0),
+            min(int(math.floor(cx1 + SPAN_MARGIN)), img_w - 1), max(int(math.ceil(cy0 - SPAN_MARGIN)), y0b),
+            min(int(math.floor(cy1 + SPAN_MARGIN)), y1b - 1))
 
 
 @leaf

@@ -491,11 +491,13 @@ def _mode(ctx: Ctx, t: Table, classification: str, sheets: str) -> tuple[str, st
 
 
 def _not_applied(ctx: Ctx, tree: dict, render: RenderOptions) -> None:
-    """One warning line per key the scene gives that an intensity projection does not use (shading, early
-    termination, the footprint's keys: it reconstructs with the tent and finishes pixels by their bound)."""
+    """One warning line per key the scene gives that an intensity projection does not use (shading's lights and
+    terms, early termination, the footprint's keys: it reconstructs with the tent and finishes pixels by their
+    bound). ``shading.enabled`` alone says nothing (shading is on by default; isplat.render always writes it)."""
     if render.mode == "composite":
         return
-    given = [("shading",)] if "shading" in tree else []
+    shading = tree.get("shading") if isinstance(tree.get("shading"), dict) else {}
+    given = [("shading", k) for k in shading if k != "enabled"]
     given += [("render", k) for k in ("early_termination", "footprint_radius", "footprint_sigma", "footprint_table")
               if k in (tree.get("render") or {})]
     for path in given:

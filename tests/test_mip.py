@@ -178,10 +178,12 @@ def test_scene_messages(text, needle):
 
 
 def test_options_that_do_not_apply_warn(caplog):
-    parse_scene(BASE + '[shading]\nenabled = true\n[render]\nmode = "mip"\nearly_termination = 0.5', ".", "t.toml",
+    parse_scene(BASE + '[shading]\nenabled = true\n[render]\nmode = "mip"', ".", "t.toml", data_required=False)
+    assert not caplog.records               # shading on is the default: nothing to say
+    parse_scene(BASE + '[shading]\nambient = 0.5\n[render]\nmode = "mip"\nearly_termination = 0.5', ".", "t.toml",
                 data_required=False)
     lines = [r.getMessage() for r in caplog.records]
-    assert any("t.toml:6: shading does not apply to render.mode" in m for m in lines), lines
+    assert any("t.toml:7: shading.ambient does not apply to render.mode" in m for m in lines), lines
     assert any("render.early_termination does not apply" in m for m in lines), lines
 
 

@@ -70,33 +70,29 @@ _UNITS = {}             # (id(selection), axis, sign) -> Units, dropped with the
 AHEAD = 4               # units prefetched ahead of the one sampled
 
 
-def units_of(sel, axis: str, sign: float = 0.0) -> Units:
+def units_of(sel, axis: str, sign: float) -> Units:
     """The :data:`Units` of ``axis`` of the selection ``sel`` (the index's voxels of interest; with the full method
-    every voxel whose opacity is not zero), made once and kept while the selection lives; with ``sign`` 1 (MIP) or
-    -1 (MinIP) in the frame's order (:func:`sorted_units`), a copy, so that a frame reads them in sequence."""
+    every voxel of a density of interest) in the frame's order for ``sign`` 1 (MIP) or -1 (MinIP)
+    (:func:`sorted_units`), so that a frame reads them in sequence; made once and kept while the selection lives."""
     key = (id(sel), axis, sign)
     got = _UNITS.get(key)
-    if got is not None:
-        return got
-    if sign != 0.0:
-        units = units_of(sel, axis)
-        order = sorted_units(units, sign)
-        out = Units(*(np.ascontiguousarray(x[order]) for x in units))
-        _UNITS[key] = out
+    if got is None:
+        units = make_units(sel, axis)
+        got = Units(*(np.ascontiguousarray(x[sorted_units(units, sign)]) for x in units))
+        _UNITS[key] = got
         weakref.finalize(sel, _UNITS.pop, key, None)
-        return out
+    return got
+
+
+def make_units(sel, axis: str) -> Units:
+    """The :data:`Units` of ``axis`` of ``sel`` in the selection's order (slice, region, block, cell)."""
     w = sel.whole_volume(axis)
     interest = interest_table(sel.luts.intervals)
     if sel.method == "full":
-        out = Units(*_full_units(w.density, interest, w.strides, w.n_a, w.n_b, _n_slices(sel, axis)))
-    else:
-        v = sel.voxels(axis)
-        out = Units(*_indexed_units(v.slice_ptr, v.region_ptr, v.region_id, v.block_pos, v.block_ptr,
-                                    v.block_voxel, v.cell_pos, v.cell_count, v.offset, w.density, interest,
-                                    w.strides, w.n_a, w.n_b))
-    _UNITS[key] = out
-    weakref.finalize(sel, _UNITS.pop, key, None)
-    return out
+        return Units(*_full_units(w.density, interest, w.strides, w.n_a, w.n_b, _n_slices(sel, axis)))
+    v = sel.voxels(axis)
+    return Units(*_indexed_units(v.slice_ptr, v.region_ptr, v.region_id, v.block_pos, v.block_ptr, v.block_voxel,
+                                 v.cell_pos, v.cell_count, v.offset, w.density, interest, w.strides, w.n_a, w.n_b))
 
 
 def interest_table(intervals) -> np.ndarray:

@@ -284,11 +284,10 @@ def _band_units(plan, cs, mine, buf, band):
                 continue
         mine[nm] = u
         nm += 1
-    for t in range(min(AHEAD, nm)):
-        _look_ahead(plan, mine, t, cs, held, img_w, y0b, y1b)
+    la = 0                          # the next unit to look at ahead
     for t in range(nm):
-        if t + AHEAD < nm:          # the voxels of the units ahead come from memory while this one is sampled
-            _look_ahead(plan, mine, t + AHEAD, cs, held, img_w, y0b, y1b)
+        while la < nm and la <= t + AHEAD:  # the voxels of the units ahead come from memory while this one is drawn
+            la = _look_ahead(plan, mine, la, nm, cs, held, img_w, y0b, y1b)
         u = mine[t]
         if u < 0:
             continue                # its tiles were finished when looked at ahead, and stay so
@@ -306,23 +305,58 @@ def _band_units(plan, cs, mine, buf, band):
 
 
 @leaf(forceinline=True)
-def _look_ahead(plan, mine, t, cs, held, img_w, y0b, y1b):
-    """The unit ``mine[t]``, a few ahead of the one drawn: when the tiles it reaches are all known finished already
-    it is marked skipped (``-1 - u``: tiles stay finished), else its densities are asked for
-    (:func:`_prefetch_unit`), so that units skipped at once cost no memory traffic. Only looks: the tiles' counts
-    advance with the bound of the unit being drawn (:func:`_tiles_hold`), never with a later, lower one."""
+def _look_ahead(plan, mine, t, nm, cs, held, img_w, y0b, y1b):
+    """Look at the unit ``mine[t]``, a few ahead of the one drawn, and return the next to look at. When it starts a
+    run of units of one block (16 x 16 voxels) of one slice (orthographic) whose box reaches only tiles known
+    finished, the whole run is marked skipped (``-1 - u``: tiles stay finished, and every unit's box lies in its
+    block's); else the unit alone, or its densities are asked for (:func:`_prefetch_unit`), so that units skipped
+    at once cost no memory traffic. Only looks: the tiles' counts advance with the bound of the unit being drawn
+    (:func:`_tiles_hold`), never with a later, lower one."""
     units, w = plan.units, plan.whole
     u = mine[t]
-    if plan.geo.persp:
-        _, _, _, _, _, x0, x1, y0, y1 = _unit_box(units.c[u], units.a0[u], units.b0[u], units.ext[u], w, plan.geo,
-                                                  cs, img_w, y0b, y1b)
-    else:
+    if not plan.geo.persp:
+        e = _run_end(units, mine, t, nm)
+        if e - t > 1:
+            c = units.c[u]
+            ba0 = units.a0[u] // BLOCK * BLOCK
+            bb0 = units.b0[u] // BLOCK * BLOCK
+            x0, x1, y0, y1 = _ortho_rect_box(c, -0.5 if ba0 == 0 else ba0 - 1.0, min(ba0 + BLOCK, w.n_a - 0.5),
+                                             -0.5 if bb0 == 0 else bb0 - 1.0, min(bb0 + BLOCK, w.n_b - 0.5),
+                                             plan.geo.coef, img_w, y0b, y1b)
+            if x0 > x1 or y0 > y1 or _tiles_finished(held, x0, x1, y0, y1):
+                for k in range(t, e):
+                    mine[k] = -1 - mine[k]
+                return e
         _, _, _, _, x0, x1, y0, y1 = _ortho_box(units.c[u], units.a0[u], units.b0[u], units.ext[u], w, plan.geo.coef,
                                                 img_w, y0b, y1b)
-    if _tiles_finished(held, x0, x1, y0, y1):
+    else:
+        _, _, _, _, _, x0, x1, y0, y1 = _unit_box(units.c[u], units.a0[u], units.b0[u], units.ext[u], w, plan.geo,
+                                                  cs, img_w, y0b, y1b)
+    if x0 > x1 or y0 > y1 or _tiles_finished(held, x0, x1, y0, y1):
         mine[t] = -1 - u
     else:
         _prefetch_unit(units.c[u], units.a0[u], units.b0[u], w)
+    return t + 1
+
+
+@leaf(forceinline=True)
+def _run_end(units, mine, t, nm):
+    """The end of the run of units from ``mine[t]`` in the same block of the same slice when ``mine[t]`` starts
+    one (the one before is elsewhere), else t + 1; at most 64 units."""
+    u = mine[t]
+    c, ka, kb = units.c[u], units.a0[u] // BLOCK, units.b0[u] // BLOCK
+    if t > 0:
+        p = mine[t - 1]
+        p = -1 - p if p < 0 else p
+        if units.c[p] == c and units.a0[p] // BLOCK == ka and units.b0[p] // BLOCK == kb:
+            return t + 1
+    e = t + 1
+    while e < nm and e - t < 64:
+        k = mine[e]
+        if units.c[k] != c or units.a0[k] // BLOCK != ka or units.b0[k] // BLOCK != kb:
+            break
+        e += 1
+    return e
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
@@ -419,13 +453,21 @@ def _unit_box(c, a0, b0, ext, w, geo, cs, img_w, y0b, y1b):
 
 @leaf(forceinline=True)
 def _ortho_box(c, a0, b0, ext, w, coef, img_w, y0b, y1b):
-    """:func:`_unit_box` of an orthographic view without the slice's bases and cuts (the same numbers: the bases'
-    first two and :func:`isplat.splat.post._cell_pixels`' orthographic box, written out), for the units that are
-    only tested: ``u0, u1, v0, v1, x0, x1, y0, y1``."""
+    """:func:`_unit_box` of an orthographic view without the slice's bases and cuts (the same numbers), for the
+    units that are only tested: ``u0, u1, v0, v1, x0, x1, y0, y1``."""
     u0 = -0.5 if a0 - 1 + (ext & 7) <= 0 else a0 - 1.0 + (ext & 7)
     v0 = -0.5 if b0 - 1 + ((ext >> 6) & 7) <= 0 else b0 - 1.0 + ((ext >> 6) & 7)
     u1 = min(a0 - 1.0 + ((ext >> 3) & 7), w.n_a - 0.5)
     v1 = min(b0 - 1.0 + ((ext >> 9) & 7), w.n_b - 0.5)
+    x0, x1, y0, y1 = _ortho_rect_box(c, u0, u1, v0, v1, coef, img_w, y0b, y1b)
+    return u0, u1, v0, v1, x0, x1, y0, y1
+
+
+@leaf(forceinline=True)
+def _ortho_rect_box(c, u0, u1, v0, v1, coef, img_w, y0b, y1b):
+    """The pixels of the band (rows ``[y0b, y1b)``) whose centres can see ``[u0, u1) x [v0, v1)`` of slice ``c``,
+    orthographic: :func:`isplat.splat.post._cell_pixels` written out from the coefficients (the slice's bases'
+    first two terms), the same numbers; empty: x0 > x1."""
     xs = coef[X0] + c * coef[XC]
     ys = coef[Y0] + c * coef[YC]
     xa0, xa1 = u0 * coef[XA], u1 * coef[XA]
@@ -437,10 +479,9 @@ def _ortho_box(c, a0, b0, ext, w, coef, img_w, y0b, y1b):
     cy0 = ys + min(ya0, ya1) + min(yb0, yb1)
     cy1 = ys + max(ya0, ya1) + max(yb0, yb1)
     if cx1 < 0.0 or cy1 < y0b or cx0 > img_w - 1 or cy0 > y1b - 1:
-        return u0, u1, v0, v1, 1, 0, 1, 0
-    return (u0, u1, v0, v1, max(int(math.ceil(cx0 - SPAN_MARGIN)), 0),
-            min(int(math.floor(cx1 + SPAN_MARGIN)), img_w - 1), max(int(math.ceil(cy0 - SPAN_MARGIN)), y0b),
-            min(int(math.floor(cy1 + SPAN_MARGIN)), y1b - 1))
+        return 1, 0, 1, 0
+    return (max(int(math.ceil(cx0 - SPAN_MARGIN)), 0), min(int(math.floor(cx1 + SPAN_MARGIN)), img_w - 1),
+            max(int(math.ceil(cy0 - SPAN_MARGIN)), y0b), min(int(math.floor(cy1 + SPAN_MARGIN)), y1b - 1))
 
 
 @leaf

@@ -15,7 +15,9 @@ writes the section ``peers`` of ``performance.md``, ``peers.csv`` and ``img/peer
   integral, trilinear, post-classified, step 0.05 voxel), and between the two;
 * peak memory of each renderer drawing one frame in a process of its own (``ru_maxrss``);
 * one frame as a process: ``isplat render`` to a PNG against a minimal VTK script doing the same, interleaved, and
-  the first ``isplat render`` on a machine (an empty numba cache).
+  the first ``isplat render`` on a machine (an empty numba cache);
+* then maximum-intensity projection against VTK's MIP (``--mip-only`` for that alone, ``--cases`` to choose
+  among its cases): :mod:`benchmarks.peers_mip`, which writes ``docs/mip.md``.
 
 Not part of ``make test`` or CI: VTK is a large optional download and needs an OpenGL context even for its
 CPU mapper (Mesa's EGL or OSMesa; see :func:`offscreen_window_class`). Under ``python -m benchmarks all``

@@ -17,8 +17,26 @@ from isplat import camera as C
 from isplat.transfer import piecewise_linear
 
 
+EDGE = 1e-7        # grid units: a crossing this near a quad's edge may fall in either quad (mip_bounds)
+
+
 def mip_reference(density, view, scene, mode="mip"):
     """float64 (H, W): each pixel's extreme density along its ray at the slice planes; NaN where no sample."""
+    return _reference(density, view, scene, mode, False)[0]
+
+
+def mip_bounds(density, view, scene, mode="mip"):
+    """What rounding may make of the projection: float64 (H, W) twice, the extreme over the crossings that are
+    sampled whichever side of a quad's edge rounding puts them (``strict``) and over those sampled on some side
+    (``loose``), each crossing moved by up to EDGE along the slice's axes. A crossing on the edge between a quad
+    of interest and one of none (a pixel centre on a voxel's column, say) is sampled or not by a hair: the two
+    differ there, and a renderer is right anywhere between them (MIP: strict <= it <= loose). NaN: no sample.
+    Third, for pixels with no crossing sampled on every side: (least, greatest) of the crossings sampled on some
+    side, between which the extreme of any of them lies."""
+    return _reference(density, view, scene, mode, True)
+
+
+def _reference(density, view, scene, mode, bounds):
     frame, geom = view.frame, view.geom
     axis, _ = C.principal_axis(frame, geom)
     ia, ib, ic = C.SLICE_AXES[axis]
@@ -31,6 +49,9 @@ def mip_reference(density, view, scene, mode="mip"):
     cx, cy = W / 2.0 - 0.5, H / 2.0 - 0.5
     pick = max if mode == "mip" else min
     out = np.full((H, W), np.nan)
+    loose_out = np.full((H, W), np.nan)
+    span = (np.full((H, W), np.nan), np.full((H, W), np.nan))
+    shifts = [(du, dv) for du in (-EDGE, 0.0, EDGE) for dv in (-EDGE, 0.0, EDGE)] if bounds else [(0.0, 0.0)]
     for y in range(H):
         for x in range(W):
             P = frame.p + (x - cx) * frame.pixel_size * frame.u - (y - cy) * frame.pixel_size * frame.v
@@ -39,7 +60,7 @@ def mip_reference(density, view, scene, mode="mip"):
             og, dg = (o - geom.q) @ to_grid.T, d @ to_grid.T
             if abs(dg[ic]) < 1e-15:
                 continue
-            best = None
+            best, loose = None, None
             for c in range(n_ijk[ic]):
                 t = (c - og[ic]) / dg[ic]
                 if persp and t * float(-(d @ frame.w)) < frame.near:
@@ -48,12 +69,22 @@ def mip_reference(density, view, scene, mode="mip"):
                 X = geom.q + g @ geom.steps
                 if any((X - np.asarray(cut.point)) @ np.asarray(cut.normal) < 0 for cut in scene.cuts):
                     continue
-                s = bilinear(density, g[ia], g[ib], c, (ia, ib, ic), n_ijk, interest)
-                if s is not None:
+                got = [bilinear(density, g[ia] + du, g[ib] + dv, c, (ia, ib, ic), n_ijk, interest)
+                       for du, dv in shifts]
+                found = [s for s in got if s is not None]
+                if found and len(found) == len(got):
+                    s = got[len(got) // 2]                  # the crossing itself
                     best = s if best is None else pick(best, s)
+                if found:
+                    s = pick(found)
+                    loose = s if loose is None else pick(loose, s)
+                    span[0][y, x] = np.fmin(span[0][y, x], min(found))
+                    span[1][y, x] = np.fmax(span[1][y, x], max(found))
             if best is not None:
                 out[y, x] = best
-    return out
+            if loose is not None:
+                loose_out[y, x] = loose
+    return out, loose_out, span
 
 
 def bilinear(density, u, v, c, axes, n_ijk, interest):

@@ -11,7 +11,7 @@ import pytest
 from conftest import scene_text, write_volume
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from mip_reference import grey, mip_reference
+from mip_reference import grey, mip_bounds, mip_reference
 
 from isplat.errors import IsplatError
 from isplat.frame import render_frame, views_for
@@ -38,11 +38,33 @@ def scene_for(aug, idx, tmp, mode="mip", camera="", cut="", render="", transfer=
     return parse_scene(scene_text(aug, idx, **sections), tmp, "test.toml")
 
 
+def within(rgba, dens, view, scene, mode):
+    """The image (default window: grey = density / 255) lies between what rounding may make of the brute-force
+    projection (tests/mip_reference.py, mip_bounds): equal to it but where a crossing lies on a quad's edge."""
+    strict, loose, span = mip_bounds(dens, view, scene, mode)
+    v = rgba[..., 0].astype(np.float64) * 255.0
+    tol = TOL * 255
+    lo, hi = (strict, loose) if mode == "mip" else (loose, strict)
+    ok_nan = np.isnan(strict) | ~np.isnan(loose)        # strict sampled implies loose sampled
+    assert ok_nan.all()
+    sampled = ~np.isnan(loose)
+    bg = grey(np.full(strict.shape, np.nan), scene.image.background)
+    # no sample on any side: the background; sampled on every side: a value between the bounds
+    assert np.abs(rgba[~sampled] - bg[~sampled]).max(initial=0) <= TOL
+    must = ~np.isnan(strict)
+    assert (v[must] >= lo[must] - tol).all() and (v[must] <= hi[must] + tol).all()
+    maybe = sampled & ~must                    # sampled or not by a hair: the background or within the bounds
+    ok = np.all(np.abs(rgba[maybe] - bg[maybe]) <= TOL, axis=-1) | (
+        (v[maybe] >= span[0][maybe] - tol) & (v[maybe] <= span[1][maybe] + tol))
+    assert ok.all()
+
+
 def check(scene, dens, n=0):
     r = Renderer(scene)
     rgba, st_ = r.render_view(n)
     ref = grey(mip_reference(dens, r.views[n], scene, scene.render.mode), scene.image.background)
     assert np.abs(rgba - ref).max() <= TOL
+    within(rgba, dens, r.views[n], scene, scene.render.mode)
     return st_
 
 
@@ -121,8 +143,7 @@ def test_random_volumes_and_views(seed, az, el, persp, minip, lo, shape):
     sel = Selection.from_arrays(dens, scene)
     view = views_for(scene, sel)[0]
     rgba, _ = render_frame(sel, view)
-    ref = grey(mip_reference(dens, view, scene, mode), scene.image.background)
-    assert np.abs(rgba - ref).max() <= TOL
+    within(rgba, dens, view, scene, mode)      # equal to the reference but where a crossing is on a quad's edge
 
 
 # ---- the window and the colours ----------------------------------------------------------------------------------

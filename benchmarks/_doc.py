@@ -99,9 +99,9 @@ def stamp(section: str, command: str, techniques, sources, commit: str | None = 
     '<!-- isplat-stamp: {"section": "paper", "commit": "ad6551e", "command": "python -m benchmarks paper", \
 "techniques": ["pre", "post"], "sources": ["benchmarks/paper.py"]} -->'
     """
-    bad = [t for t in techniques if t not in ("pre", "post")]
+    bad = [t for t in techniques if t not in ("pre", "post", "mip", "minip")]
     if bad:
-        raise ValueError(f"unknown techniques {bad}: expected 'pre' or 'post'")
+        raise ValueError(f"unknown techniques {bad}: expected 'pre', 'post', 'mip' or 'minip'")
     d = {"section": section, "commit": commit or git_rev(), "command": command, "techniques": list(techniques),
          "sources": list(sources), **extra}
     return f"<!-- {STAMP_TAG}: {json.dumps(d)} -->"

@@ -15,7 +15,9 @@ writes the section ``peers`` of ``performance.md``, ``peers.csv`` and ``img/peer
   integral, trilinear, post-classified, step 0.05 voxel), and between the two;
 * peak memory of each renderer drawing one frame in a process of its own (``ru_maxrss``);
 * one frame as a process: ``isplat render`` to a PNG against a minimal VTK script doing the same, interleaved, and
-  the first ``isplat render`` on a machine (an empty numba cache).
+  the first ``isplat render`` on a machine (an empty numba cache);
+* then maximum-intensity projection against VTK's MIP (``--mip-only`` for that alone, ``--cases`` to choose
+  among its cases): :mod:`benchmarks.peers_mip`, which writes ``docs/mip.md``.
 
 Not part of ``make test`` or CI: VTK is a large optional download and needs an OpenGL context even for its
 CPU mapper (Mesa's EGL or OSMesa; see :func:`offscreen_window_class`). Under ``python -m benchmarks all``
@@ -976,6 +978,9 @@ def main(argv=None) -> int:
                     help="rewrite the section from the last run's measurements (out/bench-peers/results.json)")
     ap.add_argument("--reuse-frames", action="store_true",
                     help="keep the last run's frame times and errors; measure memory and process times again")
+    ap.add_argument("--mip-only", action="store_true",
+                    help="only the maximum-intensity projection against VTK's (benchmarks/peers_mip.py, docs/mip.md)")
+    ap.add_argument("--cases", default=None, help="with --mip-only: the MIP cases, comma-separated (head,head-512)")
     ap.add_argument("--memory-child", nargs=3, metavar=("WHO", "CASE", "SIZE"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.memory_child:
@@ -986,8 +991,15 @@ def main(argv=None) -> int:
         return 0
     cmd = "make bench-peers   # = pip install vtk; python -m benchmarks.peers" + (" --quick" if a.quick else "")
     try:
-        path = run(a.out, a.quick, required=True, command=cmd, report_only=a.report_only,
-                   reuse_frames=a.reuse_frames)
+        if not a.mip_only:
+            path = run(a.out, a.quick, required=True, command=cmd, report_only=a.report_only,
+                       reuse_frames=a.reuse_frames)
+            print(f"[peers] wrote {path}", file=sys.stderr)
+        if not (a.report_only or a.reuse_frames):        # the MIP page: benchmarks/peers_mip.py
+            from . import peers_mip
+
+            cases = a.cases.split(",") if a.cases else None
+            path = peers_mip.run(a.out, a.quick, cases, None if a.mip_only else cmd)
     except PeerUnavailable as exc:
         print(f"benchmarks.peers: error: {exc}", file=sys.stderr)
         return 3

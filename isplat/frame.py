@@ -54,19 +54,21 @@ class FrameStats:
     voxels_tested: int = 0      # voxels that reached the per-voxel stages (not skipped with their region,
                                 # block or cell), summed over the image bands (a voxel near a band's edge
                                 # is tested by both bands)
-    classification: str = "pre"
+    classification: str = "pre" # the technique: "pre", "post", or "mip" / "minip" (render.mode)
     samples: int = 0            # post: samples composited (one per pixel and slice where a quad of interest is
-                                # seen); pre: 0
+                                # seen); mip/minip: samples taken; pre: 0
+    # mip/minip: voxels_examined is the frame's voxels of interest, voxels_tested those in units visited (not
+    # skipped), summed over the image bands (a unit reaching two bands counts in each)
 
     @property
     def drawn(self) -> int:
-        """What the technique drew: voxels splatted (pre) or samples composited (post)."""
-        return self.samples if self.classification == "post" else self.voxels_splatted
+        """What the technique drew: voxels splatted (pre) or samples composited (post) or taken (mip/minip)."""
+        return self.voxels_splatted if self.classification == "pre" else self.samples
 
     @property
     def drawn_unit(self) -> str:
-        """What :attr:`drawn` counts, in words: "voxels splatted" or "samples composited"."""
-        return "samples composited" if self.classification == "post" else "voxels splatted"
+        """What :attr:`drawn` counts, in words: "voxels splatted", "samples composited" or "samples taken"."""
+        return {"pre": "voxels splatted", "post": "samples composited"}.get(self.classification, "samples taken")
 
 
 @dataclass(frozen=True)
@@ -191,11 +193,15 @@ class FrameTables:
 # returning its plan (registered with :func:`isplat.splat.traverse.register`), its threads' scratch and its
 # order of sheets (None: the view's slices). Adding a technique is adding a module and its line here. (Names
 # relative to isplat: isplat imports itself only relatively, scripts/ab.py loads copies of it side by side.)
-TECHNIQUES = {"pre": ".splat.pre", "post": ".splat.post", "image-sheets": ".splat.sheets"}
+TECHNIQUES = {"pre": ".splat.pre", "post": ".splat.post", "image-sheets": ".splat.sheets", "mip": ".splat.mip",
+              "minip": ".splat.mip"}
 
 
 def technique_of(ro) -> str:
-    """The technique of a frame's settings (``render``): image-aligned sheets, or the classification's."""
+    """The technique of a frame's settings (``render``): an intensity projection (``render.mode``), image-aligned
+    sheets, or the classification's."""
+    if ro.mode != "composite":
+        return ro.mode
     return "image-sheets" if ro.sheets == "image" else ro.classification
 
 
@@ -337,10 +343,11 @@ def frame_stats(view: View, part: Partial, seconds: float) -> FrameStats:
     composited sample (post), and the slices are those of the deepest band."""
     axis, sign = view.axis_sign
     bs = part.band_stats
-    post = view.render.classification == "post"
+    technique = view.render.classification if view.render.mode == "composite" else view.render.mode
+    pre = technique == "pre"
     drawn = int(bs[:, 2].sum())
-    return FrameStats(axis, sign, int(bs[:, 0].max()), 0 if post else drawn, int(bs[:, 3].max()), seconds,
-                      int(bs[:, 1].sum()), view.render.classification, drawn if post else 0)
+    return FrameStats(axis, sign, int(bs[:, 0].max()), drawn if pre else 0, int(bs[:, 3].max()), seconds,
+                      int(bs[:, 1].sum()), technique, 0 if pre else drawn)
 
 
 def render_frame(sel, view: View, et: float | None = None, bands: "BandLearning | None" = None):
@@ -451,7 +458,7 @@ def band_rows(bands: "BandLearning | None", view: View, threads: int) -> np.ndar
 
 def _balance_key(view: View, threads: int) -> tuple:
     ro = view.render
-    return view.axis_sign, view.frame.height, view.frame.width, threads, ro.classification, ro.sheets
+    return view.axis_sign, view.frame.height, view.frame.width, threads, ro.classification, ro.sheets, ro.mode
 
 
 @dataclass

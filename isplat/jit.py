@@ -54,7 +54,7 @@ def _announce_compile(cache_path: str) -> None:
 # (every technique's kernel inlines traverse.py's occlusion tests): a cached kernel is fresh only while all of
 # them are.
 KERNEL_SOURCES = ("jit.py", "augment.py", "normals.py", "samples.py", "index/codec.py", "splat/composite.py",
-                  "splat/labels.py", "splat/post.py", "splat/pre.py", "splat/select.py", "splat/shade.py",
+                  "splat/labels.py", "splat/mip.py", "splat/post.py", "splat/pre.py", "splat/select.py", "splat/shade.py",
                   "splat/sheets.py", "splat/traverse.py")
 _HERE = os.path.dirname(os.path.abspath(__file__))
 

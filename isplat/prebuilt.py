@@ -100,7 +100,7 @@ def _child(out: str, workload: str, modules: list[str]) -> None:
 
 
 # what the commands render: post- and pre-classified, indexed and full, orthographic and perspective, image
-# sheets, float64, a cut, gradient-modulated opacity, slabs
+# sheets, float64, a cut, gradient-modulated opacity, slabs, intensity projections (render.mode)
 VARIANTS = ([], ['render.classification="pre"'], ['render.method="full"'],
             ['render.method="full"', 'render.classification="pre"'], ['camera.projection="perspective"'],
             ['render.classification="pre"', 'render.sheets="image"'], ['render.precision="float64"'],
@@ -110,7 +110,9 @@ VARIANTS = ([], ['render.classification="pre"'], ['render.method="full"'],
             ['transfer.gradient_opacity=[[0, 0.2], [255, 1.0]]', 'render.classification="pre"'],
             ['shading.enabled=true', 'render.classification="pre"'],
             ['render.method="full"', 'render.classification="pre"', 'render.sheets="image"'],
-            ['shading.enabled=false', 'render.threads=1'])
+            ['shading.enabled=false', 'render.threads=1'], ['version=6', 'render.mode="mip"'],
+            ['version=6', 'render.mode="minip"', 'render.method="full"'],
+            ['version=6', 'render.mode="mip"', 'render.precision="float64"'])
 
 
 def isplat_workload() -> None:

@@ -89,6 +89,10 @@ class Renderer:
             self.request = RenderRequest.from_files(scene, self.data, axes, method)
         self.method = self.request.method
         self.slabs = slabs or (1 if scheduler is not None or arrays is not None else self._auto_slabs())
+        if scene.render.mode != "composite" and self.slabs > 1:
+            raise IsplatError(f'render.mode = "{scene.render.mode}" renders each frame in one pass: slabs (--slabs '
+                              f'{self.slabs}{"" if slabs else ", chosen for the memory left"}) do not apply (an '
+                              'extreme is not composited front to back); leave --slabs out or free memory')
         self.selection, self.bands, self._report = None, BandLearning(), None
         if scheduler is None and self.slabs == 1:
             make = (lambda: select_arrays(self.request, arrays.channels)) if arrays is not None else \

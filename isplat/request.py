@@ -120,7 +120,8 @@ class RenderRequest:
 
             slab = tuple((int(a), int(b)) for a, b in slice_runs(slices, 1 << 62))
         return cls(source, augmented, None if index is None else Path(index), tuple(int(x) for x in shape),
-                   tuple(float(x) for x in spacing), float(gscale), scene.transfer, bool(scene.shading.enabled),
+                   tuple(float(x) for x in spacing), float(gscale), scene.transfer,
+                   bool(scene.shading.enabled) and scene.render.mode == "composite",
                    method, scene.render.classification, "".join(sorted(axes)), slab,
                    tuple(getattr(getattr(scene, "labels", None), "shown", ())))
 

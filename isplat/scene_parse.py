@@ -374,7 +374,7 @@ def _preset(ctx: Ctx, t: dict):
     return PRESETS[name]
 
 
-def _transfer(ctx: Ctx, tree: dict, data: Data, density_window: WindowArg) -> Transfer:
+def _transfer(ctx: Ctx, tree: dict, data: Data, conv: "_Units") -> Transfer:
     """``[transfer]`` in density codes; a preset gives what the table leaves out (units "data", its unit
     distance), and the schema's defaults the rest."""
     t = Table(ctx, ctx.table(tree, ("transfer",), TRANSFER_KEYS), ("transfer",), defaults(Transfer))
@@ -383,7 +383,6 @@ def _transfer(ctx: Ctx, tree: dict, data: Data, density_window: WindowArg) -> Tr
     units = t.choice("units", ("code", "data"), default="data" if preset else t.defaults["units"])
     if "opacity" not in raw and preset is None:
         ctx.missing(p + ("opacity",))
-    conv = _Units(ctx, data, density_window)
     first = (0, 255) if units == "code" else (-math.inf, None)
     what = "density" if units == "code" else "value"
 
@@ -474,8 +473,72 @@ def _render(ctx: Ctx, tree: dict) -> RenderOptions:
                  'principal axis; it takes render.sheets = "axis"')
     supersample = t.integer("supersample", f"expected an integer 1..{SUPERSAMPLE_MAX} (render at N times the width "
                             "and height, box-filtered down; 1 = off)", 1, SUPERSAMPLE_MAX)
+    mode, color = _mode(ctx, t, classification, sheets)
     return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets, classification,
-                         supersample)
+                         supersample, mode, None, color)
+
+
+MODES = ("composite", "mip", "minip")
+
+
+def _mode(ctx: Ctx, t: Table, classification: str, sheets: str) -> tuple[str, str]:
+    """``render.mode`` and ``render.intensity_color``; an intensity projection samples the trilinear field of the
+    principal axis's slices (isplat.splat.mip), so the paper's pre-classified splatting and image sheets are
+    refused in one line, and keys that apply to an intensity projection only are refused with "composite"."""
+    mode = t.choice("mode", MODES)
+    color = t.choice("intensity_color", ("grey", "transfer"))
+    if mode == "composite":
+        for key in ("window", "intensity_color"):
+            if key in t:
+                t.fail(key, f'render.{key} applies to render.mode = "mip" or "minip" (the mode is "composite")')
+        return mode, color
+    if sheets == "image":
+        t.fail("sheets", f'render.mode = "{mode}" samples the slices of the principal axis; it takes render.sheets '
+                         '= "axis"')
+    if classification != "post":
+        ctx.fail(t.path("classification") if "classification" in t else t.path("mode"),
+                 t.raw.get("classification", mode), f'render.mode = "{mode}" reconstructs the density as '
+                 'render.classification = "post" does; it takes "post" (the default of version >= 4)')
+    return mode, color
+
+
+def _not_applied(ctx: Ctx, tree: dict, render: RenderOptions) -> None:
+    """One warning line per key the scene gives that an intensity projection does not use (shading's lights and
+    terms, early termination, the footprint's keys: it reconstructs with the tent and finishes pixels by their
+    bound). ``shading.enabled`` alone says nothing (shading is on by default; isplat.render always writes it)."""
+    if render.mode == "composite":
+        return
+    shading = tree.get("shading") if isinstance(tree.get("shading"), dict) else {}
+    given = [("shading", k) for k in shading if k != "enabled"]
+    given += [("render", k) for k in ("early_termination", "footprint_radius", "footprint_sigma", "footprint_table")
+              if k in (tree.get("render") or {})]
+    for path in given:
+        log.warning(f"isplat: warning: {ctx.where(path)}: {dotted(path)} does not apply to render.mode = "
+                    f'"{render.mode}" (ignored)')
+
+
+def _window(ctx: Ctx, tree: dict, render: RenderOptions, units: str, conv: "_Units") -> RenderOptions:
+    """``render.window`` (an intensity projection's grey ramp: [LO, HI] in the transfer function's units, or a
+    named window of isplat augment, in Hounsfield units) as density codes; absent: the whole range, 0..255."""
+    raw = (tree.get("render") or {})
+    if render.mode == "composite" or "window" not in raw:
+        return render
+    path, value = ("render", "window"), raw["window"]
+    if isinstance(value, str):
+        from .augment import NAMED_WINDOWS
+
+        if value not in NAMED_WINDOWS:
+            ctx.fail(path, value, "expected [LO, HI] or a named window: " + ", ".join(NAMED_WINDOWS))
+        lo, hi = NAMED_WINDOWS[value]
+        codes = tuple(float(_units.to_code(x, conv.window(path, value))) for x in (lo, hi))
+    else:
+        lo, hi = ctx.vector(path, value, 2, "expected [LO, HI], LO < HI, in the transfer function's units, or a "
+                                            "named window")
+        if not lo < hi:
+            ctx.fail(path, value, "expected [LO, HI] with LO < HI")
+        codes = (lo, hi) if units == "code" else tuple(float(_units.to_code(x, conv.window(path, value)))
+                                                       for x in (lo, hi))
+    return replace(render, window=codes)
 
 
 def _cameras(ctx: Ctx, tree: dict) -> tuple[Camera, tuple[Camera, ...]]:
@@ -610,8 +673,11 @@ def build_scene(ctx: Ctx, tree: dict, data_required: bool = True, density_window
     image = _image(ctx, tree)
     volume = _volume(ctx, tree, tree.get("version"))
     camera, views = _cameras(ctx, tree)
-    transfer = _transfer(ctx, tree, data, density_window)
+    conv = _Units(ctx, data, density_window)
+    transfer = _transfer(ctx, tree, data, conv)
+    render = _window(ctx, tree, render, transfer.units, conv)
     shading = _shading(ctx, tree)
+    _not_applied(ctx, tree, render)
     cuts = _cuts(ctx, tree)
     fps = Table(ctx, ctx.table(tree, ("views",), VIEWS_KEYS), ("views",), defaults(Scene)).number(
         "fps", "expected frames per second, 0 < fps <= 100", lo=0.0, hi=100.0, lo_open=True)

@@ -32,6 +32,7 @@ IDENTITY_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
               ("views", "fps"): 2, ("render", "sheets"): 3,
               ("render", "classification"): 4, ("render", "supersample"): 4, ("camera", "view"): 5,
+              ("render", "mode"): 6, ("render", "window"): 6, ("render", "intensity_color"): 6,
               ("labels", "names"): 6, ("labels", "show"): 6, ("labels", "opacity"): 6}
 # tables added by a version after 1 (the whole table is new)
 TABLES_SINCE = {"labels": 6}
@@ -164,6 +165,10 @@ class RenderOptions:
                                   # then classified (isplat.splat.post). "pre" for image sheets and files that
                                   # say version < 4 (DEFAULTS_BEFORE)
     supersample: int = 1          # render at N times the width and height, box-filtered down
+    mode: str = "composite"       # "mip" / "minip": the maximum / minimum of the reconstructed density along each
+                                  # ray (isplat.splat.mip), version 6
+    window: tuple[float, float] | None = None   # mip/minip: the density codes mapped to black..white (None: 0..255)
+    intensity_color: str = "grey" # mip/minip: "grey" (the window's ramp) or "transfer" (the transfer's colour)
 
 
 @dataclass(frozen=True)
@@ -241,7 +246,8 @@ SHADING_KEYS = ("enabled", "ambient", "diffuse", "specular", "shininess", "two_s
 LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
-               "precision", "threads", "sheets", "classification", "supersample")
+               "precision", "threads", "sheets", "classification", "supersample", "mode", "window",
+               "intensity_color")
 VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
 DEFAULT_ORBIT_STEPS = 0      # views.orbit_steps: 0 = no orbit
 DEFAULT_PATH_FRAMES = 60     # views.frames of a views.path

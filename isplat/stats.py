@@ -245,7 +245,8 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_ind
         "classification": st.classification,
         "voxels_splatted": st.voxels_splatted,        # pre-classified; 0 under post
         "splatted_ratio": _ratio(st.voxels_splatted, n),
-        "samples": st.samples,                        # post-classified; 0 under pre
+        "samples": st.samples,                        # post-classified (mip/minip: samples taken); 0 under pre
+        **({"voxels_visited": st.voxels_tested} if st.classification in ("mip", "minip") else {}),
         "render_seconds": st.seconds,
         "loaded": {
             "channels": list(rep.channels),
@@ -400,9 +401,17 @@ def format_table(s: dict) -> str:
         for lab in sc.get("labels") or []:
             row(f"  label {lab['id']}{' ' + lab['name'] if lab['name'] else ''}", f"{lab['voxels']:,} voxels")
         row("spatial ratio", f"{sc['spatial_ratio']:.4f}")
-        row("view axis", f"{sc['axis']} ({sc['slices']} slices composited)")
-        row("voxels examined", f"{sc['voxels_examined']:,}")
-        if sc["classification"] == "pre":
+        if "voxels_visited" in sc:          # an intensity projection (render.mode): the leave-out figure
+            row("view axis", f"{sc['axis']} ({sc['classification']}: one pass over the cells by bound)")
+            row("voxels visited", f"{sc['voxels_visited']:,} of {sc['voxels_examined']:,} voxels of interest "
+                                  "(cells not skipped, summed over image bands)")
+            row("samples taken", f"{sc['samples']:,}")
+        else:
+            row("view axis", f"{sc['axis']} ({sc['slices']} slices composited)")
+            row("voxels examined", f"{sc['voxels_examined']:,}")
+        if "voxels_visited" in sc:
+            pass
+        elif sc["classification"] == "pre":
             row("voxels splatted", f"{sc['voxels_splatted']:,} ({_pct(sc['splatted_ratio'])} of all voxels)")
         else:
             row("samples composited", f"{sc['samples']:,} (post-classified: one per pixel and slice "

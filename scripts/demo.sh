@@ -40,6 +40,13 @@ done
 run "$ISPLAT" sample mr-head -o "$OUT/mr.npy" --force >/dev/null
 run "$ISPLAT" augment "$OUT/mr.npy" -o "$OUT/mr.aug.h5" --orientation LPS --index --force
 run "$ISPLAT" render "$OUT/mr.aug.h5" --preset mri-t1-head -o "$OUT/mri-t1-head.png" --force
+# a maximum-intensity projection (render.mode = "mip", docs/mip.md) of the int16 ct-chest sample, seen from the
+# left: densities above -500 HU are of interest, the maximum shown through the window -200..1300 HU
+run "$ISPLAT" sample ct-chest -o "$OUT/chest.npy" --force >/dev/null
+run "$ISPLAT" augment "$OUT/chest.npy" -o "$OUT/chest.aug.h5" --orientation LPS --index --force
+run "$ISPLAT" render "$OUT/chest.aug.h5" --set 'camera.view="left"' --set 'transfer.units="data"' \
+    --set 'transfer.opacity=[[-1024, 0.0], [-501, 0.0], [-500, 1.0], [3071, 1.0]]' --set 'render.mode="mip"' \
+    --set 'render.window=[-200, 1300]' -o "$OUT/ct-chest-mip.png" --force -v
 if "$ISPLAT" stats --help >/dev/null 2>&1; then
   run "$ISPLAT" stats "$OUT/head.aug.h5" "$OUT/head.idx.h5" --scene examples/head.toml $(data head) \
       | tee "$OUT/head-stats.txt"

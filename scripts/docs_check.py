@@ -41,7 +41,7 @@ from pathlib import Path
 
 STAMP_RE = re.compile(r"^<!-- isplat-stamp: (\{.*\}) -->[ \t]*$", re.M)
 BEGIN_RE = re.compile(r"^<!-- BEGIN (\S+) -->[ \t]*$", re.M)
-TECHNIQUES = ("pre", "post")
+TECHNIQUES = ("pre", "post", "mip", "minip")   # render.classification, or render.mode for an intensity projection
 STALE_TAG = "<!-- isplat-stale -->"
 STALE_RE = re.compile(r"^> \*\*Older than the code it measures\*\*.*" + re.escape(STALE_TAG) + r"[ \t]*\n\n?", re.M)
 

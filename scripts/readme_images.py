@@ -6,7 +6,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-NAMES = ["head-bone", "head-perspective", "head-cut", "engine", "ct-bone", "ct-skin", "mri-t1-head"]
+NAMES = ["head-bone", "head-perspective", "head-cut", "engine", "ct-bone", "ct-skin", "mri-t1-head", "ct-chest-mip"]
 
 
 def shrink(img: np.ndarray, height: int = 256) -> np.ndarray:

@@ -402,7 +402,7 @@ def _frames_on(true_cost, threads, height, frames):
 
     learning = F.BandLearning()
     view = SimpleNamespace(frame=SimpleNamespace(height=height, width=64), axis_sign=("k", 1),
-                           render=SimpleNamespace(classification="post", sheets="slices"))
+                           render=SimpleNamespace(classification="post", sheets="slices", mode="composite"))
     cum = np.concatenate([[0.0], np.cumsum(true_cost)])
     key = F._balance_key(view, threads)
     out = []
@@ -758,7 +758,8 @@ def test_numba_disable_jit_still_imports_the_kernels():
 
 @pytest.mark.parametrize("sets, plan, fields", [
     ([], "PostPlan", ()), (['render.classification="pre"'], "PrePlan", ("fp", "sheet")),
-    (['render.classification="pre"', 'render.sheets="image"'], "SheetsPlan", ("fp", "sheet"))])
+    (['render.classification="pre"', 'render.sheets="image"'], "SheetsPlan", ("fp", "sheet")),
+    (['render.mode="mip"'], "MipPlan", ()), (['render.mode="minip"'], "MipPlan", ())])
 def test_each_technique_prepares_a_plan_of_its_own(sets, plan, fields):
     """frame.prepare asks the scene's technique (frame.TECHNIQUES) for its plan, a named tuple registered with the
     traversal (traverse.register): the post-classified one has no footprint and no sheet."""

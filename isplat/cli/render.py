@@ -176,7 +176,8 @@ def _view_row(n: int, st) -> dict:
     return {"view": n, "axis": ("+" if st.sign > 0 else "-") + st.axis, "voxels_examined": st.voxels_examined,
             "classification": st.classification,
             "voxels_splatted" if st.classification == "pre" else "samples": st.drawn,
-            "slices": st.slices, "seconds": round(st.seconds, 6)}
+            "slices": st.slices, "seconds": round(st.seconds, 6),
+            **({"voxels_visited": st.voxels_tested} if st.classification in ("mip", "minip") else {})}
 
 
 def _report(scene_file, method, out, rep, per_view) -> dict:
@@ -196,6 +197,12 @@ def _log_report(report, rep, held) -> None:
                   f"; held {held} bytes, {held / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
                   if held is not None else " (selections held by the workers or one slab at a time)"))
     for v in report["views"]:
+        if "voxels_visited" in v:       # an intensity projection: the leave-out figure (isplat.splat.mip)
+            share = v["voxels_visited"] / max(1, v["voxels_examined"])
+            log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_visited']} voxels visited of "
+                      f"{v['voxels_examined']} voxels of interest ({share:.1%}; cells visited, summed over image "
+                      f"bands), {v['samples']} samples taken ({v['classification']}), {v['seconds'] * 1000:.1f} ms")
+            continue
         drawn = f"{v['voxels_splatted']} splatted" if "voxels_splatted" in v else f"{v['samples']} samples composited"
         log.debug(f"view {v['view']}: axis {v['axis']}, {v['voxels_examined']} voxels examined, {drawn} "
                   f"({v['classification']}-classified), {v['seconds'] * 1000:.1f} ms")
@@ -204,10 +211,11 @@ def _log_report(report, rep, held) -> None:
 def _summary(out, scene, renderer, per_view, seconds: float) -> str:
     """The one line on stderr (not with -q): what was written, the technique, the method, how, how long."""
     techniques = sorted({v["classification"] for v in per_view}) or [scene.render.classification]
+    label = "/".join(techniques) + ("" if set(techniques) & {"mip", "minip"} else "-classified")
     how = {"local": "", "streamed": f", {renderer.slabs} slabs front to back",
            "dask": f", on Dask ({renderer.scheduler}" + (f", {renderer.slabs} slabs" if renderer.slabs > 1 else "")
            + ")"}[renderer.mode]
     sheets = ", image-aligned sheets" if scene.render.sheets == "image" else ""
     n = len(per_view)
     return (f"isplat render: {'stdout' if out == '-' else out}: {n} view{'s' if n != 1 else ''}, "
-            f"{'/'.join(techniques)}-classified{sheets}, {renderer.method} method{how}, {seconds:.2f} s")
+            f"{label}{sheets}, {renderer.method} method{how}, {seconds:.2f} s")

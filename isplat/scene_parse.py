@@ -683,5 +683,8 @@ def build_scene(ctx: Ctx, tree: dict, data_required: bool = True, density_window
         "fps", "expected frames per second, 0 < fps <= 100", lo=0.0, hi=100.0, lo_open=True)
     from .scene_labels import parse_labels
 
-    return Scene(None, data, image, volume, camera, transfer, shading, cuts, render, views, fps,
-                 parse_labels(ctx, tree))
+    labels = parse_labels(ctx, tree)
+    if labels.shown and render.mode != "composite":
+        ctx.fail(("labels",), "...", f'labels are composited over the density; render.mode = "{render.mode}" '
+                                     'shows one density per pixel (use mode = "composite", or leave [labels] out)')
+    return Scene(None, data, image, volume, camera, transfer, shading, cuts, render, views, fps, labels)

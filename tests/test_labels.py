@@ -266,6 +266,15 @@ def test_pre_technique_refuses_labels(capsys, tmp_path):
     one_error(code, err, "post-classified technique only")
 
 
+def test_an_intensity_projection_refuses_labels(capsys, tmp_path):
+    aug = write_labelled(tmp_path / "v.aug.h5", three_boxes())
+    scene = label_scene(tmp_path, aug)
+    for mode in ("mip", "minip"):
+        code, _, err = run(capsys, "render", scene, "-o", tmp_path / "x.png", "--set", f'render.mode="{mode}"')
+        one_error(code, err, f'render.mode = "{mode}" shows one density per pixel')
+    assert not (tmp_path / "x.png").exists()
+
+
 # ---- bad inputs: one line each -------------------------------------------------------------------------------------
 
 def test_augment_refuses_a_label_map_on_another_grid(capsys, tmp_path):

@@ -444,7 +444,7 @@ def _cli_cases(fx: dict, w: Path) -> list[tuple[str, list]]:
         ("render: transfer function outside the indexed densities",
          ["render", sc, "--set", f"data.index=\"{part}\"", "-o", str(w / "x.png")]),
         ("version-1 augmented file (no checksums)",
-         ["stats", str(Path(__file__).resolve().parents[2] / "formats/examples/augmented/invalid-version-1.aug.h5")]),
+         ["stats", str(Path(__file__).resolve().parents[1] / "formats/examples/augmented/invalid-version-1.aug.h5")]),
     ]
 
 
@@ -452,7 +452,7 @@ def catalogue(fx: dict, w: Path) -> list[dict]:
     """Every bad input with its exit status and message (temporary folders shown as W/)."""
     rows = []
 
-    repo = str(Path(__file__).resolve().parents[2]) + "/"
+    repo = str(Path(__file__).resolve().parents[1]) + "/"
 
     def clean(text):
         return text.strip().replace(str(w) + "/", "W/").replace(str(fx["folder"]) + "/", "W/").replace(repo, "")
@@ -474,8 +474,11 @@ def catalogue(fx: dict, w: Path) -> list[dict]:
         cmd = " ".join(argv[:1]) + (" (post scene)" if sc in argv or str(orbit) in argv else "")
         rows.append({"input": what, "command": cmd, "result": f"exit {code}",
                      "message": clean(err) or "(no message)"})
-    root = Path(__file__).resolve().parents[2] / "formats/examples/scene/invalid"
-    for toml in sorted(root.glob("*.toml")):
+    root = Path(__file__).resolve().parents[1] / "formats/examples/scene/invalid"
+    tomls = sorted(root.glob("*.toml"))
+    if not tomls:       # a wrong path would otherwise shrink the catalogue without a word
+        raise SystemExit(f"reliability: no invalid scene examples in {root}")
+    for toml in tomls:
         code, _, err = run_cli(["render", str(toml), "-o", str(w / "x.png")])
         rows.append({"input": f"scene {toml.name}", "command": "render", "result": f"exit {code}",
                      "message": clean(err).replace(str(root) + "/", "")})

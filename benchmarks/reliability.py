@@ -443,8 +443,53 @@ def _cli_cases(fx: dict, w: Path) -> list[tuple[str, list]]:
         ("stats: index of another volume", ["stats", aug, str(other)]),
         ("render: transfer function outside the indexed densities",
          ["render", sc, "--set", f"data.index=\"{part}\"", "-o", str(w / "x.png")]),
+        *_hostile_cases(fx, w, sc),
         ("version-1 augmented file (no checksums)",
          ["stats", str(Path(__file__).resolve().parents[1] / "formats/examples/augmented/invalid-version-1.aug.h5")]),
+    ]
+
+
+def _hostile_cases(fx: dict, w: Path, sc: str) -> list[tuple[str, list]]:
+    """(input, argv): issue 30's hand-made hostile inputs (tests/test_hostile.py checks each in full)."""
+    import os
+
+    (w / "nested.toml").write_text("a = " + "[" * 5000 + "]" * 5000 + "\n")
+    for name in ("fifo.toml", "fifo.aug.h5", "fifo-out.png"):
+        if not (w / name).exists():
+            os.mkfifo(w / name)
+    import numpy as np
+
+    np.save(w / "ramp.npy", np.arange(6 * 5 * 4, dtype=np.float32).reshape(4, 5, 6))
+    npy = str(w / "ramp.npy")
+
+    fresh = iter(range(1000))
+    if not (w / "dev.png").is_symlink():
+        (w / "dev.png").symlink_to("/dev/null")
+
+    def render(*sets, out=None):      # each case its own new output (an image one case wrote refuses the next)
+        out = out or str(w / f"h{next(fresh)}.png")
+        return ["render", sc, "--view", "0", *[a for s in sets for a in ("--set", s)], "-o", out]
+    return [
+        ("scene of 5,000 nested arrays", ["render", str(w / "nested.toml"), "-o", str(w / "n.png")]),
+        ("-o /proc/x.png", render(out="/proc/x.png")),
+        ("views.orbit_steps = 1000000000", ["render", sc, "--set", "views.orbit_steps=1000000000", "-o",
+                                            str(w / "x.gif")]),
+        ("a fifo as the scene", ["render", str(w / "fifo.toml"), "-o", str(w / "f.png")]),
+        ("a fifo as the augmented file", render(f'data.augmented="{w / "fifo.aug.h5"}"')),
+        ("a fifo given to stats", ["stats", str(w / "fifo.aug.h5")]),
+        ("camera.zoom = 1e308", render("camera.zoom=1e308")),
+        ("perspective camera.fov = 170", render('camera.projection="perspective"', "camera.fov=170")),
+        ("perspective camera.fov = 179.82", render('camera.projection="perspective"', "camera.fov=179.82")),
+        ("volume.origin = [1e308, 0, 0]", render("volume.origin=[1e308, 0, 0]")),
+        ("volume.origin = [1e17, 0, 0]", render("volume.origin=[1e17, 0, 0]")),
+        ("-o /dev/null with --force", [*render(out="/dev/null"), "--force"]),
+        ("-o a link to /dev/null named like an image, with --force", [*render(out=str(w / "dev.png")), "--force"]),
+        ("-o a fifo with --force", [*render(out=str(w / "fifo-out.png")), "--force"]),
+        ("augment --spacing 1e-300,1,1", ["augment", npy, "-o", str(w / "s.aug.h5"), "--spacing", "1e-300,1,1"]),
+        ("augment --spacing 1e300,1e300,1e300", ["augment", npy, "-o", str(w / "s.aug.h5"), "--spacing",
+                                                 "1e300,1e300,1e300"]),
+        ("augment --window=-1e308,1e308", ["augment", npy, "-o", str(w / "s.aug.h5"), "--spacing", "1,1,1",
+                                           "--window=-1e308,1e308"]),
     ]
 
 

@@ -45,8 +45,11 @@ def scene_label(name: str) -> str:
 def scene_toml(aug: Path, idx: Path, method: str = "indexed", technique: str = "pre") -> str:
     """Three views (one per principal axis), every density visible, shading and gradient-modulated opacity:
     a render reads every index axis, every block, and the normal and gradient-magnitude channels. ``technique``
-    is written out (render.classification), not left to the scene version's default."""
-    return f"""version = 4
+    is written out (render.classification), not left to the scene version's default; the version is the
+    current one (an older one would add its note on the defaults it keeps to every stderr)."""
+    from isplat.scene_schema import SCENE_VERSION
+
+    return f"""version = {SCENE_VERSION}
 [data]
 augmented = "{aug}"
 index = "{idx}"

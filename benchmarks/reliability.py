@@ -514,7 +514,10 @@ def catalogue(fx: dict, w: Path) -> list[dict]:
         rows.append({"input": what, "command": f"render, pre and post ({target} file corrupted)", "result": o.result,
                      "message": clean(o.message) if o.message else f"({o.result})"})
     sc, orbit = str(fx["post"]), w / "orbit.toml"
+    from isplat import camera
+
     for what, argv in _cli_cases(fx, w):
+        camera._WARNED.clear()      # the empty-frame warning is once per process: each case stands for a process
         code, _, err = run_cli(argv)
         cmd = " ".join(argv[:1]) + (" (post scene)" if sc in argv or str(orbit) in argv else "")
         rows.append({"input": what, "command": cmd, "result": f"exit {code}",

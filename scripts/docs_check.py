@@ -301,6 +301,15 @@ def rerun(repo: Path, plan, max_minutes: float | None = None, dry_run: bool = Fa
     return 0
 
 
+def _checked(repo: Path, docs: Path) -> list | None:
+    """:func:`check`, or None after one ``docs-check: error:`` line for a malformed stamp."""
+    try:
+        return check(repo, docs)
+    except StampError as exc:
+        print(f"docs-check: error: {exc}", file=sys.stderr)
+        return None
+
+
 def main(argv=None) -> int:
     root = Path(__file__).resolve().parents[1]
     ap = argparse.ArgumentParser(prog="docs_check", description=__doc__.split("\n\n")[0])
@@ -318,10 +327,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     repo = a.repo.resolve()
     docs = (a.docs or repo / "docs").resolve()
-    try:
-        findings = check(repo, docs)
-    except StampError as exc:
-        print(f"docs-check: error: {exc}", file=sys.stderr)
+    findings = _checked(repo, docs)
+    if findings is None:
         return 2
     if a.rerun:
         only = set(a.only.split(",")) if a.only else None
@@ -333,10 +340,8 @@ def main(argv=None) -> int:
         code = rerun(repo, rerun_plan(findings, only), a.max_minutes, a.dry_run)
         if code or a.dry_run:
             return code
-        try:
-            findings = check(repo, docs)
-        except StampError as exc:
-            print(f"docs-check: error: {exc}", file=sys.stderr)
+        findings = _checked(repo, docs)
+        if findings is None:
             return 2
     if a.mark:
         for page in sorted(docs.glob("*.md")):

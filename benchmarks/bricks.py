@@ -38,7 +38,8 @@ TECHNIQUES = ["pre", "post"]
 SOURCES = _doc.sources(_doc.AUGMENT, _doc.SAMPLES, ("isplat/stats.py", "benchmarks/bricks.py",
                                                      "benchmarks/selective_read.py"))
 # (k, j, i) brick shapes, and their names (i x j x k)
-SHAPES = {"8^3": (8, 8, 8), "16^3": (16, 16, 16), "16x16x8": (8, 16, 16), "32^3": (32, 32, 32)}
+SHAPES = {"4^3": (4, 4, 4), "8^3": (8, 8, 8), "16^3": (16, 16, 16), "16x16x8": (8, 16, 16), "32^3": (32, 32, 32)}
+UNTIMED = ("4^3",)              # too many chunks for HDF5 (a brick table of isplat's own would hold them)
 TIMED = ("H1", "C1")            # the cases whose HDF5 reads are timed (the others are counted only)
 REPEATS, REPEATS_QUICK = 5, 2
 POST_BYTES, PRE_BYTES = 4, 2    # per voxel: density + normal + gradient magnitude (post, shaded); normal (pre)
@@ -71,10 +72,11 @@ def apron(mask: np.ndarray) -> np.ndarray:
 
 def count(density, intervals, view_axis: str) -> dict:
     """The byte counts of every brick shape for one case (module docstring)."""
-    from isplat.stats import interest_mask, quad_footprint_per_slice
+    from isplat.stats import IN_SLICE_DIMS, _dilate_in_slice, interest_mask, quad_footprint_per_slice
 
     mask = interest_mask(intervals)[density]
     grown = apron(mask)
+    in_slice = _dilate_in_slice(mask, IN_SLICE_DIMS[view_axis])
     voi = int(mask.sum())
     need_post = int(quad_footprint_per_slice(density, intervals, view_axis).sum()) * POST_BYTES
     out = dict(voi=voi, need_post=need_post, need_pre=voi * PRE_BYTES, shapes={},
@@ -85,14 +87,46 @@ def count(density, intervals, view_axis: str) -> dict:
         n_all, n_post, n_pre = tp.size, int(tp.sum()), int(tq.sum())
         post = n_post * (v * POST_BYTES + 3 * CHECKSUM)
         pre = n_pre * (v * PRE_BYTES + CHECKSUM)
+        n_view = int(touched(in_slice, sh).sum())     # the view's own apron (in its slices) only
         stored = int(np.prod([e + 2 for e in sh]))    # the apron stored in each brick: only bricks of interest
         post_apron = n_pre * (stored * POST_BYTES + 3 * CHECKSUM)
         out["shapes"][name] = dict(bricks=n_all, post_bricks=n_post, pre_bricks=n_pre, post_read=post,
                                    post_apron_ratio=post_apron / max(1, need_post), apron_size=stored / v,
+                                   post_view_ratio=n_view * (v * POST_BYTES + 3 * CHECKSUM) / max(1, need_post),
                                    pre_read=pre, post_ratio=post / max(1, need_post), pre_ratio=pre / max(1, voi * 2),
                                    minmax=n_all * MINMAX, hashes=n_all * 3 * HASH,
                                    held=(n_post * v * POST_BYTES + n_all * SLOT) / max(1, voi), selected=tp)
     return out
+
+
+def pack_bricks(channels: dict, selected: np.ndarray, shape) -> tuple[np.ndarray, dict]:
+    """The compact in-memory form (a prototype): the ``selected`` bricks of each channel (``{name: [k, j, i]}``)
+    packed one after another (``[n, ek, ej, ei]``, edge bricks padded), and the brick table: int32 per brick of
+    the grid, its row in the packed arrays or -1.
+
+    >>> d = np.arange(64, dtype=np.uint8).reshape(4, 4, 4); sel = np.zeros((2, 2, 2), bool); sel[1, 0, 1] = True
+    >>> table, packed = pack_bricks({"density": d}, sel, (2, 2, 2))
+    >>> int(table[1, 0, 1]), int(lookup(table, packed["density"], (2, 2, 2), 3, 1, 2)), int(d[3, 1, 2])
+    (0, 54, 54)
+    """
+    table = np.full(selected.shape, -1, dtype=np.int32)
+    where = np.argwhere(selected)
+    table[tuple(where.T)] = np.arange(len(where), dtype=np.int32)
+    packed = {}
+    for name, arr in channels.items():
+        pad = np.pad(arr, [(0, -n % e) for n, e in zip(arr.shape, shape)])
+        (kk, jj, ii), (ek, ej, ei) = [n // e for n, e in zip(pad.shape, shape)], shape
+        grid = pad.reshape(kk, ek, jj, ej, ii, ei).transpose(0, 2, 4, 1, 3, 5)
+        packed[name] = np.ascontiguousarray(grid[tuple(where.T)])
+    return table, packed
+
+
+def lookup(table, packed, shape, k, j, i):
+    """A voxel's value in the packed form (-1's brick is not held: IndexError)."""
+    row = table[k // shape[0], j // shape[1], i // shape[2]]
+    if row < 0:
+        raise IndexError(f"voxel ({k}, {j}, {i}) is in no packed brick")
+    return packed[row, k % shape[0], j % shape[1], i % shape[2]]
 
 
 def time_chunks(normal: np.ndarray, shape, selected: np.ndarray, work: Path, repeats: int) -> dict:
@@ -126,6 +160,17 @@ def time_chunks(normal: np.ndarray, shape, selected: np.ndarray, work: Path, rep
                 us_sliced=1e6 * med["sliced"] / n, us_direct=1e6 * med["direct"] / n)
 
 
+def packed_held(aug, row) -> dict:
+    """Bytes per voxel of interest the packed form (:func:`pack_bricks`) holds for post's bricks, per shape."""
+    chans = {c: aug.read(c) for c in ("density", "normal", "gradient_magnitude")}
+    out = {}
+    for name, sh in SHAPES.items():
+        table, packed = pack_bricks(chans, row["shapes"][name]["selected"], sh)
+        out[name] = (table.nbytes + sum(a.nbytes for a in packed.values())) / max(1, row["voi"])
+        del packed
+    return out
+
+
 def _intervals_and_axis(c: dict, work: Path):
     """The case's transfer-function intervals and its view's principal axis."""
     from isplat.augfile import open_augmented
@@ -151,9 +196,13 @@ def measure(c: dict, work: Path, repeats: int) -> dict:
     aug = open_augmented(c["aug"])
     row = dict(name=c["name"], what=c["what"], axis=axis, intervals=ivs, voxels=aug.n_voxels,
                **count(aug.read("density"), ivs, axis))
+    if c["name"] == "H1":           # the prototype's memory, for the shaded post head scene (issue 26, item 4)
+        row["packed"] = packed_held(aug, row)
     if c["name"] in TIMED:
         normal = aug.read("normal")
         for name, sh in SHAPES.items():
+            if name in UNTIMED:
+                continue
             row["shapes"][name]["hdf5"] = time_chunks(normal, sh, row["shapes"][name]["selected"], work, repeats)
     for s in row["shapes"].values():
         s.pop("selected")
@@ -193,15 +242,22 @@ def render(rows, quick: bool, repeats: int, seconds: float) -> str:
           "(2 B) of the bricks holding a voxel of interest. Held: a packed in-memory form (post's bricks, 4 B per "
           "voxel, + 4 B per brick of the grid) per voxel of interest.", "",
           "| case | bricks | post: bricks read | post: read (MB) | post: needed (MB) | post: read / needed | "
-          "post, apron stored in each brick: read / needed (file x) | pre: read / needed | held per voxel of "
-          "interest (B) | (min, max) table (kB) | chunk hashes (kB) |",
-          "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "post, the view's apron only: read / needed | post, apron stored in each brick: read / needed (file x) | "
+          "pre: read / needed | held per voxel of interest (B) | (min, max) table (kB) | chunk hashes (kB) |",
+          "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         for name, s in r["shapes"].items():
             L.append(f"| {r['name']} | {name} | {s['post_bricks']:,} of {s['bricks']:,} | {_mb(s['post_read'])} | "
-                     f"{_mb(r['need_post'])} | **{s['post_ratio']:.2f}** | {s['post_apron_ratio']:.2f} ({s['apron_size']:.2f}) | "
+                     f"{_mb(r['need_post'])} | **{s['post_ratio']:.2f}** | {s['post_view_ratio']:.2f} | {s['post_apron_ratio']:.2f} ({s['apron_size']:.2f}) | "
                      f"{s['pre_ratio']:.2f} | {s['held']:.1f} | "
                      f"{s['minmax'] / 1e3:.1f} | {s['hashes'] / 1e3:.1f} |")
+    held = next((r["packed"] for r in rows if "packed" in r), None)
+    if held:
+        L += ["", "The packed in-memory form prototyped (`benchmarks.bricks.pack_bricks`: post's bricks of the "
+              "three channels packed, + the int32 brick table), built for H1 (shaded post head scene): "
+              + ", ".join(f"{name} {v:.1f} B" for name, v in held.items())
+              + " held per voxel of interest (issue 26's target: 8 B; today's whole channels: the post rows of "
+              "docs/selective-read.md)."]
     L += ["", f"HDF5's cost per chunk (h5py, the normal channel chunked in the brick shape with Fletcher-32; the post "
           f"bricks of the case read one chunk at a time, sliced (checksum verified) and with `read_direct_chunk` "
           f"(raw), against the whole channel; median of {repeats}, page cache warm):", "",
@@ -219,6 +275,7 @@ def render(rows, quick: bool, repeats: int, seconds: float) -> str:
                                     + ", ".join(f"{lo}..{hi}" for lo, hi in r["intervals"])
                                     + f", {r['voi']:,} voxels of interest of {r['voxels']:,}; post today (whole "
                                     f"channels): {r['whole_ratio']:.2f} x its channel bytes needed" for r in rows)
-          + ". *Apron stored*: each brick stores its one-voxel apron too ((e + 2)^3 voxels; the file grows by "
+          + ". *The view's apron only*: the bricks touching the voxels of interest and their neighbours in the "
+          "view's slices (a scene with views along several axes reads the union). *Apron stored*: each brick stores its one-voxel apron too ((e + 2)^3 voxels; the file grows by "
           "the factor in parentheses), so post reads only the bricks holding a voxel of interest."]
     return "\n".join(L)

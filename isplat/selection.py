@@ -265,7 +265,7 @@ def select_arrays(request, chans: dict) -> Selection:
         _select(sel, loaded, lambda lo, ch, sh: gather_channels(read, lo, ch, sh), "array")
         sel.report.voxels_of_interest = next(iter(loaded.values())).n_voxels if loaded else 0
     sel.report.axes = sorted(request.axes)
-    _needed(sel)
+    _needed(sel, count_full=False)      # (no pass over a full selection's density here, as before)
     return sel
 
 
@@ -543,7 +543,7 @@ def _slab_reader(aug, axes, slices):
     return read
 
 
-def _needed(sel: Selection) -> None:
+def _needed(sel: Selection, count_full: bool = True) -> None:
     """The report's bytes needed (docs/stats.md, :attr:`LoadReport.bytes_needed`): its channels' bytes per voxel,
     the index blocks and table rows of the intervals (and the 257-row table of ``/values``), and for post the
     quads' footprint, counted lazily from the density the selection holds. Full method: the voxels of interest
@@ -552,7 +552,7 @@ def _needed(sel: Selection) -> None:
     rep.technique = sel.request.classification if sel.request is not None else ("post" if sel.post else "pre")
     rep.channel_bytes_per_voxel = sum(2 if ch == "normal" else 1 for ch in rep.channels)
     has_density = sel.whole is not None and sel.whole.density.size > 0
-    if sel.method == "full" and has_density:
+    if sel.method == "full" and has_density and count_full:
         hist = np.bincount(sel.whole.density, minlength=256)
         rep.voxels_of_interest = int(sum(int(hist[lo:hi + 1].sum()) for lo, hi in rep.intervals))
     tables = 257 * 8 if rep.values_from == "index" else 0

@@ -65,18 +65,18 @@ def touched(mask: np.ndarray, shape) -> np.ndarray:
 
 def apron(mask: np.ndarray) -> np.ndarray:
     """``mask`` grown by one voxel along each axis (the 3 x 3 x 3 cube around each True voxel)."""
-    from isplat.stats import _dilate_in_slice
+    from isplat.stats import dilate_in_slice
 
-    return _dilate_in_slice(_dilate_in_slice(mask, (1, 2)), (0,))
+    return dilate_in_slice(dilate_in_slice(mask, (1, 2)), (0,))
 
 
 def count(density, intervals, view_axis: str) -> dict:
     """The byte counts of every brick shape for one case (module docstring)."""
-    from isplat.stats import IN_SLICE_DIMS, _dilate_in_slice, interest_mask, quad_footprint_per_slice
+    from isplat.stats import IN_SLICE_DIMS, dilate_in_slice, interest_mask, quad_footprint_per_slice
 
     mask = interest_mask(intervals)[density]
     grown = apron(mask)
-    in_slice = _dilate_in_slice(mask, IN_SLICE_DIMS[view_axis])
+    in_slice = dilate_in_slice(mask, IN_SLICE_DIMS[view_axis])
     voi = int(mask.sum())
     need_post = int(quad_footprint_per_slice(density, intervals, view_axis).sum()) * POST_BYTES
     out = dict(voi=voi, need_post=need_post, need_pre=voi * PRE_BYTES, shapes={},
@@ -248,7 +248,8 @@ def render(rows, quick: bool, repeats: int, seconds: float) -> str:
     for r in rows:
         for name, s in r["shapes"].items():
             L.append(f"| {r['name']} | {name} | {s['post_bricks']:,} of {s['bricks']:,} | {_mb(s['post_read'])} | "
-                     f"{_mb(r['need_post'])} | **{s['post_ratio']:.2f}** | {s['post_view_ratio']:.2f} | {s['post_apron_ratio']:.2f} ({s['apron_size']:.2f}) | "
+                     f"{_mb(r['need_post'])} | **{s['post_ratio']:.2f}** | {s['post_view_ratio']:.2f} | "
+                     f"{s['post_apron_ratio']:.2f} ({s['apron_size']:.2f}) | "
                      f"{s['pre_ratio']:.2f} | {s['held']:.1f} | "
                      f"{s['minmax'] / 1e3:.1f} | {s['hashes'] / 1e3:.1f} |")
     held = next((r["packed"] for r in rows if "packed" in r), None)
@@ -276,6 +277,7 @@ def render(rows, quick: bool, repeats: int, seconds: float) -> str:
                                     + f", {r['voi']:,} voxels of interest of {r['voxels']:,}; post today (whole "
                                     f"channels): {r['whole_ratio']:.2f} x its channel bytes needed" for r in rows)
           + ". *The view's apron only*: the bricks touching the voxels of interest and their neighbours in the "
-          "view's slices (a scene with views along several axes reads the union). *Apron stored*: each brick stores its one-voxel apron too ((e + 2)^3 voxels; the file grows by "
+          "view's slices (a scene with views along several axes reads the union). *Apron stored*: each brick "
+          "stores its one-voxel apron too ((e + 2)^3 voxels; the file grows by "
           "the factor in parentheses), so post reads only the bricks holding a voxel of interest."]
     return "\n".join(L)

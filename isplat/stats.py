@@ -77,7 +77,7 @@ def interest_mask(intervals) -> np.ndarray:
     return m
 
 
-def _dilate_in_slice(m: np.ndarray, dims) -> np.ndarray:
+def dilate_in_slice(m: np.ndarray, dims) -> np.ndarray:
     """``m`` grown by one voxel along each of ``dims`` (separably: the 3 x 3 square in the slice)."""
     for d in dims:
         out = m.copy()
@@ -103,7 +103,7 @@ def quad_footprint_per_slice(density: np.ndarray, intervals, axis: str) -> np.nd
     for k0 in range(0, nk, FOOTPRINT_SLAB):
         k1 = min(nk, k0 + FOOTPRINT_SLAB)
         lo, hi = max(0, k0 - halo), min(nk, k1 + halo)
-        grown = _dilate_in_slice(lut[density[lo:hi]], dims)[k0 - lo:k0 - lo + (k1 - k0)]
+        grown = dilate_in_slice(lut[density[lo:hi]], dims)[k0 - lo:k0 - lo + (k1 - k0)]
         if axis == "k":
             out[k0:k1] += grown.sum(axis=(1, 2))
         else:

@@ -62,7 +62,8 @@ def test_quad_footprint_across_the_dilation_slabs(monkeypatch):
     monkeypatch.setattr(stats, "FOOTPRINT_SLAB", 2)
     d, _ = _volume((7, 4, 5, 3, 0.2))
     for axis in "ijk":
-        assert np.array_equal(quad_footprint_per_slice(d, [(150, 255)], axis), reference_footprint(d, [(150, 255)], axis))
+        want = reference_footprint(d, [(150, 255)], axis)
+        assert np.array_equal(quad_footprint_per_slice(d, [(150, 255)], axis), want)
 
 
 def _scene(technique, shaded):
@@ -102,4 +103,5 @@ def test_worker_report_pickles_its_count_not_the_density():
     d, rng = _volume((12, 12, 12, 1, 0.3))
     sel = Selection.from_arrays(d, _scene("post", False), spacing=(1.0, 1.0, 1.0), window=(0.0, 255.0), axes="k")
     blob = pickle.dumps(sel.report)
-    assert len(blob) < d.size and pickle.loads(blob).needed_voxels == int(reference_footprint(d, [(151, 255)], "k").sum())
+    want = int(reference_footprint(d, [(151, 255)], "k").sum())
+    assert len(blob) < d.size and pickle.loads(blob).needed_voxels == want

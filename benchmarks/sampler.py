@@ -42,7 +42,7 @@ REPO = Path(__file__).resolve().parents[1]
 WORK = REPO / "out" / "bench-sampler"
 BASELINE = os.environ.get("ISPLAT_SAMPLER_OLD", "2e683d4")      # main before the vectorised sampler
 PAGE, SECTION = "design.md", "sampler"
-ROUNDS = 15
+ROUNDS = int(os.environ.get("ISPLAT_SAMPLER_ROUNDS", "15"))
 
 CHEST_TF = ['transfer.opacity=[[0, 0.0], [50, 0.0], [62, 0.03], [78, 0.03], [82, 0.0], [110, 0.0], [140, 1.0], '
             '[255, 1.0]]',

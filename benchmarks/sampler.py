@@ -194,6 +194,38 @@ def stage_shares(files, rounds: int) -> dict:
     return out
 
 
+PROBE = """
+def kernel(density, i00, sa, sb, fu, fv, out, n):
+    for j in range(n):
+        i = np.uint64(i00[j])
+        a, b = fu[j], fv[j]
+        out[j] = ((1.0 - a) * (1.0 - b) * density[i] + a * (1.0 - b) * density[i + np.uint64(sa)]
+                  + (1.0 - a) * b * density[i + np.uint64(sb)] + a * b * density[i + np.uint64(sa + sb)])
+"""
+
+
+def vector_probe() -> list[tuple[str, int, int]]:
+    """Whether numba's LLVM vectorises the samples' density gather written as a loop over a chunk of points (the
+    points' quads and fractions in small arrays, the densities out into another): per build (fastmath off, on),
+    the vector gathers and the packed double-precision arithmetic instructions in its machine code."""
+    import re
+
+    import numba as nb
+
+    scope = {"np": np}
+    exec(PROBE, scope)
+    d = np.zeros(4096, np.uint8)
+    i00, fu, out = np.zeros(64, np.int64), np.zeros(64), np.zeros(64)
+    rows = []
+    for fast in (False, True):
+        f = nb.njit(nogil=True, fastmath=fast)(scope["kernel"])
+        f(d, i00, 1, 64, fu, fu, out, 64)
+        asm = f.inspect_asm(f.signatures[0])
+        rows.append(("fastmath" if fast else "exact", len(re.findall(r"\bvp?gather", asm)),
+                     len(re.findall(r"\bv(?:mul|add|sub|fmadd\w*|fnmadd\w*)pd\b", asm))))
+    return rows
+
+
 def run(out_dir: Path, quick: bool) -> Path:
     from isplat.frame import FrameStats  # noqa: F401  (the working tree is importable)
 
@@ -208,13 +240,13 @@ def run(out_dir: Path, quick: bool) -> Path:
     rows = [compare(res["old"][ci], res["new"][ci]) for ci in range(len(CASES))]
     shares = stage_shares(files, rounds) if has_stages() and os.environ.get("ISPLAT_SAMPLER_SHARES") != "0" \
         else None
-    body = render_doc(rows, shares, quick, rounds)
+    body = render_doc(rows, shares, quick, rounds, vector_probe())
     page = out_dir / PAGE
     _doc.update_section(page, SECTION, body)
     return page
 
 
-def render_doc(rows, shares, quick, rounds) -> str:
+def render_doc(rows, shares, quick, rounds, probe) -> str:
     lines = [f"Measured by `python -m benchmarks sampler{' --quick' if quick else ''}` "
              f"({'quick: a 256 x 256 x 67 chest, ' if quick else ''}{rounds} interleaved rounds, one thread, "
              f"thread CPU time; {_doc.machine_line()}, shared with other work, so under load): old = "
@@ -237,4 +269,12 @@ def render_doc(rows, shares, quick, rounds) -> str:
             parts = [t[0], t[1] - t[0], t[2] - t[1], t[3] - t[2]]
             lines.append(f"| {name} | " + " | ".join(f"{p:.1f} ({100 * p / full:.0f}%)" for p in parts) +
                          f" | {full:.1f} |")
+    import numba
+
+    lines += ["", f"Does LLVM vectorise the density gather as a loop over a chunk of points (`PROBE` in "
+              f"benchmarks/sampler.py, numba {numba.__version__}, this CPU)? "
+              + "; ".join(f"{k}: {g} vector gathers, {p} packed double-precision operations" for k, g, p in probe)
+              + (". Scalar: the loop stores its densities while it gathers, and LLVM, not knowing that the stores "
+                 "cannot alias the gathered array (numba marks no array noalias), presumably cannot vectorise it; "
+                 "a vectorised sampler needs explicit vector code." if not any(g or p for _, g, p in probe) else ".")]
     return "\n".join(lines)

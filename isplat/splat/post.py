@@ -66,6 +66,9 @@ WEIGHTED_SHADING = True
 # compositing, 3 the whole sample; none of these saturates a pixel (so that all do the same pixels and slices);
 # 4 (the default) the whole sample with early termination. 0-3 draw wrong images.
 SAMPLE_STAGES = int(os.environ.get("ISPLAT_SAMPLE_STAGES", "4"))
+if SAMPLE_STAGES != 4 and not os.environ.get("NUMBA_CACHE_DIR"):
+    # numba's cache does not tell the copies apart: one compiled here would be loaded by later ordinary runs
+    raise RuntimeError("ISPLAT_SAMPLE_STAGES (for measuring only) needs a NUMBA_CACHE_DIR of its own")
 
 PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``

@@ -216,6 +216,7 @@ MINUTES = {
     "python -m benchmarks startup": 3,
     "python -m benchmarks reference": 4,
     "python -m benchmarks thick": 4.6,
+    "python -m benchmarks sampler": 6,                             # compiles the older commit's kernels once more
     "python -m benchmarks worksplit": 4.8,
     "python -m benchmarks accuracy": 5,
     "python -m benchmarks selective_read": 8,

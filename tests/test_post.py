@@ -341,3 +341,23 @@ def test_reference_weighting_is_what_the_kernel_does(tmp_path, make_scene):
     finally:
         post.WEIGHTED_SHADING = old
     assert np.abs(img - plain).max() <= 2e-4
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), fu=st.floats(0.0, 1.0, exclude_max=True), fv=st.floats(0.0, 1.0, exclude_max=True),
+       edge_a=st.booleans(), edge_b=st.booleans())
+def test_density_at_is_the_bilinear_density(seed, fu, fv, edge_a, edge_b):
+    """post._density_at (the one place a sample reads densities) against the obvious bilinear interpolation of
+    the quad's four voxels on a 2-D slice, the edge voxel repeated where the step is 0."""
+    from isplat.splat import post
+
+    assert post.SAMPLE_STAGES == 4                # the whole sample unless measuring the stages' shares
+    rng = np.random.default_rng(seed)
+    plane = rng.integers(0, 256, (7, 9)).astype(np.uint8)      # [b, a]
+    b, a = int(rng.integers(0, 6)), int(rng.integers(0, 8))
+    sa, sb = (0 if edge_a else 1), (0 if edge_b else plane.shape[1])
+    a1, b1 = a + (sa != 0), b + (sb != 0)
+    want = ((1 - fu) * (1 - fv) * float(plane[b, a]) + fu * (1 - fv) * float(plane[b, a1])
+            + (1 - fu) * fv * float(plane[b1, a]) + fu * fv * float(plane[b1, a1]))
+    got = post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv)
+    assert got == want

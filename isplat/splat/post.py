@@ -39,6 +39,7 @@ the tent's reach instead; no sheet) and its per-slice stages (:func:`_slice`).
 from __future__ import annotations
 
 import math
+import os
 from collections import namedtuple
 
 import numpy as np
@@ -60,6 +61,14 @@ AHEAD = 1                 # squares prefetched ahead of the one sampled (_sample
 # shading weights each corner's Phong factors by its bilinear weight times its gradient magnitude code (_sample);
 # False: by the bilinear weight only, as before (python -m benchmarks thick renders both; docs/thick-slices.md)
 WEIGHTED_SHADING = True
+# where a sample stops, for measuring the stages' shares only (python -m benchmarks sampler, each value with numba's
+# cache in a folder of its own): 0 after the scan, 1 after the density gather, 2 after the opacity and its
+# compositing, 3 the whole sample; none of these saturates a pixel (so that all do the same pixels and slices);
+# 4 (the default) the whole sample with early termination. 0-3 draw wrong images.
+SAMPLE_STAGES = int(os.environ.get("ISPLAT_SAMPLE_STAGES", "4"))
+if SAMPLE_STAGES != 4 and not os.environ.get("NUMBA_CACHE_DIR"):
+    # numba's cache does not tell the copies apart: one compiled here would be loaded by later ordinary runs
+    raise RuntimeError("ISPLAT_SAMPLE_STAGES (for measuring only) needs a NUMBA_CACHE_DIR of its own")
 
 PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
@@ -429,6 +438,13 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     between codes, shaded with the corners' Phong factors (weighted by their gradient magnitudes too when
     ``use_shade == 2``), composited over pixel (x, y). Returns 0 when
     transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity."""
+    if SAMPLE_STAGES == 0:
+        return 0
+    if SAMPLE_STAGES < 4:
+        et = 2.0                        # no pixel saturates
+    d = _density_at(density, i00, sa, sb, fu, fv)
+    if SAMPLE_STAGES == 1:
+        return 1 if d == 300.5 else 0      # never: keeps the gather without compositing
     # unsigned indices: numba adds no negative-index wrap-around to them (all are >= 0 here)
     w00 = (1.0 - fu) * (1.0 - fv)
     w10 = fu * (1.0 - fv)
@@ -438,7 +454,6 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     i10 = i00 + np.uint64(sa)
     i01 = i00 + np.uint64(sb)
     i11 = i01 + np.uint64(sa)
-    d = w00 * density[i00] + w10 * density[i10] + w01 * density[i01] + w11 * density[i11]
     k = min(int(d), 254)
     f = d - k                   # from the signed code: one conversion (an unsigned one takes five)
     di = np.uint64(k)
@@ -454,6 +469,8 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     if geo.persp:
         a, _ = path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
     c0, c1, c2 = np.uint64(0), np.uint64(1), np.uint64(2)
+    if SAMPLE_STAGES == 2:
+        return _composite_alpha(img, sat, tile_sat, x, y, a, et)
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
@@ -485,6 +502,33 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     img[uy, ux, c1] += ta * cg
     img[uy, ux, c2] += ta * cb
     an = ai + ta
+    img[uy, ux, np.uint64(3)] = an
+    if ai < et and an >= et:
+        sat[uy, ux] = 1
+        tile_sat[y // TILE, x // TILE] += 1
+        return 2
+    return 1
+
+
+@leaf(forceinline=True)
+def _density_at(density, i00, sa, sb, fu, fv):
+    """The bilinear density of the quad whose first voxel is at ``i00`` of the density channel (its next voxels
+    ``sa`` and ``sb`` away; 0 at the volume's edge) at (fu, fv) in [0, 1) in it: the one place a sample reads
+    the densities (the reconstruction along the slices' plane)."""
+    i00 = np.uint64(i00)                # unsigned: no negative-index wrap-around (all are >= 0 here)
+    i10 = i00 + np.uint64(sa)
+    i01 = i00 + np.uint64(sb)
+    i11 = i01 + np.uint64(sa)
+    return ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
+            + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
+
+
+@leaf(forceinline=True)
+def _composite_alpha(img, sat, tile_sat, x, y, a, et):
+    """The opacity alone composited over pixel (x, y) (``SAMPLE_STAGES == 2``, for measuring only)."""
+    uy, ux = np.uint64(y), np.uint64(x)
+    ai = img[uy, ux, np.uint64(3)]
+    an = ai + (1.0 - ai) * a
     img[uy, ux, np.uint64(3)] = an
     if ai < et and an >= et:
         sat[uy, ux] = 1

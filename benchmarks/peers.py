@@ -8,14 +8,21 @@ writes the section ``peers`` of ``performance.md``, ``peers.csv`` and ``img/peer
   after round, in one process (interleaved), each timed frame right after one of the same renderer and settings
   (as in a run of frames; the first of the two, right after the other renderer's frames, gives the cold-cache
   ratio beside it), on the head sample at 256, 512 and 1024 pixels with an opaque and a
-  translucent transfer function, an oblique view, the engine, and the hidden-material case (the head sampled at
+  translucent transfer function, an oblique view, the engine, the hidden-material case (the head sampled at
   512^3, opacity 0 up to 99, 0.1 at 130, 0.5 at 200, 0.7 at 255: skin and soft tissue semi-opaque in front of
-  bone); medians and the median of the per-round ratios;
+  bone), and the cases that stand for real scans (issue 27): the ``ct-chest`` sample at 512x512x133 with a
+  scanner's spacing (0.703125, 0.703125, 2.5) and window (-1000..2000 HU), a thin veil (0.03 from code 62 to 78)
+  and opaque bone (from 140), from -y, the same shaded, and an oblique view of it; and the head's bone shaded;
+  medians and the median of the per-round ratios; isplat's default (post) and the paper's splatting (pre) in
+  every table;
 * image error of BOTH renderers against reference (a) of :mod:`benchmarks.reference` (the converged float64 ray
   integral, trilinear, post-classified, step 0.05 voxel), and between the two;
 * peak memory of each renderer drawing one frame in a process of its own (``ru_maxrss``);
 * one frame as a process: ``isplat render`` to a PNG against a minimal VTK script doing the same, interleaved, and
   the first ``isplat render`` on a machine (an empty numba cache);
+* with ``--load``, the same frames of isplat (post, pre) and VTK (steps 1, 0.5) also timed while a child process
+  spins on one core (:class:`BusyCore`), in turn with the quiet ones, and what each loses; ``--cases`` runs some
+  cases only (no memory or process rows, no MIP page), e.g. ``--cases "chest,chest shaded" --load``;
 * then maximum-intensity projection against VTK's MIP (``--mip-only`` for that alone, ``--cases`` to choose
   among its cases): :mod:`benchmarks.peers_mip`, which writes ``docs/mip.md``.
 
@@ -30,9 +37,12 @@ the volume's user matrix); the same opacity points, with explicit zeros just out
 opacity is zero there, VTK clamps), ``SetScalarOpacityUnitDistance(unit_distance)`` so both apply
 ``1 - (1 - a) ** (ds / unit_distance)``; the same colour points; a parallel camera with parallel scale = half the
 image height in world units, focal point ``p``, view-up ``v``; black background; trilinear interpolation; one ray
-per pixel; automatic sample-distance adjustment off. Shading (off in this benchmark's cases, as in the issue's
-measurements; the mapping is kept for shaded scenes): each isplat light becomes a VTK scene light plus a mirror
-light, see :class:`VTKView`.
+per pixel; automatic sample-distance adjustment off. Shading (the shaded cases; the others unshaded, as in the
+first issue's measurements): ``ShadeOn`` with the scene's ambient, diffuse, specular and shininess as VTK's
+ambient, diffuse, specular and specular power, no light kit (automatic light creation off), each isplat light a
+VTK scene light in the same direction (a mirror light for two-sided shading), see :class:`VTKView`; reference
+(a) shades with isplat's Phong model and lights from the gradient of its trilinear field, so both shaded
+pictures are measured against it.
 """
 
 from __future__ import annotations

@@ -539,10 +539,15 @@ LOAD_POINTS = ["isplat defaults", "isplat pre", "VTK 1", "VTK 0.5"]     # the re
 
 class BusyCore:
     """A child process spinning on one core (``python -c "while True: pass"``) while the with-block runs; started
-    and killed here, by its own process id."""
+    and killed here, by its own process id. ``cpu``: pinned to that core (else the system moves it)."""
+
+    def __init__(self, cpu: int | None = None):
+        self.cpu = cpu
 
     def __enter__(self):
         self.proc = subprocess.Popen([sys.executable, "-c", BUSY])
+        if self.cpu is not None:
+            os.sched_setaffinity(self.proc.pid, {self.cpu})
         time.sleep(0.2)                 # running before the first frame
         return self
 

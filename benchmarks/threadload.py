@@ -6,7 +6,9 @@ medians as JSON): isplat's default (post) on the ``chest`` case of :mod:`benchma
 and *two copies* (two one-thread frames at once, one per renderer of its own: what the machine gives two
 programs that share nothing, as docs/worksplit.md measures it), each quiet and while a child process spins on
 one core (:class:`benchmarks.peers.BusyCore`), all kinds in turn round after round (in both orders), each timed
-frame right after an untimed one of its kind, the bands learned per kind as in a run of frames.
+frame right after an untimed one of its kind, the bands learned per kind as in a run of frames. ``--pin``
+(Linux): the busy process and one of the two rendering threads share core 0, the other thread and the one-thread
+frame have core 1 (:func:`pin_threads`).
 
 *2 threads, of the ceiling*: the 2-thread wall speed-up over the two copies' gain (twice the one-thread frame's
 wall time over the pair's). Under load the one-thread frame keeps a core of its own (the busy process takes the
@@ -53,13 +55,34 @@ def _pair(rs, views, bands):
     return time.perf_counter() - t
 
 
-def measure(frames: int, quick: bool) -> dict:
-    """Wall seconds per kind and load: ``{(kind, busy): [seconds per round]}``."""
+def pin_threads() -> None:
+    """Pin this process's calling thread to core 1 and the 2-thread pool's threads to cores 0 and 1 (by their
+    names' numbers), so that with ``BusyCore(cpu=0)`` one rendering thread shares its core with the busy
+    process and the one-thread frame has a core of its own: a thread slowed by another process, every time."""
+    import os
+    import threading
+
+    from isplat.threads import run_parallel
+
+    os.sched_setaffinity(0, {1})
+    gate = threading.Barrier(2)
+
+    def pin(_):
+        gate.wait()                     # both pool threads take one item each
+        os.sched_setaffinity(0, {int(threading.current_thread().name.rsplit("_", 1)[1]) % 2})
+    run_parallel(pin, [0, 1], 2)
+
+
+def measure(frames: int, quick: bool, pin: bool = False) -> dict:
+    """Wall seconds per kind and load: ``{(kind, busy): [seconds per round]}``; ``pin``: :func:`pin_threads`
+    and the busy process on core 0."""
     from isplat.frame import BandLearning
 
     from .peers import BusyCore
 
     r, twin = _renderer(quick), _renderer(quick)
+    if pin:
+        pin_threads()
     v = r.views[0]
     views = {k: replace(v, render=replace(v.render, threads=int(k))) for k in ("1", "2")}
     pair_views = (views["1"], replace(twin.views[0], render=replace(twin.views[0].render, threads=1)))
@@ -72,7 +95,7 @@ def measure(frames: int, quick: bool) -> dict:
 
     for rnd in range(frames + 1):               # the first round learns the bands, not counted
         for busy in ((False, True) if rnd % 2 == 0 else (True, False)):
-            with (BusyCore() if busy else _Quiet()):
+            with (BusyCore(0 if pin else None) if busy else _Quiet()):
                 for kind in (KINDS if rnd % 2 == 0 else KINDS[::-1]):
                     one(kind, busy)
                     dt = one(kind, busy)
@@ -127,11 +150,14 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="the chest at 64x64x17, 48 pixels")
     ap.add_argument("--frames", type=int, default=9)
     ap.add_argument("--json", type=Path, default=None, help="write the per-round seconds and the summary here")
+    ap.add_argument("--pin", action="store_true",
+                    help="the busy process and one rendering thread on core 0, the other and the one-thread frame "
+                         "on core 1 (Linux; a thread slowed by another process every time)")
     ap.add_argument("--label", default=None, help="the table's first column (default: isplat's source folder)")
     a = ap.parse_args(argv)
     import isplat
 
-    out = measure(2 if a.quick else a.frames, a.quick)
+    out = measure(2 if a.quick else a.frames, a.quick, a.pin)
     s = summary(out)
     label = a.label or str(Path(isplat.__file__).resolve().parent.parent)
     if a.json:

@@ -893,6 +893,14 @@ def slower_text(results, mem, proc) -> list[str]:
                                                       for r in slow) if slow else "") +
              (". Not slower in: " + "; ".join(f"{r['case']} {r['size']} px {r['paired']['VTK 1']:.2f}x"
                                              for r in fast) if fast else "") + ".")
+    with_pre = [r for r in results if "pre / VTK 1" in r["paired"]]
+    slow_pre = [r for r in with_pre if r["paired"]["pre / VTK 1"] > 1.0]
+    if with_pre:
+        L.append(f"- The paper's pre-classified splatting (*pre*) is slower than VTK at step 1 in {len(slow_pre)} of "
+                 f"{len(with_pre)} cases" + (": " + "; ".join(f"{r['case']} {r['size']} px "
+                                                             f"{r['paired']['pre / VTK 1']:.2f}x" for r in slow_pre)
+                                             if slow_pre else "") + " (it splats every voxel of interest in front "
+                 "of the saturated pixels with its footprint, where post takes one sample per pixel and slice).")
     cold = [r for r in results if "VTK 1, cold" in r["paired"]]
     slow_cold = [r for r in cold if r["paired"]["VTK 1, cold"] > 1.0]
     if cold:

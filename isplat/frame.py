@@ -421,7 +421,9 @@ def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:
     return np.asarray(rows, dtype=dtype).reshape(-1, 4)
 
 
-BANDS_PER_THREAD = 2    # image bands per thread (see image_bands), even or learned (balanced_bands)
+BANDS_PER_THREAD = 2    # even image bands per thread (see image_bands)
+LEARNED_PER_THREAD = 2  # learned bands per thread (_next_bands, band_shares): 1 repeats less work on a quiet
+                        # machine, 2 lets a free thread take over from one slowed by another process
 MIN_BAND_TILES = 4
 
 
@@ -572,7 +574,7 @@ def _next_bands(est: np.ndarray, rows: np.ndarray, tried: dict, threads: int, he
     while len(tried) > TRIED:
         del tried[next(iter(tried))]
     if busiest > mean + max(BALANCE_SLACK * mean, 0.5 * float(est.max())):
-        cut = balanced_bands(est, min(BANDS_PER_THREAD * threads, len(est)), threads, height)
+        cut = balanced_bands(est, min(LEARNED_PER_THREAD * threads, len(est)), threads, height)
         if tuple(cut[:, 0].tolist()) not in tried and \
                 per_thread(cut).max() < (min(tried.values()) - BALANCE_SLACK) * mean:
             return Learned(est, cut, tried)

@@ -145,6 +145,27 @@ HEADER = ("| isplat | machine | 1 thread ms | 2 threads ms | speed-up | speed-up
           "two copies: gain | 2 threads, of that |\n|---|---|---:|---:|---:|---:|---:|---:|---:|")
 
 
+SECTION = "threads"
+COMMANDS = ("python -m benchmarks.threadload --json out/threadload/this.json",
+            "python -m benchmarks.threadload --pin --json out/threadload/this-pinned.json")
+
+
+def page(rows: list[dict], command: str) -> str:
+    """The section ``threads`` of performance.md: ``rows`` as :func:`main` writes them (``--json``), this run's
+    last."""
+    from . import _doc
+
+    L = ["### Two threads against one, quiet and with a process on one core", "", "```", command, "```", "",
+         f"Machine: {_doc.machine_line()}; isplat {_doc.git_rev()}. " + __doc__.split("\n\n", 1)[1].replace(
+             "\n", " ").strip(), "", "Rows from other runs (``--with``: their ``--json`` files; an older checkout "
+         "run with ``PYTHONPATH=<its root>`` and the same command) come first, in the order given.", "", HEADER]
+    L += [table(r["summary"], r["label"]) for r in rows]
+    L += ["", "*2 threads, of that*: the 2-thread wall speed-up over the two copies' gain, what isplat makes of the "
+          "cores the machine gives; *loaded*: with the busy process. The chest case is post-classified (isplat's "
+          "default)."]
+    return "\n".join(L)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.threadload", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="the chest at 64x64x17, 48 pixels")
@@ -153,6 +174,10 @@ def main(argv=None) -> int:
     ap.add_argument("--pin", action="store_true",
                     help="the busy process and one rendering thread on core 0, the other and the one-thread frame "
                          "on core 1 (Linux; a thread slowed by another process every time)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="write the section 'threads' of OUT/performance.md (stamped) from this run and --with's")
+    ap.add_argument("--with", dest="others", type=Path, action="append", default=[],
+                    help="a --json file of another run (another checkout) to show above this run's rows")
     ap.add_argument("--label", default=None, help="the table's first column (default: isplat's source folder)")
     a = ap.parse_args(argv)
     import isplat
@@ -166,6 +191,17 @@ def main(argv=None) -> int:
                                      indent=1))
     print(HEADER)
     print(table(s, label))
+    if a.out:
+        from . import _doc
+        from .peers import SOURCES, TECHNIQUES
+
+        rows = [json.loads(p.read_text()) for p in a.others] + [dict(label=label, summary=s)]
+        cmd = "python -m benchmarks.threadload " + " ".join(argv if argv is not None else sys.argv[1:])
+        a.out.mkdir(parents=True, exist_ok=True)
+        doc = a.out / "performance.md"
+        _doc.update_section(doc, SECTION, page(rows, cmd), title="Performance")
+        _doc.put_stamp(doc, _doc.stamp(SECTION, cmd, ["post"], [*SOURCES, "benchmarks/threadload.py"]), SECTION)
+        print(f"[threadload] wrote {doc}", file=sys.stderr)
     return 0
 
 

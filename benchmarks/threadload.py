@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import statistics
 import sys
 import time
@@ -196,7 +197,7 @@ def main(argv=None) -> int:
         from .peers import SOURCES, TECHNIQUES
 
         rows = [json.loads(p.read_text()) for p in a.others] + [dict(label=label, summary=s)]
-        cmd = "python -m benchmarks.threadload " + " ".join(argv if argv is not None else sys.argv[1:])
+        cmd = "python -m benchmarks.threadload " + shlex.join(argv if argv is not None else sys.argv[1:])
         a.out.mkdir(parents=True, exist_ok=True)
         doc = a.out / "performance.md"
         _doc.update_section(doc, SECTION, page(rows, cmd), title="Performance")

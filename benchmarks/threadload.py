@@ -151,13 +151,13 @@ COMMANDS = ("python -m benchmarks.threadload --json out/threadload/this.json",
             "python -m benchmarks.threadload --pin --json out/threadload/this-pinned.json")
 
 
-def page(rows: list[dict], command: str) -> str:
+def page(rows: list[dict], command: str, machine: str) -> str:
     """The section ``threads`` of performance.md: ``rows`` as :func:`main` writes them (``--json``), this run's
-    last."""
+    last; ``machine``: :func:`benchmarks._doc.machine_line` before any thread was pinned."""
     from . import _doc
 
     L = ["### Two threads against one, quiet and with a process on one core", "", "```", command, "```", "",
-         f"Machine: {_doc.machine_line()}; isplat {_doc.git_rev()}. " + __doc__.split("\n\n", 1)[1].replace(
+         f"Machine: {machine}; isplat {_doc.git_rev()}. " + __doc__.split("\n\n", 1)[1].replace(
              "\n", " ").strip(), "", "Rows from other runs (``--with``: their ``--json`` files; an older checkout "
          "run with ``PYTHONPATH=<its root>`` and the same command) come first, in the order given.", "", HEADER]
     L += [table(r["summary"], r["label"]) for r in rows]
@@ -183,6 +183,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     import isplat
 
+    from . import _doc
+
+    machine = _doc.machine_line()           # before pinning: the cores this process may use
     out = measure(2 if a.quick else a.frames, a.quick, a.pin)
     s = summary(out)
     label = a.label or str(Path(isplat.__file__).resolve().parent.parent)
@@ -193,14 +196,13 @@ def main(argv=None) -> int:
     print(HEADER)
     print(table(s, label))
     if a.out:
-        from . import _doc
-        from .peers import SOURCES, TECHNIQUES
+        from .peers import SOURCES
 
         rows = [json.loads(p.read_text()) for p in a.others] + [dict(label=label, summary=s)]
         cmd = "python -m benchmarks.threadload " + shlex.join(argv if argv is not None else sys.argv[1:])
         a.out.mkdir(parents=True, exist_ok=True)
         doc = a.out / "performance.md"
-        _doc.update_section(doc, SECTION, page(rows, cmd), title="Performance")
+        _doc.update_section(doc, SECTION, page(rows, cmd, machine), title="Performance")
         _doc.put_stamp(doc, _doc.stamp(SECTION, cmd, ["post"], [*SOURCES, "benchmarks/threadload.py"]), SECTION)
         print(f"[threadload] wrote {doc}", file=sys.stderr)
     return 0

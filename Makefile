@@ -80,9 +80,11 @@ stability: $(STAMP)
 	$(BIN)/python -m benchmarks stability --out docs
 
 # Optional, not in CI: isplat against VTK's CPU ray caster (installs vtk; needs Mesa EGL or OSMesa).
+# PEERS=--load: the frames also timed with another process spinning on one core (docs/performance.md, "Under load").
+PEERS ?=
 bench-peers: $(STAMP)
 	$(BIN)/pip install --quiet vtk
-	$(BIN)/python -m benchmarks.peers --out docs
+	$(BIN)/python -m benchmarks.peers --out docs $(PEERS)
 
 # The README's pictures: make demo, then 256-pixel copies of its images into docs/img/.
 readme-images: demo

@@ -10,8 +10,9 @@ import benchmarks as pkg
 from benchmarks import _doc
 
 
-# not part of `all`: compares two versions of isplat, run as `python benchmarks/commits.py --old REV`
-STANDALONE = ("commits",)
+# not part of `all`: compares two versions of isplat, run as `python benchmarks/commits.py --old REV`; and
+# `python -m benchmarks.threadload` (threads quiet and under load, on any checkout through PYTHONPATH)
+STANDALONE = ("commits", "threadload")
 
 
 def names():

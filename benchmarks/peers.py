@@ -8,14 +8,21 @@ writes the section ``peers`` of ``performance.md``, ``peers.csv`` and ``img/peer
   after round, in one process (interleaved), each timed frame right after one of the same renderer and settings
   (as in a run of frames; the first of the two, right after the other renderer's frames, gives the cold-cache
   ratio beside it), on the head sample at 256, 512 and 1024 pixels with an opaque and a
-  translucent transfer function, an oblique view, the engine, and the hidden-material case (the head sampled at
+  translucent transfer function, an oblique view, the engine, the hidden-material case (the head sampled at
   512^3, opacity 0 up to 99, 0.1 at 130, 0.5 at 200, 0.7 at 255: skin and soft tissue semi-opaque in front of
-  bone); medians and the median of the per-round ratios;
+  bone), and the cases that stand for real scans (issue 27): the ``ct-chest`` sample at 512x512x133 with a
+  scanner's spacing (0.703125, 0.703125, 2.5) and window (-1000..2000 HU), a thin veil (0.03 from code 62 to 78)
+  and opaque bone (from 140), from -y, the same shaded, and an oblique view of it; and the head's bone shaded;
+  medians and the median of the per-round ratios; isplat's default (post) and the paper's splatting (pre) in
+  every table;
 * image error of BOTH renderers against reference (a) of :mod:`benchmarks.reference` (the converged float64 ray
   integral, trilinear, post-classified, step 0.05 voxel), and between the two;
 * peak memory of each renderer drawing one frame in a process of its own (``ru_maxrss``);
 * one frame as a process: ``isplat render`` to a PNG against a minimal VTK script doing the same, interleaved, and
   the first ``isplat render`` on a machine (an empty numba cache);
+* with ``--load``, the same frames of isplat (post, pre) and VTK (steps 1, 0.5) also timed while a child process
+  spins on one core (:class:`BusyCore`), in turn with the quiet ones, and what each loses; ``--cases`` runs some
+  cases only (no memory or process rows, no MIP page), e.g. ``--cases "chest,chest shaded" --load``;
 * then maximum-intensity projection against VTK's MIP (``--mip-only`` for that alone, ``--cases`` to choose
   among its cases): :mod:`benchmarks.peers_mip`, which writes ``docs/mip.md``.
 
@@ -30,9 +37,12 @@ the volume's user matrix); the same opacity points, with explicit zeros just out
 opacity is zero there, VTK clamps), ``SetScalarOpacityUnitDistance(unit_distance)`` so both apply
 ``1 - (1 - a) ** (ds / unit_distance)``; the same colour points; a parallel camera with parallel scale = half the
 image height in world units, focal point ``p``, view-up ``v``; black background; trilinear interpolation; one ray
-per pixel; automatic sample-distance adjustment off. Shading (off in this benchmark's cases, as in the issue's
-measurements; the mapping is kept for shaded scenes): each isplat light becomes a VTK scene light plus a mirror
-light, see :class:`VTKView`.
+per pixel; automatic sample-distance adjustment off. Shading (the shaded cases; the others unshaded, as in the
+first issue's measurements): ``ShadeOn`` with the scene's ambient, diffuse, specular and shininess as VTK's
+ambient, diffuse, specular and specular power, no light kit (automatic light creation off), each isplat light a
+VTK scene light in the same direction (a mirror light for two-sided shading), see :class:`VTKView`; reference
+(a) shades with isplat's Phong model and lights from the gradient of its trilinear field, so both shaded
+pictures are measured against it.
 """
 
 from __future__ import annotations
@@ -357,6 +367,54 @@ CASES = {
 }
 HIDDEN_REMOVED = "isplat defaults, hidden voxels removed"
 
+# ---- the real-scan cases (issue 27): the ct-chest sample as a scanner gives it --------------------------------
+CHEST_SHAPE = (512, 512, 133)       # (n_i, n_j, n_k): 512 x 512 slices, 133 of them
+CHEST_SPACING = (0.703125, 0.703125, 2.5)
+CHEST_WINDOW = (-1000.0, 2000.0)    # Hounsfield units to codes 0..255 (`augment --window=-1000,2000`)
+CHEST_QUICK = (64, 64, 17)
+CHEST_TF = ["transfer.opacity=[[0, 0.0], [50, 0.0], [62, 0.03], [78, 0.03], [82, 0.0], [110, 0.0], [140, 1.0], "
+            "[255, 1.0]]",
+            "transfer.color=[[50, 0.9, 0.6, 0.5], [78, 0.9, 0.65, 0.55], [110, 0.95, 0.9, 0.8], "
+            "[255, 1.0, 1.0, 0.95]]",
+            "transfer.unit_distance=0.703125"]
+FROM_MINUS_Y = ["camera.azimuth=0", "camera.elevation=0", "camera.zoom=1.0"]
+SHADED = ["shading.enabled=true"]       # examples/head.toml's light and material (after UNSHADED: it wins)
+CHEST = ("the ct-chest sample at 512x512x133, spacing 0.703125, 0.703125, 2.5 (`augment --spacing "
+         "0.703125,0.703125,2.5 --window=-1000,2000`), opacity 0 up to code 50, 0.03 from 62 to 78 (the veil: fat "
+         "and soft tissue), 0 from 82 to 110, 1 from 140 (bone)")
+CASES.update({
+    "chest": ("ct-chest", CHEST_SHAPE, CHEST_QUICK, [*CHEST_TF, *FROM_MINUS_Y], [512], [48],
+              CHEST + ", orthographic from the -y side, unshaded"),
+    "chest shaded": ("ct-chest", CHEST_SHAPE, CHEST_QUICK, [*CHEST_TF, *FROM_MINUS_Y, *SHADED], [512], [48],
+                     "the chest case shaded (VTK `ShadeOn`; examples/head.toml's light and material, Phong)"),
+    "chest oblique": ("ct-chest", CHEST_SHAPE, CHEST_QUICK, [*CHEST_TF, "camera.azimuth=30", "camera.elevation=20",
+                                                             "camera.zoom=1.0"], [512], [48],
+                      "the chest case, unshaded, azimuth 30, elevation 20 (rays oblique to the thick slices)"),
+    "head shaded": ("head", None, (64, 64, 56), SHADED, [512], [48],
+                    "head sample, bone opaque, shaded (examples/head.toml as it is: its light and material)"),
+})
+
+
+def chest_data(shape=CHEST_SHAPE) -> tuple[Path, Path]:
+    """The ct-chest sample at ``shape`` with the scanner's spacing and the window -1000..2000 HU, augmented and
+    indexed once into ``bench-out/`` (as `isplat sample ct-chest`, `isplat augment --spacing ... --window ...`)."""
+    from isplat.augment import augment_array
+    from isplat.samples import make_sample
+
+    from . import reference as REF
+
+    tag = f"ct-chest-{'x'.join(map(str, shape))}-aniso"
+    aug, idx = REF.DATA / f"{tag}.aug.h5", REF.DATA / f"{tag}.idx.h5"
+    if aug.exists() and idx.exists() and REF._readable(aug, idx):
+        return aug, idx
+    REF.DATA.mkdir(parents=True, exist_ok=True)
+    arr, _ = make_sample("ct-chest", shape)
+    o = augment_array(arr, CHEST_SPACING, window=CHEST_WINDOW)
+    REF.write_pair(aug, idx, o["density"], o["gradient_magnitude"], o["normal"], o["spacing_ijk"],
+                   o["density_window"], o["gradient_magnitude_scale"],
+                   f"isplat sample ct-chest {shape}, spacing {CHEST_SPACING}, window {CHEST_WINDOW}")
+    return aug, idx
+
 
 def _who(who: str) -> str:
     """A point's renderer with isplat's technique named (every row about rendering names its technique).
@@ -376,6 +434,9 @@ def peer_scene(name: str, size: int, quick: bool, render: dict | None = None, ex
     from . import reference as REF
 
     sample, shape, qshape, ov, *_ = CASES[name]
+    if sample == "ct-chest":            # examples/head.toml's camera, light and material on the chest
+        data = data or chest_data(qshape if quick else shape)
+        sample, shape = "head", None
     return REF.make_scene(sample, size, render, [*UNSHADED, *ov, *extra], shape=qshape if quick else shape,
                           data=data)
 
@@ -471,8 +532,49 @@ def hidden_removed_data(scene, view, tag: str) -> tuple[Path, Path, float]:
     return out_aug, out_idx, removed
 
 
+# ---- under load: another process takes one core ----------------------------------------------------------------
+BUSY = "while True: pass"
+LOAD_POINTS = ["isplat defaults", "isplat pre", "VTK 1", "VTK 0.5"]     # the renderers timed under load too
+
+
+class BusyCore:
+    """A child process spinning on one core (``python -c "while True: pass"``) while the with-block runs; started
+    and killed here, by its own process id. ``cpu``: pinned to that core (else the system moves it)."""
+
+    def __init__(self, cpu: int | None = None):
+        self.cpu = cpu
+
+    def __enter__(self):
+        self.proc = subprocess.Popen([sys.executable, "-c", BUSY])
+        if self.cpu is not None:
+            os.sched_setaffinity(self.proc.pid, {self.cpu})
+        time.sleep(0.2)                 # running before the first frame
+        return self
+
+    def __exit__(self, *exc):
+        self.proc.kill()
+        self.proc.wait()
+
+
+def load_summary(quiet: dict, loaded: dict) -> dict:
+    """Per renderer: quiet and loaded medians (ms) and the median of the per-round ratios loaded / quiet; and
+    isplat / VTK 1 per round, quiet and loaded.
+
+    >>> s = load_summary({"isplat defaults": [1.0, 1.0], "VTK 1": [2.0, 2.0]}, {"isplat defaults": [2.0, 2.0],
+    ...                   "VTK 1": [3.0, 3.0]})
+    >>> s["isplat defaults"]["loss"], s["ratio"]
+    (2.0, {'quiet': 0.5, 'loaded': 0.6666666666666666})
+    """
+    med = statistics.median
+    out = {lab: dict(quiet=_doc.median_ms(quiet[lab]), loaded=_doc.median_ms(loaded[lab]),
+                     loss=med(b / a for a, b in zip(quiet[lab], loaded[lab]))) for lab in loaded}
+    out["ratio"] = {k: med(a / b for a, b in zip(t["isplat defaults"], t["VTK 1"]))
+                    for k, t in (("quiet", quiet), ("loaded", loaded))}
+    return out
+
+
 # ---- one case: frames interleaved, errors against the reference ----------------------------------------------
-def measure(name: str, size: int, frames: int, quick: bool) -> dict:
+def measure(name: str, size: int, frames: int, quick: bool, load: bool = False) -> dict:
     from isplat.frame import BandLearning, render_frame, views_for
     from isplat.renderer import Renderer
 
@@ -481,11 +583,17 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
     scene = peer_scene(name, size, quick)
     ref, ref_s, cached = REF.reference(scene)
     r0 = Renderer(scene)
-    # the knobs act per frame (View.render): one selection serves every isplat point
-    views = [views_for(peer_scene(name, size, quick, knobs), r0.selection)[0] for _, knobs in ISPLAT_POINTS]
+    # the knobs act per frame (View.render): one selection serves every isplat point of a classification (a
+    # shaded pre-classified frame needs its voxels' normals, which a post-classified selection leaves out)
+    sels = {"post": r0.selection}
+    if r0.selection.use_shade:
+        sels["pre"] = Renderer(peer_scene(name, size, quick, {"classification": "pre"})).selection
+    knobs_of = [knobs for _, knobs in ISPLAT_POINTS]
+    sel_of = [sels.get(k.get("classification", "post"), r0.selection) for k in knobs_of]
+    views = [views_for(peer_scene(name, size, quick, k), s)[0] for k, s in zip(knobs_of, sel_of)]
     vtkv = VTKView(r0, 0, SAMPLE_DISTANCE)
     labels = [f"isplat {lab}" for lab, _ in ISPLAT_POINTS] + [f"VTK {s:g}" for s in VTK_STEPS]
-    sel = {lab: (r0.selection, v, None, BandLearning()) for lab, v in zip(labels, views)}
+    sel = {lab: (s, v, None, BandLearning()) for lab, v, s in zip(labels, views, sel_of)}
     removed = None
     if name == "hidden material":       # the same frame with the voxels this view cannot see removed
         tag = f"{CASES[name][0]}-{'x'.join(map(str, CASES[name][2 if quick else 1]))}"
@@ -513,11 +621,22 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
     for _ in range(WARMUP):
         for lab in labels:
             job(lab, False)
+    loaded = {lab: [] for lab in LOAD_POINTS}
+    quiet = {lab: [] for lab in LOAD_POINTS}
     for rnd in range(frames):
         order = labels[rnd % len(labels):] + labels[:rnd % len(labels)]
-        for lab in order:           # each timed frame right after one of its own, as in a run of frames
-            cold[lab].append(job(lab, False))
-            times[lab].append(job(lab, rnd == frames - 1))
+        for busy in ((False, True) if rnd % 2 == 0 else (True, False)) if load else (False,):
+            if busy:                # the same renderers with another process on one core, in turn with the quiet
+                with BusyCore():
+                    for lab in [x for x in order if x in LOAD_POINTS]:
+                        job(lab, False)
+                        loaded[lab].append(job(lab, False))
+                continue
+            for lab in order:           # each timed frame right after one of its own, as in a run of frames
+                cold[lab].append(job(lab, False))
+                times[lab].append(job(lab, rnd == frames - 1))
+                if lab in quiet:
+                    quiet[lab].append(times[lab][-1])
     pts = []
     for lab in labels:
         if lab != HIDDEN_REMOVED:
@@ -525,6 +644,7 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
                             err=REF.errors(imgs[lab], ref)))
     iso, v1, v05 = "isplat defaults", "VTK 1", "VTK 0.5"
     paired = {s: statistics.median(a / b for a, b in zip(times[iso], times[s])) for s in (v1, v05)}
+    paired["pre / VTK 1"] = statistics.median(a / b for a, b in zip(times["isplat pre"], times[v1]))
     paired["VTK 1, cold"] = statistics.median(a / b for a, b in zip(cold[iso], cold[v1]))
     st = stats[iso]
     hid = None
@@ -536,7 +656,7 @@ def measure(name: str, size: int, frames: int, quick: bool) -> dict:
     return dict(case=name, size=size, points=pts, paired=paired, ref_seconds=ref_s, ref_cached=cached, hidden=hid,
                 between=REF.errors(imgs[iso], imgs[v1]), between05=REF.errors(imgs[iso], imgs[v05]),
                 examined=st.voxels_examined, splatted=st.drawn, tested=st.voxels_tested,
-                threads=(r0.threads, vtkv.threads))
+                threads=(r0.threads, vtkv.threads), load=load_summary(quiet, loaded) if load else None)
 
 
 # ---- peak memory: one frame in a process of its own -----------------------------------------------------------
@@ -773,6 +893,14 @@ def slower_text(results, mem, proc) -> list[str]:
                                                       for r in slow) if slow else "") +
              (". Not slower in: " + "; ".join(f"{r['case']} {r['size']} px {r['paired']['VTK 1']:.2f}x"
                                              for r in fast) if fast else "") + ".")
+    with_pre = [r for r in results if "pre / VTK 1" in r["paired"]]
+    slow_pre = [r for r in with_pre if r["paired"]["pre / VTK 1"] > 1.0]
+    if with_pre:
+        L.append(f"- The paper's pre-classified splatting (*pre*) is slower than VTK at step 1 in {len(slow_pre)} of "
+                 f"{len(with_pre)} cases" + (": " + "; ".join(f"{r['case']} {r['size']} px "
+                                                             f"{r['paired']['pre / VTK 1']:.2f}x" for r in slow_pre)
+                                             if slow_pre else "") + " (it splats every voxel of interest in front "
+                 "of the saturated pixels with its footprint, where post takes one sample per pixel and slice).")
     cold = [r for r in results if "VTK 1, cold" in r["paired"]]
     slow_cold = [r for r in cold if r["paired"]["VTK 1, cold"] > 1.0]
     if cold:
@@ -846,12 +974,41 @@ def slower_text(results, mem, proc) -> list[str]:
     return L
 
 
+def load_text(results) -> list[str]:
+    """The section's part under load (``--load``): each renderer's frame time quiet and with another process
+    spinning on one core, from the same rounds."""
+    rows = [r for r in results if r.get("load")]
+    if not rows:
+        return []
+    L = ["#### Under load: another process on one core", "",
+         "Run with `--load`: in every round the renderers below also draw their frames while a child process "
+         f"(`python -c \"{BUSY}\"`, started and killed by the benchmark) spins on one of the cores, the quiet "
+         "and the loaded frames in turn (quiet first in even rounds, loaded first in odd ones); each loaded frame "
+         "timed right after an untimed one of its own. *loaded / quiet*: the median of the per-round ratios. Both "
+         "renderers use all cores (isplat: threads taking the next band of image rows when free; VTK: its "
+         "thread count), so both lose the core taken.", "",
+         "| case | pixels | renderer | quiet ms | loaded ms | loaded / quiet |", "|---|---:|---|---:|---:|---:|"]
+    for r in rows:
+        for lab in LOAD_POINTS:
+            x = r["load"][lab]
+            L.append(f"| {r['case']} | {r['size']} | {_who(lab)} | {x['quiet']:.1f} | {x['loaded']:.1f} | "
+                     f"{x['loss']:.2f} |")
+    L += [""]
+    more = [r for r in rows if r["load"]["isplat defaults"]["loss"] > r["load"]["VTK 1"]["loss"]]
+    L.append(f"- isplat's default (post) loses more than VTK at step 1 under load in {len(more)} of {len(rows)} "
+             "cases; isplat post / VTK 1, quiet -> loaded: " + "; ".join(
+                 f"{r['case']} {r['size']} px {r['load']['ratio']['quiet']:.2f} -> {r['load']['ratio']['loaded']:.2f}"
+                 for r in rows) + ".")
+    return L + [""]
+
+
 def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quick) -> str:
     L = ["### Side by side with VTK's CPU ray caster, both against the truth", "", "```", command, "```", "",
          f"Machine: {_doc.machine_line()}; isplat {_doc.git_rev()}; VTK {vtk_ver} "
          f"(`vtkFixedPointVolumeRayCastMapper`, offscreen through `{window_cls}`). Generated: every number and "
          "sentence below comes from this run; rerun the command after changing the renderer.", "",
-         f"Orthographic, unshaded emission-absorption, black background, square images. Per case and size every "
+         f"Orthographic, emission-absorption (unshaded but for the shaded cases: Phong with the scene's light and "
+         "material, VTK `ShadeOn` with the same, see below), black background, square images. Per case and size every "
          f"renderer draws {frames} timed frames after {WARMUP} warm-up frames, all in turn, round after round, in one "
          "process (interleaved), each timed frame right after one of the same renderer and settings (as in a run "
          "of frames: an orbit, a transfer-function edit); times are medians, and *isplat / VTK* is the median of "
@@ -864,17 +1021,19 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
          "reference (a) (docs/reference.md: the converged float64 ray integral of the same 8-bit densities, "
          "trilinear, transfer function after interpolation, step 0.05 voxel), which is neither renderer; VTK's "
          "image is read back as 8 bits.", "",
-         "| case | pixels | isplat (post, its default) ms | VTK step 1 ms | isplat / VTK 1 | isplat / VTK 1, cold | VTK step 0.5 ms | "
-         "isplat / VTK 0.5 | PSNR (a) isplat | PSNR (a) VTK 1 | PSNR (a) VTK 0.5 | PSNR isplat vs VTK 1 |",
-         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+         "| case | pixels | isplat post (its default) ms | VTK step 1 ms | post / VTK 1 | post / VTK 1, cold | "
+         "VTK step 0.5 ms | post / VTK 0.5 | isplat pre (the paper's) ms | pre / VTK 1 | PSNR (a) post | PSNR (a) pre | "
+         "PSNR (a) VTK 1 | PSNR (a) VTK 0.5 | PSNR post vs VTK 1 |",
+         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results:
-        i, v1, v05 = _pt(r, "isplat defaults"), _pt(r, "VTK 1"), _pt(r, "VTK 0.5")
-        cold = r["paired"].get("VTK 1, cold")
+        i, v1, v05, pre = _pt(r, "isplat defaults"), _pt(r, "VTK 1"), _pt(r, "VTK 0.5"), _pt(r, "isplat pre")
+        cold, pre_r = r["paired"].get("VTK 1, cold"), r["paired"].get("pre / VTK 1")
         L.append(f"| {r['case']} | {r['size']} | {i['ms']:.1f} | {v1['ms']:.1f} | {r['paired']['VTK 1']:.2f} | "
                  f"{'' if cold is None else f'{cold:.2f}'} | {v05['ms']:.1f} | {r['paired']['VTK 0.5']:.2f} | "
-                 f"{_psnr(i['err'])} | {_psnr(v1['err'])} | "
-                 f"{_psnr(v05['err'])} | {_psnr(r['between'])} |")
+                 f"{pre['ms']:.1f} | {'' if pre_r is None else f'{pre_r:.2f}'} | {_psnr(i['err'])} | "
+                 f"{_psnr(pre['err'])} | {_psnr(v1['err'])} | {_psnr(v05['err'])} | {_psnr(r['between'])} |")
     L += ["", "#### Where isplat is slower, and why", ""] + slower_text(results, mem, proc) + [""]
+    L += load_text(results)
     L += ["#### Every point", "",
           "isplat at its defaults (post-classified) and `early_termination = 0.95`, and the paper's pre-classified "
           "splatting (`classification = \"pre\"`, at the default `footprint_radius = 2.5` and at 2), VTK at "
@@ -910,9 +1069,10 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
 
 
 def run(out_dir: Path, quick: bool, required: bool = False, command: str | None = None,
-        report_only: bool = False, reuse_frames: bool = False) -> Path:
+        report_only: bool = False, reuse_frames: bool = False, cases=None, load: bool = False) -> Path:
     """Bench entry point (``python -m benchmarks peers``); without VTK or an OpenGL context it skips with a
-    note, unless ``required``."""
+    note, unless ``required``. ``cases``: only these of :data:`CASES` (no memory or process rows; its own
+    results file)."""
     out_dir = Path(out_dir)
     doc = out_dir / "performance.md"
     try:
@@ -926,7 +1086,7 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
     os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = cls
     out_dir.mkdir(parents=True, exist_ok=True)
     command = command or ("python -m benchmarks peers" + (" --quick" if quick else ""))
-    raw = REPO / "out" / "bench-peers" / f"results{'-quick' if quick else ''}.json"
+    raw = REPO / "out" / "bench-peers" / f"results{'-quick' if quick else ''}{'-some' if cases else ''}.json"
     if report_only:                     # rewrite the page from the last run's measurements (no new numbers)
         d = json.loads(raw.read_text())
         write_csv(d["results"], out_dir / "peers.csv")
@@ -945,20 +1105,22 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
         results, frames = d["results"], d["frames"]
         for r in results:
             r["points"] = [p for p in r["points"] if p["err"] is not None]
-    for name, c in ({} if reuse_frames else CASES).items():
+    for name, c in ({} if reuse_frames else {k: v for k, v in CASES.items() if not cases or k in cases}).items():
         for size in (c[5] if quick else c[4]):
             print(f"[peers] {name} at {size} px", file=sys.stderr, flush=True)
-            r = measure(name, size, frames, quick)
+            r = measure(name, size, frames, quick, load)
             results.append(r)
             took = "cached" if r["ref_cached"] else f"{r['ref_seconds']:.0f} s"
             print(f"[peers]   isplat {_pt(r, 'isplat defaults')['ms']:.1f} ms, VTK 1: {_pt(r, 'VTK 1')['ms']:.1f} ms "
                   f"(x{r['paired']['VTK 1']:.2f}); reference {took}", file=sys.stderr, flush=True)
     mem = {}
-    for name, size in ([("head opaque", 48)] if quick else [("head opaque", 512), ("hidden material", 512)]):
+    for name, size in ([] if cases else [("head opaque", 48)] if quick else
+                       [("head opaque", 512), ("hidden material", 512)]):
         print(f"[peers] peak memory: {name} {size} px", file=sys.stderr, flush=True)
         mem[(name, size)] = measure_memory(name, size, quick)
-    print("[peers] one frame as a process", file=sys.stderr, flush=True)
-    proc = measure_process("head opaque", 48 if quick else 512, quick, 1 if quick else 5)
+    if not cases:
+        print("[peers] one frame as a process", file=sys.stderr, flush=True)
+    proc = None if cases else measure_process("head opaque", 48 if quick else 512, quick, 1 if quick else 5)
     raw.parent.mkdir(parents=True, exist_ok=True)
     raw.write_text(json.dumps(dict(results=results, mem={f"{k[0]}|{k[1]}": v for k, v in mem.items()}, proc=proc,
                                    frames=frames, commit=_doc.git_rev()), default=float))
@@ -980,7 +1142,11 @@ def main(argv=None) -> int:
                     help="keep the last run's frame times and errors; measure memory and process times again")
     ap.add_argument("--mip-only", action="store_true",
                     help="only the maximum-intensity projection against VTK's (benchmarks/peers_mip.py, docs/mip.md)")
-    ap.add_argument("--cases", default=None, help="with --mip-only: the MIP cases, comma-separated (head,head-512)")
+    ap.add_argument("--cases", default=None, help="only these cases, comma-separated (with --mip-only: the MIP "
+                    "cases, head,head-512); without --mip-only no memory or process rows and no MIP page")
+    ap.add_argument("--load", action="store_true",
+                    help="also time isplat and VTK with another process spinning on one core (in turn with the "
+                         "quiet frames, same rounds)")
     ap.add_argument("--memory-child", nargs=3, metavar=("WHO", "CASE", "SIZE"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.memory_child:
@@ -992,10 +1158,12 @@ def main(argv=None) -> int:
     cmd = "make bench-peers   # = pip install vtk; python -m benchmarks.peers" + (" --quick" if a.quick else "")
     try:
         if not a.mip_only:
-            path = run(a.out, a.quick, required=True, command=cmd, report_only=a.report_only,
-                       reuse_frames=a.reuse_frames)
+            some = a.cases.split(",") if a.cases else None
+            path = run(a.out, a.quick, required=True, command=cmd + (f" --cases '{a.cases}'" if some else "") +
+                       (" --load" if a.load else ""), report_only=a.report_only, reuse_frames=a.reuse_frames,
+                       cases=some, load=a.load)
             print(f"[peers] wrote {path}", file=sys.stderr)
-        if not (a.report_only or a.reuse_frames):        # the MIP page: benchmarks/peers_mip.py
+        if not (a.report_only or a.reuse_frames or (a.cases and not a.mip_only)):        # the MIP page: benchmarks/peers_mip.py
             from . import peers_mip
 
             cases = a.cases.split(",") if a.cases else None

@@ -7,8 +7,8 @@
    samples composited.
    These are counts, not times: they do not depend on the machine's load.
 2. Threads: the image is cut into bands of rows (isplat.frame.band_rows: evenly for a first frame, then where
-   the frames before found equal work), threads take every n-th band and each band walks the slices on its
-   own. The work that is repeated is that of cells that cross a band's edge
+   the frames before found equal work), a free thread takes the next band (at equal speed every n-th) and
+   each band walks the slices on its own. The work that is repeated is that of cells that cross a band's edge
    (visited by both bands): counted for the bands that 1 to 64 threads use. The work that is serial is the
    calling thread's CPU time outside the kernels (set-up, finishing). From both, the speed-up on N cores is
    predicted (Amdahl's law with the repeated work added to the parallel part), and on this machine 2 threads
@@ -286,7 +286,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
     L += ["", "2 threads: each frame's bands cut where the frames before it found equal work "
           "(``isplat.frame.band_rows``: the CPU time of each band, spread over its rows; the first frame, "
           "not counted, cuts evenly). *Even bands*: frames that learn nothing, as the first frame of a process "
-          "is (bands of one height, threads taking every other one)."]
+          "is (bands of one height, a free thread taking the next)."]
     L += ["", "| scene | ns per voxel of interest | ns per voxel splatted or sample | set-up per frame (ms) | "
           "serial share |", "|---|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox in rows:
@@ -308,6 +308,6 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "4 tiles (32 rows) high, so a 256-row image keeps at most 8 threads busy and a 1024-row one 32. "
           "Not counted in the prediction: memory bandwidth, which all cores share, and load imbalance "
           "between threads (measured above for 2 threads, with even and with learned bands; learned bands "
-          "are one per thread, n - 1 cuts against the even bands' 2n - 1, so they repeat less than the even "
-          "bands counted here)."]
+          "are two per thread, each thread's first twice its second (``isplat.frame.band_shares``), as many "
+          "cuts as the even bands counted here)."]
     return "\n".join(L)

@@ -22,6 +22,7 @@ with early termination off, see docs/design.md for the bound with it on).
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections import namedtuple
 from dataclasses import dataclass, field
@@ -145,7 +146,7 @@ class Setup:
     plan: tuple | None
     lists: list                 # per thread, the technique's scratch (its touched-pixel and visible-cell lists)
     rows: np.ndarray            # int64[bands, 2]: each image band's rows [y0, y1)
-    mine: list                  # per thread, the bands it renders
+    mine: list                  # per thread, the bands it would render at equal speed (t, t + threads, ...)
     tile_npix: np.ndarray
     dtype: type                 # the image's float type (render.precision)
     et: float
@@ -301,16 +302,20 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
     et = part.img.dtype.type(setup.et)
     bg = np.asarray(setup.view.background, dtype=np.float64)
 
+    queue = itertools.count()           # the bands in order, each taken by the first thread free (next() is atomic)
+    n_bands = len(setup.rows)
+    each = np.arange(n_bands, dtype=np.int64)
+
     def run(t):
         buf = T.Buffers(part.img, part.sat, part.tile_sat, setup.tile_npix, part.band_stats)
         ok = True
-        for i, bi in enumerate(setup.mine[t]):      # band by band, each timed (band_rows balances by the times)
+        while (bi := next(queue)) < n_bands:     # band by band, each timed (band_rows balances by the times)
             c0 = time.thread_time()
             y0, y1 = setup.rows[bi]
             if state is None:
                 part.img[y0:y1] = 0
                 part.sat[y0:y1] = 0
-            T.render(slices, start, setup.plan, setup.lists[t], buf, T.Bands(setup.rows, setup.mine[t][i:i + 1], et))
+            T.render(slices, start, setup.plan, setup.lists[t], buf, T.Bands(setup.rows, each[bi:bi + 1], et))
             if finished is not None:
                 ok = finish(part.img[y0:y1], bg, finished[y0:y1]) and ok
             setup.band_seconds[bi] += time.thread_time() - c0
@@ -416,7 +421,9 @@ def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:
     return np.asarray(rows, dtype=dtype).reshape(-1, 4)
 
 
-BANDS_PER_THREAD = 2    # image bands per thread (see image_bands)
+BANDS_PER_THREAD = 2    # even image bands per thread (see image_bands)
+LEARNED_PER_THREAD = 2  # learned bands per thread (_next_bands, band_shares): 1 repeats less work on a quiet
+                        # machine, 2 lets a free thread take over from one slowed by another process
 MIN_BAND_TILES = 4
 
 
@@ -439,8 +446,9 @@ def image_bands(height: int, threads: int, tile: int = TILE) -> np.ndarray:
     but the last, BANDS_PER_THREAD per thread (one for one thread), at least MIN_BAND_TILES tiles high. Each
     band walks the slices on its own and tests only the regions that reach it
     (:func:`isplat.splat.traverse.bin_regions`); a voxel whose footprint crosses a band's edge is tested by both
-    bands, so more bands repeat more work, and threads take every n-th band, so that the middle of the image,
-    where the work is, is shared. A frame's bands are these, or as many cut by the work the frames before it
+    bands, so more bands repeat more work; each thread takes the next band when it is free (render_slab), at
+    equal speed every n-th band, so that the middle of the image, where the work is, is shared. A frame's bands
+    are these, or as many cut by the work the frames before it
     found (:func:`band_rows`). The image depends neither on the bands nor on which thread renders which."""
     n_tiles = -(-height // tile)
     per = max(MIN_BAND_TILES, -(-n_tiles // (1 if threads <= 1 else threads * BANDS_PER_THREAD)))
@@ -451,7 +459,7 @@ def image_bands(height: int, threads: int, tile: int = TILE) -> np.ndarray:
 def band_rows(bands: "BandLearning | None", view: View, threads: int) -> np.ndarray:
     """The frame's bands: :func:`image_bands` for the first frame of its kind (principal axis and direction,
     image size, threads, classification, sheets) in ``bands`` (or with None), then what the frames before it
-    learned (:func:`learn_bands`). Threads take every n-th band; the image does not depend on the bands."""
+    learned (:func:`learn_bands`). A free thread takes the next band; the image does not depend on the bands."""
     learned = None if bands is None else bands.costs.get(_balance_key(view, threads))
     return image_bands(view.frame.height, threads) if learned is None else learned.rows
 
@@ -529,7 +537,7 @@ def learn_bands(costs: dict, setup: Setup) -> None:
 
 
 def _thread_sums(per_band: np.ndarray, threads: int) -> np.ndarray:
-    """Each thread's share of ``per_band`` (thread t takes bands t, t + threads, ...)."""
+    """Each thread's share of ``per_band`` at equal speed (thread t takes bands t, t + threads, ...)."""
     return np.bincount(np.arange(len(per_band)) % threads, per_band)
 
 
@@ -566,7 +574,7 @@ def _next_bands(est: np.ndarray, rows: np.ndarray, tried: dict, threads: int, he
     while len(tried) > TRIED:
         del tried[next(iter(tried))]
     if busiest > mean + max(BALANCE_SLACK * mean, 0.5 * float(est.max())):
-        cut = balanced_bands(est, min(threads, len(est)), threads, height)
+        cut = balanced_bands(est, min(LEARNED_PER_THREAD * threads, len(est)), threads, height)
         if tuple(cut[:, 0].tolist()) not in tried and \
                 per_thread(cut).max() < (min(tried.values()) - BALANCE_SLACK) * mean:
             return Learned(est, cut, tried)
@@ -575,15 +583,32 @@ def _next_bands(est: np.ndarray, rows: np.ndarray, tried: dict, threads: int, he
     return Learned(est, rows, tried)
 
 
+def band_shares(n_bands: int, threads: int) -> np.ndarray:
+    """Where ``n_bands`` bands for ``threads`` threads end, as shares of the frame's work: with two bands per
+    thread, each thread's first band twice its second (the first ``threads`` bands 2/3 of the work, the rest
+    1/3), so that threads taking the next band when free (:func:`render_slab`) even out a thread slowed by
+    another process: at equal speed thread t takes bands t and t + threads (half the work each); with one
+    thread at half speed it does one large band while the other does the rest, and both end at 2/3 of the
+    one-speed time, as the two threads' summed speed allows. Otherwise equal shares.
+
+    >>> band_shares(4, 2).round(4).tolist(), band_shares(3, 2).round(4).tolist()
+    ([0.3333, 0.6667, 0.8333, 1.0], [0.3333, 0.6667, 1.0])
+    """
+    if threads < 2 or n_bands != 2 * threads:
+        return np.arange(1, n_bands + 1) / n_bands
+    per = np.r_[np.full(threads, 2.0), np.ones(threads)]
+    return np.cumsum(per) / per.sum()
+
+
 def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, tile: int = TILE) -> np.ndarray:
     """``n_bands`` bands of whole tiles of an image ``height`` rows high (``int64[bands, 2]`` of ``[y0, y1)``)
-    for a cost ``est`` per tile row, thread ``t`` taking bands ``t, t + threads, ...``: cut where the
-    cumulated cost reaches each n-th of the whole, then cuts moved a tile at a time while that lowers the
+    for a cost ``est`` per tile row, thread ``t`` taking bands ``t, t + threads, ...`` (at equal speed): cut
+    where the cumulated cost reaches :func:`band_shares` of the whole, then cuts moved a tile at a time while that lowers the
     busiest thread's cost (or, as much, the sum of squares of the threads' costs). In plain Python: a few
     bands, and numpy's calls cost more than the sums."""
     n_tiles = len(est)
     cum = np.concatenate([[0.0], np.cumsum(est)])
-    q = np.rint(np.interp(cum[-1] * np.arange(1, n_bands) / n_bands, cum, np.arange(n_tiles + 1)))
+    q = np.rint(np.interp(cum[-1] * band_shares(n_bands, threads)[:-1], cum, np.arange(n_tiles + 1)))
     edges = [0, *np.clip(q, 1, n_tiles - 1).astype(int).tolist(), n_tiles]
     for i in range(1, n_bands):                       # every band at least one tile, from the top ...
         edges[i] = max(edges[i], edges[i - 1] + 1)

@@ -309,7 +309,7 @@ def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, 
     density, gm, nrm = np.zeros(size, np.uint8), np.zeros(size, np.uint8), np.zeros(size, np.uint16)
     asked = {id(density): set(), id(gm): set(), id(nrm): set()}
     strides = np.array([sa, sb, sc, offset], np.int64)
-    voxel = (density, gm, nrm, strides, n_a, n_b, c)
+    voxel = (density, gm, nrm, strides, n_a, n_b, c, (0, 0))
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(post, "prefetch", lambda arr, i: asked[id(arr)].add(int(i) * arr.itemsize // 64))
         post._prefetch_square.py_func(unit, a0, b0, voxel, True, True)

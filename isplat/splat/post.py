@@ -60,8 +60,15 @@ AHEAD = 1                 # squares prefetched ahead of the one sampled (_sample
 # shading weights each corner's Phong factors by its bilinear weight times its gradient magnitude code (_sample);
 # False: by the bilinear weight only, as before (python -m benchmarks thick renders both; docs/thick-slices.md)
 WEIGHTED_SHADING = True
+# the density between slices along a thick in-slice axis (_density_at): "cubic" a monotone cubic (Fritsch-Butland
+# slopes: C1, interpolates the voxels, never outside the two voxels around it), "catmull-rom" (clamped to the
+# codes), "linear" the bilinear of the quad as before; used when the thicker in-slice axis' spacing is at least
+# THICK_RATIO times the volume's finest (docs/thick-slices.md: why 2)
+BETWEEN_SLICES = "cubic"
+THICK_RATIO = 2.0
+CUBIC_KINDS = {"cubic": 0, "catmull-rom": 1}
 
-PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab")
+PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab between")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
 float64[256, 2G] (opacities per density and gradient code, corrected for the slice's path length when
 orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next code) and ``color`` float64[256, 6]
@@ -69,7 +76,9 @@ orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next cod
 (:mod:`isplat.splat.shade`); ``use_shade`` 0 unshaded, 1 the corners' Phong factors weighted bilinearly, 2
 weighted by the bilinear weights times the corners' gradient magnitude codes (:data:`WEIGHTED_SHADING`);
 ``lab`` the segmentation labels shown (:mod:`isplat.splat.labels`: the label
-channel, the colour table, steps; empty without labels)."""
+channel, the colour table, steps; empty without labels); ``between`` (axis, kind): the in-slice axis along which
+the density is a cubic between voxels (1 a, 2 b, 0 none: bilinear) and the cubic's kind (:func:`between_slices`,
+:func:`_density_at`)."""
 PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
@@ -99,7 +108,8 @@ def plan(tables):
     whole = sel.whole_volume(tables.axis)
     # 2: the corners' Phong factors weighted by their gradient magnitudes too (_sample), when those were read
     shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
-    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables))
+    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables),
+                       between_slices(tables.view.geom.spacing, tables.axis))
     ex, ey = reach(tables.proj.coef)
     tent = (float(ex), float(ey))
     source = whole if sel.method == "full" else \
@@ -107,6 +117,23 @@ def plan(tables):
     n_cells = max_cells(sel, tables.axis)
     lists = [np.empty((n_cells, 4), np.int64) for _ in range(tables.threads)]
     return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent), lists, None
+
+
+def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | None = None) -> tuple[int, int]:
+    """``(axis, kind)`` of :data:`PostClassify`'s ``between``: the thicker in-slice axis of ``axis``'s slices (1 a,
+    2 b; a when equal) when its spacing is at least ``ratio`` (:data:`THICK_RATIO`) times the finest of the three
+    and ``kind`` (:data:`BETWEEN_SLICES`) is not "linear", else 0. Along the view's axis nothing is interpolated:
+    the samples lie on the slices."""
+    from ..grid import SLICE_AXES
+
+    kind = BETWEEN_SLICES if kind is None else kind
+    ratio = THICK_RATIO if ratio is None else ratio
+    sp = [float(x) for x in spacing]
+    ia, ib, _ = SLICE_AXES[axis]
+    t = 1 if sp[ia] >= sp[ib] else 2
+    if kind == "linear" or max(sp[ia], sp[ib]) < ratio * min(sp):
+        return 0, 0
+    return t, CUBIC_KINDS[kind]
 
 
 def _labels_of(tables):
@@ -201,7 +228,7 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, b
     nsa = (whole.n_a + unit - 1) // unit
     nm, ns = _mark_cells(cells, nc, nca, unit, nsa, mark, marked, smark, squares)
     nt = _plan_squares(squares, ns, smark, mark, nca, (whole.n_b + CELL - 1) // CELL, unit, todo)
-    voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c)
+    voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c, cls.between)
     inv = _ortho_inverse(base, geo.coef)
     _sample_squares(todo, nt, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
                     cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts, cls.lab)
@@ -304,10 +331,12 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     along b lie a plane or a row of the volume apart, so each row of the square is lines of its own that the
     CPU's own prefetchers do not foresee: without this the samples wait for memory (most of a frame's time on a
     volume larger than the caches, docs/design.md)."""
-    density, gm, nrm, strides, n_a, n_b, c = voxel
+    density, gm, nrm, strides, n_a, n_b, c, between = voxel
     sa, sb = strides[0], strides[1]
     a1 = min(a0 + unit, n_a - 1)
     b1 = min(b0 + unit, n_b - 1)
+    if between[0] == 2:             # the cubic along b reads a row before and one more after (_density_at)
+        b0, b1 = max(b0 - 1, 0), min(b1 + 1, n_b - 1)
     da = max(1, 32 // sa)           # voxels along a in half a 64-byte line (a slice's a steps 1 or a row)
     cbase = c * strides[2] + strides[3]
     for b in range(b0, b1 + 1):
@@ -330,7 +359,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`).
     One function of over 60 lines: its per-pixel loop is the scan's inner loop, inlined by LLVM, with the
     flags' test and the sample (:func:`_sample`) in it."""
-    density, gm, nrm, strides, n_a, n_b, c = voxel
+    density, gm, nrm, strides, n_a, n_b, c, between = voxel
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp
     nca = (n_a + CELL - 1) // CELL
@@ -390,7 +419,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                 done = max(done, _sample(x, y, fu, fv, cbase + qa * strides[0] + qb * strides[1],
                                          strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v,
                                          density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo, img,
-                                         sat, tile_sat, et))
+                                         sat, tile_sat, et, _taps(qa, qb, voxel)))
             drawn += done > 0
             newly += done > 1
     counts[0] += drawn
@@ -423,9 +452,10 @@ def _span(o, d, r, a, b, lo, hi):
 
 @leaf(forceinline=True)
 def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo,
-            img, sat, tile_sat, et):
-    """One sample: the bilinear density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
-    volume's edge, which repeats the edge voxel) at (fu, fv) in it, classified with the tables interpolated
+            img, sat, tile_sat, et, taps):
+    """One sample: the density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
+    volume's edge, which repeats the edge voxel) at (fu, fv) in it (bilinear, or cubic along a thick axis:
+    ``taps``, :func:`_taps`, :func:`_density_at`), classified with the tables interpolated
     between codes, shaded with the corners' Phong factors (weighted by their gradient magnitudes too when
     ``use_shade == 2``), composited over pixel (x, y). Returns 0 when
     transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity."""
@@ -438,7 +468,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     i10 = i00 + np.uint64(sa)
     i01 = i00 + np.uint64(sb)
     i11 = i01 + np.uint64(sa)
-    d = w00 * density[i00] + w10 * density[i10] + w01 * density[i01] + w11 * density[i11]
+    d = _density_at(density, i00, i10, i01, i11, w00, w10, w01, w11, fu, fv, taps)
     k = min(int(d), 254)
     f = d - k                   # from the signed code: one conversion (an unsigned one takes five)
     di = np.uint64(k)
@@ -491,6 +521,63 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
         tile_sat[y // TILE, x // TILE] += 1
         return 2
     return 1
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _taps(qa, qb, voxel):
+    """What :func:`_density_at` needs of quad (qa, qb) beyond its corners: ``(axis, kind, back, fwd)``, the
+    thick axis and the cubic's kind (``voxel[7]``, :data:`PostClassify`'s ``between``) and the steps from the
+    quad's first corner to the voxel before it and to the voxel two after it along that axis, clamped to the
+    volume (the edge voxel repeated; 0 steps back at the first voxel). (0, 0, 0, 0): bilinear. The slices of a
+    slab (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
+    strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], voxel[7]
+    t = between[0]
+    if t == 0:
+        return 0, 0, 0, 0
+    q, n, s = qa, n_a, strides[0]
+    if t == 2:
+        q, n, s = qb, n_b, strides[1]
+    q = min(max(q, 0), n - 1)
+    return t, between[1], s if q > 0 else 0, min(2, n - 1 - q) * s
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _density_at(density, i00, i10, i01, i11, w00, w10, w01, w11, fu, fv, taps):
+    """The density at (fu, fv) in the quad whose corners are at ``i00`` .. ``i11`` (bilinear weights ``w00`` ..
+    ``w11``): bilinear when ``taps[0]`` is 0 (the same float operations as before: isotropic data render bit
+    for bit as before); else a cubic (:func:`cubic`, kind ``taps[1]``) along the thick axis (1 a, 2 b) through
+    the voxel before the quad (``taps[2]`` back), its two corners and the voxel after (``taps[3]`` on) in each of
+    the quad's two rows (or columns), then linear between those two."""
+    t = taps[0]
+    if t == 0:
+        return w00 * density[i00] + w10 * density[i10] + w01 * density[i01] + w11 * density[i11]
+    back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
+    if t == 1:      # rows along a from i00 and from i01, then linear along b
+        r0 = cubic(density[i00 - back], density[i00], density[i10], density[i00 + fwd], fu, taps[1])
+        r1 = cubic(density[i01 - back], density[i01], density[i11], density[i01 + fwd], fu, taps[1])
+        return (1.0 - fv) * r0 + fv * r1
+    c0 = cubic(density[i00 - back], density[i00], density[i01], density[i00 + fwd], fv, taps[1])
+    c1 = cubic(density[i10 - back], density[i10], density[i11], density[i10 + fwd], fv, taps[1])
+    return (1.0 - fu) * c0 + fu * c1
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def cubic(pm, p0, p1, p2, t, kind):
+    """The cubic Hermite between ``p0`` (t = 0) and ``p1`` (t = 1) with neighbours ``pm`` before and ``p2``
+    after. ``kind`` 0: monotone (Fritsch and Butland 1984: each knot's slope the harmonic mean of its two
+    secants, 0 where they differ in sign; at most twice the smaller secant, so the curve is C1 and never leaves
+    [min(p0, p1), max(p0, p1)]); 1: Catmull-Rom (slopes the central differences), clamped to the codes 0..255."""
+    pm, p0, p1, p2 = float(pm), float(p0), float(p1), float(p2)
+    d0, d1, d2 = p0 - pm, p1 - p0, p2 - p1
+    if kind == 0:
+        m0 = 2.0 * d0 * d1 / (d0 + d1) if d0 * d1 > 0.0 else 0.0
+        m1 = 2.0 * d1 * d2 / (d1 + d2) if d1 * d2 > 0.0 else 0.0
+    else:
+        m0, m1 = 0.5 * (d0 + d1), 0.5 * (d1 + d2)
+    t2 = t * t
+    t3 = t2 * t
+    v = (2.0 * t3 - 3.0 * t2 + 1.0) * p0 + (t3 - 2.0 * t2 + t) * m0 + (3.0 * t2 - 2.0 * t3) * p1 + (t3 - t2) * m1
+    return min(max(v, 0.0), 255.0)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf

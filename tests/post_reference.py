@@ -9,7 +9,9 @@ bilinear weights alone when the four codes are 0; ``weighted=False``: the biline
 'over' front to back. On an anisotropic grid (the thicker in-slice axis at least isplat.splat.post.THICK_RATIO
 times the finest spacing, isplat.splat.post.BETWEEN_SLICES not "linear") the density along that axis is a cubic
 Hermite through the four voxels around the point (indices clamped to the volume) in each of the two rows, then
-linear across them: monotone (Fritsch-Butland slopes) or Catmull-Rom clamped to 0..255; the rest as before. A quad (the square between
+linear across them: monotone (Fritsch-Butland slopes) or Catmull-Rom clamped to 0..255; and the shading mixes
+the Phong factors of those eight voxels, weighted by the cubic B-spline's weights along the thick axis times the
+linear weights across (times the gradient magnitude codes, normalised, as the four corners' otherwise). A quad (the square between
 four voxels) is sampled only when one of its voxels has a density of non-zero opacity.
 """
 
@@ -29,7 +31,7 @@ ALPHA_MAX = 1 - 2.0 ** -40
 
 
 def post_reference(scene, view=0, et=1.0, weighted=True, between=None):
-    """Straight RGBA (H, W, 4) over the scene's background. ``between``: "linear", "cubic" or "catmull-rom"
+    """Straight RGBA (H, W, 4) over the scene's background. ``between``: "linear", "monotone" or "catmull-rom"
     (None: isplat.splat.post.BETWEEN_SLICES)."""
     aug = open_augmented(scene.data.augmented)
     dens = aug.read("density").astype(np.float64)
@@ -119,7 +121,7 @@ def _thick_axis(spacing, ia, ib, between):
 def _hermite(p, t, kind):
     """The cubic between p[1] and p[2] at t in [0, 1] with neighbours p[0] and p[3]."""
     d = [p[1] - p[0], p[2] - p[1], p[3] - p[2]]
-    if kind == "cubic":
+    if kind == "monotone":
         m = [2 * x * y / (x + y) if x * y > 0 else 0.0 for x, y in ((d[0], d[1]), (d[1], d[2]))]
     else:
         m = [(p[2] - p[0]) / 2, (p[3] - p[1]) / 2]
@@ -172,6 +174,8 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=Non
     rgb = col[di] + f * (col[di + 1] - col[di])
     if sh.enabled:
         diff, spec = np.zeros(3), np.zeros(3)
+        if thick is not None:
+            corners, weights = _bspline_corners(qa, qb, fu, fv, c, axes, n_ijk, thick[0])
         if gm is not None and sum(w * gm[k] for w, k in zip(weights, corners)) > 0:
             total = sum(w * gm[k] for w, k in zip(weights, corners))
             weights = [w * gm[k] / total for w, k in zip(weights, corners)]
@@ -182,6 +186,25 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=Non
             spec += w * ss
         rgb = rgb * diff + spec
     return opac[di], opac[di + 1], f, rgb
+
+
+def _bspline_corners(qa, qb, fu, fv, c, axes, n_ijk, along):
+    """The eight voxels whose Phong factors shade a sample between thick slices (``along`` 0: a, 1: b) and their
+    weights: the cubic B-spline's along the thick axis (indices clamped to the volume), linear across."""
+    ia, ib, ic = axes
+    f, g = (fu, fv) if along == 0 else (fv, fu)
+    bw = [(1 - f) ** 3 / 6, (3 * f**3 - 6 * f**2 + 4) / 6, (-3 * f**3 + 3 * f**2 + 3 * f + 1) / 6, f**3 / 6]
+    corners, weights = [], []
+    for across, wr in ((0, 1 - g), (1, g)):
+        for k, w in zip((-1, 0, 1, 2), bw):
+            da, db = (k, across) if along == 0 else (across, k)
+            ijk = [0, 0, 0]
+            ijk[ia] = min(max(qa + da, 0), n_ijk[ia] - 1)
+            ijk[ib] = min(max(qb + db, 0), n_ijk[ib] - 1)
+            ijk[ic] = c
+            corners.append((ijk[2], ijk[1], ijk[0]))
+            weights.append(wr * w)
+    return corners, weights
 
 
 def _alpha(lo, hi, f, r, persp):

@@ -60,13 +60,13 @@ AHEAD = 1                 # squares prefetched ahead of the one sampled (_sample
 # shading weights each corner's Phong factors by its bilinear weight times its gradient magnitude code (_sample);
 # False: by the bilinear weight only, as before (python -m benchmarks thick renders both; docs/thick-slices.md)
 WEIGHTED_SHADING = True
-# the density between slices along a thick in-slice axis (_density_at): "cubic" a monotone cubic (Fritsch-Butland
+# the density between slices along a thick in-slice axis (_density_at): "monotone" a monotone cubic (Fritsch-Butland
 # slopes: C1, interpolates the voxels, never outside the two voxels around it), "catmull-rom" (clamped to the
 # codes), "linear" the bilinear of the quad as before; used when the thicker in-slice axis' spacing is at least
 # THICK_RATIO times the volume's finest (docs/thick-slices.md: why 2)
-BETWEEN_SLICES = "cubic"
+BETWEEN_SLICES = "catmull-rom"
 THICK_RATIO = 2.0
-CUBIC_KINDS = {"cubic": 0, "catmull-rom": 1}
+CUBIC_KINDS = {"monotone": 0, "catmull-rom": 1}
 
 PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab between")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
@@ -487,7 +487,9 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
-    if use_shade:
+    if use_shade and taps[0] != 0:      # a thick axis: the Phong factors with the B-spline's weights along it
+        cr, cg, cb = _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade)
+    elif use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
         if use_shade == 2:      # weighted by the gradient magnitudes: a corner off the surface (air, a short
             v00 = w00 * gm[i00]     # gradient whose direction is mostly the slices') counts for little
@@ -559,6 +561,54 @@ def _density_at(density, i00, i10, i01, i11, w00, w10, w01, w11, fu, fv, taps):
     c0 = cubic(density[i00 - back], density[i00], density[i01], density[i00 + fwd], fv, taps[1])
     c1 = cubic(density[i10 - back], density[i10], density[i11], density[i10 + fwd], fv, taps[1])
     return (1.0 - fu) * c0 + fu * c1
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade):
+    """The colour shaded with the Phong factors of the eight voxels around the sample along a thick axis
+    (``taps``, :func:`_taps`): the cubic B-spline's weights along it (positive, C2: the shading has no kink at
+    the slices), linear across, each times the voxel's gradient magnitude code when ``use_shade`` is 2
+    (normalised; unweighted where all are 0)."""
+    back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
+    f, g, r1, o1 = fu, fv, i01, i10 - i00
+    if taps[0] == 2:
+        f, g, r1, o1 = fv, fu, i10, i01 - i00
+    f2 = f * f
+    f3 = f2 * f
+    bw = ((1.0 - f) * (1.0 - f) * (1.0 - f) / 6.0, (3.0 * f3 - 6.0 * f2 + 4.0) / 6.0,
+          (-3.0 * f3 + 3.0 * f2 + 3.0 * f + 1.0) / 6.0, f3 / 6.0)
+    gs = 0.0
+    if use_shade == 2:          # gradient-magnitude weights unless they are all 0 (as _sample's four)
+        for r in range(2):
+            row = i00 if r == 0 else r1
+            wr = 1.0 - g if r == 0 else g
+            gs += wr * (bw[0] * gm[row - back] + bw[1] * gm[row] + bw[2] * gm[row + o1] + bw[3] * gm[row + fwd])
+    weighted = gs > 0.0
+    s0 = s1 = s2 = s3 = s4 = s5 = 0.0
+    wsum = 0.0
+    for r in range(2):
+        row = i00 if r == 0 else r1
+        wr = 1.0 - g if r == 0 else g
+        for k in range(4):
+            i = row - back if k == 0 else (row if k == 1 else (row + o1 if k == 2 else row + fwd))
+            w = wr * bw[k]
+            if weighted:
+                w *= gm[i]
+            n = nrm[i]
+            wsum += w
+            s0 += w * shade[n, 0]
+            s1 += w * shade[n, 1]
+            if shade.shape[1] == 6:
+                s2 += w * shade[n, 2]
+                s3 += w * shade[n, 3]
+                s4 += w * shade[n, 4]
+                s5 += w * shade[n, 5]
+    if wsum <= 0.0:
+        return cr, cg, cb
+    r = 1.0 / wsum
+    if shade.shape[1] == 6:
+        return cr * s0 * r + s3 * r, cg * s1 * r + s4 * r, cb * s2 * r + s5 * r
+    return cr * s0 * r + s1 * r, cg * s0 * r + s1 * r, cb * s0 * r + s1 * r
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf

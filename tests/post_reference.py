@@ -108,14 +108,15 @@ def post_reference(scene, view=0, et=1.0, weighted=True, between=None):
 
 
 def _thick_axis(spacing, ia, ib, between):
-    """(0 for a or 1 for b, the cubic's name) of the slices' thick in-slice axis, or None: bilinear."""
+    """(0 for a or 1 for b, the cubic's name, whether the shading follows: isplat.splat.post.SHADE_BETWEEN) of the
+    slices' thick in-slice axis, or None: bilinear."""
     from isplat.splat import post
 
     kind = between or post.BETWEEN_SLICES
     sp = [float(x) for x in spacing]
     if kind == "linear" or max(sp[ia], sp[ib]) < post.THICK_RATIO * min(sp):
         return None
-    return (0 if sp[ia] >= sp[ib] else 1), kind
+    return (0 if sp[ia] >= sp[ib] else 1), kind, post.SHADE_BETWEEN
 
 
 def _hermite(p, t, kind):
@@ -174,7 +175,7 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=Non
     rgb = col[di] + f * (col[di + 1] - col[di])
     if sh.enabled:
         diff, spec = np.zeros(3), np.zeros(3)
-        if thick is not None:
+        if thick is not None and thick[2]:
             corners, weights = _bspline_corners(qa, qb, fu, fv, c, axes, n_ijk, thick[0])
         if gm is not None and sum(w * gm[k] for w, k in zip(weights, corners)) > 0:
             total = sum(w * gm[k] for w, k in zip(weights, corners))

@@ -313,7 +313,7 @@ def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, 
     density, gm, nrm = np.zeros(size, np.uint8), np.zeros(size, np.uint8), np.zeros(size, np.uint16)
     asked = {id(density): set(), id(gm): set(), id(nrm): set()}
     strides = np.array([sa, sb, sc, offset], np.int64)
-    voxel = (density, gm, nrm, strides, n_a, n_b, c, (between, 0))
+    voxel = (density, gm, nrm, strides, n_a, n_b, c, (between, 0, 1))
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(post, "prefetch", lambda arr, i: asked[id(arr)].add(int(i) * arr.itemsize // 64))
         post._prefetch_square.py_func(unit, a0, b0, voxel, True, True)
@@ -451,7 +451,7 @@ def test_the_kernel_density_is_the_voxels_at_voxel_positions():
     density = np.concatenate([vals, vals[::-1]])             # two rows along a (b = 0, 1)
     strides = np.array([1, 7, 14, 0], np.int64)
     for kind in (0, 1):
-        voxel = (density, density, density, strides, 7, 2, 0, (1, kind))
+        voxel = (density, density, density, strides, 7, 2, 0, (1, kind, 1))
         for qa in range(7):
             taps = post._taps(qa, 0, voxel)
             sa = 1 if qa + 1 < 7 else 0
@@ -466,12 +466,12 @@ def test_the_kernel_density_is_the_voxels_at_voxel_positions():
 def test_between_slices_picks_the_thick_in_slice_axis():
     from isplat.splat.post import between_slices
 
-    assert between_slices((1.0, 1.0, 7.0), "i", "monotone") == (2, 0)      # i's slices: a = j, b = k
-    assert between_slices((1.0, 1.0, 7.0), "j", "catmull-rom") == (2, 1)  # j's: a = i, b = k
-    assert between_slices((7.0, 1.0, 1.0), "k", "monotone") == (1, 0)      # k's: a = i
-    assert between_slices((1.0, 1.0, 7.0), "k", "monotone") == (0, 0)      # along the view: on the slices
-    assert between_slices((1.0, 1.0, 1.9), "i", "monotone") == (0, 0)
-    assert between_slices((1.0, 1.0, 7.0), "i", "linear") == (0, 0)
+    assert between_slices((1.0, 1.0, 7.0), "i", "monotone") == (2, 0, 1)      # i's slices: a = j, b = k
+    assert between_slices((1.0, 1.0, 7.0), "j", "catmull-rom") == (2, 1, 1)  # j's: a = i, b = k
+    assert between_slices((7.0, 1.0, 1.0), "k", "monotone") == (1, 0, 1)      # k's: a = i
+    assert between_slices((1.0, 1.0, 7.0), "k", "monotone") == (0, 0, 0)      # along the view: on the slices
+    assert between_slices((1.0, 1.0, 1.9), "i", "monotone") == (0, 0, 0)
+    assert between_slices((1.0, 1.0, 7.0), "i", "linear") == (0, 0, 0)
 
 
 def test_thick_shading_weighted_by_gradient_magnitudes_agrees_with_the_reference(tmp_path, make_scene):
@@ -485,3 +485,19 @@ def test_thick_shading_weighted_by_gradient_magnitudes_agrees_with_the_reference
         sc = post_scene(make_scene, aug, idx, cam, "orthographic")
         img, _ = render(sc, "full")
         assert np.abs(img - post_reference(sc)).max() <= 2e-4
+
+
+def test_cubic_with_the_corners_shading_agrees_with_the_reference(tmp_path, make_scene, monkeypatch):
+    """SHADE_BETWEEN off: the cubic density between thick slices, the quad's four corners' Phong factors."""
+    from isplat.splat import post
+
+    monkeypatch.setattr(post, "SHADE_BETWEEN", False)
+    shape = (6, 7, 8)
+    aug, idx = write_volume(tmp_path, rng_volume(9, shape), spacing=THICK, normal=random_normals(9, shape))
+    for cam in (CAMERAS[1], CAMERAS[5]):
+        sc = post_scene(make_scene, aug, idx, cam, "perspective")
+        img, _ = render(sc)
+        assert np.abs(img - post_reference(sc)).max() <= 2e-4
+        monkeypatch.setattr(post, "SHADE_BETWEEN", True)
+        assert np.abs(img - post_reference(sc)).max() > 1e-3        # the shading's weights do differ
+        monkeypatch.setattr(post, "SHADE_BETWEEN", False)

@@ -67,6 +67,9 @@ WEIGHTED_SHADING = True
 BETWEEN_SLICES = "catmull-rom"
 THICK_RATIO = 2.0
 CUBIC_KINDS = {"monotone": 0, "catmull-rom": 1}
+# with a cubic between slices, the Phong factors of the eight voxels around the sample with the cubic B-spline's
+# weights along the thick axis (_shade_between); False: the quad's four corners' as between thin slices
+SHADE_BETWEEN = True
 
 PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab between")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
@@ -77,8 +80,8 @@ orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next cod
 weighted by the bilinear weights times the corners' gradient magnitude codes (:data:`WEIGHTED_SHADING`);
 ``lab`` the segmentation labels shown (:mod:`isplat.splat.labels`: the label
 channel, the colour table, steps; empty without labels); ``between`` (axis, kind): the in-slice axis along which
-the density is a cubic between voxels (1 a, 2 b, 0 none: bilinear) and the cubic's kind (:func:`between_slices`,
-:func:`_density_at`)."""
+the density is a cubic between voxels (1 a, 2 b, 0 none: bilinear), the cubic's kind and whether the shading
+follows it (1: :func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`)."""
 PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
@@ -119,11 +122,12 @@ def plan(tables):
     return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent), lists, None
 
 
-def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | None = None) -> tuple[int, int]:
-    """``(axis, kind)`` of :data:`PostClassify`'s ``between``: the thicker in-slice axis of ``axis``'s slices (1 a,
-    2 b; a when equal) when its spacing is at least ``ratio`` (:data:`THICK_RATIO`) times the finest of the three
-    and ``kind`` (:data:`BETWEEN_SLICES`) is not "linear", else 0. Along the view's axis nothing is interpolated:
-    the samples lie on the slices."""
+def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | None = None) -> tuple[int, int, int]:
+    """``(axis, kind, shade)`` of :data:`PostClassify`'s ``between``: the thicker in-slice axis of ``axis``'s
+    slices (1 a, 2 b; a when equal) when its spacing is at least ``ratio`` (:data:`THICK_RATIO`) times the finest
+    of the three and ``kind`` (:data:`BETWEEN_SLICES`) is not "linear", else 0; the kind's code; 1 when the
+    shading follows (:data:`SHADE_BETWEEN`). Along the view's axis nothing is interpolated: the samples lie on
+    the slices."""
     from ..grid import SLICE_AXES
 
     kind = BETWEEN_SLICES if kind is None else kind
@@ -132,8 +136,8 @@ def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | N
     ia, ib, _ = SLICE_AXES[axis]
     t = 1 if sp[ia] >= sp[ib] else 2
     if kind == "linear" or max(sp[ia], sp[ib]) < ratio * min(sp):
-        return 0, 0
-    return t, CUBIC_KINDS[kind]
+        return 0, 0, 0
+    return t, CUBIC_KINDS[kind], int(bool(SHADE_BETWEEN))
 
 
 def _labels_of(tables):
@@ -487,7 +491,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
-    if use_shade and taps[0] != 0:      # a thick axis: the Phong factors with the B-spline's weights along it
+    if use_shade and taps[4] != 0:      # a thick axis: the Phong factors with the B-spline's weights along it
         cr, cg, cb = _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade)
     elif use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
@@ -527,20 +531,21 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _taps(qa, qb, voxel):
-    """What :func:`_density_at` needs of quad (qa, qb) beyond its corners: ``(axis, kind, back, fwd)``, the
-    thick axis and the cubic's kind (``voxel[7]``, :data:`PostClassify`'s ``between``) and the steps from the
+    """What :func:`_density_at` needs of quad (qa, qb) beyond its corners: ``(axis, kind, back, fwd, shade)``,
+    the thick axis and the cubic's kind (``voxel[7]``, :data:`PostClassify`'s ``between``), the steps from the
     quad's first corner to the voxel before it and to the voxel two after it along that axis, clamped to the
-    volume (the edge voxel repeated; 0 steps back at the first voxel). (0, 0, 0, 0): bilinear. The slices of a
+    volume (the edge voxel repeated; 0 steps back at the first voxel), and whether the shading follows
+    (:func:`_shade_between`). (0, 0, 0, 0, 0): bilinear. The slices of a
     slab (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
     strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], voxel[7]
     t = between[0]
     if t == 0:
-        return 0, 0, 0, 0
+        return 0, 0, 0, 0, 0
     q, n, s = qa, n_a, strides[0]
     if t == 2:
         q, n, s = qb, n_b, strides[1]
     q = min(max(q, 0), n - 1)
-    return t, between[1], s if q > 0 else 0, min(2, n - 1 - q) * s
+    return t, between[1], s if q > 0 else 0, min(2, n - 1 - q) * s, between[2]
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
@@ -577,23 +582,17 @@ def _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps,
     f3 = f2 * f
     bw = ((1.0 - f) * (1.0 - f) * (1.0 - f) / 6.0, (3.0 * f3 - 6.0 * f2 + 4.0) / 6.0,
           (-3.0 * f3 + 3.0 * f2 + 3.0 * f + 1.0) / 6.0, f3 / 6.0)
-    gs = 0.0
-    if use_shade == 2:          # gradient-magnitude weights unless they are all 0 (as _sample's four)
-        for r in range(2):
-            row = i00 if r == 0 else r1
-            wr = 1.0 - g if r == 0 else g
-            gs += wr * (bw[0] * gm[row - back] + bw[1] * gm[row] + bw[2] * gm[row + o1] + bw[3] * gm[row + fwd])
-    weighted = gs > 0.0
-    s0 = s1 = s2 = s3 = s4 = s5 = 0.0
-    wsum = 0.0
-    for r in range(2):
-        row = i00 if r == 0 else r1
-        wr = 1.0 - g if r == 0 else g
-        for k in range(4):
-            i = row - back if k == 0 else (row if k == 1 else (row + o1 if k == 2 else row + fwd))
-            w = wr * bw[k]
-            if weighted:
-                w *= gm[i]
+    ra, rb = i00, r1
+    idx = (ra - back, ra, ra + o1, ra + fwd, rb - back, rb, rb + o1, rb + fwd)
+    wts = ((1.0 - g) * bw[0], (1.0 - g) * bw[1], (1.0 - g) * bw[2], (1.0 - g) * bw[3], g * bw[0], g * bw[1],
+           g * bw[2], g * bw[3])
+    s0 = s1 = s2 = s3 = s4 = s5 = wsum = 0.0
+    for p in range(2):          # weighted by the gradient magnitudes; unweighted where those weights are all 0
+        weighted = use_shade == 2 and p == 0
+        s0 = s1 = s2 = s3 = s4 = s5 = wsum = 0.0
+        for k in range(8):
+            i = idx[k]
+            w = wts[k] * gm[i] if weighted else wts[k]
             n = nrm[i]
             wsum += w
             s0 += w * shade[n, 0]
@@ -603,8 +602,8 @@ def _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps,
                 s3 += w * shade[n, 3]
                 s4 += w * shade[n, 4]
                 s5 += w * shade[n, 5]
-    if wsum <= 0.0:
-        return cr, cg, cb
+        if wsum > 0.0:
+            break
     r = 1.0 / wsum
     if shade.shape[1] == 6:
         return cr * s0 * r + s3 * r, cg * s1 * r + s4 * r, cb * s2 * r + s5 * r

@@ -27,6 +27,17 @@ on slices much thicker than the pixels a corner just off a surface nearly parall
 gradient whose direction is mostly along the slice axis) otherwise shades as much as the corner on it, which
 draws rings of the slices on the surface (docs/thick-slices.md).
 
+Between thick slices. When the thicker in-slice axis' spacing is at least :data:`THICK_RATIO` times the volume's
+finest (slices 2.5-7 mm thick seen from the side, say), the density along that axis is a cubic through the four
+voxels around the sample instead of the line through two (:func:`_density_at`; Catmull-Rom by default,
+:data:`BETWEEN_SLICES`), then linear across: with the line an isosurface is piecewise planar with a kink at
+every slice, and its shading and silhouettes step (terraces). The Phong factors then mix the same eight voxels'
+with the cubic B-spline's weights along the thick axis (:func:`_shade_between`, :data:`SHADE_BETWEEN`). Only
+the gather reads the extra voxels (:func:`_taps`: the voxel before the quad and the one after, clamped to the
+volume; a slab holds whole slices, so the in-slice axes reach the volume's edges there too); which quads are
+sampled is decided as before, by their four corners. The view's own axis is not interpolated: the samples lie on
+its slices. Isotropic grids and grids below the ratio take the bilinear sampler, bit for bit as before.
+
 Each pixel samples a slice at most once (it belongs to one quad), so a sample is composited straight into the
 image: no sheet. Images do not depend on the thread bands. Counters: ``stats[band, 1]`` the voxels of interest
 in the cells left after the occlusion tests, ``stats[band, 2]`` the samples composited.

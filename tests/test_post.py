@@ -298,9 +298,8 @@ def test_prefetch_compiles_to_a_hint_that_changes_nothing():
 def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, extra, c, between, data):
     """_prefetch_square (run as Python, its prefetches recorded) asks for every 64-byte line of every channel
     that the square's quads read: voxels a0 .. a0 + unit and b0 .. b0 + unit (the quads reach the next voxel),
-    within the slice, and with the cubic along b (``between`` 2) the row before and the one after too (along a
-    the voxels before and after are in the lines of the square's rows, or the next); so no sample of the
-    square waits for memory that could have been fetched."""
+    within the slice, and with the cubic along a or b (``between`` 1 or 2) the voxel or row before and the one
+    after too; so no sample of the square waits for memory that could have been fetched."""
     from isplat.splat import post
 
     a0 = data.draw(st.integers(0, n_a - 1)) // 4 * 4
@@ -319,7 +318,7 @@ def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, 
         post._prefetch_square.py_func(unit, a0, b0, voxel, True, True)
     for arr in (density, gm, nrm):
         read = {(c * sc + offset + a * sa + b * sb) * arr.itemsize // 64
-                for a in range(a0, min(a0 + unit, n_a - 1) + 1)
+                for a in range(max(a0 - (between == 1), 0), min(a0 + unit + (between == 1), n_a - 1) + 1)
                 for b in range(max(b0 - (between == 2), 0), min(b0 + unit + (between == 2), n_b - 1) + 1)}
         assert read <= asked[id(arr)]
 

@@ -350,7 +350,9 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     sa, sb = strides[0], strides[1]
     a1 = min(a0 + unit, n_a - 1)
     b1 = min(b0 + unit, n_b - 1)
-    if between[0] == 2:             # the cubic along b reads a row before and one more after (_density_at)
+    if between[0] == 1:             # the cubic along a reads a voxel before and one more after (_density_at)
+        a0, a1 = max(a0 - 1, 0), min(a1 + 1, n_a - 1)
+    elif between[0] == 2:           # along b a row before and one more after
         b0, b1 = max(b0 - 1, 0), min(b1 + 1, n_b - 1)
     da = max(1, 32 // sa)           # voxels along a in half a 64-byte line (a slice's a steps 1 or a row)
     cbase = c * strides[2] + strides[3]

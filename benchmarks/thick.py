@@ -9,8 +9,8 @@ default technique (post-classified), shaded, orthographic, from the side (the th
 the view along i) and obliquely, with the post-classified sampler's reconstruction between slices *before*
 (linear: the quad's bilinear density and Phong factors, ``isplat.splat.post.BETWEEN_SLICES = "linear"``) and
 *after* (the default: a Catmull-Rom cubic of the density along the thick axis, the Phong factors with the cubic
-B-spline's weights along it), the *monotone* cubic (measured, not the default), and *thin* (``isplat augment
---thin-slices``). The shading's corners are weighted by their gradient magnitudes in all
+B-spline's weights along it), the *monotone* cubic and *corners* (the cubic density, the quad's corners' shading,
+``SHADE_BETWEEN = False``), measured, not the default, and *thin* (``isplat augment --thin-slices``). The shading's corners are weighted by their gradient magnitudes in all
 (``isplat.splat.post.WEIGHTED_SHADING``, an earlier run of this page).
 
 Measures: the *streak* strength (:func:`streak`: the high-frequency luminance's difference from the object's),
@@ -50,7 +50,8 @@ CASES = [
 ]
 VIEWS = {"side": (90.0, 0.0), "oblique": (45.0, 25.0)}
 # the sampler's settings compared (isplat.splat.post's module attributes): before, after (the defaults), monotone
-SETTINGS = {"before": {"BETWEEN_SLICES": "linear"}, "after": {}, "monotone": {"BETWEEN_SLICES": "monotone"}}
+SETTINGS = {"before": {"BETWEEN_SLICES": "linear"}, "after": {}, "monotone": {"BETWEEN_SLICES": "monotone"},
+            "corners": {"SHADE_BETWEEN": False}}
 # the mr-head sample at these slice spacings (1 x 1 x R mm, 224 / R slices), linear and cubic between slices, the
 # cubic forced at every ratio: what the cubic gains against the anisotropy (isplat.splat.post.THICK_RATIO)
 RATIO_CASES = (1.5, 2.0, 3.0)
@@ -200,14 +201,14 @@ def ns_per_sample(sc, c, rounds: int) -> dict:
 
     sel = _selection(sc, c)
     view = views_for(sc, sel)[0]
-    t = {"before": [], "after": []}
+    t = {"before": [], "after": [], "corners": []}
     n = {}
     for w in t:                      # compile and warm both
         old = _sampler(SETTINGS[w])
         render_frame(sel, view)
         _sampler(old)
     for r in range(rounds):
-        for w in (("before", "after") if r % 2 == 0 else ("after", "before")):     # ABBA: neither always first
+        for w in (tuple(t) if r % 2 == 0 else tuple(t)[::-1]):      # ABC CBA: none always first
             old = _sampler(SETTINGS[w])
             try:
                 _, st = render_frame(sel, view)
@@ -217,7 +218,8 @@ def ns_per_sample(sc, c, rounds: int) -> dict:
             n[w] = st.samples
     med = {w: statistics.median(v) for w, v in t.items()}
     return dict(before=med["before"] * 1e9 / max(1, n["before"]), after=med["after"] * 1e9 / max(1, n["after"]),
-                samples=n["after"], seconds_before=med["before"], seconds_after=med["after"], rounds=rounds)
+                samples=n["after"], seconds_before=med["before"], seconds_after=med["after"], rounds=rounds,
+                corners=med["corners"] * 1e9 / max(1, n["corners"]), seconds_corners=med["corners"])
 
 
 def level(sc) -> float:
@@ -254,7 +256,7 @@ def run_case(case, views, size, img_dir: Path, rounds: int):
         imgs = {k: render_with(sc, c, k) for k in SETTINGS}
         imgs.update(thin=render_with(sc, thin, "after"), object=render_with(sc, obj, "after"))
         period = max(sp) / pixel_size(sc, c)
-        keys = ("before", "after", "monotone", "thin")
+        keys = ("before", "after", "monotone", "corners", "thin")
         phase = surface_phase(sc, obj, c, level(sc))
         row = dict(case=tag, view=view, preset=preset, spacing=sp, thin_spacing=tsp, period_px=period,
                    rmse={k: rmse(imgs[k], imgs["object"]) for k in keys},
@@ -380,16 +382,18 @@ def render_doc(rows, costs, size, quick, seconds, ratios=()) -> str:
           "shading and the object's fine detail are not, and average out: the object's own value (rendered with "
           "the same phases) is the floor. *monotone*: the density's cubic with Fritsch-Butland slopes instead of "
           "Catmull-Rom's (`BETWEEN_SLICES = \"monotone\"`: no overshoot, flat at every slice that is a local "
-          "extremum). *RMSE*: over RGB against the object. *band* (side views): RMS over the image's rows of the "
+          "extremum). *corners*: the Catmull-Rom density with the quad's four corners' Phong factors, as between thin "
+          "slices (`SHADE_BETWEEN = False`). *RMSE*: over RGB against the object. *band* (side views): RMS over the image's rows of the "
           "row's mean luminance minus its running mean over one slice period (the object's own is the floor).", "",
-          "| case | preset | spacing (mm) | view | streak before | after | monotone | thin | object | RMSE "
-          "before | after | monotone | thin | band before | after | thin | object |",
-          "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "| case | preset | spacing (mm) | view | streak before | after | monotone | corners | thin | object | "
+          "RMSE before | after | monotone | corners | thin | band before | after | thin | object |",
+          "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         s, e, b = r["streak"], r["rmse"], r.get("band")
         L.append(f"| {r['case']} | {r['preset']} | {_sp(r['spacing'])} | {r['view']} | {_f(s['before'])} | "
-                 f"**{_f(s['after'])}** | {_f(s['monotone'])} | {_f(s['thin'])} | {_f(s['object'])} | "
-                 f"{_f(e['before'])} | **{_f(e['after'])}** | {_f(e['monotone'])} | {_f(e['thin'])} | " +
+                 f"**{_f(s['after'])}** | {_f(s['monotone'])} | {_f(s['corners'])} | {_f(s['thin'])} | "
+                 f"{_f(s['object'])} | {_f(e['before'])} | **{_f(e['after'])}** | {_f(e['monotone'])} | "
+                 f"{_f(e['corners'])} | {_f(e['thin'])} | " +
                  (f"{_f(b['before'])} | **{_f(b['after'])}** | {_f(b['thin'])} | {_f(b['object'])} |" if b
                   else "| | | |"))
     if ratios:
@@ -408,18 +412,21 @@ def render_doc(rows, costs, size, quick, seconds, ratios=()) -> str:
     if timed:
         L += ["", "## What the cubic costs", "",
               f"The oblique view of each case rendered in {timed[0]['timing']['rounds']} interleaved rounds, before "
-              "(linear) and after (cubic) in turn, the order swapped every round (one process, the same selection; "
+              "(linear), after (cubic) and *corners* (the cubic density, the corners' shading) in turn, the order swapped every round (one process, the same selection; "
               "`isplat.splat.post.BETWEEN_SLICES` switches the sampler), after a warm-up frame of each: the median "
               "frame time (the whole frame: traversal and set-up included) over the samples composited. The cubic "
               "reads 8 voxels' densities, normals and gradient magnitudes per sample instead of 4, from the same "
-              "channels: no more memory, no resampled copy.", "",
-              "| case | samples | ms before | ms after | ns per sample before | after | after / before |",
-              "|---|---:|---:|---:|---:|---:|---:|"]
+              "channels: no more memory, no resampled copy (*corners*: 8 densities, 4 normals). Measured on a machine "
+              "shared with other work: the ratios, interleaved, are what to read.", "",
+              "| case | samples | ms before | ms after | ms corners | ns per sample before | after | corners | "
+              "after / before | corners / before |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for r in timed:
             t = r["timing"]
             L.append(f"| {r['case']} | {t['samples']:,} | {t['seconds_before'] * 1e3:.1f} | "
-                     f"{t['seconds_after'] * 1e3:.1f} | {t['before']:.1f} | {t['after']:.1f} | "
-                     f"{t['after'] / t['before']:.2f} |")
+                     f"{t['seconds_after'] * 1e3:.1f} | {t['seconds_corners'] * 1e3:.1f} | {t['before']:.1f} | "
+                     f"{t['after']:.1f} | {t['corners']:.1f} | {t['after'] / t['before']:.2f} | "
+                     f"{t['corners'] / t['before']:.2f} |")
     if costs:
         L += ["", "## What `--thin-slices` costs", "",
               "`isplat augment` of the thick sample (a .npy) as it is and with `--thin-slices` (`/usr/bin/time`: "
@@ -483,6 +490,11 @@ def reading(rows, costs, ratios=()) -> str:
                      f"{e['after']:.4f}" + (f"; band {r['band']['before']:.4f} -> {r['band']['after']:.4f} (object "
                                              f"{r['band']['object']:.4f})" if "band" in r else "") + ".")
     out += ["", "**This run, before -> after** (linear -> cubic, each against the object):", ""] + items
+    if rows and "corners" in rows[0]["streak"]:
+        out += ["", "**The shading between slices** (`SHADE_BETWEEN`, the eight voxels' Phong factors with the "
+                "B-spline's weights, against the quad's four corners' with the same cubic density), streak corners "
+                "-> after: " + "; ".join(f"{r['case']} {r['view']} {r['streak']['corners']:.4f} -> "
+                                         f"{r['streak']['after']:.4f}" for r in rows) + "."]
     near = [r for r in rows if r["streak"]["before"] <= 1.2 * r["streak"]["object"]]
     if near:
         out += ["", "Already within 20% of the object's own streak when linear (nothing locked to the slices to "

@@ -48,11 +48,48 @@ class LoadReport:
     index_block_bytes: int = 0        # requested index blocks and table rows of the intervals, all axes
     index_format_version: int = 0     # 0: no index read
     voxels_of_interest: int = 0       # voxels whose density lies in the intervals
-    bytes_needed: int = 0             # see selection._needed
+    technique: str = ""               # render.classification: "pre", "post", "mip", "minip"
+    channel_bytes_per_voxel: int = 0  # bytes per voxel of the channels the technique reads (density included
+    #                                   when it is read from the augmented file)
+    index_bytes_needed: int = 0       # the index blocks and table rows of the intervals (+ /values' table)
+    footprint: object = field(default=None, repr=False, compare=False)   # post: () -> (axis, voxels), lazy
+    _needed: tuple | None = field(default=None, repr=False, compare=False)
     values_from: str = "none"         # "index", "augmented slabs", "whole channels" or "none"
     channels: list = field(default_factory=list)
     axes: list = field(default_factory=list)
     intervals: list = field(default_factory=list)
+
+    @property
+    def needed_voxels(self) -> int:
+        """The voxels whose channel values the technique needs (docs/stats.md): pre, the voxels of interest;
+        post, the voxels its quads read, for the loaded axis where they are most (:attr:`needed_axis`)."""
+        return self._resolve()[1]
+
+    @property
+    def needed_axis(self) -> str:
+        """The slice axis :attr:`needed_voxels` counts post's quads of ("" when not post)."""
+        return self._resolve()[0]
+
+    def _resolve(self) -> tuple[str, int]:
+        if self._needed is None:        # post's footprint is counted when first asked for (not at load time)
+            self._needed = self.footprint() if self.footprint is not None else ("", self.voxels_of_interest)
+            self.footprint = None
+        return self._needed
+
+    def __getstate__(self):
+        """Pickled (a Dask worker's report) with the footprint counted, not the density it is counted from."""
+        self._resolve()
+        return self.__dict__
+
+    @property
+    def channel_bytes_needed(self) -> int:
+        return self.needed_voxels * self.channel_bytes_per_voxel
+
+    @property
+    def bytes_needed(self) -> int:
+        """The technique's bytes needed (docs/stats.md): :attr:`needed_voxels` x the bytes per voxel of the
+        channels it reads, + the index blocks and table rows of the intervals."""
+        return self.channel_bytes_needed + self.index_bytes_needed
 
     @property
     def file_bytes(self) -> int:
@@ -226,6 +263,9 @@ def select_arrays(request, chans: dict) -> Selection:
 
         loaded = {ax: load_axis_in_memory(chans["density"], ax, sel.luts.intervals) for ax in request.axes}
         _select(sel, loaded, lambda lo, ch, sh: gather_channels(read, lo, ch, sh), "array")
+        sel.report.voxels_of_interest = next(iter(loaded.values())).n_voxels if loaded else 0
+    sel.report.axes = sorted(request.axes)
+    _needed(sel, count_full=False)      # (no pass over a full selection's density here, as before)
     return sel
 
 
@@ -503,20 +543,41 @@ def _slab_reader(aug, axes, slices):
     return read
 
 
-def _needed(sel: Selection) -> None:
-    """``report.bytes_needed``: the voxels of interest times the bytes per voxel of each channel read, plus
-    (indexed) the index blocks and table rows of the intervals and the 257-row table of ``/values``; (full)
-    the density of each voxel of interest, since without an index it has to be read too."""
+def _needed(sel: Selection, count_full: bool = True) -> None:
+    """The report's bytes needed (docs/stats.md, :attr:`LoadReport.bytes_needed`): its channels' bytes per voxel,
+    the index blocks and table rows of the intervals (and the 257-row table of ``/values``), and for post the
+    quads' footprint, counted lazily from the density the selection holds. Full method: the voxels of interest
+    counted from the whole density (which, without an index, is read too)."""
     rep = sel.report
-    per_voxel = sum(2 if ch == "normal" else 1 for ch in rep.channels)
-    if sel.method == "full":
-        if sel.whole is not None and sel.whole.density.size:
-            hist = np.bincount(sel.whole.density, minlength=256)
-            rep.voxels_of_interest = int(sum(int(hist[lo:hi + 1].sum()) for lo, hi in rep.intervals))
-        rep.bytes_needed = rep.voxels_of_interest * per_voxel       # channels here include the density
-    else:
-        tables = 257 * 8 if rep.values_from == "index" else 0
-        rep.bytes_needed = rep.voxels_of_interest * per_voxel + rep.index_block_bytes + tables
+    rep.technique = sel.request.classification if sel.request is not None else ("post" if sel.post else "pre")
+    rep.channel_bytes_per_voxel = sum(2 if ch == "normal" else 1 for ch in rep.channels)
+    has_density = sel.whole is not None and sel.whole.density.size > 0
+    if sel.method == "full" and has_density and count_full:
+        hist = np.bincount(sel.whole.density, minlength=256)
+        rep.voxels_of_interest = int(sum(int(hist[lo:hi + 1].sum()) for lo, hi in rep.intervals))
+    tables = 257 * 8 if rep.values_from == "index" else 0
+    rep.index_bytes_needed = 0 if sel.method == "full" else rep.index_block_bytes + tables
+    rep._needed = rep.footprint = None
+    if sel.post and has_density and sel.labels is None and rep.intervals:
+        rep.footprint = _footprint(sel)
+
+
+def _footprint(sel: Selection):
+    """``() -> (axis, voxels)``: the voxels post's quads read (isplat.stats.quad_footprint_per_slice) on the
+    report's axis where they are most, of the slices the selection holds."""
+    density, intervals, axes = sel.whole.density, list(sel.report.intervals), list(sel.report.axes) or ["k"]
+    shape = sel.shape if sel.slab is None else _slab_shape(sel.shape, sel.slab[0], sel.slab[2] - sel.slab[1])
+    if sel.slab is not None:
+        axes = [sel.slab[0]]
+
+    def count():
+        from .stats import quad_footprint_per_slice
+
+        vol = density.reshape(shape)
+        per = {ax: int(quad_footprint_per_slice(vol, intervals, ax).sum()) for ax in axes}
+        ax = max(per, key=per.get)
+        return ax, per[ax]
+    return count
 
 
 def _open_matching_index(request, aug, idx=None):

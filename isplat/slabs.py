@@ -206,7 +206,8 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
             runs = tuple(slice_runs(view.order[a:b], 1 << 62))
             sel = select(dataclasses.replace(request, axes=axis, slab=runs), aug, idx)
             whole = sel if sel.method == "full" else None
-        if report is None:
+        if report is None:             # (the first slab's figures; its footprint counted now, so that the
+            sel.report.needed_voxels   # report does not keep that slab's density alive: docs/stats.md)
             report = dataclasses.replace(sel.report, augmented_bytes=0, index_bytes=0)
         report.augmented_bytes += int(aug.bytes_read - start)
         report.index_bytes += sel.report.index_bytes

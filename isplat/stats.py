@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 3
+STATS_VERSION = 4
 
 
 def density_histogram(aug) -> np.ndarray:
@@ -60,6 +60,60 @@ def _same_file(a: Path, b: Path) -> bool:
 
 def _ratio(a, b) -> float:
     return float(a) / float(b) if b else 0.0
+
+
+# ------------------------------------------------------------------------------------------- bytes needed
+
+# slice axis -> the array dimensions (of [k, j, i]) that lie in its slices
+IN_SLICE_DIMS = {"k": (1, 2), "j": (0, 2), "i": (0, 1)}
+FOOTPRINT_SLAB = 16          # k-planes dilated at a time (plus one on each side when k lies in the slices)
+
+
+def interest_mask(intervals) -> np.ndarray:
+    """bool[256]: True at the density codes of the inclusive ``intervals``."""
+    m = np.zeros(256, dtype=bool)
+    for lo, hi in intervals:
+        m[int(lo):int(hi) + 1] = True
+    return m
+
+
+def dilate_in_slice(m: np.ndarray, dims) -> np.ndarray:
+    """``m`` grown by one voxel along each of ``dims`` (separably: the 3 x 3 square in the slice)."""
+    for d in dims:
+        out = m.copy()
+        a, b = [slice(None)] * 3, [slice(None)] * 3
+        a[d], b[d] = slice(1, None), slice(None, -1)
+        out[tuple(a)] |= m[tuple(b)]
+        out[tuple(b)] |= m[tuple(a)]
+        m = out
+    return m
+
+
+def quad_footprint_per_slice(density: np.ndarray, intervals, axis: str) -> np.ndarray:
+    """int64[slices of ``axis``]: per slice perpendicular to ``axis``, the voxels the post-classified sampler
+    reads (isplat.splat.post): a quad (the square from voxel (a, b) to (a + 1, b + 1) of the slice) is sampled
+    when one of its four voxels is of interest, and reads its four voxels; so the voxels read are those of
+    interest and their neighbours at -1, 0, +1 in a and in b (the 3 x 3 square around each, in its slice).
+    ``density``: uint8 [k, j, i] (or a slab of ``axis``'s slices, which are independent)."""
+    lut = interest_mask(intervals)
+    dims = IN_SLICE_DIMS[axis]
+    nk = density.shape[0]
+    out = np.zeros(density.shape[2 - "ijk".index(axis)], dtype=np.int64)
+    halo = 1 if 0 in dims else 0
+    for k0 in range(0, nk, FOOTPRINT_SLAB):
+        k1 = min(nk, k0 + FOOTPRINT_SLAB)
+        lo, hi = max(0, k0 - halo), min(nk, k1 + halo)
+        grown = dilate_in_slice(lut[density[lo:hi]], dims)[k0 - lo:k0 - lo + (k1 - k0)]
+        if axis == "k":
+            out[k0:k1] += grown.sum(axis=(1, 2))
+        else:
+            out += grown.sum(axis=(0, 2) if axis == "j" else (0, 1))
+    return out
+
+
+def bytes_per_voxel(channels) -> int:
+    """Bytes per voxel of the augmented channels named (normal 2 B, the others 1 B)."""
+    return int(sum(np.dtype(CHANNELS.get(c, np.uint8)).itemsize for c in channels))
 
 
 # ------------------------------------------------------------------------------------------------ sections
@@ -258,6 +312,12 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_ind
             "augmented_file_bytes_read": int(rep.augmented_file_bytes),
             "index_file_bytes_read": int(rep.index_file_bytes),
             "file_bytes_read": int(rep.file_bytes),
+            "technique": rep.technique,
+            "needed_voxels": int(rep.needed_voxels),
+            "needed_axis": rep.needed_axis,
+            "channel_bytes_per_voxel": int(rep.channel_bytes_per_voxel),
+            "channel_bytes_needed": int(rep.channel_bytes_needed),
+            "index_bytes_needed": int(rep.index_bytes_needed),
             "bytes_needed": int(rep.bytes_needed),
             "read_ratio": rep.read_ratio,
             "index_decoded_bytes": decoded,
@@ -333,6 +393,14 @@ def _b(n) -> str:
 
 def _pct(x) -> str:
     return f"{100 * x:.2f}%"
+
+
+def needed_words(ld: dict) -> str:
+    """How ``scene.loaded.bytes_needed`` was counted, in words (docs/stats.md)."""
+    what = (f"{ld['needed_voxels']:,} voxels its quads read on axis {ld['needed_axis']} (the voxels of interest "
+            f"and their in-slice neighbours)" if ld["needed_axis"] else f"{ld['needed_voxels']:,} voxels of interest")
+    return (f"{what} x {ld['channel_bytes_per_voxel']} B of channels ({', '.join(ld['channels']) or 'none'}) + "
+            f"{ld['index_bytes_needed']:,} B of index blocks and tables of the intervals")
 
 
 def format_table(s: dict) -> str:
@@ -433,9 +501,8 @@ def format_table(s: dict) -> str:
                                     "none": "nowhere (no channel needed)"}[ld["values_from"]])
         row("bytes read from the files", f"{_b(ld['file_bytes_read'])} (HDF5's reads: whole chunks with checksums, "
                                          f"and metadata)")
-        row("bytes needed", f"{_b(ld['bytes_needed'])} (voxels of interest x bytes per voxel of the channels, "
-                            f"+ the index blocks and tables of the intervals)")
-        row("read / needed", f"{ld['read_ratio']:.3f}")
+        row(f"bytes needed ({ld['technique']})", f"{_b(ld['bytes_needed'])}: {needed_words(ld)}")
+        row(f"read / needed ({ld['technique']})", f"{ld['read_ratio']:.3f}")
         row("held for rendering", f"{_b(ld['held_bytes'])} (selected voxels and their channel values, or "
                                   f"whole channels for the full method and post-classification), "
                                   f"{ld['held_bytes_per_voxel_of_interest']:.2f} B per voxel of interest")

@@ -216,9 +216,11 @@ MINUTES = {
     "python -m benchmarks startup": 3,
     "python -m benchmarks reference": 4,
     "python -m benchmarks thick": 4.6,
+    "python -m benchmarks sampler": 6,                             # compiles the older commit's kernels once more
     "python -m benchmarks worksplit": 4.8,
     "python -m benchmarks accuracy": 5,
     "python -m benchmarks selective_read": 8,
+    "python -m benchmarks bricks": 3,
     "python -m benchmarks.reliability --out docs": 15,           # its fuzz: 120 s per technique, and the catalogue
     "python -m benchmarks outofcore": 30,                          # 1024^3: augment, index, nine renders
     "make bench-peers": 60,                                        # installs vtk; every case and size, VTK's too

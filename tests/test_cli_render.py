@@ -49,6 +49,13 @@ def test_png_file_and_verbose_report(data):
     assert img.shape == (24, 32, 3) and img.dtype == np.uint8 and img.max() > 30
     err = res.stderr.decode()
     assert "bytes of index axes" in err and "view 0" in err and res.stdout == b""
+    # read against needed, labelled by technique (docs/stats.md): post counts the voxels its quads read
+    import re
+
+    m = re.search(r"(pre|post): \d+ bytes read from the files .* for \d+ needed \(\d+ voxels (its quads read "
+                  r"on axis [ijk]|of interest) x \d+ B \+ \d+ B of index; read/needed [0-9.]+x\)", err)
+    assert m, err
+    assert (m.group(1) == "post") == m.group(2).startswith("its quads")
 
 
 def test_png_on_stdout_matches_the_file(data):

@@ -170,7 +170,9 @@ def test_json_keys(vol, capsys):
     assert {"channels", "axes", "augmented_bytes", "index_bytes", "bytes", "index_decoded_bytes", "held_bytes",
             "augmented_fraction", "index_fraction", "files_bytes", "files_fraction", "values_from",
             "augmented_file_bytes_read", "index_file_bytes_read", "file_bytes_read", "bytes_needed", "read_ratio",
-            "held_bytes_per_voxel_of_interest"} == set(s["scene"]["loaded"])
+            "held_bytes_per_voxel_of_interest", "technique", "needed_voxels", "needed_axis",
+            "channel_bytes_per_voxel", "channel_bytes_needed", "index_bytes_needed"} == set(s["scene"]["loaded"])
+    assert s["stats_version"] == 4
     # the table carries the same figures
     code, table, _ = run(capsys, aug, idx, "--scene", scene, "-q")
     assert code == 0 and f"{s['scene']['voxels_of_interest']:,}" in table and "spatial ratio" in table
@@ -361,3 +363,25 @@ def test_plot_without_matplotlib_is_one_line(capsys, tmp_path, monkeypatch):
     assert code == 2 and err.strip() == f"isplat: error: {tmp_path / 'h.png'}: --plot needs matplotlib: " \
                                          "pip install 'isplat[plot]'"
     assert not (tmp_path / "h.png").exists()
+
+
+@pytest.mark.parametrize("shaded", [True, False])
+def test_post_bytes_needed_are_the_quads_footprint(vol, capsys, shaded):
+    """Post: the voxels its quads read on the view's axis (tests/test_needed.py's reference) x density, normal
+    and gradient magnitude (shaded) or density alone; labelled by technique in the table and the JSON."""
+    from test_needed import reference_footprint
+
+    folder, d, aug, idx = vol
+    extra = 'classification = "post"\n' + ("" if shaded else "[shading]\nenabled = false\n")
+    scene = write_scene(folder, extra=extra)
+    scene.write_text(scene.read_text().replace("version = 1", "version = 4"))
+    s = collect(aug, idx, scene=scene)
+    ld = s["scene"]["loaded"]
+    axis = s["scene"]["axis"][1]
+    want = int(reference_footprint(d, [(101, 169)], axis).sum())
+    assert ld["technique"] == "post" and ld["needed_axis"] == axis and ld["needed_voxels"] == want
+    assert ld["channel_bytes_per_voxel"] == (4 if shaded else 1)
+    assert ld["bytes_needed"] == want * ld["channel_bytes_per_voxel"] + ld["index_bytes_needed"]
+    assert ld["read_ratio"] == pytest.approx(ld["file_bytes_read"] / ld["bytes_needed"])
+    code, table, _ = run(capsys, aug, idx, "--scene", scene, "-q")
+    assert code == 0 and "bytes needed (post)" in table and "read / needed (post)" in table

@@ -184,7 +184,8 @@ def _report(scene_file, method, out, rep, per_view) -> dict:
     return {"scene": str(scene_file), "method": method, "output": out,
             "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
             "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
-            "file_bytes_read": rep.file_bytes, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
+            "file_bytes_read": rep.file_bytes, "technique": rep.technique, "needed_voxels": rep.needed_voxels,
+            "needed_axis": rep.needed_axis, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
             "views": per_view}
 
 
@@ -192,8 +193,11 @@ def _log_report(report, rep, held) -> None:
     """The report on stderr with -v."""
     log.debug(f"read: {rep.augmented_bytes} bytes of augmented channels {rep.channels or '(none)'}; "
               f"{rep.index_bytes} bytes of index axes {rep.axes or '(none)'} for density intervals {rep.intervals}; "
-              f"{rep.file_bytes} bytes read from the files (HDF5 chunks and metadata) for {rep.bytes_needed} needed "
-              f"({rep.read_ratio:.2f}x); channel values from {rep.values_from}" + (
+              f"{rep.technique}: {rep.file_bytes} bytes read from the files (HDF5 chunks and metadata) for "
+              f"{rep.bytes_needed} needed ({rep.needed_voxels} voxels"
+              + (f" its quads read on axis {rep.needed_axis}" if rep.needed_axis else " of interest")
+              + f" x {rep.channel_bytes_per_voxel} B + {rep.index_bytes_needed} B of index; read/needed "
+              f"{rep.read_ratio:.2f}x); channel values from {rep.values_from}" + (
                   f"; held {held} bytes, {held / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
                   if held is not None else " (selections held by the workers or one slab at a time)"))
     for v in report["views"]:

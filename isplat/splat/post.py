@@ -50,6 +50,7 @@ the tent's reach instead; no sheet) and its per-slice stages (:func:`_slice`).
 from __future__ import annotations
 
 import math
+import os
 from collections import namedtuple
 
 import numpy as np
@@ -81,6 +82,14 @@ CUBIC_KINDS = {"monotone": 0, "catmull-rom": 1}
 # with a cubic between slices, the Phong factors of the eight voxels around the sample with the cubic B-spline's
 # weights along the thick axis (_shade_between); False: the quad's four corners' as between thin slices
 SHADE_BETWEEN = True
+# where a sample stops, for measuring the stages' shares only (python -m benchmarks sampler, each value with numba's
+# cache in a folder of its own): 0 after the scan, 1 after the density gather, 2 after the opacity and its
+# compositing, 3 the whole sample; none of these saturates a pixel (so that all do the same pixels and slices);
+# 4 (the default) the whole sample with early termination. 0-3 draw wrong images.
+SAMPLE_STAGES = int(os.environ.get("ISPLAT_SAMPLE_STAGES", "4"))
+if SAMPLE_STAGES != 4 and not os.environ.get("NUMBA_CACHE_DIR"):
+    # numba's cache does not tell the copies apart: one compiled here would be loaded by later ordinary runs
+    raise RuntimeError("ISPLAT_SAMPLE_STAGES (for measuring only) needs a NUMBA_CACHE_DIR of its own")
 
 PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab between")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
@@ -476,6 +485,13 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     between codes, shaded with the corners' Phong factors (weighted by their gradient magnitudes too when
     ``use_shade == 2``), composited over pixel (x, y). Returns 0 when
     transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity."""
+    if SAMPLE_STAGES == 0:
+        return 0
+    if SAMPLE_STAGES < 4:
+        et = 2.0                        # no pixel saturates
+    d = _density_at(density, i00, sa, sb, fu, fv, taps)
+    if SAMPLE_STAGES == 1:
+        return 1 if d == 300.5 else 0      # never: keeps the gather without compositing
     # unsigned indices: numba adds no negative-index wrap-around to them (all are >= 0 here)
     w00 = (1.0 - fu) * (1.0 - fv)
     w10 = fu * (1.0 - fv)
@@ -485,7 +501,6 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     i10 = i00 + np.uint64(sa)
     i01 = i00 + np.uint64(sb)
     i11 = i01 + np.uint64(sa)
-    d = _density_at(density, i00, i10, i01, i11, w00, w10, w01, w11, fu, fv, taps)
     k = min(int(d), 254)
     f = d - k                   # from the signed code: one conversion (an unsigned one takes five)
     di = np.uint64(k)
@@ -501,6 +516,8 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     if geo.persp:
         a, _ = path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
     c0, c1, c2 = np.uint64(0), np.uint64(1), np.uint64(2)
+    if SAMPLE_STAGES == 2:
+        return _composite_alpha(img, sat, tile_sat, x, y, a, et)
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
@@ -542,6 +559,20 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     return 1
 
 
+@leaf(forceinline=True)
+def _composite_alpha(img, sat, tile_sat, x, y, a, et):
+    """The opacity alone composited over pixel (x, y) (``SAMPLE_STAGES == 2``, for measuring only)."""
+    uy, ux = np.uint64(y), np.uint64(x)
+    ai = img[uy, ux, np.uint64(3)]
+    an = ai + (1.0 - ai) * a
+    img[uy, ux, np.uint64(3)] = an
+    if ai < et and an >= et:
+        sat[uy, ux] = 1
+        tile_sat[y // TILE, x // TILE] += 1
+        return 2
+    return 1
+
+
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _taps(qa, qb, voxel):
     """What :func:`_density_at` needs of quad (qa, qb) beyond its corners: ``(axis, kind, back, fwd, shade)``,
@@ -561,16 +592,22 @@ def _taps(qa, qb, voxel):
     return t, between[1], s if q > 0 else 0, min(2, n - 1 - q) * s, between[2]
 
 
-@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
-def _density_at(density, i00, i10, i01, i11, w00, w10, w01, w11, fu, fv, taps):
-    """The density at (fu, fv) in the quad whose corners are at ``i00`` .. ``i11`` (bilinear weights ``w00`` ..
-    ``w11``): bilinear when ``taps[0]`` is 0 (the same float operations as before: isotropic data render bit
-    for bit as before); else a cubic (:func:`cubic`, kind ``taps[1]``) along the thick axis (1 a, 2 b) through
-    the voxel before the quad (``taps[2]`` back), its two corners and the voxel after (``taps[3]`` on) in each of
-    the quad's two rows (or columns), then linear between those two."""
+@leaf(forceinline=True)
+def _density_at(density, i00, sa, sb, fu, fv, taps):
+    """The density of the quad whose first voxel is at ``i00`` of the density channel (its next voxels ``sa``
+    and ``sb`` away; 0 at the volume's edge) at (fu, fv) in [0, 1) in it: the one place a sample reads the
+    densities. Bilinear when ``taps[0]`` is 0 (isotropic data render bit for bit as before); else a cubic
+    (:func:`cubic`, kind ``taps[1]``) along the thick axis (1 a, 2 b) through the voxel before the quad
+    (``taps[2]`` back), its two corners and the voxel after (``taps[3]`` on) in each of the quad's two rows (or
+    columns), then linear between those two (:func:`_taps`)."""
+    i00 = np.uint64(i00)                # unsigned: no negative-index wrap-around (all are >= 0 here)
+    i10 = i00 + np.uint64(sa)
+    i01 = i00 + np.uint64(sb)
+    i11 = i01 + np.uint64(sa)
     t = taps[0]
     if t == 0:
-        return w00 * density[i00] + w10 * density[i10] + w01 * density[i01] + w11 * density[i11]
+        return ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
+                + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
     back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
     if t == 1:      # rows along a from i00 and from i01, then linear along b
         r0 = cubic(density[i00 - back], density[i00], density[i10], density[i00 + fwd], fu, taps[1])

@@ -6,14 +6,18 @@ Each case is a sample made with few, thick slices (``isplat sample NAME --shape 
 the same sample made with slices as thin as its pixels (the *object*, the reference the pictures are compared
 against: the samples are painted in normalised coordinates, so both are the same object). Rendered with isplat's
 default technique (post-classified), shaded, orthographic, from the side (the thick axis vertical in the image,
-the view along i) and obliquely, with the post-classified sampler's shading *before* (each quad corner's Phong
-factors weighted bilinearly) and *after* (weighted by the bilinear weight times the corner's gradient magnitude:
-``isplat.splat.post.WEIGHTED_SHADING``), and *thin* (``isplat augment --thin-slices``).
+the view along i) and obliquely, with the post-classified sampler's reconstruction between slices *before*
+(linear: the quad's bilinear density and Phong factors, ``isplat.splat.post.BETWEEN_SLICES = "linear"``) and
+*after* (the default: a Catmull-Rom cubic of the density along the thick axis, the Phong factors with the cubic
+B-spline's weights along it), the *monotone* cubic and *corners* (the cubic density, the quad's corners' shading,
+``SHADE_BETWEEN = False``), measured, not the default, and *thin* (``isplat augment --thin-slices``). The shading's corners are weighted by their gradient magnitudes in all
+(``isplat.splat.post.WEIGHTED_SHADING``, an earlier run of this page).
 
 Measures: the *streak* strength (:func:`streak`: the high-frequency luminance's difference from the object's),
 RMSE over RGB against the object, the *band energy* of a side view (:func:`band_energy`), the sampler's cost in ns
-per sample (interleaved rounds, :func:`ns_per_sample`), and ``--thin-slices``'s cost on the command line
-(``isplat augment``, /usr/bin/time).
+per sample (interleaved rounds, :func:`ns_per_sample`), ``--thin-slices``'s cost on the command line
+(``isplat augment``, /usr/bin/time), and the streak of linear and cubic against the grid's anisotropy
+(:data:`RATIO_CASES`: where ``isplat.splat.post.THICK_RATIO`` is set).
 """
 
 from __future__ import annotations
@@ -45,6 +49,12 @@ CASES = [
     ("mr-head-7mm", "mr-head", (256, 256, 32), (1.0, 1.0, 7.0), "mri-t1-head", 224),
 ]
 VIEWS = {"side": (90.0, 0.0), "oblique": (45.0, 25.0)}
+# the sampler's settings compared (isplat.splat.post's module attributes): before, after (the defaults), monotone
+SETTINGS = {"before": {"BETWEEN_SLICES": "linear"}, "after": {}, "monotone": {"BETWEEN_SLICES": "monotone"},
+            "corners": {"SHADE_BETWEEN": False}}
+# the mr-head sample at these slice spacings (1 x 1 x R mm, 224 / R slices), linear and cubic between slices, the
+# cubic forced at every ratio: what the cubic gains against the anisotropy (isplat.splat.post.THICK_RATIO)
+RATIO_CASES = (1.5, 2.0, 3.0)
 ROUNDS = 41               # interleaved rounds of the timing (ns_per_sample; frames of 10-50 ms on a shared machine)
 WINDOWS = {"ct-head": (-1024.0, 3071.0), "ct-chest": (-1024.0, 3071.0)}
 
@@ -141,18 +151,18 @@ def thin_cost(name, shape, spacing, window) -> dict:
     return out
 
 
-def _sampler(weighted: bool):
-    """Set the post-classified sampler's shading: corners weighted by their gradient magnitudes too (the default
-    now) or bilinearly only (before); returns the previous setting."""
+def _sampler(setting: dict) -> dict:
+    """Set the post-classified sampler's module attributes (a :data:`SETTINGS` entry); returns the previous ones."""
     from isplat.splat import post
 
-    old = post.WEIGHTED_SHADING
-    post.WEIGHTED_SHADING = weighted
+    old = {k: getattr(post, k) for k in setting}
+    for k, v in setting.items():
+        setattr(post, k, v)
     return old
 
 
-def render_with(sc, c, weighted: bool) -> np.ndarray:
-    old = _sampler(weighted)
+def render_with(sc, c, key: str) -> np.ndarray:
+    old = _sampler(SETTINGS[key])
     try:
         return render(sc, c)
     finally:
@@ -185,21 +195,21 @@ def streak(img, phase, period_px: float) -> float:
 
 
 def ns_per_sample(sc, c, rounds: int) -> dict:
-    """Interleaved rounds of the frame with the sampler's shading unweighted (before) and weighted (after): the
+    """Interleaved rounds of the frame with the sampler linear between slices (before) and cubic (after): the
     median frame seconds over the samples composited, in ns per sample, and the samples."""
     from isplat.frame import render_frame, views_for
 
     sel = _selection(sc, c)
     view = views_for(sc, sel)[0]
-    t = {False: [], True: []}
+    t = {"before": [], "after": [], "corners": []}
     n = {}
-    for w in (False, True):          # compile and warm both
-        old = _sampler(w)
+    for w in t:                      # compile and warm both
+        old = _sampler(SETTINGS[w])
         render_frame(sel, view)
         _sampler(old)
     for r in range(rounds):
-        for w in ((False, True) if r % 2 == 0 else (True, False)):     # ABBA: neither always goes first
-            old = _sampler(w)
+        for w in (tuple(t) if r % 2 == 0 else tuple(t)[::-1]):      # ABC CBA: none always first
+            old = _sampler(SETTINGS[w])
             try:
                 _, st = render_frame(sel, view)
             finally:
@@ -207,8 +217,9 @@ def ns_per_sample(sc, c, rounds: int) -> dict:
             t[w].append(st.seconds)
             n[w] = st.samples
     med = {w: statistics.median(v) for w, v in t.items()}
-    return dict(before=med[False] * 1e9 / max(1, n[False]), after=med[True] * 1e9 / max(1, n[True]),
-                samples=n[True], seconds_before=med[False], seconds_after=med[True], rounds=rounds)
+    return dict(before=med["before"] * 1e9 / max(1, n["before"]), after=med["after"] * 1e9 / max(1, n["after"]),
+                samples=n["after"], seconds_before=med["before"], seconds_after=med["after"], rounds=rounds,
+                corners=med["corners"] * 1e9 / max(1, n["corners"]), seconds_corners=med["corners"])
 
 
 def level(sc) -> float:
@@ -242,19 +253,16 @@ def run_case(case, views, size, img_dir: Path, rounds: int):
     for view in views:
         _log(f"{tag}: {view}")
         sc = scene(aug, preset, view, size)
-        imgs = {"before": render_with(sc, c, False), "after": render_with(sc, c, True),
-                "thin_before": render_with(sc, thin, False), "thin": render_with(sc, thin, True),
-                "object_before": render_with(sc, obj, False), "object": render_with(sc, obj, True)}
+        imgs = {k: render_with(sc, c, k) for k in SETTINGS}
+        imgs.update(thin=render_with(sc, thin, "after"), object=render_with(sc, obj, "after"))
         period = max(sp) / pixel_size(sc, c)
-        ref = {"before": "object_before", "thin_before": "object_before"}
-        keys = ("before", "after", "thin_before", "thin")
+        keys = ("before", "after", "monotone", "corners", "thin")
         phase = surface_phase(sc, obj, c, level(sc))
         row = dict(case=tag, view=view, preset=preset, spacing=sp, thin_spacing=tsp, period_px=period,
-                   rmse={k: rmse(imgs[k], imgs[ref.get(k, "object")]) for k in keys},
-                   streak={k: streak(imgs[k], phase, period) for k in keys + ("object_before", "object")},
-                   objects=rmse(imgs["object_before"], imgs["object"]))
+                   rmse={k: rmse(imgs[k], imgs["object"]) for k in keys},
+                   streak={k: streak(imgs[k], phase, period) for k in keys + ("object",)})
         if view == "side":
-            row["band"] = {k: band_energy(imgs[k], period) for k in keys + ("object_before", "object")}
+            row["band"] = {k: band_energy(imgs[k], period) for k in keys + ("object",)}
         if view == "oblique" and rounds:
             row["timing"] = ns_per_sample(sc, c, rounds)
             _log(f"{tag}: {row['timing']['before']:.1f} -> {row['timing']['after']:.1f} ns per sample")
@@ -293,9 +301,41 @@ def run(out_dir: Path, quick: bool) -> Path:
         tag, name, shape, sp = case[:4]
         if not quick:
             costs[tag] = thin_cost(name, shape, sp, WINDOWS.get(name))
+    ratios = ratio_rows(size, RATIO_CASES[:1] if quick else RATIO_CASES)
     path = Path(out_dir) / "thick-slices.md"
-    path.write_text(render_doc(rows, costs, size, quick, time.perf_counter() - t0))
+    path.write_text(render_doc(rows, costs, size, quick, time.perf_counter() - t0, ratios))
     return path
+
+
+def ratio_rows(size: int, ratios) -> list:
+    """The mr-head sample at 1 x 1 x R mm for each R of ``ratios`` (224 / R slices), oblique: the streak and
+    RMSE of linear and cubic between slices (the cubic forced at every ratio) and the object's streak."""
+    from isplat.samples import make_sample
+    from isplat.splat import post
+
+    out = []
+    obj_vol, _ = make_sample("mr-head", (256, 256, 224))
+    for R in ratios:
+        _log(f"ratio {R}")
+        sp = (1.0, 1.0, R)
+        c = channels(make_sample("mr-head", (256, 256, int(round(224 / R))))[0], sp, None)
+        obj = channels(obj_vol, (1.0, 1.0, 1.0), c["window"])
+        with tempfile.TemporaryDirectory() as tmp:
+            aug = Path(tmp) / "scene.aug.h5"
+            _write_aug(aug, c["raw"], "mr-head")
+            sc = scene(aug, "mri-t1-head", "oblique", size)
+            phase = surface_phase(sc, obj, c, level(sc))
+            period = R / pixel_size(sc, c)
+            old = _sampler({"THICK_RATIO": 1.0})
+            try:
+                imgs = {k: render_with(sc, c, k) for k in ("before", "after")}
+            finally:
+                _sampler(old)
+            objimg = render(sc, obj)
+        out.append(dict(ratio=R, default=R >= post.THICK_RATIO, object=streak(objimg, phase, period),
+                        streak={k: streak(v, phase, period) for k, v in imgs.items()},
+                        rmse={k: rmse(v, objimg) for k, v in imgs.items()}))
+    return out
 
 
 def _f(x, n=4):
@@ -311,7 +351,7 @@ def _get(rows, case, view):
     return next((r for r in rows if r["case"] == case and r["view"] == view), None)
 
 
-def render_doc(rows, costs, size, quick, seconds) -> str:
+def render_doc(rows, costs, size, quick, seconds, ratios=()) -> str:
     L = ["```", "python -m benchmarks thick" + (" --quick" if quick else ""), "```", "",
          "# Thick slices: rings, terraces and streaks, their cause and their fix", "",
          f"Measured on {_doc.machine_line()}; {seconds:.0f} s. Every picture and number: isplat's default technique, "
@@ -319,13 +359,16 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
          "shaded (examples/ct-preset.toml's lights and Phong terms), early termination at its default. Each case is "
          "an isplat sample made with thick slices (`isplat sample NAME --shape ...`, augmented with `--spacing`) and "
          "the same sample made with slices as thin as its pixels, the *object* (the samples are painted in "
-         "normalised coordinates: the same object). Columns of each picture: *before* (the sampler's shading as "
-         "isplat had it: each quad corner's Phong factors weighted bilinearly), *after* (the default now: weighted "
-         "by the bilinear weight times the corner's gradient magnitude, isplat/splat/post.py `_sample`), *thin* "
-         "(`isplat augment --thin-slices`, rendered as *after*), the *object* (as *after*). Rows: the side view "
-         "(azimuth 90, elevation 0: the slices are horizontal), then the oblique view (azimuth 45, elevation 25). "
-         "Both columns use the same file (normals smoothed along the thin axes above 4:1, "
-         "`isplat.augment.normal_sigmas`); only the sampler differs.", ""]
+         "normalised coordinates: the same object). Columns of each picture: *before* (the sampler linear between "
+         "slices, as isplat had it: the quad's bilinear density and Phong factors, "
+         "`isplat.splat.post.BETWEEN_SLICES = \"linear\"`), *after* (the default now: along the thick in-slice "
+         "axis the density a Catmull-Rom cubic through four slices and the Phong factors of those four weighted by "
+         "the cubic B-spline, isplat/splat/post.py `_density_at`, `_shade_between`), *thin* (`isplat augment "
+         "--thin-slices`, rendered by the default), the *object* (by the default). Rows: the side view (azimuth 90, "
+         "elevation 0: the slices are horizontal), then the oblique view (azimuth 45, elevation 25). All use the "
+         "same file (normals smoothed along the thin axes above 4:1, `isplat.augment.normal_sigmas`) and the "
+         "shading weighted by the corners' gradient magnitudes (`WEIGHTED_SHADING`, an earlier run of this page); "
+         "only the reconstruction between slices differs.", ""]
     for tag in dict.fromkeys(r["case"] for r in rows):
         L += [f"![{tag}](img/thick-{tag}.png)", "",
               f"`img/thick-{tag}.png` (post-classified): before, after, thin, object; side, then oblique.", ""]
@@ -337,36 +380,53 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
           "periods in pixels) is averaged per eighth of that phase, and the streak is the RMS of those eight means. "
           "Rings, terraces and streaks are locked to the slices and make the eighths differ; the shapes' own "
           "shading and the object's fine detail are not, and average out: the object's own value (rendered with "
-          "the same phases) is the floor. *RMSE*: over RGB against the object, each column against the object "
-          "rendered by the same sampler (*before* and *thin before* against the object shaded as before); "
-          "*objects*: RMSE between the object shaded before and after (what the change does on thin slices). "
-          "*band* (side views): RMS over the image's rows of the row's mean luminance minus its running mean over "
-          "one slice period (the object's own is the floor).", "",
-          "| case | preset | spacing (mm) | view | streak before | after | thin before | thin | object | RMSE "
-          "before | after | thin before | thin | objects | band before | after | thin | object |",
-          "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+          "the same phases) is the floor. *monotone*: the density's cubic with Fritsch-Butland slopes instead of "
+          "Catmull-Rom's (`BETWEEN_SLICES = \"monotone\"`: no overshoot, flat at every slice that is a local "
+          "extremum). *corners*: the Catmull-Rom density with the quad's four corners' Phong factors, as between thin "
+          "slices (`SHADE_BETWEEN = False`). *RMSE*: over RGB against the object. *band* (side views): RMS over the image's rows of the "
+          "row's mean luminance minus its running mean over one slice period (the object's own is the floor).", "",
+          "| case | preset | spacing (mm) | view | streak before | after | monotone | corners | thin | object | "
+          "RMSE before | after | monotone | corners | thin | band before | after | thin | object |",
+          "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         s, e, b = r["streak"], r["rmse"], r.get("band")
         L.append(f"| {r['case']} | {r['preset']} | {_sp(r['spacing'])} | {r['view']} | {_f(s['before'])} | "
-                 f"**{_f(s['after'])}** | {_f(s['thin_before'])} | {_f(s['thin'])} | {_f(s['object'])} | {_f(e['before'])} | "
-                 f"**{_f(e['after'])}** | {_f(e['thin_before'])} | {_f(e['thin'])} | {_f(r['objects'])} | " +
+                 f"**{_f(s['after'])}** | {_f(s['monotone'])} | {_f(s['corners'])} | {_f(s['thin'])} | "
+                 f"{_f(s['object'])} | {_f(e['before'])} | **{_f(e['after'])}** | {_f(e['monotone'])} | "
+                 f"{_f(e['corners'])} | {_f(e['thin'])} | " +
                  (f"{_f(b['before'])} | **{_f(b['after'])}** | {_f(b['thin'])} | {_f(b['object'])} |" if b
                   else "| | | |"))
+    if ratios:
+        L += ["", "## Where the cubic starts", "",
+              "The mr-head sample (mri-t1-head, oblique) made with slices 1 x 1 x R mm (224 / R slices), linear and "
+              "cubic between slices, the cubic forced at every ratio: what it gains against the anisotropy. "
+              "`isplat.splat.post.THICK_RATIO` (the thicker in-slice spacing over the finest) decides where the "
+              "default uses it.", "",
+              "| R | default | streak linear | cubic | object | RMSE linear | cubic |",
+              "|---:|---|---:|---:|---:|---:|---:|"]
+        for q in ratios:
+            L.append(f"| {q['ratio']:g} | {'cubic' if q['default'] else 'linear'} | {_f(q['streak']['before'])} | "
+                     f"{_f(q['streak']['after'])} | {_f(q['object'])} | {_f(q['rmse']['before'])} | "
+                     f"{_f(q['rmse']['after'])} |")
     timed = [r for r in rows if "timing" in r]
     if timed:
-        L += ["", "## What the weighting costs", "",
+        L += ["", "## What the cubic costs", "",
               f"The oblique view of each case rendered in {timed[0]['timing']['rounds']} interleaved rounds, before "
-              "and after in turn, the order swapped every round (one process, the same selection; `isplat.splat.post.WEIGHTED_SHADING` switches "
-              "the sampler), after a warm-up frame of each: the median frame time (the whole frame: traversal and set-up included) over the samples composited. "
-              "After reads the gradient magnitude channel too (1 byte per voxel more in memory and read from the "
-              "file when shaded).", "",
-              "| case | samples | ms before | ms after | ns per sample before | after | after / before |",
-              "|---|---:|---:|---:|---:|---:|---:|"]
+              "(linear), after (cubic) and *corners* (the cubic density, the corners' shading) in turn, the order swapped every round (one process, the same selection; "
+              "`isplat.splat.post.BETWEEN_SLICES` switches the sampler), after a warm-up frame of each: the median "
+              "frame time (the whole frame: traversal and set-up included) over the samples composited. The cubic "
+              "reads 8 voxels' densities, normals and gradient magnitudes per sample instead of 4, from the same "
+              "channels: no more memory, no resampled copy (*corners*: 8 densities, 4 normals). Measured on a machine "
+              "shared with other work: the ratios, interleaved, are what to read.", "",
+              "| case | samples | ms before | ms after | ms corners | ns per sample before | after | corners | "
+              "after / before | corners / before |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for r in timed:
             t = r["timing"]
             L.append(f"| {r['case']} | {t['samples']:,} | {t['seconds_before'] * 1e3:.1f} | "
-                     f"{t['seconds_after'] * 1e3:.1f} | {t['before']:.1f} | {t['after']:.1f} | "
-                     f"{t['after'] / t['before']:.2f} |")
+                     f"{t['seconds_after'] * 1e3:.1f} | {t['seconds_corners'] * 1e3:.1f} | {t['before']:.1f} | "
+                     f"{t['after']:.1f} | {t['corners']:.1f} | {t['after'] / t['before']:.2f} | "
+                     f"{t['corners'] / t['before']:.2f} |")
     if costs:
         L += ["", "## What `--thin-slices` costs", "",
               "`isplat augment` of the thick sample (a .npy) as it is and with `--thin-slices` (`/usr/bin/time`: "
@@ -381,30 +441,46 @@ def render_doc(rows, costs, size, quick, seconds) -> str:
             L.append(f"| {r['case']} | {_sp(r['spacing'])} -> {_sp(r['thin_spacing'])} | "
                      f"{c['as_is']['seconds']:.2f} | {c['thin']['seconds']:.2f} | {c['as_is']['rss_mb']:.0f} | "
                      f"{c['thin']['rss_mb']:.0f} | {c['as_is']['file_mb']:.1f} | {c['thin']['file_mb']:.1f} |")
-        ratios = [(c["thin"]["seconds"] / c["as_is"]["seconds"], c["thin"]["rss_mb"] - c["as_is"]["rss_mb"],
-                   c["thin"]["file_mb"] / c["as_is"]["file_mb"]) for c in costs.values()]
-        L += ["", f"With `--thin-slices`: {min(r[0] for r in ratios):.2f}-{max(r[0] for r in ratios):.2f} times the "
-              f"seconds, {min(r[1] for r in ratios):.0f}-{max(r[1] for r in ratios):.0f} MB more peak memory, "
-              f"{min(r[2] for r in ratios):.1f}-{max(r[2] for r in ratios):.1f} times the file."]
-    L += ["", reading(rows, costs), ""]
+        ratios_ = [(c["thin"]["seconds"] / c["as_is"]["seconds"], c["thin"]["rss_mb"] - c["as_is"]["rss_mb"],
+                    c["thin"]["file_mb"] / c["as_is"]["file_mb"]) for c in costs.values()]
+        L += ["", f"With `--thin-slices`: {min(r[0] for r in ratios_):.2f}-{max(r[0] for r in ratios_):.2f} times "
+              f"the seconds, {min(r[1] for r in ratios_):.0f}-{max(r[1] for r in ratios_):.0f} MB more peak memory, "
+              f"{min(r[2] for r in ratios_):.1f}-{max(r[2] for r in ratios_):.1f} times the file."]
+    L += ["", reading(rows, costs, ratios), ""]
     return "\n".join(L)
 
 
-def reading(rows, costs) -> str:
+def reading(rows, costs, ratios=()) -> str:
     """The page's reading: the causes (from the earlier runs of this page, named by commit) and, with this run's
-    numbers, what the fix does."""
+    numbers, what the cubic does."""
     out = ["## Reading", "",
            "**What makes the rings and terraces.** The earlier runs of this page (git log docs/thick-slices.md; "
-           "b27b5b8 measured them with a converged ray caster and unshaded renders) found two causes on shaded "
-           "opaque surfaces, and neither the opacity correction nor the density's linear interpolation between "
-           "slices: (1) the normals, central differences spanning two in-slice voxels but two thick slices, which "
-           "swing slice by slice; fixed before this run by smoothing the density along the thin axes before the "
-           "differences above 4:1 (`isplat.augment.normal_sigmas`); (2) the sampler's shading, here: it mixed the "
-           "four corners' Phong factors with the bilinear weights only, so where a surface is nearly parallel to "
-           "the slices (the top of the skull) a corner just off the surface (air or soft tissue, a short gradient "
-           "whose direction is mostly along the slice axis) shades as much as the corner on it, and the shading "
-           "jumps each time the surface crosses a slice: rings. Weighting each corner by its gradient magnitude "
-           "too lets the corners on the surface give its shading.", ""]
+           "b27b5b8 measured them with a converged ray caster and unshaded renders) found three causes on shaded "
+           "surfaces, and not the opacity correction: (1) the normals, central differences spanning two in-slice "
+           "voxels but two thick slices, which swing slice by slice; fixed by smoothing the density along the thin "
+           "axes before the differences above 4:1 (`isplat.augment.normal_sigmas`); (2) the sampler's shading "
+           "mixing the four corners' Phong factors with the bilinear weights only, so a corner just off a surface "
+           "nearly parallel to the slices shades as much as the corner on it: rings on the skull; fixed by "
+           "weighting each corner by its gradient magnitude too (`WEIGHTED_SHADING`); (3) the reconstruction "
+           "between slices: linear along the thick axis, so an isosurface is piecewise planar with a kink at every "
+           "slice and the shading, linear too, kinks there as well; a shell thinner than a slice (the MRI head's "
+           "scalp) cross-fades between slices. That is what this run changes: along the thick in-slice axis the "
+           "density is a cubic through four slices (Catmull-Rom: C1, it interpolates the voxels, and it may "
+           "overshoot between them, clamped to the codes 0..255), and the Phong factors of those four slices' "
+           "voxels are mixed with the cubic B-spline's weights (positive, C2, so no kink in the shading; a little "
+           "smoothing of the normals across the thick slices, whose differences are coarse there anyway), times "
+           "the gradient magnitudes as before. Measured and not chosen: the monotone cubic (its slope is 0 at "
+           "every slice that is a local extremum along the thick axis, which draws a flat at every slice of a "
+           "thin shell: the *monotone* columns), and the Catmull-Rom weights for the Phong factors too (negative "
+           "weights: more streak than the linear ones when tried).", "",
+           "**Along the view's own axis** nothing is interpolated: the samples lie on the slices (a ray caster "
+           "whose step is the slice spacing), so a thick axis that is the principal axis of the view (looking "
+           "along the slices' normal, the elevation-90 views of these samples) keeps the slices' spacing as the "
+           "step between samples; the cubic applies when the thick axis lies in the slices, which is every view "
+           "whose direction is nearer another axis, the side and oblique views here. The quads sampled stay those "
+           "one of whose four voxels is of interest; only the gather reads the voxel before and the one after "
+           "along the thick axis (clamped at the volume's edges; slabs hold whole slices, so in-slice axes reach "
+           "the volume's edges there too)."]
     items = []
     for r in rows:
         s, e = r["streak"], r["rmse"]
@@ -413,24 +489,33 @@ def reading(rows, costs) -> str:
                      f"{s['object']:.4f}), RMSE {e['before']:.4f} -> "
                      f"{e['after']:.4f}" + (f"; band {r['band']['before']:.4f} -> {r['band']['after']:.4f} (object "
                                              f"{r['band']['object']:.4f})" if "band" in r else "") + ".")
-    out += ["**This run, before -> after** (each against the object rendered by the same sampler):", ""] + items
-    mr = [r for r in rows if r["case"].startswith("mr-")]
-    if mr:
-        out += ["", "The *MRI head* (semi-transparent, a colour ramp over a bright scalp thinner than a slice) keeps "
-                "terraces after the weighting: the earlier runs found them in the unshaded renders too, so they come "
-                "from the density's linear interpolation between 7 mm slices (a shell thinner than a slice "
-                "cross-fades between slices), which shading cannot remove; a reconstruction across slices that "
-                "follows the edges (shape-based interpolation) would be needed, in the sampler. Not built."]
+    out += ["", "**This run, before -> after** (linear -> cubic, each against the object):", ""] + items
+    if rows and "corners" in rows[0]["streak"]:
+        out += ["", "**The shading between slices** (`SHADE_BETWEEN`, the eight voxels' Phong factors with the "
+                "B-spline's weights, against the quad's four corners' with the same cubic density), streak corners "
+                "-> after: " + "; ".join(f"{r['case']} {r['view']} {r['streak']['corners']:.4f} -> "
+                                         f"{r['streak']['after']:.4f}" for r in rows) + "."]
     near = [r for r in rows if r["streak"]["before"] <= 1.2 * r["streak"]["object"]]
     if near:
-        out += ["", "Already within 20% of the object's own streak before the change (nothing locked to the "
-                "slices to remove): " + ", ".join(f"{r['case']} {r['view']}" for r in near) + "."]
+        out += ["", "Already within 20% of the object's own streak when linear (nothing locked to the slices to "
+                "remove; the cubic's gain there is in the RMSE, if any): " +
+                ", ".join(f"{r['case']} {r['view']}" for r in near) + "."]
+    if ratios:
+        out += ["", "**The threshold.** `THICK_RATIO` = 2, by the table *Where the cubic starts* (the cubic against "
+                "the linear, and the linear's streak against the object's floor): " +
+                "; ".join(f"at {q['ratio']:g}:1 streak x{q['streak']['after'] / q['streak']['before']:.2f} and RMSE "
+                          f"x{q['rmse']['after'] / q['rmse']['before']:.2f} (linear's streak "
+                          f"{q['streak']['before'] / q['object']:.2f} times the floor)" for q in ratios) +
+                ". Where the linear reconstruction is already at the object's floor and the cubic does not lower "
+                "the RMSE (1.5:1 when this was written) the extra reads buy nothing; from 2:1 the cubic lowers the "
+                "RMSE against the object. Isotropic grids and grids below the ratio keep the bilinear sampler bit "
+                "for bit (tests/test_post.py)."]
     thin = [r for r in rows if r["streak"]["thin"] < 0.95 * r["streak"]["after"]]
     out += ["", f"**`--thin-slices`** lowers the streak measure more than 5% below *after* in {len(thin)} of the "
             f"{len(rows)} views above" + (" (" + ", ".join(f"{r['case']} {r['view']}" for r in thin) + ")" if thin else "") +
-            "; it stores the linear interpolation between slices that the post-classified sampler already "
-            "computes, so it cannot remove what that interpolation makes, and its normals, differenced over a "
-            "linear ramp, are no better. Its cost is in the table above (file and memory grow with the factor of "
+            "; it stores a linear interpolation between slices (a thinned file is below the cubic's ratio, so it "
+            "is rendered linear), which is what the cubic replaces, and its normals, differenced over a linear "
+            "ramp, are no better. Its cost is in the table above (file and memory grow with the factor of "
             "thinning, since the volume is held in memory). It stays for pre-classified splatting "
             "(`render.classification = \"pre\"`), where docs/sheets.md measures it closer to the trilinear field."]
     return "\n".join(out)

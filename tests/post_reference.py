@@ -6,7 +6,12 @@ to half a voxel beyond the outer centres), the transfer function from its contro
 corrected for the path through the slice, and interpolated between codes, as the model says), Phong shading of
 each corner's decoded normal weighted by its bilinear weight times its gradient magnitude code (normalised; the
 bilinear weights alone when the four codes are 0; ``weighted=False``: the bilinear weights, as before), and
-'over' front to back. A quad (the square between
+'over' front to back. On an anisotropic grid (the thicker in-slice axis at least isplat.splat.post.THICK_RATIO
+times the finest spacing, isplat.splat.post.BETWEEN_SLICES not "linear") the density along that axis is a cubic
+Hermite through the four voxels around the point (indices clamped to the volume) in each of the two rows, then
+linear across them: monotone (Fritsch-Butland slopes) or Catmull-Rom clamped to 0..255; and the shading mixes
+the Phong factors of those eight voxels, weighted by the cubic B-spline's weights along the thick axis times the
+linear weights across (times the gradient magnitude codes, normalised, as the four corners' otherwise). A quad (the square between
 four voxels) is sampled only when one of its voxels has a density of non-zero opacity.
 """
 
@@ -25,8 +30,9 @@ from phong_reference import camera_lights, phong
 ALPHA_MAX = 1 - 2.0 ** -40
 
 
-def post_reference(scene, view=0, et=1.0, weighted=True):
-    """Straight RGBA (H, W, 4) over the scene's background."""
+def post_reference(scene, view=0, et=1.0, weighted=True, between=None):
+    """Straight RGBA (H, W, 4) over the scene's background. ``between``: "linear", "monotone" or "catmull-rom"
+    (None: isplat.splat.post.BETWEEN_SLICES)."""
     aug = open_augmented(scene.data.augmented)
     dens = aug.read("density").astype(np.float64)
     nrm = aug.read("normal")
@@ -37,6 +43,7 @@ def post_reference(scene, view=0, et=1.0, weighted=True):
     frame = C.view_frame(scene.views[view], geom, W, H)
     axis, _ = C.principal_axis(frame, geom)
     ia, ib, ic = C.SLICE_AXES[axis]
+    along = _thick_axis(geom.spacing, ia, ib, between)
     tr, sh = scene.transfer, scene.shading
     unit = tr.unit_distance or float(geom.spacing.min())
     n_ijk = aug.shape[::-1]
@@ -73,7 +80,7 @@ def post_reference(scene, view=0, et=1.0, weighted=True):
                 X = geom.q + g @ geom.steps
                 if any((X - np.asarray(cut.point)) @ np.asarray(cut.normal) < 0 for cut in scene.cuts):
                     continue
-                s = _sample(dens, nrm, g[ia], g[ib], c, (ia, ib, ic), n_ijk, opac, col, sh, lights, geom, gm)
+                s = _sample(dens, nrm, g[ia], g[ib], c, (ia, ib, ic), n_ijk, opac, col, sh, lights, geom, gm, along)
                 if s is None:
                     continue
                 lo, hi, f, rgb = s
@@ -100,7 +107,49 @@ def post_reference(scene, view=0, et=1.0, weighted=True):
     return np.clip(out, 0, 1)
 
 
-def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=None):
+def _thick_axis(spacing, ia, ib, between):
+    """(0 for a or 1 for b, the cubic's name, whether the shading follows: isplat.splat.post.SHADE_BETWEEN) of the
+    slices' thick in-slice axis, or None: bilinear."""
+    from isplat.splat import post
+
+    kind = between or post.BETWEEN_SLICES
+    sp = [float(x) for x in spacing]
+    if kind == "linear" or max(sp[ia], sp[ib]) < post.THICK_RATIO * min(sp):
+        return None
+    return (0 if sp[ia] >= sp[ib] else 1), kind, post.SHADE_BETWEEN
+
+
+def _hermite(p, t, kind):
+    """The cubic between p[1] and p[2] at t in [0, 1] with neighbours p[0] and p[3]."""
+    d = [p[1] - p[0], p[2] - p[1], p[3] - p[2]]
+    if kind == "monotone":
+        m = [2 * x * y / (x + y) if x * y > 0 else 0.0 for x, y in ((d[0], d[1]), (d[1], d[2]))]
+    else:
+        m = [(p[2] - p[0]) / 2, (p[3] - p[1]) / 2]
+    h = [2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t, -2 * t**3 + 3 * t**2, t**3 - t**2]
+    return float(np.clip(h[0] * p[1] + h[1] * m[0] + h[2] * p[2] + h[3] * m[1], 0, 255))
+
+
+def _density(dens, qa, qb, fu, fv, c, axes, n_ijk, thick):
+    """The density at (qa + fu, qb + fv) of slice c: bilinear, or cubic along the thick axis (``thick``)."""
+    ia, ib, ic = axes
+
+    def at(a, b):
+        ijk = [0, 0, 0]
+        ijk[ia], ijk[ib], ijk[ic] = min(max(a, 0), n_ijk[ia] - 1), min(max(b, 0), n_ijk[ib] - 1), c
+        return dens[ijk[2], ijk[1], ijk[0]]
+
+    if thick is None:
+        return sum(w * at(qa + da, qb + db) for da, db, w in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)),
+                                                                ((0, 1, (1 - fu) * fv)), (1, 1, fu * fv)))
+    if thick[0] == 0:
+        rows = [_hermite([at(qa + k, qb + db) for k in (-1, 0, 1, 2)], fu, thick[1]) for db in (0, 1)]
+        return (1 - fv) * rows[0] + fv * rows[1]
+    cols = [_hermite([at(qa + da, qb + k) for k in (-1, 0, 1, 2)], fv, thick[1]) for da in (0, 1)]
+    return (1 - fu) * cols[0] + fu * cols[1]
+
+
+def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=None, thick=None):
     """The sample at (u, v) of slice c: the opacities of the two codes around the interpolated density, the
     fraction between them and the shaded colour; None when outside the volume, in a quad of no interest, or
     transparent."""
@@ -118,7 +167,7 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=Non
         weights.append(w)
     if not any(opac[int(dens[k])] > 0 for k in corners):
         return None
-    d = sum(w * dens[k] for w, k in zip(weights, corners))
+    d = _density(dens, qa, qb, fu, fv, c, axes, n_ijk, thick)
     di = min(int(d), 254)
     f = d - di
     if opac[di] == 0 and opac[di + 1] == 0:
@@ -126,6 +175,8 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=Non
     rgb = col[di] + f * (col[di + 1] - col[di])
     if sh.enabled:
         diff, spec = np.zeros(3), np.zeros(3)
+        if thick is not None and thick[2]:
+            corners, weights = _bspline_corners(qa, qb, fu, fv, c, axes, n_ijk, thick[0])
         if gm is not None and sum(w * gm[k] for w, k in zip(weights, corners)) > 0:
             total = sum(w * gm[k] for w, k in zip(weights, corners))
             weights = [w * gm[k] / total for w, k in zip(weights, corners)]
@@ -136,6 +187,25 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=Non
             spec += w * ss
         rgb = rgb * diff + spec
     return opac[di], opac[di + 1], f, rgb
+
+
+def _bspline_corners(qa, qb, fu, fv, c, axes, n_ijk, along):
+    """The eight voxels whose Phong factors shade a sample between thick slices (``along`` 0: a, 1: b) and their
+    weights: the cubic B-spline's along the thick axis (indices clamped to the volume), linear across."""
+    ia, ib, ic = axes
+    f, g = (fu, fv) if along == 0 else (fv, fu)
+    bw = [(1 - f) ** 3 / 6, (3 * f**3 - 6 * f**2 + 4) / 6, (-3 * f**3 + 3 * f**2 + 3 * f + 1) / 6, f**3 / 6]
+    corners, weights = [], []
+    for across, wr in ((0, 1 - g), (1, g)):
+        for k, w in zip((-1, 0, 1, 2), bw):
+            da, db = (k, across) if along == 0 else (across, k)
+            ijk = [0, 0, 0]
+            ijk[ia] = min(max(qa + da, 0), n_ijk[ia] - 1)
+            ijk[ib] = min(max(qb + db, 0), n_ijk[ib] - 1)
+            ijk[ic] = c
+            corners.append((ijk[2], ijk[1], ijk[0]))
+            weights.append(wr * w)
+    return corners, weights
 
 
 def _alpha(lo, hi, f, r, persp):

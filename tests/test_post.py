@@ -1,5 +1,7 @@
 """Post-classified splatting (render.classification = "post", isplat.splat.post) against its slow reference."""
 
+import contextlib
+
 import numpy as np
 import pytest
 from conftest import write_volume
@@ -292,11 +294,12 @@ def test_prefetch_compiles_to_a_hint_that_changes_nothing():
 
 @settings(max_examples=200, deadline=None)
 @given(unit=st.sampled_from([4, 8, 16]), n_a=st.integers(1, 40), n_b=st.integers(1, 40), sa=st.integers(1, 70),
-       extra=st.integers(0, 70), c=st.integers(0, 3), data=st.data())
-def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, extra, c, data):
+       extra=st.integers(0, 70), c=st.integers(0, 3), between=st.sampled_from([0, 1, 2]), data=st.data())
+def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, extra, c, between, data):
     """_prefetch_square (run as Python, its prefetches recorded) asks for every 64-byte line of every channel
     that the square's quads read: voxels a0 .. a0 + unit and b0 .. b0 + unit (the quads reach the next voxel),
-    within the slice; so no sample of the square waits for memory that could have been fetched."""
+    within the slice, and with the cubic along a or b (``between`` 1 or 2) the voxel or row before and the one
+    after too; so no sample of the square waits for memory that could have been fetched."""
     from isplat.splat import post
 
     a0 = data.draw(st.integers(0, n_a - 1)) // 4 * 4
@@ -309,13 +312,14 @@ def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, 
     density, gm, nrm = np.zeros(size, np.uint8), np.zeros(size, np.uint8), np.zeros(size, np.uint16)
     asked = {id(density): set(), id(gm): set(), id(nrm): set()}
     strides = np.array([sa, sb, sc, offset], np.int64)
-    voxel = (density, gm, nrm, strides, n_a, n_b, c)
+    voxel = (density, gm, nrm, strides, n_a, n_b, c, (between, 0, 1))
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(post, "prefetch", lambda arr, i: asked[id(arr)].add(int(i) * arr.itemsize // 64))
         post._prefetch_square.py_func(unit, a0, b0, voxel, True, True)
     for arr in (density, gm, nrm):
         read = {(c * sc + offset + a * sa + b * sb) * arr.itemsize // 64
-                for a in range(a0, min(a0 + unit, n_a - 1) + 1) for b in range(b0, min(b0 + unit, n_b - 1) + 1)}
+                for a in range(max(a0 - (between == 1), 0), min(a0 + unit + (between == 1), n_a - 1) + 1)
+                for b in range(max(b0 - (between == 2), 0), min(b0 + unit + (between == 2), n_b - 1) + 1)}
         assert read <= asked[id(arr)]
 
 
@@ -343,6 +347,160 @@ def test_reference_weighting_is_what_the_kernel_does(tmp_path, make_scene):
     assert np.abs(img - plain).max() <= 2e-4
 
 
+THICK = (1.0, 0.9, 2.7)         # spacing i, j, k: k three times the finest (isplat.splat.post.THICK_RATIO)
+
+
+@contextlib.contextmanager
+def _between(kind):
+    """Context: isplat.splat.post.BETWEEN_SLICES set to ``kind``."""
+    from isplat.splat import post
+
+    old = post.BETWEEN_SLICES
+    post.BETWEEN_SLICES = kind
+    try:
+        yield
+    finally:
+        post.BETWEEN_SLICES = old
+
+
+@pytest.mark.parametrize("kind", ["monotone", "catmull-rom"])
+@pytest.mark.parametrize("cam", CAMERAS)
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_cubic_between_thick_slices_agrees_with_the_reference(tmp_path, make_scene, cam, proj, kind):
+    """Slices 2.7 times thicker than the finest spacing: the kernel's cubic along the thick in-slice axis (a or b
+    by the view; none when the view is along it) agrees with the reference's, for both methods, and (views
+    not along k) not with the linear reference."""
+    shape = (6, 7, 8)
+    aug, idx = write_volume(tmp_path, rng_volume(7, shape), spacing=THICK, normal=random_normals(7, shape))
+    sc = post_scene(make_scene, aug, idx, cam, proj)
+    with _between(kind):
+        ind, _ = render(sc, "indexed")
+        full, _ = render(sc, "full")
+    ref = post_reference(sc, between=kind)
+    assert np.abs(ind - full).max() <= 1e-6
+    assert np.abs(ind - ref).max() <= 2e-4
+    assert ref[..., 3].max() > 0.2
+    if "elevation = 90" not in cam:          # the view along k: samples on the slices, nothing between them
+        assert np.abs(ind - post_reference(sc, between="linear")).max() > 1e-3
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), az=st.floats(0, 360), el=st.floats(-80, 80), zoom=st.floats(0.5, 3.0),
+       proj=st.sampled_from(["orthographic", "perspective"]), thick=st.integers(0, 2),
+       ratio=st.floats(2.0, 8.0), kind=st.sampled_from(["monotone", "catmull-rom"]))
+def test_cubic_property_random_anisotropic_volumes_and_views(tmp_path_factory, seed, az, el, zoom, proj, thick, ratio,
+                                                              kind):
+    from conftest import scene_text
+    from isplat.scene import parse_scene
+    tmp = tmp_path_factory.mktemp("post")
+    shape = tuple(int(x) for x in np.random.default_rng(seed).integers(2, 8, 3))
+    spacing = [1.0, 1.0, 1.0]
+    spacing[thick] = ratio
+    aug, idx = write_volume(tmp, rng_volume(seed, shape), spacing=tuple(spacing), normal=random_normals(seed, shape))
+    text = scene_text(aug, idx, image="width = 16\nheight = 14", transfer=TF, shading="enabled = true",
+                      camera=f'projection = "{proj}"\nazimuth = {az}\nelevation = {el}\nzoom = {zoom}',
+                      render='classification = "post"\nearly_termination = 1.0')
+    sc = parse_scene(text, tmp, "t.toml")
+    with _between(kind):
+        img, _ = render(sc)
+    assert np.abs(img - post_reference(sc, between=kind)).max() <= 2e-4
+
+
+@pytest.mark.parametrize("spacing", [(1.0, 1.0, 1.0), (1.0, 1.2, 0.8), (1.0, 1.0, 1.99)])
+def test_below_the_ratio_images_are_the_linear_ones_bit_for_bit(tmp_path, make_scene, spacing):
+    """Isotropic data, and grids less anisotropic than THICK_RATIO: the same bilinear sampler as before (the
+    same float operations), bit for bit, whatever BETWEEN_SLICES says."""
+    shape = (5, 6, 7)
+    aug, idx = write_volume(tmp_path, rng_volume(4, shape), spacing=spacing, normal=random_normals(4, shape))
+    sc = post_scene(make_scene, aug, idx, CAMERAS[4])
+    images = []
+    for kind in ("linear", "monotone", "catmull-rom"):
+        with _between(kind):
+            images.append(render(sc)[0])
+    assert images[0][..., 3].max() > 0.2
+    assert all(np.array_equal(images[0], im) for im in images[1:])
+
+
+@settings(max_examples=300, deadline=None)
+@given(p=st.lists(st.integers(0, 255), min_size=4, max_size=4), t=st.floats(0.0, 1.0),
+       kind=st.sampled_from([0, 1]))
+def test_cubic_interpolates_the_voxels_and_stays_in_the_codes(p, t, kind):
+    """isplat.splat.post.cubic: the voxels themselves at t = 0 and 1 (exactly); the monotone kind never
+    outside the two voxels around t (no overshoot), Catmull-Rom never outside the codes 0..255; monotone data
+    give a monotone curve."""
+    from isplat.splat.post import cubic
+
+    pm, p0, p1, p2 = (np.uint8(x) for x in p)
+    assert cubic(pm, p0, p1, p2, 0.0, kind) == p[1]
+    assert cubic(pm, p0, p1, p2, 1.0, kind) == p[2]
+    v = cubic(pm, p0, p1, p2, t, kind)
+    assert 0.0 <= v <= 255.0
+    if kind == 0:
+        assert min(p[1], p[2]) - 1e-9 <= v <= max(p[1], p[2]) + 1e-9
+        if p == sorted(p) and t < 1.0:
+            assert v <= cubic(pm, p0, p1, p2, min(1.0, t + 1e-3), kind) + 1e-9
+
+
+def test_the_kernel_density_is_the_voxels_at_voxel_positions():
+    """isplat.splat.post._density_at on a row of voxels along a thick axis: at fu = 0 the quad's first voxel,
+    between voxels the cubic through the four around it (the neighbours clamped at the row's ends by _taps)."""
+    from isplat.splat import post
+
+    vals = np.array([10, 200, 30, 90, 250, 0, 120], np.uint8)
+    density = np.concatenate([vals, vals[::-1]])             # two rows along a (b = 0, 1)
+    strides = np.array([1, 7, 14, 0], np.int64)
+    for kind in (0, 1):
+        voxel = (density, density, density, strides, 7, 2, 0, (1, kind, 1))
+        for qa in range(7):
+            taps = post._taps(qa, 0, voxel)
+            sa = 1 if qa + 1 < 7 else 0
+            assert post._density_at(density, qa, sa, 7, 0.0, 0.0, taps) == vals[qa]
+            f = 0.37
+            d = post._density_at(density, qa, sa, 7, f, 0.0, taps)
+            q = [vals[min(max(qa + k, 0), 6)] for k in (-1, 0, 1, 2)]
+            assert d == pytest.approx(post.cubic(*q, f, kind), abs=1e-12)
+
+
+def test_between_slices_picks_the_thick_in_slice_axis():
+    from isplat.splat.post import between_slices
+
+    assert between_slices((1.0, 1.0, 7.0), "i", "monotone") == (2, 0, 1)      # i's slices: a = j, b = k
+    assert between_slices((1.0, 1.0, 7.0), "j", "catmull-rom") == (2, 1, 1)  # j's: a = i, b = k
+    assert between_slices((7.0, 1.0, 1.0), "k", "monotone") == (1, 0, 1)      # k's: a = i
+    assert between_slices((1.0, 1.0, 7.0), "k", "monotone") == (0, 0, 0)      # along the view: on the slices
+    assert between_slices((1.0, 1.0, 1.9), "i", "monotone") == (0, 0, 0)
+    assert between_slices((1.0, 1.0, 7.0), "i", "linear") == (0, 0, 0)
+
+
+def test_thick_shading_weighted_by_gradient_magnitudes_agrees_with_the_reference(tmp_path, make_scene):
+    """Between thick slices the eight voxels' Phong factors (B-spline weights along the thick axis) weighted by
+    their gradient magnitude codes too, some 0 and some quads' all 0: the kernel agrees with the reference."""
+    shape = (6, 7, 8)
+    gm = np.random.default_rng(8).integers(0, 256, shape)
+    gm.flat[::3] = 0
+    aug, idx = write_volume(tmp_path, rng_volume(8, shape), spacing=THICK, normal=random_normals(8, shape), gm=gm)
+    for cam in (CAMERAS[0], CAMERAS[4]):
+        sc = post_scene(make_scene, aug, idx, cam, "orthographic")
+        img, _ = render(sc, "full")
+        assert np.abs(img - post_reference(sc)).max() <= 2e-4
+
+
+def test_cubic_with_the_corners_shading_agrees_with_the_reference(tmp_path, make_scene, monkeypatch):
+    """SHADE_BETWEEN off: the cubic density between thick slices, the quad's four corners' Phong factors."""
+    from isplat.splat import post
+
+    monkeypatch.setattr(post, "SHADE_BETWEEN", False)
+    shape = (6, 7, 8)
+    aug, idx = write_volume(tmp_path, rng_volume(9, shape), spacing=THICK, normal=random_normals(9, shape))
+    for cam in (CAMERAS[1], CAMERAS[5]):
+        sc = post_scene(make_scene, aug, idx, cam, "perspective")
+        img, _ = render(sc)
+        assert np.abs(img - post_reference(sc)).max() <= 2e-4
+        monkeypatch.setattr(post, "SHADE_BETWEEN", True)
+        assert np.abs(img - post_reference(sc)).max() > 1e-3        # the shading's weights do differ
+        monkeypatch.setattr(post, "SHADE_BETWEEN", False)
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10 ** 6), fu=st.floats(0.0, 1.0, exclude_max=True), fv=st.floats(0.0, 1.0, exclude_max=True),
        edge_a=st.booleans(), edge_b=st.booleans())
@@ -359,5 +517,5 @@ def test_density_at_is_the_bilinear_density(seed, fu, fv, edge_a, edge_b):
     a1, b1 = a + (sa != 0), b + (sb != 0)
     want = ((1 - fu) * (1 - fv) * float(plane[b, a]) + fu * (1 - fv) * float(plane[b, a1])
             + (1 - fu) * fv * float(plane[b1, a]) + fu * fv * float(plane[b1, a1]))
-    got = post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv)
+    got = post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, (0, 0, 0, 0, 0))
     assert got == want

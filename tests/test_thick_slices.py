@@ -87,3 +87,70 @@ def test_weighting_changes_nothing_where_the_corners_agree(heads):
     a, _, _ = _render(flat, (1.0, 1.0, 7.0), (45.0, 25.0), False)
     b, _, _ = _render(flat, (1.0, 1.0, 7.0), (45.0, 25.0), True)
     assert np.abs(a - b).max() <= 1e-6
+
+
+MR_SCENE = """version = 4
+[data]
+augmented = "{aug}"
+[image]
+width = 160
+height = 160
+[camera]
+projection = "orthographic"
+azimuth = 45
+elevation = 25
+[render]
+method = "full"
+[transfer]
+preset = "mri-t1-head"
+[shading]
+ambient = 0.25
+specular = 0.3
+shininess = 30
+"""
+
+
+def _mr_render(tmp, a, spacing, kind):
+    """The oblique view of the mr-head channels ``a`` with the sampler ``kind`` between slices; the image, view
+    and scene. The preset is placed on the data through an augmented file of them (as benchmarks/thick.py)."""
+    from isplat.augfile import write_augmented
+
+    aug = tmp / f"mr-{spacing[2]:g}.aug.h5"
+    if not aug.exists():
+        write_augmented(aug, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
+                        a["density_window"], a["gradient_magnitude_scale"], {"source": "isplat sample mr-head"})
+    sc = parse_scene(MR_SCENE.format(aug=aug), str(tmp), "t.toml")
+    sel = Selection.from_arrays(a["density"], sc, normal=a["normal"], gradient_magnitude=a["gradient_magnitude"],
+                                gradient_magnitude_scale=a["gradient_magnitude_scale"], spacing=spacing)
+    v = views_for(sc, sel)[0]
+    old = post.BETWEEN_SLICES
+    post.BETWEEN_SLICES = kind
+    try:
+        return render_frame(sel, v)[0].astype(np.float64), v, sc
+    finally:
+        post.BETWEEN_SLICES = old
+
+
+def test_cubic_between_slices_removes_the_terraces_of_7mm_mr_slices(tmp_path):
+    """The mr-head sample with 7 mm slices (128 x 128 x 16, 1 x 1 x 7), oblique: linear between slices draws
+    terraces of the slices on the semi-transparent head (streak well above the floor, the same head made with
+    1 mm slices); the default cubic (Catmull-Rom density, B-spline-weighted Phong factors along the thick axis)
+    brings the streak measure down. Bounds measured when written (see the assert messages' values): linear
+    0.0142, cubic 0.0100, floor 0.0062 on this small case (the cubic 0.71 times the linear, and 0.48 of the
+    linear's excess over the floor); the bounds (0.85, 0.75) are about halfway to no gain."""
+    thick, _ = make_sample("mr-head", (128, 128, 16))
+    thin, _ = make_sample("mr-head", (128, 128, 112))
+    a = augment_array(thick, (1.0, 1.0, 7.0), None)
+    o = augment_array(thin, (1.0, 1.0, 1.0), a["density_window"])
+    lin, vt, sc = _mr_render(tmp_path, a, (1.0, 1.0, 7.0), "linear")
+    cub, _, _ = _mr_render(tmp_path, a, (1.0, 1.0, 7.0), "catmull-rom")
+    floor_img, vo, _ = _mr_render(tmp_path, o, (1.0, 1.0, 1.0), "catmull-rom")
+    op = np.asarray(sc.transfer.opacity)
+    codes = np.arange(256.0)
+    al = np.interp(codes, op[:, 0], op[:, 1], left=0.0, right=0.0)
+    phase = surface_phase(vo, vt, o["density"], float(codes[np.argmax(al >= 0.5 * al.max())]))
+    period = 7.0 / vt.frame.pixel_size
+    s_lin, s_cub, floor = (streak(x, phase, period) for x in (lin, cub, floor_img))
+    assert np.isfinite(phase).sum() > 3000
+    assert s_cub <= 0.85 * s_lin, (s_lin, s_cub, floor)
+    assert s_cub - floor <= 0.75 * (s_lin - floor), (s_lin, s_cub, floor)

@@ -27,6 +27,17 @@ on slices much thicker than the pixels a corner just off a surface nearly parall
 gradient whose direction is mostly along the slice axis) otherwise shades as much as the corner on it, which
 draws rings of the slices on the surface (docs/thick-slices.md).
 
+Between thick slices. When the thicker in-slice axis' spacing is at least :data:`THICK_RATIO` times the volume's
+finest (slices 2.5-7 mm thick seen from the side, say), the density along that axis is a cubic through the four
+voxels around the sample instead of the line through two (:func:`_density_at`; Catmull-Rom by default,
+:data:`BETWEEN_SLICES`), then linear across: with the line an isosurface is piecewise planar with a kink at
+every slice, and its shading and silhouettes step (terraces). The Phong factors then mix the same eight voxels'
+with the cubic B-spline's weights along the thick axis (:func:`_shade_between`, :data:`SHADE_BETWEEN`). Only
+the gather reads the extra voxels (:func:`_taps`: the voxel before the quad and the one after, clamped to the
+volume; a slab holds whole slices, so the in-slice axes reach the volume's edges there too); which quads are
+sampled is decided as before, by their four corners. The view's own axis is not interpolated: the samples lie on
+its slices. Isotropic grids and grids below the ratio take the bilinear sampler, bit for bit as before.
+
 Each pixel samples a slice at most once (it belongs to one quad), so a sample is composited straight into the
 image: no sheet. Images do not depend on the thread bands. Counters: ``stats[band, 1]`` the voxels of interest
 in the cells left after the occlusion tests, ``stats[band, 2]`` the samples composited.
@@ -61,6 +72,16 @@ AHEAD = 1                 # squares prefetched ahead of the one sampled (_sample
 # shading weights each corner's Phong factors by its bilinear weight times its gradient magnitude code (_sample);
 # False: by the bilinear weight only, as before (python -m benchmarks thick renders both; docs/thick-slices.md)
 WEIGHTED_SHADING = True
+# the density between slices along a thick in-slice axis (_density_at): "monotone" a monotone cubic (Fritsch-Butland
+# slopes: C1, interpolates the voxels, never outside the two voxels around it), "catmull-rom" (clamped to the
+# codes), "linear" the bilinear of the quad as before; used when the thicker in-slice axis' spacing is at least
+# THICK_RATIO times the volume's finest (docs/thick-slices.md: why 2)
+BETWEEN_SLICES = "catmull-rom"
+THICK_RATIO = 2.0
+CUBIC_KINDS = {"monotone": 0, "catmull-rom": 1}
+# with a cubic between slices, the Phong factors of the eight voxels around the sample with the cubic B-spline's
+# weights along the thick axis (_shade_between); False: the quad's four corners' as between thin slices
+SHADE_BETWEEN = True
 # where a sample stops, for measuring the stages' shares only (python -m benchmarks sampler, each value with numba's
 # cache in a folder of its own): 0 after the scan, 1 after the density gather, 2 after the opacity and its
 # compositing, 3 the whole sample; none of these saturates a pixel (so that all do the same pixels and slices);
@@ -70,7 +91,7 @@ if SAMPLE_STAGES != 4 and not os.environ.get("NUMBA_CACHE_DIR"):
     # numba's cache does not tell the copies apart: one compiled here would be loaded by later ordinary runs
     raise RuntimeError("ISPLAT_SAMPLE_STAGES (for measuring only) needs a NUMBA_CACHE_DIR of its own")
 
-PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab")
+PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab between")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
 float64[256, 2G] (opacities per density and gradient code, corrected for the slice's path length when
 orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next code) and ``color`` float64[256, 6]
@@ -78,7 +99,9 @@ orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next cod
 (:mod:`isplat.splat.shade`); ``use_shade`` 0 unshaded, 1 the corners' Phong factors weighted bilinearly, 2
 weighted by the bilinear weights times the corners' gradient magnitude codes (:data:`WEIGHTED_SHADING`);
 ``lab`` the segmentation labels shown (:mod:`isplat.splat.labels`: the label
-channel, the colour table, steps; empty without labels)."""
+channel, the colour table, steps; empty without labels); ``between`` (axis, kind): the in-slice axis along which
+the density is a cubic between voxels (1 a, 2 b, 0 none: bilinear), the cubic's kind and whether the shading
+follows it (1: :func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`)."""
 PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
@@ -108,7 +131,8 @@ def plan(tables):
     whole = sel.whole_volume(tables.axis)
     # 2: the corners' Phong factors weighted by their gradient magnitudes too (_sample), when those were read
     shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
-    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables))
+    cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables),
+                       between_slices(tables.view.geom.spacing, tables.axis))
     ex, ey = reach(tables.proj.coef)
     tent = (float(ex), float(ey))
     source = whole if sel.method == "full" else \
@@ -116,6 +140,24 @@ def plan(tables):
     n_cells = max_cells(sel, tables.axis)
     lists = [np.empty((n_cells, 4), np.int64) for _ in range(tables.threads)]
     return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent), lists, None
+
+
+def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | None = None) -> tuple[int, int, int]:
+    """``(axis, kind, shade)`` of :data:`PostClassify`'s ``between``: the thicker in-slice axis of ``axis``'s
+    slices (1 a, 2 b; a when equal) when its spacing is at least ``ratio`` (:data:`THICK_RATIO`) times the finest
+    of the three and ``kind`` (:data:`BETWEEN_SLICES`) is not "linear", else 0; the kind's code; 1 when the
+    shading follows (:data:`SHADE_BETWEEN`). Along the view's axis nothing is interpolated: the samples lie on
+    the slices."""
+    from ..grid import SLICE_AXES
+
+    kind = BETWEEN_SLICES if kind is None else kind
+    ratio = THICK_RATIO if ratio is None else ratio
+    sp = [float(x) for x in spacing]
+    ia, ib, _ = SLICE_AXES[axis]
+    t = 1 if sp[ia] >= sp[ib] else 2
+    if kind == "linear" or max(sp[ia], sp[ib]) < ratio * min(sp):
+        return 0, 0, 0
+    return t, CUBIC_KINDS[kind], int(bool(SHADE_BETWEEN))
 
 
 def _labels_of(tables):
@@ -210,7 +252,7 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, b
     nsa = (whole.n_a + unit - 1) // unit
     nm, ns = _mark_cells(cells, nc, nca, unit, nsa, mark, marked, smark, squares)
     nt = _plan_squares(squares, ns, smark, mark, nca, (whole.n_b + CELL - 1) // CELL, unit, todo)
-    voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c)
+    voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c, cls.between)
     inv = _ortho_inverse(base, geo.coef)
     _sample_squares(todo, nt, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
                     cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts, cls.lab)
@@ -313,10 +355,14 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     along b lie a plane or a row of the volume apart, so each row of the square is lines of its own that the
     CPU's own prefetchers do not foresee: without this the samples wait for memory (most of a frame's time on a
     volume larger than the caches, docs/design.md)."""
-    density, gm, nrm, strides, n_a, n_b, c = voxel
+    density, gm, nrm, strides, n_a, n_b, c, between = voxel
     sa, sb = strides[0], strides[1]
     a1 = min(a0 + unit, n_a - 1)
     b1 = min(b0 + unit, n_b - 1)
+    if between[0] == 1:             # the cubic along a reads a voxel before and one more after (_density_at)
+        a0, a1 = max(a0 - 1, 0), min(a1 + 1, n_a - 1)
+    elif between[0] == 2:           # along b a row before and one more after
+        b0, b1 = max(b0 - 1, 0), min(b1 + 1, n_b - 1)
     da = max(1, 32 // sa)           # voxels along a in half a 64-byte line (a slice's a steps 1 or a row)
     cbase = c * strides[2] + strides[3]
     for b in range(b0, b1 + 1):
@@ -339,7 +385,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`).
     One function of over 60 lines: its per-pixel loop is the scan's inner loop, inlined by LLVM, with the
     flags' test and the sample (:func:`_sample`) in it."""
-    density, gm, nrm, strides, n_a, n_b, c = voxel
+    density, gm, nrm, strides, n_a, n_b, c, between = voxel
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp
     nca = (n_a + CELL - 1) // CELL
@@ -399,7 +445,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                 done = max(done, _sample(x, y, fu, fv, cbase + qa * strides[0] + qb * strides[1],
                                          strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v,
                                          density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo, img,
-                                         sat, tile_sat, et))
+                                         sat, tile_sat, et, _taps(qa, qb, voxel)))
             drawn += done > 0
             newly += done > 1
     counts[0] += drawn
@@ -432,9 +478,10 @@ def _span(o, d, r, a, b, lo, hi):
 
 @leaf(forceinline=True)
 def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo,
-            img, sat, tile_sat, et):
-    """One sample: the bilinear density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
-    volume's edge, which repeats the edge voxel) at (fu, fv) in it, classified with the tables interpolated
+            img, sat, tile_sat, et, taps):
+    """One sample: the density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
+    volume's edge, which repeats the edge voxel) at (fu, fv) in it (bilinear, or cubic along a thick axis:
+    ``taps``, :func:`_taps`, :func:`_density_at`), classified with the tables interpolated
     between codes, shaded with the corners' Phong factors (weighted by their gradient magnitudes too when
     ``use_shade == 2``), composited over pixel (x, y). Returns 0 when
     transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity."""
@@ -442,7 +489,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
         return 0
     if SAMPLE_STAGES < 4:
         et = 2.0                        # no pixel saturates
-    d = _density_at(density, i00, sa, sb, fu, fv)
+    d = _density_at(density, i00, sa, sb, fu, fv, taps)
     if SAMPLE_STAGES == 1:
         return 1 if d == 300.5 else 0      # never: keeps the gather without compositing
     # unsigned indices: numba adds no negative-index wrap-around to them (all are >= 0 here)
@@ -474,7 +521,9 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
-    if use_shade:
+    if use_shade and taps[4] != 0:      # a thick axis: the Phong factors with the B-spline's weights along it
+        cr, cg, cb = _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade)
+    elif use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
         if use_shade == 2:      # weighted by the gradient magnitudes: a corner off the surface (air, a short
             v00 = w00 * gm[i00]     # gradient whose direction is mostly the slices') counts for little
@@ -511,19 +560,6 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
 
 
 @leaf(forceinline=True)
-def _density_at(density, i00, sa, sb, fu, fv):
-    """The bilinear density of the quad whose first voxel is at ``i00`` of the density channel (its next voxels
-    ``sa`` and ``sb`` away; 0 at the volume's edge) at (fu, fv) in [0, 1) in it: the one place a sample reads
-    the densities (the reconstruction along the slices' plane)."""
-    i00 = np.uint64(i00)                # unsigned: no negative-index wrap-around (all are >= 0 here)
-    i10 = i00 + np.uint64(sa)
-    i01 = i00 + np.uint64(sb)
-    i11 = i01 + np.uint64(sa)
-    return ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
-            + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
-
-
-@leaf(forceinline=True)
 def _composite_alpha(img, sat, tile_sat, x, y, a, et):
     """The opacity alone composited over pixel (x, y) (``SAMPLE_STAGES == 2``, for measuring only)."""
     uy, ux = np.uint64(y), np.uint64(x)
@@ -535,6 +571,112 @@ def _composite_alpha(img, sat, tile_sat, x, y, a, et):
         tile_sat[y // TILE, x // TILE] += 1
         return 2
     return 1
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _taps(qa, qb, voxel):
+    """What :func:`_density_at` needs of quad (qa, qb) beyond its corners: ``(axis, kind, back, fwd, shade)``,
+    the thick axis and the cubic's kind (``voxel[7]``, :data:`PostClassify`'s ``between``), the steps from the
+    quad's first corner to the voxel before it and to the voxel two after it along that axis, clamped to the
+    volume (the edge voxel repeated; 0 steps back at the first voxel), and whether the shading follows
+    (:func:`_shade_between`). (0, 0, 0, 0, 0): bilinear. The slices of a
+    slab (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
+    strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], voxel[7]
+    t = between[0]
+    if t == 0:
+        return 0, 0, 0, 0, 0
+    q, n, s = qa, n_a, strides[0]
+    if t == 2:
+        q, n, s = qb, n_b, strides[1]
+    q = min(max(q, 0), n - 1)
+    return t, between[1], s if q > 0 else 0, min(2, n - 1 - q) * s, between[2]
+
+
+@leaf(forceinline=True)
+def _density_at(density, i00, sa, sb, fu, fv, taps):
+    """The density of the quad whose first voxel is at ``i00`` of the density channel (its next voxels ``sa``
+    and ``sb`` away; 0 at the volume's edge) at (fu, fv) in [0, 1) in it: the one place a sample reads the
+    densities. Bilinear when ``taps[0]`` is 0 (isotropic data render bit for bit as before); else a cubic
+    (:func:`cubic`, kind ``taps[1]``) along the thick axis (1 a, 2 b) through the voxel before the quad
+    (``taps[2]`` back), its two corners and the voxel after (``taps[3]`` on) in each of the quad's two rows (or
+    columns), then linear between those two (:func:`_taps`)."""
+    i00 = np.uint64(i00)                # unsigned: no negative-index wrap-around (all are >= 0 here)
+    i10 = i00 + np.uint64(sa)
+    i01 = i00 + np.uint64(sb)
+    i11 = i01 + np.uint64(sa)
+    t = taps[0]
+    if t == 0:
+        return ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
+                + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
+    back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
+    if t == 1:      # rows along a from i00 and from i01, then linear along b
+        r0 = cubic(density[i00 - back], density[i00], density[i10], density[i00 + fwd], fu, taps[1])
+        r1 = cubic(density[i01 - back], density[i01], density[i11], density[i01 + fwd], fu, taps[1])
+        return (1.0 - fv) * r0 + fv * r1
+    c0 = cubic(density[i00 - back], density[i00], density[i01], density[i00 + fwd], fv, taps[1])
+    c1 = cubic(density[i10 - back], density[i10], density[i11], density[i10 + fwd], fv, taps[1])
+    return (1.0 - fu) * c0 + fu * c1
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade):
+    """The colour shaded with the Phong factors of the eight voxels around the sample along a thick axis
+    (``taps``, :func:`_taps`): the cubic B-spline's weights along it (positive, C2: the shading has no kink at
+    the slices), linear across, each times the voxel's gradient magnitude code when ``use_shade`` is 2
+    (normalised; unweighted where all are 0)."""
+    back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
+    f, g, r1, o1 = fu, fv, i01, i10 - i00
+    if taps[0] == 2:
+        f, g, r1, o1 = fv, fu, i10, i01 - i00
+    f2 = f * f
+    f3 = f2 * f
+    bw = ((1.0 - f) * (1.0 - f) * (1.0 - f) / 6.0, (3.0 * f3 - 6.0 * f2 + 4.0) / 6.0,
+          (-3.0 * f3 + 3.0 * f2 + 3.0 * f + 1.0) / 6.0, f3 / 6.0)
+    ra, rb = i00, r1
+    idx = (ra - back, ra, ra + o1, ra + fwd, rb - back, rb, rb + o1, rb + fwd)
+    wts = ((1.0 - g) * bw[0], (1.0 - g) * bw[1], (1.0 - g) * bw[2], (1.0 - g) * bw[3], g * bw[0], g * bw[1],
+           g * bw[2], g * bw[3])
+    s0 = s1 = s2 = s3 = s4 = s5 = wsum = 0.0
+    for p in range(2):          # weighted by the gradient magnitudes; unweighted where those weights are all 0
+        weighted = use_shade == 2 and p == 0
+        s0 = s1 = s2 = s3 = s4 = s5 = wsum = 0.0
+        for k in range(8):
+            i = idx[k]
+            w = wts[k] * gm[i] if weighted else wts[k]
+            n = nrm[i]
+            wsum += w
+            s0 += w * shade[n, 0]
+            s1 += w * shade[n, 1]
+            if shade.shape[1] == 6:
+                s2 += w * shade[n, 2]
+                s3 += w * shade[n, 3]
+                s4 += w * shade[n, 4]
+                s5 += w * shade[n, 5]
+        if wsum > 0.0:
+            break
+    r = 1.0 / wsum
+    if shade.shape[1] == 6:
+        return cr * s0 * r + s3 * r, cg * s1 * r + s4 * r, cb * s2 * r + s5 * r
+    return cr * s0 * r + s1 * r, cg * s0 * r + s1 * r, cb * s0 * r + s1 * r
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def cubic(pm, p0, p1, p2, t, kind):
+    """The cubic Hermite between ``p0`` (t = 0) and ``p1`` (t = 1) with neighbours ``pm`` before and ``p2``
+    after. ``kind`` 0: monotone (Fritsch and Butland 1984: each knot's slope the harmonic mean of its two
+    secants, 0 where they differ in sign; at most twice the smaller secant, so the curve is C1 and never leaves
+    [min(p0, p1), max(p0, p1)]); 1: Catmull-Rom (slopes the central differences), clamped to the codes 0..255."""
+    pm, p0, p1, p2 = float(pm), float(p0), float(p1), float(p2)
+    d0, d1, d2 = p0 - pm, p1 - p0, p2 - p1
+    if kind == 0:
+        m0 = 2.0 * d0 * d1 / (d0 + d1) if d0 * d1 > 0.0 else 0.0
+        m1 = 2.0 * d1 * d2 / (d1 + d2) if d1 * d2 > 0.0 else 0.0
+    else:
+        m0, m1 = 0.5 * (d0 + d1), 0.5 * (d1 + d2)
+    t2 = t * t
+    t3 = t2 * t
+    v = (2.0 * t3 - 3.0 * t2 + 1.0) * p0 + (t3 - 2.0 * t2 + t) * m0 + (3.0 * t2 - 2.0 * t3) * p1 + (t3 - t2) * m1
+    return min(max(v, 0.0), 255.0)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf

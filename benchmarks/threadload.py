@@ -167,6 +167,48 @@ def page(rows: list[dict], command: str, machine: str) -> str:
     return "\n".join(L)
 
 
+def old_against_new(a, argv) -> int:
+    """``--old REV``: the same measurement on isplat/ at REV and on this checkout, run after each other
+    ``--repeats`` times (each run a process of its own, the old one with ``PYTHONPATH`` at REV's tree), then the
+    page from all the runs' rows, old and new alternately."""
+    import os
+    import subprocess
+
+    from .sampler import REPO, old_tree
+
+    base = ["--frames", str(a.frames)] + (["--pin"] if a.pin else []) + (["--quick"] if a.quick else [])
+    trees = {"old": (old_tree(a.old), f"{a.old} (before)"), "new": (REPO, f"{_doc_rev()} (this checkout)")}
+    runs = []
+    for k in range(a.repeats):
+        for tag, (tree, label) in trees.items():
+            js = REPO / "out" / "threadload" / f"{tag}-{k}.json"
+            env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{REPO}")
+            subprocess.run([sys.executable, "-m", "benchmarks.threadload", *base, "--json", str(js), "--label",
+                            f"{label}, run {k + 1}"], cwd=REPO, env=env, check=True)
+            runs.append(js)
+    if a.out:               # one page of every run's rows, stamped with the --old command
+        _write_page(a.out, [json.loads(p.read_text()) for p in runs],
+                    "python -m benchmarks.threadload " + shlex.join(argv))
+    return 0
+
+
+def _doc_rev() -> str:
+    from . import _doc
+
+    return _doc.git_rev()
+
+
+def _write_page(out: Path, rows, cmd: str, machine: str | None = None) -> None:
+    from . import _doc
+    from .peers import SOURCES
+
+    out.mkdir(parents=True, exist_ok=True)
+    doc = out / "performance.md"
+    _doc.update_section(doc, SECTION, page(rows, cmd, machine or _doc.machine_line()), title="Performance")
+    _doc.put_stamp(doc, _doc.stamp(SECTION, cmd, ["post"], [*SOURCES, "benchmarks/threadload.py"]), SECTION)
+    print(f"[threadload] wrote {doc}", file=sys.stderr)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.threadload", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="the chest at 64x64x17, 48 pixels")
@@ -180,7 +222,13 @@ def main(argv=None) -> int:
     ap.add_argument("--with", dest="others", type=Path, action="append", default=[],
                     help="a --json file of another run (another checkout) to show above this run's rows")
     ap.add_argument("--label", default=None, help="the table's first column (default: isplat's source folder)")
+    ap.add_argument("--old", default=None, metavar="REV",
+                    help="run this command on isplat/ at REV (git archive) and on this checkout, alternately "
+                         "--repeats times, each in a process of its own, and write the rows of all the runs")
+    ap.add_argument("--repeats", type=int, default=2)
     a = ap.parse_args(argv)
+    if a.old:
+        return old_against_new(a, argv if argv is not None else sys.argv[1:])
     import isplat
 
     from . import _doc
@@ -196,15 +244,9 @@ def main(argv=None) -> int:
     print(HEADER)
     print(table(s, label))
     if a.out:
-        from .peers import SOURCES
-
         rows = [json.loads(p.read_text()) for p in a.others] + [dict(label=label, summary=s)]
-        cmd = "python -m benchmarks.threadload " + shlex.join(argv if argv is not None else sys.argv[1:])
-        a.out.mkdir(parents=True, exist_ok=True)
-        doc = a.out / "performance.md"
-        _doc.update_section(doc, SECTION, page(rows, cmd, machine), title="Performance")
-        _doc.put_stamp(doc, _doc.stamp(SECTION, cmd, ["post"], [*SOURCES, "benchmarks/threadload.py"]), SECTION)
-        print(f"[threadload] wrote {doc}", file=sys.stderr)
+        _write_page(a.out, rows, "python -m benchmarks.threadload " + shlex.join(argv if argv is not None
+                                                                                 else sys.argv[1:]), machine)
     return 0
 
 

@@ -15,6 +15,10 @@ so that temporary outputs are removed on the way out (:func:`isplat.fileio.atomi
 * **Never lost.** A signal is remembered even when code between the handler and :func:`main` swallows the
   exception; no output is renamed into place after one (:func:`check`, called by ``atomic_output`` before it
   commits), and :func:`main` then still exits 130/143.
+* **Not printed where Python cannot raise it.** The handler runs at the main thread's next bytecode, which may be
+  a weakref or ``__del__`` callback (the garbage collector's): Python prints an exception raised there as
+  "Exception ignored in ..." with a traceback, and goes on. :func:`_unraisable` keeps that quiet for
+  :class:`Terminated` and sends the signal again, so that it is raised at the next bytecode outside the callback.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import sys
 import threading
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT)
+RESEND_SECONDS = 0.01      # a signal raised inside a garbage-collector callback is sent again after this (_unraisable)
 
 
 class Terminated(BaseException):
@@ -52,9 +57,32 @@ def on_signal(signum, frame):
     raise Terminated(signum)
 
 
+def _unraisable(args) -> None:
+    """``sys.unraisablehook`` while the handlers are installed: a :class:`Terminated` raised where Python cannot
+    raise (a callback of the garbage collector) is not printed; its signal is sent again a moment later from
+    another thread (sent from here, it would be raised in this hook and printed after all), and the handler
+    raises it at the main thread's next bytecode, or a deferral holds it. Anything else goes to Python's hook."""
+    if not isinstance(args.exc_value, Terminated):
+        sys.__unraisablehook__(args)
+        return
+    with _LOCK:                     # a signal meanwhile is only recorded: the one sent again stands for it
+        _state["depth"] += 1
+    try:
+        again = threading.Timer(RESEND_SECONDS, os.kill, (os.getpid(), args.exc_value.signum))
+        again.daemon = True
+        again.start()
+    finally:
+        with _LOCK:
+            _state["depth"] -= 1
+            if _state["depth"] == 0:
+                _state["pending"] = None
+
+
 def install() -> dict:
-    """Install :func:`on_signal` for SIGTERM and SIGINT where their handlers are Python's defaults; return the
-    handlers replaced (to restore)."""
+    """Install :func:`on_signal` for SIGTERM and SIGINT where their handlers are Python's defaults (and
+    :func:`_unraisable`); return the handlers replaced (to restore)."""
+    if sys.unraisablehook is sys.__unraisablehook__:
+        sys.unraisablehook = _unraisable
     previous = {}
     for sig, default in ((signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.default_int_handler)):
         current = signal.getsignal(sig)
@@ -70,6 +98,8 @@ def restore(previous: dict) -> None:
         signal.signal(sig, handler)
     if previous:
         _state["installed"] = False
+        if sys.unraisablehook is _unraisable:
+            sys.unraisablehook = sys.__unraisablehook__
 
 
 def reset() -> None:

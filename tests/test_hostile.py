@@ -579,3 +579,40 @@ def test_signal_held_by_a_compile_in_another_thread_reaches_the_main_thread():
     finally:
         interrupts.restore(previous)
         interrupts.reset()
+
+
+GC_CALLBACK_SIGNAL = r"""
+import os, signal, sys, weakref
+from isplat import interrupts
+
+interrupts.install()
+
+
+class Thing:
+    pass
+
+
+def callback(_):
+    os.kill(os.getpid(), signal.SIGTERM)     # the handler runs here, inside the garbage collector's callback
+    for _ in range(1000):
+        pass
+
+
+t = Thing()
+r = weakref.ref(t, callback)
+try:
+    del t
+    for _ in range(10 ** 7):
+        pass
+    print("not raised", file=sys.stderr)
+except interrupts.Terminated as e:
+    print(f"raised {e.signum}", file=sys.stderr)
+"""
+
+
+def test_a_signal_inside_a_gc_callback_is_raised_after_it_not_printed():
+    """A signal whose handler runs inside a weakref callback (where Python prints an exception as "Exception
+    ignored in ..." with a traceback, and goes on) is not printed: it is sent again and raised after the
+    callback (isplat.interrupts._unraisable)."""
+    p = subprocess.run([sys.executable, "-c", GC_CALLBACK_SIGNAL], capture_output=True, text=True, timeout=120)
+    assert p.stderr.strip() == f"raised {int(signal.SIGTERM)}", p.stderr

@@ -281,3 +281,31 @@ def render(rows, quick: bool, repeats: int, seconds: float) -> str:
           "stores its one-voxel apron too ((e + 2)^3 voxels; the file grows by "
           "the factor in parentheses), so post reads only the bricks holding a voxel of interest."]
     return "\n".join(L)
+
+
+def check_packed(seed: int) -> bool:
+    """The packed prototype holds every voxel post's quads read, and the counts are its bricks' bytes, on a random
+    volume (``seed``: its shape, brick shape and densities); raises AssertionError where not. A doctest (run by
+    ``make bench-check``: the tests do not import the benchmarks):
+
+    >>> all(check_packed(s) for s in range(24))
+    True
+    """
+    from isplat.stats import interest_mask, quad_footprint_per_slice
+
+    rng = np.random.default_rng(seed)
+    shape = tuple(int(n) for n in rng.integers(1, 21, 3))
+    brick = list(SHAPES.values())[seed % len(SHAPES)]
+    d = np.where(rng.random(shape) < 0.05, 200, rng.integers(0, 150, shape)).astype(np.uint8)
+    ivs = [(180, 255)]
+    grown = apron(interest_mask(ivs)[d])
+    for axis in "ijk":              # the apron holds every voxel post's quads read, for a view along any axis
+        assert int(quad_footprint_per_slice(d, ivs, axis).sum()) <= int(grown.sum())
+    table, packed = pack_bricks({"density": d}, touched(grown, brick), brick)
+    for k, j, i in np.argwhere(grown):
+        assert lookup(table, packed["density"], brick, k, j, i) == d[k, j, i]
+    name = next(n for n, s in SHAPES.items() if s == brick)     # the bricks packed: 4 B a voxel, 12 B of checksums
+    c = count(d, ivs, "k")["shapes"][name]
+    assert c["post_bricks"] == packed["density"].shape[0]
+    assert c["post_read"] == c["post_bricks"] * (int(np.prod(brick)) * 4 + 12)
+    return True

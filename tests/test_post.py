@@ -347,7 +347,7 @@ def test_reference_weighting_is_what_the_kernel_does(tmp_path, make_scene):
     assert np.abs(img - plain).max() <= 2e-4
 
 
-THICK = (1.0, 0.9, 2.7)         # spacing i, j, k: k three times the finest (isplat.splat.post.THICK_RATIO)
+THICK = (1.0, 0.9, 4.5)         # spacing i, j, k: k five times the finest (isplat.splat.post.THICK_RATIO: 4)
 
 
 @contextlib.contextmanager
@@ -367,7 +367,7 @@ def _between(kind):
 @pytest.mark.parametrize("cam", CAMERAS)
 @pytest.mark.parametrize("proj", ["orthographic", "perspective"])
 def test_cubic_between_thick_slices_agrees_with_the_reference(tmp_path, make_scene, cam, proj, kind):
-    """Slices 2.7 times thicker than the finest spacing: the kernel's cubic along the thick in-slice axis (a or b
+    """Slices 4.5 times thicker than the finest spacing (0.9): the kernel's cubic along the thick in-slice axis (a or b
     by the view; none when the view is along it) agrees with the reference's, for both methods, and (views
     not along k) not with the linear reference."""
     shape = (6, 7, 8)
@@ -387,7 +387,7 @@ def test_cubic_between_thick_slices_agrees_with_the_reference(tmp_path, make_sce
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10 ** 6), az=st.floats(0, 360), el=st.floats(-80, 80), zoom=st.floats(0.5, 3.0),
        proj=st.sampled_from(["orthographic", "perspective"]), thick=st.integers(0, 2),
-       ratio=st.floats(2.0, 8.0), kind=st.sampled_from(["monotone", "catmull-rom"]))
+       ratio=st.floats(4.0, 10.0), kind=st.sampled_from(["monotone", "catmull-rom"]))
 def test_cubic_property_random_anisotropic_volumes_and_views(tmp_path_factory, seed, az, el, zoom, proj, thick, ratio,
                                                               kind):
     from conftest import scene_text
@@ -406,7 +406,7 @@ def test_cubic_property_random_anisotropic_volumes_and_views(tmp_path_factory, s
     assert np.abs(img - post_reference(sc, between=kind)).max() <= 2e-4
 
 
-@pytest.mark.parametrize("spacing", [(1.0, 1.0, 1.0), (1.0, 1.2, 0.8), (1.0, 1.0, 1.99)])
+@pytest.mark.parametrize("spacing", [(1.0, 1.0, 1.0), (1.0, 1.2, 0.8), (1.0, 1.0, 1.99), (0.7, 0.7, 2.5)])
 def test_below_the_ratio_images_are_the_linear_ones_bit_for_bit(tmp_path, make_scene, spacing):
     """Isotropic data, and grids less anisotropic than THICK_RATIO: the same bilinear sampler as before (the
     same float operations), bit for bit, whatever BETWEEN_SLICES says."""

@@ -453,6 +453,8 @@ def render_doc(rows, costs, size, quick, seconds, ratios=()) -> str:
 def reading(rows, costs, ratios=()) -> str:
     """The page's reading: the causes (from the earlier runs of this page, named by commit) and, with this run's
     numbers, what the cubic does."""
+    from isplat.splat import post
+
     out = ["## Reading", "",
            "**What makes the rings and terraces.** The earlier runs of this page (git log docs/thick-slices.md; "
            "b27b5b8 measured them with a converged ray caster and unshaded renders) found three causes on shaded "

@@ -19,6 +19,7 @@ it without file I/O (:func:`isplat.frame.render_frame`).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -28,6 +29,7 @@ from .errors import IsplatError
 from .splat.kernels import IndexedVoxels, WholeVolume
 from .transfer import TransferLUTs, build_luts
 
+log = logging.getLogger(__name__)
 _EMPTY_U8 = np.zeros(0, dtype=np.uint8)
 _EMPTY_U16 = np.zeros(0, dtype=np.uint16)
 GATHER_SLAB = 8      # k-slices read at a time when gathering channel values
@@ -41,9 +43,11 @@ class LoadReport:
     index its opening too), counted at the file object (:class:`isplat.fileio.ReadCounter`)."""
 
     augmented_bytes: int = 0          # bytes requested from the augmented file's channels
-    index_bytes: int = 0              # bytes requested from the index file (blocks, tables, values)
+    index_bytes: int = 0              # bytes requested from the index file (blocks, tables; version 4: values)
     augmented_file_bytes: int = 0     # bytes HDF5 read from the augmented file while selecting
     index_file_bytes: int = 0         # bytes HDF5 read from the index file (opened for this selection)
+    values_bytes: int = 0             # bytes requested from the index's values file (version 6; pre only)
+    values_file_bytes: int = 0        # bytes HDF5 read from the values file (its opening included)
     index_decoded_bytes: int = 0      # the decoded blocks (LoadedAxis arrays), before selection
     index_block_bytes: int = 0        # requested index blocks and table rows of the intervals, all axes
     index_format_version: int = 0     # 0: no index read
@@ -54,7 +58,7 @@ class LoadReport:
     index_bytes_needed: int = 0       # the index blocks and table rows of the intervals (+ /values' table)
     footprint: object = field(default=None, repr=False, compare=False)   # post: () -> (axis, voxels), lazy
     _needed: tuple | None = field(default=None, repr=False, compare=False)
-    values_from: str = "none"         # "index", "augmented slabs", "whole channels" or "none"
+    values_from: str = "none"         # "values file", "index", "augmented slabs", "whole channels" or "none"
     channels: list = field(default_factory=list)
     axes: list = field(default_factory=list)
     intervals: list = field(default_factory=list)
@@ -93,8 +97,8 @@ class LoadReport:
 
     @property
     def file_bytes(self) -> int:
-        """Bytes read from both files at the HDF5 layer."""
-        return self.augmented_file_bytes + self.index_file_bytes
+        """Bytes read from the files at the HDF5 layer (augmented, index and its values file)."""
+        return self.augmented_file_bytes + self.index_file_bytes + self.values_file_bytes
 
     @property
     def read_ratio(self) -> float:
@@ -462,13 +466,14 @@ def select(request, aug=None, idx=None) -> Selection:
         read0, io0 = (idx.bytes_read, idx.io.bytes) if idx is not None else (0, 0)  # (an index opened before:
         idx = _open_matching_index(request, aug, idx)                                 # this selection's reads)
         rep.index_format_version = idx.version
+        v0 = idx.values_counts()
         if not sel.post:
-            rep.values_from = "none" if not rep.channels or sel.empty else \
-                "index" if idx.has_values else "augmented slabs"
+            rep.values_from = "none" if not rep.channels or sel.empty else _values_source(idx, aug, slices)
         if not sel.empty:
             _select_indexed(sel, aug, idx, slices)
         rep.index_bytes = int(idx.bytes_read - read0)
         rep.index_file_bytes = int(idx.io.bytes - io0)
+        rep.values_bytes, rep.values_file_bytes = (b - a for a, b in zip(v0, idx.values_counts()))
     rep.augmented_bytes = int(aug.bytes_read)
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
     _needed(sel)
@@ -481,14 +486,16 @@ def _select_indexed(sel: Selection, aug, idx, slices) -> None:
     rep, axes = sel.report, sel.request.axes
     ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
     values = None
+    from_values = rep.values_from in ("index", "values file") and slices is None and not sel.post
     with idx.session():
         loaded = {ax: idx.load_axis(ax, ivs, slices=slices) for ax in sorted(axes)}
-        if idx.has_values and rep.channels and slices is None and not sel.post:
+        if from_values:
             values = idx.read_values(rep.channels, ivs)
     rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
-    if idx.has_values:
-        gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, idx.path)  # noqa: E731
-    else:                        # format version 2: the position-ordered channels, in k-slabs
+    if from_values:
+        source = idx.path if rep.values_from == "index" else idx.values_file.path
+        gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, source)    # noqa: E731
+    else:                        # no values file: the position-ordered channels, in k-slabs
         gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
     if slices is not None:       # a slab: its blocks only (read so), its values from the augmented k-slabs
         read = _slab_reader(aug, axes, slices)
@@ -555,7 +562,7 @@ def _needed(sel: Selection, count_full: bool = True) -> None:
     if sel.method == "full" and has_density and count_full:
         hist = np.bincount(sel.whole.density, minlength=256)
         rep.voxels_of_interest = int(sum(int(hist[lo:hi + 1].sum()) for lo, hi in rep.intervals))
-    tables = 257 * 8 if rep.values_from == "index" else 0
+    tables = 257 * 8 if rep.values_from in ("index", "values file") else 0
     rep.index_bytes_needed = 0 if sel.method == "full" else rep.index_block_bytes + tables
     rep._needed = rep.footprint = None
     if sel.post and has_density and sel.labels is None and rep.intervals:
@@ -580,6 +587,41 @@ def _footprint(sel: Selection):
     return count
 
 
+_SAID_NO_VALUES: set = set()       # indexes whose missing values file was said (once per process)
+
+
+def _values_source(idx, aug, slices) -> str:
+    """Where pre-classification reads the channel values of the voxels of interest: ``"index"`` (``/values`` of
+    a version-4 index), ``"values file"`` (beside a version-6 index; checked to be copied from ``aug``'s
+    channels), else ``"augmented slabs"`` (a slab, or no values file: said in one log line with the command that
+    writes it)."""
+    if slices is not None:
+        return "augmented slabs"
+    source = idx.values_source
+    if source == "none":
+        if idx.version >= 6 and idx.channel == "density" and str(idx.path) not in _SAID_NO_VALUES:
+            from .index.store import values_path
+
+            _SAID_NO_VALUES.add(str(idx.path))
+            log.info(f"isplat: {idx.path} has no values file ({values_path(idx.path).name}): pre-classification "
+                     f"gathers the channel values from {aug.path} in k-slabs; isplat index {aug.path} -o {idx.path} "
+                     f"--force writes it")
+        return "augmented slabs"
+    _check_values_match(idx.values_meta, idx.path if source == "index" else idx.values_file.path, aug,
+                        idx.path)
+    return source
+
+
+def _check_values_match(v, where, aug, index) -> None:
+    """The values were copied from ``aug``'s channels: the same ``spacing_ijk`` and gradient magnitude scale."""
+    if v is not None and (v.spacing_ijk != tuple(aug.spacing_ijk)
+                          or v.gradient_magnitude_scale != aug.gradient_magnitude_scale):
+        raise IsplatError(f"{where}: its channel values were copied from an augmented file with "
+                          f"spacing_ijk {v.spacing_ijk} and gradient_magnitude_scale {v.gradient_magnitude_scale}, "
+                          f"{aug.path.name} has {tuple(aug.spacing_ijk)} and {aug.gradient_magnitude_scale}; "
+                          f"rebuild it: isplat index {aug.path} -o {index} --force")
+
+
 def _open_matching_index(request, aug, idx=None):
     """The request's index (``idx``, if already open), checked to be made from ``aug``'s volume."""
     from .index import open_index
@@ -595,11 +637,5 @@ def _open_matching_index(request, aug, idx=None):
         raise IsplatError(f"{index}: index was built from another volume "
                           f"(density_sha256 {idx.density_sha256[:12]}..., {aug.path.name} has "
                           f"{aug.density_sha256[:12]}...); rebuild it with isplat index")
-    v = idx.values
-    if v is not None and (v.spacing_ijk != tuple(aug.spacing_ijk)
-                          or v.gradient_magnitude_scale != aug.gradient_magnitude_scale):
-        raise IsplatError(f"{index}: its channel values were copied from an augmented file with "
-                          f"spacing_ijk {v.spacing_ijk} and gradient_magnitude_scale {v.gradient_magnitude_scale}, "
-                          f"{aug.path.name} has {tuple(aug.spacing_ijk)} and {aug.gradient_magnitude_scale}; "
-                          f"rebuild it: isplat index {aug.path} -o {index} --force")
+    _check_values_match(idx.values, index, aug, index)      # /values inside (version 4)
     return idx

@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 4
+STATS_VERSION = 5
 
 
 def density_histogram(aug) -> np.ndarray:
@@ -195,9 +195,11 @@ def index_section(idx, aug) -> dict:
     total = sum(v["bytes"] for v in per_axis.values())
     vox = sum(v["voxels"] for v in per_axis.values())
     first = next(iter(counts.values()))
+    file_bytes = int(Path(idx.path).stat().st_size)
     return {
         "path": str(idx.path),
-        "file_bytes": int(Path(idx.path).stat().st_size),
+        "file_bytes": file_bytes,
+        "file_bytes_per_voxel": _ratio(file_bytes, vox),
         "axes": idx.axes,
         "density_ranges": [[int(lo), int(hi)] for lo, hi in idx.density_ranges],
         "voxels_indexed": int(first.sum()),
@@ -208,9 +210,19 @@ def index_section(idx, aug) -> dict:
         "per_axis": per_axis,
         "per_density_range": ranges,
         "format_version": idx.version,
-        "values": None if not idx.has_values else {"voxels": idx.values.n_voxels,
-                                                   "bytes": 257 * 8 + 3 * idx.values.n_voxels},
+        "values": _values_entry(idx),
     }
+
+
+def _values_entry(idx) -> dict | None:
+    """Where the indexed voxels' channel values are (``/values`` inside a version-4 index, or the values file
+    beside a version-6 one), their voxels and bytes, and the values file's size; None without them."""
+    if not idx.has_values:
+        return None
+    n = int(idx.values_meta.n_voxels)
+    vf = idx.values_file if idx.values is None else None
+    return {"in": idx.values_source, "path": str(vf.path if vf is not None else idx.path), "voxels": n,
+            "bytes": 257 * 8 + 3 * n, "file_bytes": int(Path(vf.path).stat().st_size) if vf is not None else None}
 
 
 def _range_entry(idx, counts, lo, hi, n_voxels) -> dict:
@@ -308,9 +320,11 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_ind
             "values_from": rep.values_from,
             "augmented_bytes": int(rep.augmented_bytes),
             "index_bytes": int(rep.index_bytes),
-            "bytes": int(rep.augmented_bytes + rep.index_bytes),
+            "values_bytes": int(rep.values_bytes),
+            "bytes": int(rep.augmented_bytes + rep.index_bytes + rep.values_bytes),
             "augmented_file_bytes_read": int(rep.augmented_file_bytes),
             "index_file_bytes_read": int(rep.index_file_bytes),
+            "values_file_bytes_read": int(rep.values_file_bytes),
             "file_bytes_read": int(rep.file_bytes),
             "technique": rep.technique,
             "needed_voxels": int(rep.needed_voxels),
@@ -351,7 +365,10 @@ def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> d
         from .index import open_index
 
         idx = open_index(idx_path)
-        open_index(idx_path).verify_all()      # every chunk of every table, block stream and value channel
+        again = open_index(idx_path)
+        again.verify_all()      # every chunk of every table, block stream and value channel
+        if again.values_file is not None:
+            again.values_file.verify_all()     # the values file beside (version 6), checked to belong to it
         if tuple(idx.shape) != tuple(aug.shape) or idx.density_sha256 != aug.density_sha256:
             raise IsplatError(f"{idx_path}: index was built from another volume (density_sha256 "
                               f"{idx.density_sha256[:12]}..., {aug_path.name} has {aug.density_sha256[:12]}...); "
@@ -364,7 +381,8 @@ def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> d
         s, a, ix = out["scene"]["loaded"], out["augmented"], out["index"]
         s["augmented_fraction"] = _ratio(s["augmented_bytes"], a["bytes"])
         s["index_fraction"] = _ratio(s["index_bytes"], ix["bytes"]) if ix else 0.0
-        whole = a["file_bytes"] + (ix["file_bytes"] if ix else 0)
+        whole = a["file_bytes"] + (ix["file_bytes"] if ix else 0) + \
+            ((ix["values"]["file_bytes"] or 0) if ix and ix["values"] else 0)
         s["files_bytes"] = int(whole)
         s["files_fraction"] = _ratio(s["bytes"], whole)
     return out
@@ -439,7 +457,7 @@ def format_table(s: dict) -> str:
         row("density ranges indexed", ", ".join(f"{lo}..{hi}" for lo, hi in ix["density_ranges"]))
         row("voxels indexed (per axis)", f"{ix['voxels_indexed']:,} ({_pct(ix['voxels_indexed'] / a['voxels'])})")
         row("index total", f"{_b(ix['bytes'])}, {ix['bytes_per_voxel']:.3f} B per indexed voxel per axis, "
-                           f"{ix['bytes_per_volume_voxel']:.3f} B per volume voxel")
+                           f"{ix['bytes_per_volume_voxel']:.3f} B per volume voxel (without the channel values)")
         for ax, v in ix["per_axis"].items():
             row(f"axis {ax}", f"{_b(v['bytes'])}: {v['entries']:,} blocks, {v['block_bytes_per_voxel']:.3f} B/voxel "
                               f"in blocks, {v['bytes_per_voxel']:.3f} B/voxel with tables, decoded "
@@ -449,14 +467,19 @@ def format_table(s: dict) -> str:
             row(f"densities {lo}..{hi}", f"{rg['voxels']:,} voxels ({_pct(rg['fraction'])}), "
                                         f"{_b(rg['bytes'])} over all axes")
         row("decoded, all axes", _b(ix["decoded_bytes"]))
-        if ix["values"]:
-            row("channel values", f"{_b(ix['values']['bytes'])}: normal and gradient magnitude of the "
-                                  f"{ix['values']['voxels']:,} indexed voxels, by density (format "
-                                  f"{ix['format_version']})")
+        row("file size", f"{_b(ix['file_bytes'])}, {ix['file_bytes_per_voxel']:.3f} B per indexed voxel per axis "
+                         f"(format {ix['format_version']})")
+        v = ix["values"]
+        if v and v["in"] == "values file":
+            row("channel values", f"{v['path']}: {_b(v['file_bytes'])} on disk, {_b(v['bytes'])} of normals and "
+                                  f"gradient magnitudes of the {v['voxels']:,} indexed voxels, by density (read by "
+                                  f"pre-classification only)")
+        elif v:
+            row("channel values", f"{_b(v['bytes'])} inside the index (/values, format {ix['format_version']}): "
+                                  f"normal and gradient magnitude of the {v['voxels']:,} indexed voxels, by density")
         else:
-            row("channel values", f"none (format {ix['format_version']}: scenes read them from the augmented "
-                                  f"file; rebuild with isplat index to read only the voxels of interest)")
-        row("file size", _b(ix["file_bytes"]))
+            row("channel values", "no values file (isplat index --no-values): pre-classification reads them from "
+                                  "the augmented file; isplat index AUG.h5 -o IDX.h5 --force writes it")
     sc = s.get("scene")
     if sc:
         head(f"scene  {sc['path']}  (view {sc['view']}, method {sc['method']}, {sc['projection']}, "
@@ -491,9 +514,12 @@ def format_table(s: dict) -> str:
             row("loaded: index", f"{_b(ld['index_bytes'])} = {_pct(ld['index_fraction'])} of the index, axes "
                                  f"{''.join(ld['axes'])}, decoded {_b(ld['index_decoded_bytes'])}")
         row("loaded: total", f"{_b(ld['bytes'])} = {_pct(ld['files_fraction'])} of {_b(ld['files_bytes'])} on disk")
-        row("channel values from", {"index": "the index (only the voxels of interest)",
-                                    "augmented slabs": "the augmented file, in slabs of 8 k-slices (index format "
-                                                       "2; rebuild it with isplat index to read only theirs)",
+        if ld.get("values_file_bytes_read"):
+            row("loaded: values file", f"{_b(ld['values_bytes'])} ({_b(ld['values_file_bytes_read'])} read)")
+        row("channel values from", {"index": "the index's /values (only the voxels of interest)",
+                                    "values file": "the index's values file (only the voxels of interest)",
+                                    "augmented slabs": "the augmented file, in slabs of 8 k-slices (no values "
+                                                       "file; isplat index writes it, to read only theirs)",
                                     "whole channels": "the augmented file, whole channels (full method, or "
                                                       "post-classification: the neighbours of the voxels of "
                                                       "interest are sampled too)",

@@ -373,7 +373,7 @@ def rehash(path: Path) -> None:
             del f[chunkhash.GROUP]
         if chunkhash.CHECK_ATTR in f.attrs:
             del f.attrs[chunkhash.CHECK_ATTR]
-        (finish_index if f.attrs["format"] == b"isplat-index" else finish_augmented)(f)
+        (finish_index if f.attrs["format"] in (b"isplat-index", b"isplat-index-values") else finish_augmented)(f)
 
 
 # Mutant classes that byte damage below HDF5 does not make, and that Fletcher-32 cannot see (issue 30): each is

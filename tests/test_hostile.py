@@ -514,7 +514,7 @@ def _big_endian(attrs, name, value):
     ("index/full.idx.h5", "/", "format_version", _big_endian, "H5T_STD_I64BE"),
     ("index/full.idx.h5", "axes/k", "n_slices", _big_endian, "H5T_STD_I64BE"),
     ("index/full.idx.h5", "axes/k", "axis", _ascii, "ASCII string"),
-    ("index/full.idx.h5", "values", "gradient_magnitude_scale", _big_endian, "H5T_IEEE_F64BE"),
+    ("index/full.v4.idx.h5", "values", "gradient_magnitude_scale", _big_endian, "H5T_IEEE_F64BE"),
 ])
 def test_attribute_types_exactly_as_formats_say(tmp_path, rel, obj, name, make, needle):
     from isplat.augfile import open_augmented

@@ -74,7 +74,8 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
     assert np.array_equal(np.load(EXAMPLES / f"{name}.npy"), vol)
     path = EXAMPLES / f"{name}.idx.h5"
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(4)
+        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(6)
+        assert "values" not in f                                     # version 6: in the values file (§9)
         assert f.attrs["format_version"].dtype == np.dtype("<i8")
         assert f.attrs["density_sha256"].decode() == density_sha256(vol)
         assert f.id.get_create_plist().get_version()[0] >= 2       # superblock with checksums
@@ -98,7 +99,7 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
             for r in range(r0, r1):
                 got = loaded.positions[loaded.block_voxel_ptr[r]:loaded.block_voxel_ptr[r + 1]]
                 assert np.array_equal(got, np.flatnonzero(sl == loaded.block_density[r]))
-    check_values(ex, vol, path)
+    check_values(ex, vol, EXAMPLES / f"{name}.values.idx.h5", path)
     # regenerating gives the same file content
     out = tmp_path / "x.idx.h5"
     write_index(out, build_index(vol, "".join(ex["axes"]), [tuple(r) for r in ex["density_ranges"]]),
@@ -116,9 +117,10 @@ def augmented_channels(vol):
     return augment_array(vol, (1.0, 1.0, 1.0), (0.0, 255.0))
 
 
-def check_values(ex, vol, path):
-    """/values (formats/index.md §9): rows by density then flat position, exactly the JSON's hand-derived order,
-    the values of the augmented channels at those positions, and a pointer table counting each density."""
+def check_values(ex, vol, path, index_path=None):
+    """/values (formats/index.md §9) of ``path`` (a version-4 index, or the values file of ``index_path``): rows by
+    density then flat position, exactly the JSON's hand-derived order, the values of the augmented channels at
+    those positions, and a pointer table counting each density."""
     aug = augmented_channels(vol)
     inside = np.zeros(256, bool)
     for lo, hi in ex["density_ranges"]:
@@ -139,25 +141,55 @@ def check_values(ex, vol, path):
         assert np.array_equal(g["gradient_magnitude"][()], aug["gradient_magnitude"].ravel()[reference])
         assert tuple(g.attrs["spacing_ijk"]) == (1.0, 1.0, 1.0)
         assert g.attrs["gradient_magnitude_scale"] == aug["gradient_magnitude_scale"]
-    idx = open_index(path)
-    assert idx.version == 4 and idx.has_values and idx.values.n_voxels == reference.size
+        if index_path is not None:          # the values file: its root attributes and its index's identity
+            with h5py.File(index_path, "r") as fi:
+                assert f.attrs["format"] == b"isplat-index-values" and f.attrs["format_version"] == np.int64(6)
+                assert f.attrs["format_version"].dtype == np.dtype("<i8") and "axes" not in f
+                assert f.attrs["index_chunk_hash_check"] == fi.attrs["chunk_hash_check"]
+                for a in ("shape", "density_sha256", "density_ranges"):
+                    assert np.array_equal(f.attrs[a], fi.attrs[a]), a
+    idx = open_index(index_path or path)
+    assert idx.version == (6 if index_path else 4) and idx.has_values
+    assert idx.values_source == ("values file" if index_path else "index")
+    assert idx.values_meta.n_voxels == reference.size
     ptr, vals = idx.read_values(["normal", "gradient_magnitude"], ex["density_ranges"])
     assert np.array_equal(vals["normal"], aug["normal"].ravel()[reference])
 
 
-def test_index_without_values_is_read():
-    """gaps.novalues.idx.h5: the same index without /values (OPTIONAL in version 4): its blocks load as the full
-    file's do, and asking it for values names the command that rebuilds it."""
-    from isplat.errors import IsplatError
-
-    ex, vol = load("gaps")
-    old, new = open_index(EXAMPLES / "gaps.novalues.idx.h5"), open_index(EXAMPLES / "gaps.idx.h5")
-    assert old.version == 4 and not old.has_values and new.version == 4 and new.has_values
+@pytest.mark.parametrize("name", ["gaps", "full"])
+def test_version_4_with_values_inside_is_read(name):
+    """NAME.v4.idx.h5 (format version 4, as isplat wrote it before version 6: the channel values inside, in
+    ``/values``): still read; its blocks and values equal the version-6 pair's, and §9's checks hold for it."""
+    ex, vol = load(name)
+    old, new = open_index(EXAMPLES / f"{name}.v4.idx.h5"), open_index(EXAMPLES / f"{name}.idx.h5")
+    assert old.version == 4 and old.values_source == "index" and old.values_file is None
+    assert new.version == 6 and new.values_source == "values file"
     for axis in ex["axes"]:
         a, b = old.load_axis(axis, ex["density_ranges"]), new.load_axis(axis, ex["density_ranges"])
         assert np.array_equal(a.positions, b.positions) and np.array_equal(a.block_density, b.block_density)
-    with pytest.raises(IsplatError, match=r"holds no channel values .*; rebuild it: isplat index "):
-        old.read_values(["normal"], [(1, 255)])
+    for x, y in zip(old.read_values(["normal", "gradient_magnitude"], ex["density_ranges"]),
+                    new.read_values(["normal", "gradient_magnitude"], ex["density_ranges"])):
+        for u, v in (zip(x.values(), y.values()) if isinstance(x, dict) else [(x, y)]):
+            assert np.array_equal(u, v)
+    check_values(ex, vol, EXAMPLES / f"{name}.v4.idx.h5")
+
+
+def test_index_without_its_values_file_is_read(tmp_path):
+    """gaps.idx.h5 alone (no values file beside it, as `isplat index --no-values` writes it): its blocks load, and
+    asking it for values names the missing file and the command that writes it."""
+    import shutil
+
+    from isplat.errors import IsplatError
+
+    ex, vol = load("gaps")
+    shutil.copy(EXAMPLES / "gaps.idx.h5", tmp_path / "gaps.idx.h5")
+    alone, pair = open_index(tmp_path / "gaps.idx.h5"), open_index(EXAMPLES / "gaps.idx.h5")
+    assert not alone.has_values and alone.values_source == "none" and pair.has_values
+    for axis in ex["axes"]:
+        a, b = alone.load_axis(axis, ex["density_ranges"]), pair.load_axis(axis, ex["density_ranges"])
+        assert np.array_equal(a.positions, b.positions) and np.array_equal(a.block_density, b.block_density)
+    with pytest.raises(IsplatError, match=r"has no values file .*gaps.values.idx.h5; rebuild it: isplat index "):
+        alone.read_values(["normal"], [(1, 255)])
 
 
 @pytest.mark.parametrize("name,version", [("gaps.v2.idx.h5", 2)])
@@ -165,6 +197,6 @@ def test_old_versions_are_refused_with_the_rebuild_command(name, version):
     """Files of versions 2 and 3 (no chunk hashes) are refused, naming the command that rebuilds them."""
     from isplat.errors import IsplatError
 
-    with pytest.raises(IsplatError, match=rf"'format_version' is {version}, this isplat reads version 4; files of "
+    with pytest.raises(IsplatError, match=rf"'format_version' is {version}, this isplat reads version 6; files of "
                                           rf"version {version} lack this version's checksums, rebuild it: isplat index"):
         open_index(EXAMPLES / name)

@@ -349,7 +349,8 @@ def _spec_key(f, datasets, attributes) -> bytes:
 
 
 @pytest.mark.parametrize("rel", ["augmented/valid.aug.h5", "augmented/valid-v3.aug.h5", "index/gaps.idx.h5",
-                                 "index/gaps.novalues.idx.h5", "augmented/valid.labels.idx.h5"])
+                                 "index/gaps.values.idx.h5", "index/gaps.v4.idx.h5", "index/full.values.idx.h5",
+                                 "augmented/valid.labels.idx.h5"])
 def test_chunk_hashes_follow_the_spec(rel):
     """Every row of every table of the committed examples, recomputed from the spec's text (not isplat's code)."""
     import hashlib
@@ -365,9 +366,11 @@ def test_chunk_hashes_follow_the_spec(rel):
             datasets = [f"values/{n}" for n in ("density_voxel_ptr", "gradient_magnitude", "normal") if "values" in f]
             attributes = [("", n) for n in ("format", "format_version", "shape", "density_sha256", "density_ranges")]
             attributes += [("", n) for n in ("channel", "labels_sha256") if "channel" in f.attrs]   # version 5
+            if f.attrs["format"] == b"isplat-index-values":                                       # §9, version 6
+                attributes += [("", "index_chunk_hash_check")]
             attributes += [("values", n) for n in ("spacing_ijk", "gradient_magnitude_scale") if "values" in f]
             for a in "ijk":
-                if a in f["axes"]:
+                if "axes" in f and a in f["axes"]:
                     datasets += [f"axes/{a}/{n}" for n in ("density_entry_ptr", "entry_slice", "entry_voxel_count",
                                                            "entry_byte_offset", "bytes")]
                     attributes += [(f"axes/{a}", n) for n in ("axis", "n_slices", "in_slice_axes", "n_a", "n_b",

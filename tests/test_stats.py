@@ -1,6 +1,8 @@
 """`isplat stats`: figures equal direct numpy counts; --json keys; empty transfer function; one-line errors."""
 
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -106,10 +108,11 @@ def test_spatial_ratio_equals_numpy(vol, with_index):
     ld = sc["loaded"]
     if with_index:
         assert sc["voxels_examined"] == want           # the indexed method visits exactly those voxels
-        assert ld["channels"] == ["normal"] and ld["augmented_bytes"] == 0 and ld["values_from"] == "index"
-        assert ld["index_bytes"] > 2 * want and ld["index_decoded_bytes"] > 4 * want
-        assert ld["bytes_needed"] == ld["index_bytes"]        # the blocks, their tables and 2 B per normal
-        assert ld["file_bytes_read"] == ld["augmented_file_bytes_read"] + ld["index_file_bytes_read"]
+        assert ld["channels"] == ["normal"] and ld["augmented_bytes"] == 0 and ld["values_from"] == "values file"
+        assert ld["values_bytes"] == 2 * want + 257 * 8 and ld["index_decoded_bytes"] > 4 * want
+        assert ld["bytes_needed"] == ld["index_bytes"] + ld["values_bytes"]   # blocks, tables, 2 B per normal
+        assert ld["file_bytes_read"] == ld["augmented_file_bytes_read"] + ld["index_file_bytes_read"] + \
+            ld["values_file_bytes_read"]
         assert ld["read_ratio"] == pytest.approx(ld["file_bytes_read"] / ld["bytes_needed"])
     else:
         assert sc["voxels_examined"] == d.size         # the full method visits every voxel
@@ -120,7 +123,7 @@ def test_spatial_ratio_equals_numpy(vol, with_index):
                                                                                          "samples")
     assert 0 < sc[drawn] and sc[other] == 0                 # each counter counts its own technique's work
     assert sc["voxels_splatted"] <= want
-    assert ld["bytes"] == ld["augmented_bytes"] + ld["index_bytes"]
+    assert ld["bytes"] == ld["augmented_bytes"] + ld["index_bytes"] + ld["values_bytes"]
     assert ld["augmented_fraction"] == pytest.approx(ld["augmented_bytes"] / (4 * d.size))
     assert ld["held_bytes_per_voxel_of_interest"] == pytest.approx(ld["held_bytes"] / want)
 
@@ -157,11 +160,14 @@ def test_json_keys(vol, capsys):
     assert {"path", "file_bytes", "shape_ijk", "voxels", "spacing_ijk", "density_window", "density_step",
             "gradient_magnitude_scale", "density_sha256", "source", "source_format", "axes_lps", "channel_bytes",
             "bytes", "bytes_per_voxel"} == set(s["augmented"])
-    assert {"path", "file_bytes", "axes", "density_ranges", "voxels_indexed", "bytes", "bytes_per_voxel",
-            "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range", "format_version",
-            "values"} == set(s["index"])
-    assert s["index"]["format_version"] == 4
-    assert s["index"]["values"] == {"voxels": d.size, "bytes": 257 * 8 + 3 * d.size}
+    assert {"path", "file_bytes", "file_bytes_per_voxel", "axes", "density_ranges", "voxels_indexed", "bytes",
+            "bytes_per_voxel", "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range",
+            "format_version", "values"} == set(s["index"])
+    assert s["index"]["format_version"] == 6
+    vpath = Path(str(idx).replace(".idx.h5", ".values.idx.h5"))
+    assert s["index"]["file_bytes_per_voxel"] == pytest.approx(os.path.getsize(idx) / (3 * d.size))
+    assert s["index"]["values"] == {"in": "values file", "path": str(vpath), "voxels": d.size,
+                                    "bytes": 257 * 8 + 3 * d.size, "file_bytes": os.path.getsize(vpath)}
     assert {"bytes", "block_bytes", "entries", "voxels", "escape_width", "bytes_per_voxel",
             "block_bytes_per_voxel", "decoded_bytes"} == set(s["index"]["per_axis"]["k"])
     assert {"path", "view", "method", "projection", "image", "intervals", "intervals_input_units", "ratio_source",
@@ -170,9 +176,10 @@ def test_json_keys(vol, capsys):
     assert {"channels", "axes", "augmented_bytes", "index_bytes", "bytes", "index_decoded_bytes", "held_bytes",
             "augmented_fraction", "index_fraction", "files_bytes", "files_fraction", "values_from",
             "augmented_file_bytes_read", "index_file_bytes_read", "file_bytes_read", "bytes_needed", "read_ratio",
+            "values_bytes", "values_file_bytes_read",
             "held_bytes_per_voxel_of_interest", "technique", "needed_voxels", "needed_axis",
             "channel_bytes_per_voxel", "channel_bytes_needed", "index_bytes_needed"} == set(s["scene"]["loaded"])
-    assert s["stats_version"] == 4
+    assert s["stats_version"] == 5
     # the table carries the same figures
     code, table, _ = run(capsys, aug, idx, "--scene", scene, "-q")
     assert code == 0 and f"{s['scene']['voxels_of_interest']:,}" in table and "spatial ratio" in table

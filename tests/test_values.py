@@ -66,26 +66,34 @@ def volumes(draw):
 
 
 @SETTINGS
-@given(volumes(), st.integers(1, 40), st.integers(1, 60))
-def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget, slab_voxels):
+@given(volumes(), st.integers(1, 40), st.integers(1, 60), st.booleans())
+def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget, slab_voxels, inside):
     """The writer (in windows of ``budget`` bytes, k-slabs of about ``slab_voxels``), the reader and the
     per-axis reordering against lexsort and plain indexing of the position-ordered channels; the slab gathering
-    of version 2 agrees."""
+    agrees. ``inside``: the values in the index (``/values`` of version 4), else in its values file (version 6)."""
     dens, gm, nrm, ranges, ivs = v
     with tempfile.TemporaryDirectory() as t:
         t = Path(t)
         aug = t / "a.h5"
         write_augmented(aug, dens, gm, nrm, (1.0, 2.0, 0.5), (0.0, 255.0), 0.25)
-        idx_path = t / "i.h5"
+        idx_path = t / "i.idx.h5"
         from isplat.augfile import open_augmented
         a = open_augmented(aug)
         with fileio.create_hdf5(idx_path) as f:
-            store._write_root(f, dens.shape, a.density_sha256, ranges)
-            store.copy_values(f, a, dens, ranges, budget=budget, slab_voxels=slab_voxels)
+            store._write_root(f, dens.shape, a.density_sha256, ranges, version=4 if inside else 6)
+            if inside:
+                store.copy_values(f, a, dens, ranges, budget=budget, slab_voxels=slab_voxels)
             for ax, ai in build_index(dens, "ijk", ranges).items():
                 store._write_axis(f, ai)
             store.finish_index(f)
+            check = f.attrs["chunk_hash_check"].decode()
+        if not inside:
+            with fileio.create_hdf5(t / "i.values.idx.h5") as f:
+                store._write_values_root(f, dens.shape, a.density_sha256, ranges, check)
+                store.copy_values(f, a, dens, ranges, budget=budget, slab_voxels=slab_voxels)
+                store.finish_index(f)
         idx = open_index(idx_path)
+        assert idx.version == (4 if inside else 6) and idx.values_source == ("index" if inside else "values file")
         ref = reference_order(dens, ranges)
         ptr, vals = idx.read_values(["normal", "gradient_magnitude"], ranges)
         assert np.array_equal(vals["normal"], nrm.ravel()[ref])
@@ -147,7 +155,8 @@ def test_selection_reads_only_the_values_and_they_are_right(tmp_path, make_scene
                        transfer="opacity = [[100, 0], [110, 1], [255, 1]]\n"
                                 "gradient_opacity = [[0, 0.5], [255, 1]]")
     sel = select_from_files(scene, "ijk")
-    assert sel.report.values_from == "index" and sel.report.augmented_bytes == 0
+    assert sel.report.values_from == "values file" and sel.report.augmented_bytes == 0
+    assert sel.report.values_bytes > 0 and sel.report.values_file_bytes >= sel.report.values_bytes
     assert set(sel.report.channels) == {"normal", "gradient_magnitude"}
     want = int(((dens >= 101) & (dens <= 255)).sum())
     assert sel.report.voxels_of_interest == want
@@ -155,15 +164,15 @@ def test_selection_reads_only_the_values_and_they_are_right(tmp_path, make_scene
         flat = _selected_flat(s, shape)
         assert np.array_equal(s.normal, nrm.ravel()[flat]) and np.array_equal(s.gradient_magnitude, gm.ravel()[flat])
         assert np.array_equal(s.density, dens.ravel()[flat])
-    # the same index without /values (format version 2, or 4 without them): the same selection, gathered from the
-    # augmented file's slabs
+    # the same index without a values file: the same selection, gathered from the augmented file's slabs
     v2 = tmp_path / "v2.idx.h5"
     write_index(v2, build_index(dens), shape, density_sha256(dens))
     old = select_from_files(make_scene(aug, v2, image="width = 12\nheight = 12",
                                        transfer="opacity = [[100, 0], [110, 1], [255, 1]]\n"
                                                 "gradient_opacity = [[0, 0.5], [255, 1]]"), "ijk")
     assert old.report.values_from == "augmented slabs" and old.report.augmented_bytes > 0
-    assert old.report.index_format_version == 4 and sel.report.index_format_version == 4
+    assert old.report.index_format_version == 6 and sel.report.index_format_version == 6
+    assert old.report.values_bytes == 0 == old.report.values_file_bytes
     for ax in "ijk":
         for a, b in zip(old.axes[ax].arrays(), sel.axes[ax].arrays()):
             assert np.array_equal(a, b)
@@ -202,7 +211,7 @@ def test_bytes_read_for_an_interval_are_its_chunks_and_little_metadata(big_index
     with its 4-byte checksum: at most one partial chunk at each end), plus at most META_BOUND of metadata."""
     path, trace = big_index
     lo, hi = min(lo, hi), max(lo, hi)
-    idx = open_index(path)
+    idx = open_index(path).values_file          # the values file (format version 6)
     with idx.session():
         ptr = idx.value_ptr()
         trace.reads.clear()
@@ -210,7 +219,7 @@ def test_bytes_read_for_an_interval_are_its_chunks_and_little_metadata(big_index
         _, vals = idx.read_values([channel], [(lo, hi)])
         read = idx.io.bytes - before
     r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
-    rows_per_chunk, chunks = _chunks(path, f"values/{channel}")
+    rows_per_chunk, chunks = _chunks(store.values_path(path), f"values/{channel}")
     touched = range(r0 // rows_per_chunk, -(-r1 // rows_per_chunk)) if r1 > r0 else range(0)
     chunk_bytes = sum(chunks[c][1] for c in touched)
     inside = {chunks[c][0] for c in touched}
@@ -238,15 +247,18 @@ def big_index(tmp_path_factory):
 
 def test_selection_bytes_read_against_needed(tmp_path, make_scene):
     """The report's figures: bytes needed = voxels of interest x 2 B of normal + the index blocks and tables
-    requested + the 257-row pointer table; bytes read (HDF5 layer) cover at least what was requested."""
+    requested + the 257-row pointer table of the values file; bytes read (HDF5 layer) cover at least what was
+    requested, from the index and its values file."""
     dens = np.random.default_rng(5).choice(np.array([0, 120, 200], np.uint8), size=(20, 24, 28))
     aug, idx = write_volume(tmp_path, dens)
     sel = select_from_files(_scene(make_scene, aug, idx), "k")
     rep = sel.report
     voi = int((dens >= 101).sum())
-    assert rep.voxels_of_interest == voi
-    assert rep.bytes_needed == 2 * voi + rep.index_block_bytes + 257 * 8 == rep.index_bytes
-    assert rep.index_file_bytes >= rep.index_bytes and rep.file_bytes == rep.index_file_bytes + rep.augmented_file_bytes
+    assert rep.voxels_of_interest == voi and rep.values_from == "values file"
+    assert rep.index_bytes == rep.index_block_bytes and rep.values_bytes == 2 * voi + 257 * 8
+    assert rep.bytes_needed == 2 * voi + rep.index_block_bytes + 257 * 8 == rep.index_bytes + rep.values_bytes
+    assert rep.index_file_bytes >= rep.index_bytes and rep.values_file_bytes >= rep.values_bytes
+    assert rep.file_bytes == rep.index_file_bytes + rep.values_file_bytes + rep.augmented_file_bytes
     assert rep.read_ratio == rep.file_bytes / rep.bytes_needed
 
 
@@ -256,14 +268,15 @@ def test_values_from_another_augmentation_are_refused(tmp_path, make_scene):
     aug, idx = write_volume(tmp_path, dens)
     aug2, _ = write_volume(tmp_path, dens, spacing=(1.0, 1.0, 2.0), name="other", index=False)
     with pytest.raises(IsplatError, match=r"channel values were copied from an augmented file with spacing_ijk "
-                                          r"\(1.0, 1.0, 1.0\).*rebuild it: isplat index .*other.aug.h5 -o .* --force"):
+                                          r"\(1.0, 1.0, 1.0\).*rebuild it: isplat index .*other.aug.h5 -o .*v.idx.h5 "
+                                          r"--force"):
         select_from_files(_scene(make_scene, aug2, idx), "k")
 
 
 @pytest.mark.parametrize("case, msg", [
     ("ptr", "density_voxel_ptr is not non-decreasing from 0 to the"),
     ("count", "/values holds 149 voxels of density 199, the blocks of axis k 0: corrupt index"),
-    ("missing", "attribute 'chunk_hash_check' does not match the file's attributes and datasets"),
+    ("missing", "group '/values' is missing"),
     ("length", "gradient_magnitude: length 149, expected 150"),
     ("attr", "attribute 'gradient_magnitude_scale' has type int64, expected float64"),
 ])
@@ -272,7 +285,8 @@ def test_corrupt_values_are_refused_with_one_line(tmp_path, make_scene, case, ms
     dens[:, :, :5] = 200
     aug, idx = write_volume(tmp_path, dens, index=False)
     build_index_file(aug, idx, ranges=[(150, 255)])
-    with h5py.File(idx, "r+") as f:
+    vfile = store.values_path(idx)
+    with h5py.File(vfile, "r+") as f:
         g = f["values"]
         if case == "ptr":
             p = g["density_voxel_ptr"][()]
@@ -291,12 +305,12 @@ def test_corrupt_values_are_refused_with_one_line(tmp_path, make_scene, case, ms
         elif case == "attr":
             g.attrs["gradient_magnitude_scale"] = np.int64(1)
     if case != "missing":   # an editor who recomputes the chunk hashes: the structural checks behind them
-        fuzzlab.rehash(idx)
+        fuzzlab.rehash(vfile)
     scene = make_scene(aug, idx, image="width = 12\nheight = 12", transfer="opacity = [[150, 0], [160, 1], [255, 1]]")
     with pytest.raises(IsplatError) as exc:
         select_from_files(scene, "k")
     text = str(exc.value)
-    assert msg in text and str(idx) in text and "\n" not in text, text
+    assert msg in text and str(vfile) in text and "\n" not in text, text
 
 
 def test_index_cli_on_a_sample_volume(tmp_path, capsys):
@@ -315,11 +329,13 @@ def test_index_cli_on_a_sample_volume(tmp_path, capsys):
     idx = open_index(tmp_path / "e.idx.h5")
     _, vals = idx.read_values(["normal"], [(0, 255)])
     assert np.array_equal(vals["normal"], nrm.ravel()[reference_order(dens, [(0, 255)])])
-    assert idx.axes == "ijk" and idx.version == 4
+    assert idx.axes == "ijk" and idx.version == 6 and idx.values_source == "values file"
+    assert (tmp_path / "e.values.idx.h5").is_file()
 
 
-def test_stats_of_a_version_2_index_say_where_values_come_from(tmp_path, make_scene):
-    """`isplat stats` on a format-2 index: the values come from the augmented file, and the rebuild is named."""
+def test_stats_of_an_index_without_values_file_say_where_values_come_from(tmp_path, make_scene):
+    """`isplat stats` on an index without its values file: the values come from the augmented file, and the
+    command that writes them is named."""
     from isplat.stats import collect, format_table
 
     dens = np.random.default_rng(7).choice(np.array([0, 120, 200], np.uint8), size=(6, 7, 8))
@@ -330,9 +346,82 @@ def test_stats_of_a_version_2_index_say_where_values_come_from(tmp_path, make_sc
     scene.write_text(f'version = 1\n[data]\naugmented = "{aug}"\nindex = "{v2}"\n[image]\nwidth = 8\nheight = 8\n'
                      '[transfer]\nopacity = [[100, 0], [110, 1], [255, 1]]\n')
     s = collect(aug, v2, scene=scene)
-    assert s["index"]["format_version"] == 4 and s["index"]["values"] is None
+    assert s["index"]["format_version"] == 6 and s["index"]["values"] is None
     ld = s["scene"]["loaded"]
     assert ld["values_from"] == "augmented slabs" and ld["augmented_bytes"] == 2 * dens.size
     assert ld["bytes_needed"] == 2 * int((dens >= 101).sum()) + ld["index_bytes"]
     table = format_table(s)
-    assert "rebuild with isplat index" in table and "in slabs of 8 k-slices" in table
+    assert "no values file (isplat index --no-values)" in table and "in slabs of 8 k-slices" in table
+    assert "isplat index AUG.h5 -o IDX.h5 --force writes it" in table
+
+
+def _pre_scene(make_scene, aug, idx):
+    return make_scene(aug, idx, image="width = 12\nheight = 12", transfer="opacity = [[100, 0], [110, 1], [255, 1]]")
+
+
+def test_without_the_values_file_pre_gathers_from_the_augmented_file_and_says_so(tmp_path, make_scene, caplog):
+    """Version 6 without its values file: the same selection, gathered from the augmented file's k-slabs, and one
+    log line naming the missing file and the command that writes it."""
+    import logging
+
+    r = np.random.default_rng(8)
+    dens = r.choice(np.array([0, 120, 200], np.uint8), size=(7, 8, 9))
+    nrm = r.integers(0, 65536, dens.shape, dtype=np.uint16)
+    aug, idx = write_volume(tmp_path, dens, normal=nrm)
+    with_values = select_from_files(_pre_scene(make_scene, aug, idx), "ijk")
+    store.values_path(idx).unlink()
+    with caplog.at_level(logging.INFO, logger="isplat"):
+        without = select_from_files(_pre_scene(make_scene, aug, idx), "ijk")
+    assert with_values.report.values_from == "values file" and without.report.values_from == "augmented slabs"
+    said = [m for m in caplog.messages if "has no values file" in m]
+    assert len(said) == 1 and "v.values.idx.h5" in said[0] and f"isplat index {aug} -o {idx} --force" in said[0]
+    for ax in "ijk":
+        for a, b in zip(with_values.axes[ax].arrays(), without.axes[ax].arrays()):
+            assert np.array_equal(a, b)
+
+
+def test_values_file_of_another_index_is_refused_naming_both_files(tmp_path, make_scene):
+    """A values file from another volume, or from another index of the same volume (other density ranges), is
+    refused in one line naming both files and the rebuild command; so is a version-6 index with '/values'."""
+    dens = np.random.default_rng(9).choice(np.array([0, 120, 200], np.uint8), size=(5, 6, 7))
+    aug, idx = write_volume(tmp_path, dens)
+    _, other = write_volume(tmp_path, dens[::-1].copy(), name="o")            # another volume
+    part = tmp_path / "p.idx.h5"
+    build_index_file(aug, part, ranges=[(100, 255)])                             # same volume, other ranges
+    for stranger in (store.values_path(other), store.values_path(part)):
+        store.values_path(idx).write_bytes(stranger.read_bytes())
+        with pytest.raises(IsplatError) as exc:
+            select_from_files(_pre_scene(make_scene, aug, idx), "k")
+        text = str(exc.value)
+        assert f"{store.values_path(idx)}: the channel values of another index than {idx}" in text, text
+        assert f"isplat index AUG.h5 -o {idx} --force" in text and "\n" not in text
+    with h5py.File(idx, "r+") as f:                                             # version 6 with /values inside
+        f.create_group("values")
+    with pytest.raises(IsplatError, match=r"a version-6 index has no '/values' \(its channel values are in "
+                                          r"v.values.idx.h5, beside it\); rebuild it: isplat index"):
+        open_index(idx)
+
+
+def test_index_cli_values_file_no_values_and_force(tmp_path, capsys):
+    """`isplat index` writes NAME.values.idx.h5 beside NAME.idx.h5; an existing one is not overwritten without
+    --force (and the index is not written either); --no-values writes none and, with --force, removes a stale one."""
+    from isplat.cli.main import main
+
+    def run(*args):
+        with pytest.raises(SystemExit) as exc:
+            main([str(a) for a in args])
+        return exc.value.code, capsys.readouterr().err
+
+    dens = np.random.default_rng(10).choice(np.array([0, 120, 200], np.uint8), size=(5, 6, 7))
+    aug, _ = write_volume(tmp_path, dens, index=False)
+    out, vals = tmp_path / "x.idx.h5", tmp_path / "x.values.idx.h5"
+    vals.write_bytes(b"someone else's file")
+    code, err = run("index", aug, "-o", out, "-q")
+    assert code != 0 and str(vals) in err and "--force" in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists() and vals.read_bytes() == b"someone else's file"
+    assert run("index", aug, "-o", out, "-q", "--force")[0] == 0
+    assert open_index(out).values_source == "values file"
+    assert run("index", aug, "-o", out, "-q", "--force", "--no-values")[0] == 0
+    assert out.is_file() and not vals.exists() and open_index(out).values_source == "none"
+    assert run("index", aug, "-o", tmp_path / "y.idx.h5", "-q", "--no-values")[0] == 0
+    assert not (tmp_path / "y.values.idx.h5").exists()

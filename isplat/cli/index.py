@@ -17,22 +17,29 @@ log = logging.getLogger(__name__)
 @click.option("--densities", default=None, metavar="LO:HI[,LO:HI...]",
               help="Index only these inclusive density ranges (default 0:255, all).")
 @click.option("--axes", default="ijk", show_default=True, help="Slice axes to index: a subset of 'ijk'.")
+@click.option("--no-values", "no_values", is_flag=True,
+              help="Do not write OUT.values.idx.h5 (the indexed voxels' normals and gradient magnitudes, read only by "
+                   "render.classification = \"pre\"; without it pre gathers them from AUG.h5).")
 @force_option
 @quiet_option
-def index(augmented, output, densities, axes, force):
-    """Index AUG.h5 by density, slice by slice, along each axis; write OUT.idx.h5 atomically."""
+def index(augmented, output, densities, axes, force, no_values):
+    """Index AUG.h5 by density, slice by slice, along each axis; write OUT.idx.h5 atomically, and beside it
+    OUT.values.idx.h5, the channel values the pre-classified technique reads (formats/index.md §9)."""
     from ..fileio import check_output
     from ..index import build_index_file, open_index, parse_axes, parse_ranges
 
     axes = parse_axes(axes)
     ranges = parse_ranges(densities) if densities is not None else None
     check_output(output, force)
-    path = build_index_file(augmented, output, axes=axes, ranges=ranges, force=force)
+    path = build_index_file(augmented, output, axes=axes, ranges=ranges, force=force, values=not no_values)
     if log.isEnabledFor(logging.INFO):
         idx = open_index(path)
         counts = {a: int(idx.voxel_counts(a).sum()) for a in idx.axes}
         size = path.stat().st_size
         n = next(iter(counts.values()))
         per = size / max(1, n * len(counts))
+        vf = idx.values_file
+        values = f"; values {vf.path} ({vf.path.stat().st_size} bytes)" if vf is not None else \
+            "; no values file (--no-values: pre-classification gathers them from the augmented file)"
         log.info(f"isplat index: wrote {path} (axes {idx.axes}, {n} voxels indexed per axis, "
-                 f"{size} bytes, {per:.3f} bytes per indexed voxel per axis)")
+                 f"{size} bytes, {per:.3f} bytes per indexed voxel per axis){values}")

@@ -184,6 +184,7 @@ def _report(scene_file, method, out, rep, per_view) -> dict:
     return {"scene": str(scene_file), "method": method, "output": out,
             "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
             "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
+            "values_bytes_read": rep.values_bytes,
             "file_bytes_read": rep.file_bytes, "technique": rep.technique, "needed_voxels": rep.needed_voxels,
             "needed_axis": rep.needed_axis, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
             "views": per_view}
@@ -197,7 +198,9 @@ def _log_report(report, rep, held) -> None:
               f"{rep.bytes_needed} needed ({rep.needed_voxels} voxels"
               + (f" its quads read on axis {rep.needed_axis}" if rep.needed_axis else " of interest")
               + f" x {rep.channel_bytes_per_voxel} B + {rep.index_bytes_needed} B of index; read/needed "
-              f"{rep.read_ratio:.2f}x); channel values from {rep.values_from}" + (
+              f"{rep.read_ratio:.2f}x); channel values from {rep.values_from}"
+              + (f" ({rep.values_bytes} bytes, {rep.values_file_bytes} read)" if rep.values_file_bytes else "")
+              + (
                   f"; held {held} bytes, {held / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
                   if held is not None else " (selections held by the workers or one slab at a time)"))
     for v in report["views"]:

@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import chunkhash, progress
 from ..errors import IsplatError
-from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check_checked_dataset,
+from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check_checked_dataset, check_output,
                       check_string_attrs, create_checked_dataset, create_group, create_hdf5, hdf5_errors,
                       open_counted, open_hdf5, set_string_attr)
 from . import codec
@@ -24,10 +24,13 @@ from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry
                     k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)
 
 FORMAT_NAME = "isplat-index"
-FORMAT_VERSION = 4              # version 4: + /chunk_hashes (a keyed hash per chunk); /values OPTIONAL
-OLDER_VERSIONS = (5,)           # versions 2 and 3 (no chunk hashes) are refused with the command that rebuilds them
+FORMAT_VERSION = 6              # version 6: no /values; the channel values in a file of their own (§9)
+FORMAT_VERSION_WITH_VALUES = 4  # version 4: + /chunk_hashes (a keyed hash per chunk); /values OPTIONAL (still read)
+OLDER_VERSIONS = (4, 5)         # versions 2 and 3 (no chunk hashes) are refused with the command that rebuilds them
 FORMAT_VERSION_LABELS = 5       # version 5: an index of the labels (@channel = "labels", @labels_sha256; §10),
-                                # read beside version 4 (the density index, unchanged)
+                                # read beside the density index
+VALUES_FORMAT_NAME = "isplat-index-values"   # the values file beside a version-6 index (§9)
+VALUES_FORMAT_VERSION = 6
 DATASET_DTYPES = {
     "density_entry_ptr": "<i8",
     "entry_slice": "<u4",
@@ -55,18 +58,33 @@ BUILD_BUDGET = 1 << 29          # bytes of working arrays for isplat index: one 
 
 # ----------------------------------------------------------------------------------------------- write
 
-def _write_root(f: h5py.File, shape, sha: str, ranges, version: int = FORMAT_VERSION) -> None:
-    # ``version`` is kept for callers of before; every file written now is of FORMAT_VERSION
-    version = FORMAT_VERSION
+def values_path(index_path) -> Path:
+    """The values file of an index: ``NAME.idx.h5`` -> ``NAME.values.idx.h5`` (else INDEX + ``.values.idx.h5``),
+    named as the index of the labels is (formats/index.md §9, §10)."""
+    s = str(index_path)
+    return Path(s[: -len(".idx.h5")] + ".values.idx.h5" if s.endswith(".idx.h5") else s + ".values.idx.h5")
+
+
+def _write_root(f: h5py.File, shape, sha: str, ranges, version: int = FORMAT_VERSION,
+                format_name: str = FORMAT_NAME) -> None:
+    """The root attributes (§2). ``version`` 4 only for tests of the old layout (``/values`` inside)."""
     from .. import __version__
 
-    set_string_attr(f, "format", FORMAT_NAME)
-    f.attrs["format_version"] = np.int64(version)
+    set_string_attr(f, "format", format_name)
+    f.attrs["format_version"] = np.int64(version if version == FORMAT_VERSION_WITH_VALUES else FORMAT_VERSION)
     f.attrs["shape"] = np.asarray(shape, dtype="<i8")
     set_string_attr(f, "density_sha256", str(sha))
     f.attrs["density_ranges"] = np.asarray(normalize_ranges(ranges), dtype="<i8").reshape(-1, 2)
     set_string_attr(f, "created_by", f"isplat {__version__}")
-    create_group(f, "axes")
+    if format_name == FORMAT_NAME:
+        create_group(f, "axes")
+
+
+def _write_values_root(f: h5py.File, shape, sha: str, ranges, index_check: str) -> None:
+    """The root of a values file (§9): the index's root attributes, its ``chunk_hash_check`` as
+    ``index_chunk_hash_check`` (which enters the file key: the values of another index do not verify)."""
+    _write_root(f, shape, sha, ranges, VALUES_FORMAT_VERSION, VALUES_FORMAT_NAME)
+    set_string_attr(f, "index_chunk_hash_check", index_check)
 
 
 def _write_axis(f: h5py.File, ax: AxisIndex, n_bytes: int | None = None):
@@ -123,29 +141,41 @@ def _write_values(f: h5py.File, v: ChannelValues) -> None:
 
 def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, ranges=None,
                 force: bool = False, values: ChannelValues | None = None) -> Path:
-    """Write the axes of ``index`` (from :func:`build_index`) and the channel ``values`` (from
-    :func:`isplat.index.build.order_values`) to ``path`` atomically. Without ``values`` the file has no
-    ``/values`` (density only: a renderer gathers the channel values from the augmented file, as from a file of
-    format version 2 before). The chunk hashes are written last (formats/index.md §1.1)."""
-    with atomic_output(path, force) as tmp:
+    """Write the axes of ``index`` (from :func:`build_index`) to ``path`` and the channel ``values`` (from
+    :func:`isplat.index.build.order_values`) to its values file (:func:`values_path`), atomically. Without
+    ``values`` there is no values file (a renderer gathers the channel values from the augmented file). The chunk
+    hashes are written last (formats/index.md §1.1)."""
+    vpath = values_path(path) if values is not None else None
+    if vpath is not None:
+        check_output(vpath, force)
+    with contextlib.ExitStack() as stack:
+        vtmp = stack.enter_context(atomic_output(vpath, force)) if vpath is not None else None
+        tmp = stack.enter_context(atomic_output(path, force))     # committed first: the index, then its values
         with create_hdf5(tmp) as f:
-            _write_root(f, shape, density_sha256, ranges, FORMAT_VERSION if values is not None else 2)
-            if values is not None:
-                _write_values(f, values)
+            _write_root(f, shape, density_sha256, ranges)
             for a in AXES:
                 if a in index:
                     _write_axis(f, index[a])
             finish_index(f)
+            check = attr_string(f.attrs, chunkhash.CHECK_ATTR)
+        if vtmp is not None:
+            with create_hdf5(vtmp) as g:
+                _write_values_root(g, shape, density_sha256, ranges, check)
+                _write_values(g, values)
+                finish_index(g)
     return Path(path)
 
 
 def hashed_layout(f: h5py.File):
     """``(datasets, attributes)`` the chunk hashes of open index ``f`` cover (formats/index.md §1.1): ``/values``
-    when present, then the present axes in i, j, k order, each dataset in the order of the spec's tables."""
+    when present, then the present axes in i, j, k order, each dataset in the order of the spec's tables. A values
+    file (§9): ``index_chunk_hash_check`` after the root attributes, then ``/values``."""
     datasets, attrs = [], [("", n) for n in ("format", "format_version", "shape", "density_sha256",
                                               "density_ranges")]
     if "channel" in f.attrs:            # version 5 (formats/index.md §10)
         attrs += [("", "channel"), ("", "labels_sha256")]
+    if attr_string(f.attrs, "format", ascii_ok=True) == VALUES_FORMAT_NAME:
+        attrs += [("", "index_chunk_hash_check")]
     if "values" in f:
         datasets += [f"values/{n}" for n in VALUE_DTYPES]
         attrs += [("values", "spacing_ijk"), ("values", "gradient_magnitude_scale")]
@@ -231,15 +261,18 @@ def copy_values(f: h5py.File, aug, density: np.ndarray | None, ranges, budget: i
 def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False,
                      values: bool = True, budget: int = BUILD_BUDGET, slab_voxels: int | None = None,
                      labels: bool = True) -> Path:
-    """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), with the indexed
-    voxels' channel values in density order (formats/index.md §9); ``values=False`` writes no ``/values``
-    (as isplat's format version 2 did), still of format version 4 with chunk hashes.
+    """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), and write the indexed
+    voxels' channel values in density order to its values file (:func:`values_path`, formats/index.md §9);
+    ``values=False`` writes no values file (the pre-classified technique then gathers them from the augmented
+    file) and, with ``force``, removes one left there by an earlier build.
 
     Streams: the density is read in k-slabs (of about ``slab_voxels``), never whole. One pass measures every
     axis's blocks (which fixes the tables); then each axis's byte stream is encoded and written in windows of
     at most ``budget`` bytes, one pass over the slabs per window (docs/design.md, "isplat index streams"), and
-    the values likewise. The file equals that of :func:`write_index` on the in-memory build. With ``labels`` and
-    an augmented file with labels, the index of the labels is written beside (:mod:`isplat.index.labels`)."""
+    the values likewise. The files equal those of :func:`write_index` on the in-memory build. With ``labels`` and
+    an augmented file with labels, the index of the labels is written beside (:mod:`isplat.index.labels`).
+    Every output is checked before any work; the index is committed first, then its values file, so an
+    interruption leaves either nothing new or a whole index (without values, which renders)."""
     from ..augfile import open_augmented
     from .labels import build_label_index_file, label_index_path
 
@@ -247,20 +280,20 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
     ranges = normalize_ranges(ranges)
     aug = open_augmented(aug_path)
     labels = labels and aug.has_labels
+    vpath = values_path(out_path)
+    check_output(out_path, force)
+    check_output(vpath, force)              # before any work: also without values (a stale one is removed)
     if labels:
-        from ..fileio import check_output
-
-        check_output(label_index_path(out_path), force)     # before any work
+        check_output(label_index_path(out_path), force)
     for a in axes:
         escape_width(*axis_geometry(aug.shape, a)[1:])     # refuse impossible sizes before any work
     slabs = k_slabs(aug.shape[0], aug.shape[1] * aug.shape[2], **({} if slab_voxels is None else
                                                                    {"voxels": slab_voxels}))
-    with atomic_output(out_path, force) as tmp:
+    with contextlib.ExitStack() as stack:
+        vtmp = stack.enter_context(atomic_output(vpath, force)) if values else None
+        tmp = stack.enter_context(atomic_output(out_path, force))     # committed first, then the values file
         with create_hdf5(tmp) as f, _channel_reader(aug) as read:
-            _write_root(f, aug.shape, aug.density_sha256, ranges, FORMAT_VERSION if values else 2)
-            if values:
-                copy_values(f, aug, None, ranges, budget, **({} if slab_voxels is None else
-                                                            {"slab_voxels": slab_voxels}))
+            _write_root(f, aug.shape, aug.density_sha256, ranges)
             dens = lambda k0, k1: read("density", k0, k1)      # noqa: E731
             layouts = measure_axes(dens, aug.shape, axes, ranges, slabs)
             for a in axes:
@@ -271,6 +304,15 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
                     del window                           # before the next window is made
                 del lay
             finish_index(f)
+            check = attr_string(f.attrs, chunkhash.CHECK_ATTR)
+        if values:
+            with create_hdf5(vtmp) as g:
+                _write_values_root(g, aug.shape, aug.density_sha256, ranges, check)
+                copy_values(g, aug, None, ranges, budget, **({} if slab_voxels is None else
+                                                            {"slab_voxels": slab_voxels}))
+                finish_index(g)
+    if not values and vpath.is_file():
+        vpath.unlink()                          # another build's values (check_output allowed it: --force)
     if labels:
         build_label_index_file(aug, label_index_path(out_path), axes, force)
     return Path(out_path)
@@ -345,7 +387,9 @@ class IndexFile:
         self.attrs = attrs
         self.version = int(version)
         self.channel = "density"       # "labels": an index of the label channel (version 5, formats/index.md §10)
-        self.values = values
+        self.values = values           # /values in this file (version 4; a values file's own)
+        self._values_file = None       # version 6: the values file beside it, opened on first use
+        self._values_looked = False
         self.io = io if io is not None else ReadCounter()
         self.verifier = verifier       # isplat.chunkhash.Verifier: checks each chunk read
         self.bytes_read = 0
@@ -416,11 +460,44 @@ class IndexFile:
         self.bytes_read += int(arr.nbytes)
         return arr
 
-    # -- channel values (format version 3)
+    # -- channel values (in the file: version 4; beside it: version 6, formats/index.md §9)
+    @property
+    def values_file(self):
+        """The values file beside a version-6 index (an :class:`IndexFile` of format ``isplat-index-values``,
+        checked to belong to this index), opened on first use; None when there is none (or values are inside)."""
+        if not self._values_looked:
+            self._values_looked = True
+            p = values_path(self.path)
+            if self.version == FORMAT_VERSION and self.channel == "density" and (p.exists() or p.is_symlink()):
+                self._values_file = open_values(p, self)
+        return self._values_file
+
+    def _values_holder(self):
+        """The file whose ``/values`` hold this index's channel values (itself, its values file), or None."""
+        return self if self.values is not None else self.values_file
+
     @property
     def has_values(self) -> bool:
-        """True when the file holds the indexed voxels' channel values (``/values``, version 3)."""
-        return self.values is not None
+        """True when the indexed voxels' channel values can be read: ``/values`` inside (version 4) or the values
+        file beside (version 6)."""
+        return self._values_holder() is not None
+
+    @property
+    def values_source(self) -> str:
+        """Where the channel values are read: ``"index"`` (``/values`` inside), ``"values file"`` or ``"none"``."""
+        return "index" if self.values is not None else "values file" if self.values_file is not None else "none"
+
+    @property
+    def values_meta(self):
+        """The ``/values`` attributes and row count (``n_voxels``, ``spacing_ijk``, ``gradient_magnitude_scale``)
+        of wherever the values are, or None."""
+        h = self._values_holder()
+        return None if h is None else h.values
+
+    def values_counts(self) -> tuple[int, int]:
+        """``(bytes requested, bytes HDF5 read)`` from the values file so far (0, 0 without one)."""
+        vf = self._values_file
+        return (0, 0) if vf is None else (int(vf.bytes_read), int(vf.io.bytes))
 
     def verify_all(self) -> None:
         """Check every chunk of every dataset against the file's chunk hashes (``isplat stats``)."""
@@ -434,8 +511,22 @@ class IndexFile:
                               f"rebuild it: {_rebuild_hint(self.path, None)}")
         return self.values
 
+    def _delegate_values(self):
+        """The values file to read from instead of this file (version 6), or None (read ``/values`` here);
+        neither: the error naming the command that writes them."""
+        if self.values is not None:
+            return None
+        vf = self.values_file
+        if vf is None:
+            where = f"no values file {values_path(self.path)}" if self.version == FORMAT_VERSION else \
+                "no channel values (/values, built without them)"
+            raise IsplatError(f"{self.path}: this index has {where}; rebuild it: {_rebuild_hint(self.path, None)}")
+        return vf
+
     def value_ptr(self, g=None) -> np.ndarray:
         """int64[257], checked: the values of density ``d`` are rows ``ptr[d] .. ptr[d + 1] - 1``."""
+        if g is None and self._delegate_values() is not None:
+            return self._delegate_values().value_ptr()
         vm = self._need_values()
         if g is None:
             with self._open("values") as g:
@@ -454,6 +545,8 @@ class IndexFile:
         """The values of ``channels`` for the voxels of inclusive density ``intervals``: per interval one
         contiguous row range of each channel, concatenated (density-major, then by position). Returns
         ``(ptr, {channel: values})``."""
+        if self._delegate_values() is not None:
+            return self._delegate_values().read_values(channels, intervals)
         self._need_values()
         ivs = self._intervals(intervals)
         out = {}
@@ -725,10 +818,38 @@ def open_index(path) -> IndexFile:
     return idx
 
 
+def open_values(path, idx: IndexFile) -> IndexFile:
+    """Open and validate the values file ``path`` of version-6 index ``idx`` (formats/index.md §9): its format,
+    its ``/values``, its chunk hashes' key, and that it belongs to ``idx`` (the same ``shape``, ``density_sha256``
+    and ``density_ranges``, and ``index_chunk_hash_check`` equal to the index's ``chunk_hash_check``). Returns an
+    :class:`IndexFile` without axes whose :meth:`~IndexFile.read_values` reads it."""
+    counter = ReadCounter()
+    hint = _rebuild_hint(idx.path, None)
+    p, f = open_hdf5(path, "values file", VALUES_FORMAT_NAME, VALUES_FORMAT_VERSION, rebuild=lambda p, f: hint,
+                     counter=counter)
+    with f, hdf5_errors(p, "attributes"):
+        a = f.attrs
+        shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
+        check_string_attrs(p, a, ("density_sha256", "created_by", "index_chunk_hash_check"))
+        sha, own = attr_string(a, "density_sha256"), attr_string(a, "index_chunk_hash_check")
+        ranges = _stored_ranges(p, a)
+        if (shape, sha, ranges, own) != (tuple(idx.shape), idx.density_sha256, list(idx.density_ranges),
+                                         idx.attrs.get(chunkhash.CHECK_ATTR)):
+            raise IsplatError(f"{p}: the channel values of another index than {idx.path} (another volume, density "
+                              f"ranges or build); rebuild both: {hint}")
+        if "values" not in f:
+            raise IsplatError(f"{p}: group '/values' is missing; rebuild it: {hint}")
+        values = _check_values_group(p, f, ranges, VALUES_FORMAT_VERSION, shape)
+        datasets, hashed = hashed_layout(f)
+        verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed), hint)
+        attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
+    return IndexFile(p, shape, sha, ranges, {}, attrs, VALUES_FORMAT_VERSION, values, counter, verifier)
+
+
 def _check_channel(p, a, version: int, values) -> str:
     """What the index indexes: ``"density"`` (version 4) or ``"labels"`` (version 5, formats/index.md §10: the
     attributes ``channel`` and ``labels_sha256``, no ``/values``)."""
-    if version < FORMAT_VERSION_LABELS:
+    if version != FORMAT_VERSION_LABELS:
         return "density"
     check_string_attrs(p, a, ("channel", "labels_sha256"))
     channel, sha = attr_string(a, "channel"), attr_string(a, "labels_sha256")
@@ -746,6 +867,9 @@ def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
     augmented file; its absence is covered by the chunk hashes' key, so it cannot be deleted silently)."""
     if "values" not in f:
         return None
+    if version == FORMAT_VERSION and attr_string(f.attrs, "format", ascii_ok=True) == FORMAT_NAME:
+        raise IsplatError(f"{p}: a version-{FORMAT_VERSION} index has no '/values' (its channel values are in "
+                          f"{values_path(p).name}, beside it); rebuild it: {_rebuild_hint(p, f)}")
     if not isinstance(f["values"], h5py.Group):
         raise IsplatError(f"{p}: '/values' is not a group")
     g = f["values"]

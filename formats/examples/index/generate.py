@@ -4,11 +4,11 @@
 
 The JSON files are the specification (their block bytes and the order of their channel values were derived by
 hand from formats/index.md); this script only writes the binary companions, with the isplat writer under test:
-NAME.idx.h5 (format version 4, with the channel values of the volume augmented as ``augment_array(volume,
-spacing (1, 1, 1), window (0, 255))`` does, so density codes equal the volume's values) and gaps.novalues.idx.h5 (the
-same index without channel values, which version 4 allows). gaps.v2.idx.h5, the same index in format version 2
-(no channel values, no chunk hashes), was written by isplat before version 4 and is kept: readers refuse it with
-the command that rebuilds it.
+NAME.idx.h5 (format version 6) and its values file NAME.values.idx.h5 (the channel values of the volume augmented
+as ``augment_array(volume, spacing (1, 1, 1), window (0, 255))`` does, so density codes equal the volume's values).
+Kept as isplat wrote them before: gaps.v4.idx.h5 and full.v4.idx.h5 (format version 4, the channel values inside,
+in ``/values``), which readers still read, and gaps.v2.idx.h5 (format version 2: no channel values, no chunk
+hashes), which readers refuse with the command that rebuilds it.
 tests/test_index_conformance.py checks that the writer reproduces the JSON bytes and that the committed .idx.h5
 files decode back.
 """
@@ -58,9 +58,7 @@ def main() -> int:
         values, _ = channel_values(vol, ranges)
         write_index(HERE / f"{ex['name']}.idx.h5", index, vol.shape, density_sha256(vol), ranges, force=True,
                     values=values)
-        if ex["name"] == "gaps":
-            write_index(HERE / "gaps.novalues.idx.h5", index, vol.shape, density_sha256(vol), ranges, force=True)
-        print(f"wrote {ex['name']}.npy, {ex['name']}.idx.h5", file=sys.stderr)
+        print(f"wrote {ex['name']}.npy, {ex['name']}.idx.h5, {ex['name']}.values.idx.h5", file=sys.stderr)
     return 0
 
 

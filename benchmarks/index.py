@@ -64,11 +64,18 @@ def _augment_to(path, shape=None):
 
 
 def _values_storage(idx_path) -> int:
-    """Bytes on disk of the channel values (``/values``, index format 3): not part of the paper's index."""
+    """Bytes on disk of channel values inside the index (``/values`` of index format 4; format 6 keeps them in
+    the values file beside it): not part of the paper's index."""
     with h5py.File(idx_path, "r") as f:
         if "values" not in f:
             return 0
         return sum(int(ds.id.get_storage_size()) for ds in f["values"].values())
+
+
+def _values_file(idx_path) -> int:
+    """Bytes on disk of the values file beside the index (index format 6), 0 without one."""
+    p = Path(str(idx_path).replace(".idx.h5", ".values.idx.h5"))
+    return os.path.getsize(p) if p.exists() else 0
 
 
 def _sizes(idx_path, n_axes_expected=3):
@@ -131,6 +138,7 @@ def run(out_dir: Path, quick: bool) -> Path:
         t_file = _median_time(lambda: build_index_file(aug, out_all, force=True), repeats)
         t_mem = _median_time(lambda: build_index(density), repeats)
         idx_all, total_all, n_all, bpv_all, axis_all = _sizes(out_all)
+        _values_file_mb = _values_file(out_all) / 1e6
 
         out_bs = tmp / "head-bone-soft.idx.h5"
         t_bs = _median_time(lambda: build_index_file(aug, out_bs, ranges=bone_and_soft, force=True), repeats)
@@ -172,8 +180,9 @@ def run(out_dir: Path, quick: bool) -> Path:
         "",
         "## Size per indexed voxel (file bytes, tables included)",
         "",
-        "File bytes leave out the channel values that format 3 stores beside the index (`/values`, 3 B per "
-        "indexed voxel; docs/selective-read.md). "
+        "File bytes are the index file's: since index format 6 the channel values (3 B per indexed voxel, read by "
+        "the pre technique only) are in the values file beside it, given apart (values file: "
+        f"{_values_file_mb:.1f} MB for all densities; docs/selective-read.md). "
         "Bytes per indexed voxel = total file bytes / (indexed voxels x axes); per axis = the axis's blocks and "
         "tables (`IndexFile.nbytes(axis)`) / indexed voxels. Ranges from the sample's materials under the "
         f"default window {window[0]:.0f}..{window[1]:.0f}: "

@@ -288,8 +288,10 @@ def measure(case: Case, vol: dict, work: Path, frames: int, size: int) -> dict:
         "classification": {k: fstats[k].classification for k in renderers},
         "mem_full": rf.report.augmented_bytes, "channels_full": list(rf.report.channels),
         "mem_4b": 4 * n_vox,
-        # channel values read (from the index's /values in format 3) apart from the index blocks and tables
-        "mem_idx_channels": ri.report.augmented_bytes + ri.report.index_bytes - ri.report.index_block_bytes,
+        # channel values read (from the index's values file, format 6; /values inside, format 4) apart from the
+        # index blocks and tables
+        "mem_idx_channels": ri.report.augmented_bytes + ri.report.index_bytes + ri.report.values_bytes
+        - ri.report.index_block_bytes,
         "channels_idx": list(ri.report.channels), "mem_idx_read": ri.report.index_block_bytes,
         "mem_idx_decoded": decoded, "mem_idx_held": ri.held_bytes(),
         "index_whole": st["index"]["bytes"], "axes": list(ri.report.axes),

@@ -128,13 +128,16 @@ def _index(aug: Path, out: Path, quick: bool) -> None:
 
 
 def index_figures(idx_path: Path) -> dict:
-    """The index's size: bytes in all, per indexed voxel per axis, and of its ``/values``."""
+    """The index's size: its file in all and per indexed voxel per axis, its axes' tables and blocks, and the
+    values file beside it (format 6; ``/values`` inside, format 4)."""
     from isplat.index import open_index
 
     idx = open_index(idx_path)
     vox = int(idx.voxel_counts(idx.axes[0]).sum())
     axes_bytes = sum(int(idx.nbytes(a)) for a in idx.axes)
-    values = 257 * 8 + 3 * idx.values.n_voxels if idx.has_values else 0
+    vf = idx.values_file
+    values = os.path.getsize(vf.path) if vf is not None else \
+        257 * 8 + 3 * idx.values.n_voxels if idx.values is not None else 0
     size = os.path.getsize(idx_path)
     return dict(file=size, per_voxel_axis=size / max(1, vox * len(idx.axes)),
                 axes_per_voxel_axis=axes_bytes / max(1, vox * len(idx.axes)), values=values, version=idx.version)
@@ -179,6 +182,7 @@ def measure(c: dict, work: Path, repeats: int, quick: bool) -> list[dict]:
                          ratio=rep.read_ratio, held=held, load=statistics.median(times[t][0]),
                          frame=statistics.median(times[t][1]), index=ixf))
     idx.unlink()
+    Path(str(idx).replace(".idx.h5", ".values.idx.h5")).unlink(missing_ok=True)
     return rows
 
 
@@ -233,12 +237,13 @@ def _explanation(repeats: int) -> list[str]:
         "",
         "- **pre** (the paper's pre-classified splatting, `render.classification = \"pre\"`): the index blocks "
         "and table rows of the transfer function's intervals, and the voxels of interest's normals (and gradient "
-        "magnitudes, when the transfer function uses them) from the index's `/values`, one row range per "
-        "interval. Only the voxels of interest are read.",
+        "magnitudes, when the transfer function uses them) from the index's values file (`NAME.values.idx.h5`, "
+        "index format 6), one row range per interval. Only the voxels of interest are read; *read* includes the "
+        "values file's opening.",
         "- **post** (the default, post-classification): the same index blocks, and **the whole channels** it "
         "samples, read from the augmented file: the density, and when shaded the normal and the gradient "
         "magnitude (4 B per voxel of the volume). It reads every voxel of the volume, not only the voxels of "
-        "interest and their neighbours; `/values` is not read.",
+        "interest and their neighbours; the values file is not read.",
         "",
         "*Needed* is each technique's own ([stats.md](stats.md#bytes-needed-per-technique)): pre, the voxels of "
         "interest x the channel bytes it reads; post, the voxels its quads read on the view's axis (the voxels of "
@@ -268,9 +273,10 @@ def _table(rows) -> list[str]:
 
 def _index_table(rows) -> list[str]:
     L = ["The index (`isplat index` of all densities): its file, bytes per indexed voxel per axis (issue 26's "
-         "target: 1.3), of which the axes' tables and blocks, and `/values` (3 B per indexed voxel, read by pre "
-         "only).", "",
-         "| case | index format | index file (MB) | B per indexed voxel per axis | of which axes | `/values` (MB) |",
+         "target: 1.3), of which the axes' tables and blocks, and the values file beside it (format 6, "
+         "`NAME.values.idx.h5`: 3 B per indexed voxel, read by pre only; `isplat index --no-values` leaves it "
+         "out).", "",
+         "| case | index format | index file (MB) | B per indexed voxel per axis | of which axes | values file (MB) |",
          "|---|---:|---:|---:|---:|---:|"]
     for r in rows[::2]:
         ix = r["index"]

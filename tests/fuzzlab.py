@@ -89,6 +89,9 @@ def make_fixture(folder: Path, aug: Path | None = None, idx: Path | None = None,
         idx = folder / "head.idx.h5"
         build_index_file(aug, idx, force=True)
     fx = {"aug": aug, "idx": idx, "folder": folder, "scenes": list(scenes)}
+    values = Path(str(idx).replace(".idx.h5", ".values.idx.h5"))
+    if values.is_file():
+        fx["values"] = values               # the index's values file (index format 6)
     for name in scenes:
         sc = folder / f"{name}.toml"
         sc.write_text(scene_toml(aug, idx, *SCENES[name]))
@@ -381,12 +384,14 @@ def rehash(path: Path) -> None:
 # (the chunk hashes) with one line, never rendered.
 HASHED = {"aug": ("density", "gradient_magnitude", "normal"),
           "idx": ("axes/k/bytes", "axes/k/entry_slice", "axes/k/entry_voxel_count", "axes/k/entry_byte_offset",
-                  "axes/i/bytes", "axes/j/density_entry_ptr", "values/normal", "values/gradient_magnitude",
-                  "values/density_voxel_ptr")}
+                  "axes/i/bytes", "axes/j/density_entry_ptr"),
+          # the index's values file (index format 6, formats/index.md §9.1), read by the pre technique
+          "values": ("values/normal", "values/gradient_magnitude", "values/density_voxel_ptr")}
 # pairs of same-typed datasets (a swap or a link passes every type and shape check)
 PAIRS = {"aug": (("density", "gradient_magnitude"),),
          "idx": (("axes/k/entry_slice", "axes/k/entry_voxel_count"), ("axes/i/bytes", "axes/j/bytes"),
-                 ("axes/i/density_entry_ptr", "axes/k/density_entry_ptr"))}
+                 ("axes/i/density_entry_ptr", "axes/k/density_entry_ptr")),
+         "values": ()}          # no two datasets of one type: swaps and links need another file (see the test)
 
 
 def _chunks(ds):
@@ -521,6 +526,11 @@ def class_mutant(fx: dict, target: str, cls: str, rng) -> tuple[bytes, str]:
         path.write_bytes(original)
 
 
+def applies_to_values(cls: str) -> bool:
+    """Whether mutant class ``cls`` applies to the values file (swaps and links need two datasets of a type)."""
+    return cls not in ("h5py dataset swap", "h5py link")
+
+
 def fuzz_classes(fx: dict, per_class: int, seed: int = 0, scenes=None) -> dict:
     """``per_class`` mutants of each class of MUTANT_CLASSES on each file: {class: [Outcome, ...]}."""
     rng = np.random.default_rng(seed)
@@ -528,7 +538,8 @@ def fuzz_classes(fx: dict, per_class: int, seed: int = 0, scenes=None) -> dict:
     for cls in MUTANT_CLASSES:
         out[cls] = []
         for n in range(per_class):
-            target = ("aug", "idx")[n % 2]
+            targets = ("aug", "idx") + (("values",) if "values" in fx and applies_to_values(cls) else ())
+            target = targets[n % len(targets)]
             data, what = class_mutant(fx, target, cls, rng)
             out[cls].append(check_mutant(fx, target, data, what, scenes=scenes))
     return out

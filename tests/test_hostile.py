@@ -278,10 +278,10 @@ def test_two_index_runs_to_one_new_path(data, tmp_path):
     assert codes == [0, 2], results
     err = next(e for c, e in results if c == 2)
     assert err.count("\n") == 1 and ("appeared while" in err or "output exists" in err), err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.idx.h5"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.idx.h5", "o.values.idx.h5"]
     from isplat.index import open_index
 
-    open_index(out)
+    assert open_index(out).values_file is not None      # the winner's pair: the values file matches its index
 
 
 # ---------------------------------------------------------------------------------------------- 7. signals
@@ -358,6 +358,31 @@ main(sys.argv[1:])
 """
 
 
+SLOW_VALUES = """
+import sys, time
+import isplat.index.store as st
+real = st.copy_values
+def slow(*a, **k):
+    print("values", flush=True)
+    time.sleep(30)
+    return real(*a, **k)
+st.copy_values = slow
+from isplat.cli.main import main
+main(sys.argv[1:])
+"""
+
+
+def test_sigint_while_the_values_file_is_written_leaves_neither_file(data, tmp_path):
+    """The index and its values file are committed together at the end (index first): a signal while the values
+    are copied leaves neither, nor their temporary files (formats/index.md §9.1)."""
+    out = tmp_path / "o.idx.h5"
+    p = _popen(["index", data / "ball.aug.h5", "-o", out], script=SLOW_VALUES)
+    assert p.stdout.readline().strip() == "values"
+    p.send_signal(signal.SIGINT)
+    _interrupted(p, signal.SIGINT, timeout=60)
+    assert sorted(x.name for x in tmp_path.iterdir()) == []
+
+
 def test_sigint_after_the_output_is_in_place_says_no_removal(data, tmp_path):
     out = tmp_path / "o.idx.h5"
     p = _popen(["index", data / "ball.aug.h5", "-o", out], script=SLOW_INDEX_LOG)
@@ -367,8 +392,8 @@ def test_sigint_after_the_output_is_in_place_says_no_removal(data, tmp_path):
     assert line == "isplat: interrupted (SIGINT)"
     from isplat.index import open_index
 
-    open_index(out)
-    assert sorted(x.name for x in tmp_path.iterdir()) == ["o.idx.h5"]
+    assert open_index(out).values_file is not None
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["o.idx.h5", "o.values.idx.h5"]
 
 
 SWALLOWING_WRITE = """

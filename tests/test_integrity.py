@@ -92,19 +92,27 @@ def test_corpus_of_bugs(examples, case):
     assert out.result == "error", out
 
 
+def _target(fx, target):
+    """The file of ``target``: ``aug``, ``idx``, or ``values`` (the index's values file, index format 6)."""
+    from isplat.index.store import values_path
+
+    return values_path(fx["idx"]) if target == "values" else fx[target]
+
+
 @pytest.mark.parametrize("target,obj,method,name", [("aug", "/normal", "full", "'normal'"),
-                                                    ("idx", "/values/normal", "indexed", "/values/normal")])
+                                                    ("values", "/values/normal", "indexed", "/values/normal")])
 def test_message_names_file_and_dataset(examples, target, obj, method, name):
-    """The full method reads the augmented file's normals; the indexed one the index's (format 3)."""
+    """The full method reads the augmented file's normals; the indexed one (pre) the index's values file."""
     fx = examples["aug"]
-    original = fx[target].read_bytes()
+    path = _target(fx, target)
+    original = path.read_bytes()
     try:
-        R.corrupt(fx[target], obj, "flip_chunk")
+        R.corrupt(path, obj, "flip_chunk")
         code, _, err = R.run_cli(["render", str(fx[method]), "-o", str(fx["folder"] / "x.png"), "-q"])
     finally:
-        fx[target].write_bytes(original)
+        path.write_bytes(original)
     assert code == 2 and err.count("\n") == 1
-    assert str(fx[target]) in err and name in err and "Fletcher-32" in err
+    assert str(path) in err and name in err and "Fletcher-32" in err
 
 
 # ---------------------------------------------------------------------------------------------- stats
@@ -271,12 +279,14 @@ def head(tmp_path_factory):
 
 
 @pytest.mark.parametrize("seed", range(3))
-@pytest.mark.parametrize("target", ["aug", "idx"])
+@pytest.mark.parametrize("target", ["aug", "idx", "values"])
 @pytest.mark.parametrize("cls", sorted(R.MUTANT_CLASSES))
 def test_mutant_classes_are_refused_with_one_line(head, cls, target, seed):
     """Whole chunks copied with their Fletcher-32, Fletcher-blind words, edits through h5py (values, swaps, links):
     every mutant of both files is refused with one line (no image, in any scene; nor stats); the chunk-level ones
     name the file, the dataset and the chunk's position."""
+    if target == "values" and not R.applies_to_values(cls):
+        pytest.skip("the values file has no two datasets of one type to swap or link")
     data, what = R.class_mutant(head, target, cls, np.random.default_rng(seed))
     out = R.check_mutant(head, target, data, what)
     assert out.result == "error" and str(head[target]) in out.message, out
@@ -392,11 +402,12 @@ def test_chunk_hashes_follow_the_spec(rel):
 
 
 @pytest.mark.parametrize("target,dataset", [("aug", "normal"), ("aug", "gradient_magnitude"),
-                                            ("idx", "values/normal"), ("idx", "axes/j/bytes")])
+                                            ("values", "values/normal"), ("idx", "axes/j/bytes")])
 def test_stats_checks_every_chunk(head, tmp_path, target, dataset):
     """`isplat stats` (no scene) reads neither the normals, the magnitudes, the index's values nor its blocks for
-    its figures, yet refuses an edit of any of them: it checks every chunk of both files first."""
-    path = head[target]
+    its figures, yet refuses an edit of any of them: it checks every chunk of the files first (and of the
+    index's values file)."""
+    path = _target(head, target)
     original = path.read_bytes()
     try:
         with h5py.File(path, "r+") as f:

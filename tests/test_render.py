@@ -319,10 +319,12 @@ def test_only_needed_channels_and_axes_are_read(tmp_path, make_scene):
     blocks, voi = r.report.index_bytes, r.report.voxels_of_interest
     assert r.report.bytes_needed == blocks and r.report.values_from == "none"
     r = Renderer(make_scene(aug, idx, shading="enabled = true", **base))
-    # the normals of just the voxels of interest, from the index (format 3): one pointer table and 2 B each
+    # the normals of just the voxels of interest, from the index's values file (format 6): one pointer table and
+    # 2 B each
     assert r.report.channels == ["normal"] and r.report.augmented_bytes == 0
-    assert r.report.index_bytes == blocks + 257 * 8 + 2 * voi and r.report.values_from == "index"
-    assert r.report.bytes_needed == r.report.index_bytes
+    assert r.report.index_bytes == blocks and r.report.values_from == "values file"
+    assert r.report.values_bytes == 257 * 8 + 2 * voi
+    assert r.report.bytes_needed == r.report.index_bytes + r.report.values_bytes
     r = Renderer(make_scene(aug, idx, overrides=["render.method=full", "shading.enabled=false"], **base))
     assert r.report.channels == ["density"] and r.report.index_bytes == 0
     r = Renderer(make_scene(aug, idx, views="list = [{azimuth = 0}, {azimuth = 90}]", **base))

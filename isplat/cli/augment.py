@@ -79,7 +79,10 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
 
     idx = index_path(out) if with_index else None
     if idx is not None:
-        check_output(idx, force)  # before any work
+        from ..index.store import values_path
+
+        check_output(idx, force)  # before any work: the index and its values file (formats/index.md §9.1)
+        check_output(values_path(idx), force)
     win = window if window else None
     sp = parse_triple(spacing, "--spacing") if spacing else None
     shp = parse_triple(shape, "--shape", int) if shape else None

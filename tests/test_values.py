@@ -421,6 +421,14 @@ def test_index_cli_values_file_no_values_and_force(tmp_path, capsys):
     assert not out.exists() and vals.read_bytes() == b"someone else's file"
     assert run("index", aug, "-o", out, "-q", "--force")[0] == 0
     assert open_index(out).values_source == "values file"
+    from isplat.stats import collect, format_table
+
+    s = collect(aug, out)
+    assert s["index"]["values"]["path"] == str(vals) and s["index"]["values"]["file_bytes"] == vals.stat().st_size
+    assert s["index"]["file_bytes_per_voxel"] == pytest.approx(out.stat().st_size / (3 * dens.size))
+    table = format_table(s)
+    assert str(vals) in table
+    assert "read by pre-classification only" in table and "B per indexed voxel per axis (format 6)" in table
     assert run("index", aug, "-o", out, "-q", "--force", "--no-values")[0] == 0
     assert out.is_file() and not vals.exists() and open_index(out).values_source == "none"
     assert run("index", aug, "-o", tmp_path / "y.idx.h5", "-q", "--no-values")[0] == 0

@@ -145,9 +145,9 @@ def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, r
     :func:`isplat.index.build.order_values`) to its values file (:func:`values_path`), atomically. Without
     ``values`` there is no values file (a renderer gathers the channel values from the augmented file). The chunk
     hashes are written last (formats/index.md §1.1)."""
-    vpath = values_path(path) if values is not None else None
-    if vpath is not None:
-        check_output(vpath, force)
+    stale = values_path(path)
+    check_output(stale, force)             # a values file there: replaced, or without values removed (--force)
+    vpath = stale if values is not None else None
     with contextlib.ExitStack() as stack:
         vtmp = stack.enter_context(atomic_output(vpath, force)) if vpath is not None else None
         tmp = stack.enter_context(atomic_output(path, force))     # committed first: the index, then its values
@@ -163,6 +163,8 @@ def write_index(path, index: dict[str, AxisIndex], shape, density_sha256: str, r
                 _write_values_root(g, shape, density_sha256, ranges, check)
                 _write_values(g, values)
                 finish_index(g)
+    if vpath is None and stale.is_file():
+        stale.unlink()
     return Path(path)
 
 

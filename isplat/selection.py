@@ -59,6 +59,7 @@ class LoadReport:
     footprint: object = field(default=None, repr=False, compare=False)   # post: () -> (axis, voxels), lazy
     _needed: tuple | None = field(default=None, repr=False, compare=False)
     values_from: str = "none"         # "values file", "index", "augmented slabs", "whole channels" or "none"
+    values_path: str = ""             # the values file read ("values file"), or the index ("index")
     channels: list = field(default_factory=list)
     axes: list = field(default_factory=list)
     intervals: list = field(default_factory=list)
@@ -494,6 +495,7 @@ def _select_indexed(sel: Selection, aug, idx, slices) -> None:
     rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
     if from_values:
         source = idx.path if rep.values_from == "index" else idx.values_file.path
+        rep.values_path = str(source)
         gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, source)    # noqa: E731
     else:                        # no values file: the position-ordered channels, in k-slabs
         gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731

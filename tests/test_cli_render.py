@@ -58,6 +58,27 @@ def test_png_file_and_verbose_report(data):
     assert (m.group(1) == "post") == m.group(2).startswith("its quads")
 
 
+def test_verbose_report_says_where_pre_read_its_values(data):
+    """render -v with pre: the values file beside the index (its path and bytes), or, without it, the augmented
+    file, said once with the command that writes it."""
+    import shutil
+
+    res = run("render", "scene.toml", "-o", "p.png", "-v", "--set", 'render.classification="pre"', cwd=data)
+    assert res.returncode == 0, res.stderr
+    err = res.stderr.decode()
+    assert "channel values from values file " in err and ".values.idx.h5 (" in err, err
+    vals = next(data.glob("*.values.idx.h5"))
+    shutil.move(vals, data / "aside.h5")
+    try:
+        res = run("render", "scene.toml", "-o", "q.png", "-v", "--set", 'render.classification="pre"', cwd=data)
+    finally:
+        shutil.move(data / "aside.h5", vals)
+    err = res.stderr.decode()
+    assert res.returncode == 0 and "channel values from augmented slabs" in err, err
+    assert err.count("has no values file") == 1 and "--force writes it" in err, err
+    assert np.array_equal(iio.imread(data / "p.png"), iio.imread(data / "q.png"))      # the same image
+
+
 def test_png_on_stdout_matches_the_file(data):
     run("render", "scene.toml", "-o", "b.png", cwd=data)
     res = run("render", "scene.toml", "-o", "-", cwd=data)

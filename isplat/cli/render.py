@@ -199,7 +199,8 @@ def _log_report(report, rep, held) -> None:
               + (f" its quads read on axis {rep.needed_axis}" if rep.needed_axis else " of interest")
               + f" x {rep.channel_bytes_per_voxel} B + {rep.index_bytes_needed} B of index; read/needed "
               f"{rep.read_ratio:.2f}x); channel values from {rep.values_from}"
-              + (f" ({rep.values_bytes} bytes, {rep.values_file_bytes} read)" if rep.values_file_bytes else "")
+              + (f" {rep.values_path} ({rep.values_bytes} bytes, {rep.values_file_bytes} read)"
+                 if rep.values_file_bytes else "")
               + (
                   f"; held {held} bytes, {held / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
                   if held is not None else " (selections held by the workers or one slab at a time)"))

@@ -79,10 +79,13 @@ def test_streamed_file_equals_the_in_memory_build(vol, ranges, axes, budget, sla
         build_index_file(t / "a.h5", t / "streamed.h5", axes=axes, ranges=ranges, budget=budget,
                          slab_voxels=slab_voxels)
         in_memory_file(t / "memory.h5", dens, gm, nrm, axes, ranges)
-        got, want = contents(t / "streamed.h5"), contents(t / "memory.h5")
-        assert got.keys() == want.keys()
-        for name in want:
-            assert got[name] == want[name], name
+        for streamed, memory in ((t / "streamed.h5", t / "memory.h5"),       # the index, and its values file
+                                 (t / "streamed.h5.values.idx.h5", t / "memory.h5.values.idx.h5")):
+            got, want = contents(streamed), contents(memory)
+            assert got.keys() == want.keys()
+            for name in want:
+                assert got[name] == want[name], name
+        assert "values/normal" in contents(t / "streamed.h5.values.idx.h5")
 
 
 def test_working_arrays_stay_within_the_budget(tmp_path, monkeypatch):

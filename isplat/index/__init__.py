@@ -7,10 +7,10 @@ of a transfer function (``open_index(path).load_axis(axis, intervals)``).
 from .build import (AxisIndex, axis_geometry, build_axis, build_index, escape_width, normalize_ranges,
                     parse_axes, parse_ranges)
 from .store import (FORMAT_NAME, FORMAT_VERSION, IndexFile, LoadedAxis, build_index_file, open_index,
-                    write_index)
+                    values_path, write_index)
 
 __all__ = [
     "AxisIndex", "IndexFile", "LoadedAxis", "FORMAT_NAME", "FORMAT_VERSION", "axis_geometry", "build_axis",
     "build_index", "build_index_file", "escape_width", "normalize_ranges", "open_index", "parse_axes",
-    "parse_ranges", "write_index",
+    "parse_ranges", "values_path", "write_index",
 ]

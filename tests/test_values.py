@@ -433,3 +433,34 @@ def test_index_cli_values_file_no_values_and_force(tmp_path, capsys):
     assert out.is_file() and not vals.exists() and open_index(out).values_source == "none"
     assert run("index", aug, "-o", tmp_path / "y.idx.h5", "-q", "--no-values")[0] == 0
     assert not (tmp_path / "y.values.idx.h5").exists()
+
+
+def test_pre_images_from_the_values_file_equal_those_from_values_inside(tmp_path, make_scene):
+    """The same index with its values inside (format 4, as isplat wrote it before) and in the values file (format
+    6): pre's images are bit for bit the same, and so are its bytes needed."""
+    from isplat.renderer import Renderer
+
+    r = np.random.default_rng(11)
+    dens = r.choice(np.array([0, 120, 180, 250], np.uint8), size=(10, 12, 14))
+    aug, idx = write_volume(tmp_path, dens, gm=r.integers(0, 256, dens.shape, dtype=np.uint8),
+                            normal=r.integers(0, 65536, dens.shape, dtype=np.uint16))
+    v4 = tmp_path / "old.idx.h5"
+    with fileio.create_hdf5(v4) as f, h5py.File(idx, "r") as i, h5py.File(store.values_path(idx), "r") as v:
+        store._write_root(f, tuple(i.attrs["shape"]), i.attrs["density_sha256"].decode(),
+                          [tuple(x) for x in i.attrs["density_ranges"]], version=4)
+        v.copy(v["values"], f, "values")
+        for a in "ijk":
+            i.copy(i["axes"][a], f["axes"], a)
+        store.finish_index(f)
+    images = {}
+    for name, path in (("v6", idx), ("v4", v4)):
+        scene = make_scene(aug, path, image="width = 24\nheight = 20",
+                           transfer="opacity = [[100, 0], [110, 0.6], [255, 0.9]]\n"
+                                    "gradient_opacity = [[0, 0.5], [255, 1]]",
+                           views="list = [{azimuth = 30, elevation = 20}]")
+        rend = Renderer(scene)
+        images[name] = (np.asarray(rend.render_view(0)[0]), rend.report)
+    assert images["v6"][1].values_from == "values file" and images["v4"][1].values_from == "index"
+    assert open_index(v4).version == 4
+    assert np.array_equal(images["v6"][0], images["v4"][0]) and images["v6"][0].any()
+    assert images["v6"][1].bytes_needed == images["v4"][1].bytes_needed

@@ -17,7 +17,9 @@ Measures: the *streak* strength (:func:`streak`: the high-frequency luminance's 
 RMSE over RGB against the object, the *band energy* of a side view (:func:`band_energy`), the sampler's cost in ns
 per sample (interleaved rounds, :func:`ns_per_sample`), ``--thin-slices``'s cost on the command line
 (``isplat augment``, /usr/bin/time), and the streak of linear and cubic against the grid's anisotropy
-(:data:`RATIO_CASES`: where ``isplat.splat.post.THICK_RATIO`` is set).
+(:data:`RATIO_CASES`: where ``isplat.splat.post.THICK_RATIO`` is set). The maximum-intensity projection of
+:data:`MIP_CASE` (``render.mode = "mip"``), linear and cubic between slices, against its object: streak, RMSE,
+band and cost (:func:`mip_rows`).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ import numpy as np
 
 from benchmarks import _doc
 
-TECHNIQUES = ["post"]
+TECHNIQUES = ["post", "mip"]
 SOURCES = _doc.sources(_doc.RENDER, _doc.AUGMENT, _doc.SAMPLES, ("isplat/resample.py", "benchmarks/thick.py",
                                                                   "isplat/presets.py", "isplat/scene_parse.py",
                                                                   "examples/ct-preset.toml"))
@@ -55,6 +57,8 @@ SETTINGS = {"before": {"BETWEEN_SLICES": "linear"}, "after": {}, "monotone": {"B
 # the mr-head sample at these slice spacings (1 x 1 x R mm, 224 / R slices), linear and cubic between slices, the
 # cubic forced at every ratio: what the cubic gains against the anisotropy (isplat.splat.post.THICK_RATIO)
 RATIO_CASES = (1.5, 2.0, 3.0, 5.0, 7.0)
+# the case the maximum-intensity projection is measured on (mip_rows), as CASES
+MIP_CASE = CASES[3]
 ROUNDS = 41               # interleaved rounds of the timing (ns_per_sample; frames of 10-50 ms on a shared machine)
 WINDOWS = {"ct-head": (-1024.0, 3071.0), "ct-chest": (-1024.0, 3071.0)}
 
@@ -63,8 +67,9 @@ def _log(msg):
     print(f"[thick] {msg}", file=sys.stderr, flush=True)
 
 
-def scene(aug: Path, preset: str, view: str, size: int, shaded: bool = True):
-    """The scene of examples/ct-preset.toml with ``preset`` (in data units: read through ``aug``'s window)."""
+def scene(aug: Path, preset: str, view: str, size: int, shaded: bool = True, mode: str | None = None):
+    """The scene of examples/ct-preset.toml with ``preset`` (in data units: read through ``aug``'s window);
+    ``mode`` a ``render.mode`` ("mip": the maximum-intensity projection, scene version 6)."""
     from isplat.scene import load_scene
 
     az, el = VIEWS[view]
@@ -72,6 +77,8 @@ def scene(aug: Path, preset: str, view: str, size: int, shaded: bool = True):
           f"camera.azimuth={az}", f"camera.elevation={el}", 'camera.projection="orthographic"']
     if not shaded:
         ov.append("shading.enabled=false")
+    if mode is not None:
+        ov += ["version=6", f'render.mode="{mode}"']
     return load_scene(REPO / "examples" / "ct-preset.toml", ov)
 
 
@@ -194,16 +201,17 @@ def streak(img, phase, period_px: float) -> float:
     return _measure().streak(img, phase, period_px)
 
 
-def ns_per_sample(sc, c, rounds: int) -> dict:
-    """Interleaved rounds of the frame with the sampler linear between slices (before) and cubic (after): the
-    median frame seconds over the samples composited, in ns per sample, and the samples."""
+def interleaved(sc, c, keys, rounds: int) -> tuple[dict, dict]:
+    """Interleaved rounds of the frame with each of the :data:`SETTINGS` ``keys`` in turn (the order reversed
+    every other round: none always first), after a warm-up frame of each (one process, one selection): the
+    median frame seconds of each, and its samples."""
     from isplat.frame import render_frame, views_for
 
     sel = _selection(sc, c)
     view = views_for(sc, sel)[0]
-    t = {"before": [], "after": [], "corners": []}
+    t = {k: [] for k in keys}
     n = {}
-    for w in t:                      # compile and warm both
+    for w in t:                      # compile and warm each
         old = _sampler(SETTINGS[w])
         render_frame(sel, view)
         _sampler(old)
@@ -216,7 +224,13 @@ def ns_per_sample(sc, c, rounds: int) -> dict:
                 _sampler(old)
             t[w].append(st.seconds)
             n[w] = st.samples
-    med = {w: statistics.median(v) for w, v in t.items()}
+    return {w: statistics.median(v) for w, v in t.items()}, n
+
+
+def ns_per_sample(sc, c, rounds: int) -> dict:
+    """Interleaved rounds of the frame with the sampler linear between slices (before) and cubic (after): the
+    median frame seconds over the samples composited, in ns per sample, and the samples."""
+    med, n = interleaved(sc, c, ("before", "after", "corners"), rounds)
     return dict(before=med["before"] * 1e9 / max(1, n["before"]), after=med["after"] * 1e9 / max(1, n["after"]),
                 samples=n["after"], seconds_before=med["before"], seconds_after=med["after"], rounds=rounds,
                 corners=med["corners"] * 1e9 / max(1, n["corners"]), seconds_corners=med["corners"])
@@ -273,6 +287,80 @@ def run_case(case, views, size, img_dir: Path, rounds: int):
     return rows
 
 
+def mip_rows(size: int, img_dir: Path, rounds: int) -> list:
+    """:data:`MIP_CASE` as a maximum-intensity projection (``render.mode = "mip"``, its preset's opacity deciding
+    the quads of interest, the default window), each view linear (before) and cubic (after) between slices and
+    the object: the streak measure with the phase of the point of the object's highest density along the ray
+    (what a MIP shows), RMSE against the object, the band energy of the side view, and (oblique) the frame time
+    before and after in interleaved rounds. Writes img/thick-mip-CASE.png (before, after, object; side, oblique)."""
+    from isplat.samples import make_sample
+
+    tag, name, shape, sp, preset, nk_obj = MIP_CASE
+    _log(f"mip {tag}")
+    c = channels(make_sample(name, shape)[0], sp, None)
+    obj = channels(make_sample(name, (shape[0], shape[1], nk_obj))[0], (1.0, 1.0, 1.0), c["window"])
+    rows, pics = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        aug = Path(tmp) / "scene.aug.h5"
+        _write_aug(aug, c["raw"], name)
+        for view in VIEWS:
+            sc = scene(aug, preset, view, size, mode="mip")
+            imgs = {k: render_with(sc, c, k) for k in ("before", "after")}
+            imgs["object"] = render(sc, obj)
+            phase = _measure().surface_phase(_view(sc, obj), _view(sc, c), obj["density"], None)
+            period = max(sp) / pixel_size(sc, c)
+            row = dict(case=tag, view=view, preset=preset, spacing=sp, size=size,
+                       streak={k: streak(v, phase, period) for k, v in imgs.items()},
+                       rmse={k: rmse(imgs[k], imgs["object"]) for k in ("before", "after")})
+            if view == "side":
+                row["band"] = {k: band_energy(v, period) for k, v in imgs.items()}
+            if view == "oblique" and rounds:
+                med, n = interleaved(sc, c, ("before", "after"), rounds)
+                row["timing"] = dict(seconds_before=med["before"], seconds_after=med["after"], rounds=rounds,
+                                     samples=n["after"])
+            rows.append(row)
+            pics.append([imgs["before"], imgs["after"], imgs["object"]])
+    _write_png(Path(img_dir) / f"thick-mip-{tag}.png", pics)
+    return rows
+
+
+def mip_section(rows) -> list:
+    """The page's lines on MIP between thick slices (:func:`mip_rows`)."""
+    if not rows:
+        return []
+    tag = rows[0]["case"]
+    L = ["", "## MIP between thick slices", "",
+         "The maximum-intensity projection (`render.mode = \"mip\"`, isplat/splat/mip.py) samples the density as "
+         "the post-classified technique does, so on the same grids it takes the same reconstruction between slices: "
+         "the Catmull-Rom cubic along the thick in-slice axis at and above `THICK_RATIO` (clamped to the codes; "
+         "`isplat.splat.post._density_at`, imported), bilinear below it, bit for bit as before (tests/test_mip.py). "
+         "A unit's bound (the most a sample of its quads can reach, which lets the index skip it) is widened by "
+         "what the cubic can overshoot its eight voxels (1/8 of their range). "
+         f"The {tag} sample, {rows[0]['size']} x {rows[0]['size']}, orthographic, the mri-t1-head preset's opacity deciding the "
+         "quads of interest, the default window (codes 0..255 as grey): *before* linear between slices "
+         "(`BETWEEN_SLICES = \"linear\"`), *after* the cubic (the default), the *object* (1 mm slices). The streak "
+         "measure's phase is that of the point of the object's highest density along each ray (what a MIP shows; "
+         "tests/streak_measure.py `surface_phase` with no level).", "",
+         f"![mip-{tag}](img/thick-mip-{tag}.png)", "",
+         f"`img/thick-mip-{tag}.png` (MIP, `render.mode = \"mip\"`): before, after, object; side, then oblique.",
+         "", "| case | technique, mode | view | streak before | after | object | RMSE before | after | "
+         "band before | after | object |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        s, e, b = r["streak"], r["rmse"], r.get("band")
+        L.append(f"| {r['case']} | MIP (`render.mode = \"mip\"`) | {r['view']} | {_f(s['before'])} | "
+                 f"**{_f(s['after'])}** | {_f(s['object'])} | {_f(e['before'])} | **{_f(e['after'])}** | " +
+                 (f"{_f(b['before'])} | **{_f(b['after'])}** | {_f(b['object'])} |" if b else "| | |"))
+    timed = [r for r in rows if "timing" in r]
+    for r in timed:
+        t = r["timing"]
+        L += ["", f"Its cost (MIP, {r['view']} view, {t['rounds']} interleaved rounds of linear and cubic, the "
+              f"order swapped every round, after a warm-up frame of each; the median frame time, the whole frame): "
+              f"{t['seconds_before'] * 1e3:.1f} ms linear, {t['seconds_after'] * 1e3:.1f} ms cubic, "
+              f"{t['seconds_after'] / t['seconds_before']:.2f} times ({t['samples']:,} samples); a machine shared "
+              "with other work, so the ratio is what to read."]
+    return L
+
+
 def _write_aug(path: Path, o: dict, name: str):
     from isplat.augfile import write_augmented
 
@@ -302,8 +390,9 @@ def run(out_dir: Path, quick: bool) -> Path:
         if not quick:
             costs[tag] = thin_cost(name, shape, sp, WINDOWS.get(name))
     ratios = ratio_rows(size, RATIO_CASES[:1] if quick else RATIO_CASES)
+    mip = mip_rows(size, Path(out_dir) / "img", 2 if quick else ROUNDS)
     path = Path(out_dir) / "thick-slices.md"
-    path.write_text(render_doc(rows, costs, size, quick, time.perf_counter() - t0, ratios))
+    path.write_text(render_doc(rows, costs, size, quick, time.perf_counter() - t0, ratios, mip))
     return path
 
 
@@ -351,10 +440,10 @@ def _get(rows, case, view):
     return next((r for r in rows if r["case"] == case and r["view"] == view), None)
 
 
-def render_doc(rows, costs, size, quick, seconds, ratios=()) -> str:
+def render_doc(rows, costs, size, quick, seconds, ratios=(), mip=()) -> str:
     L = ["```", "python -m benchmarks thick" + (" --quick" if quick else ""), "```", "",
          "# Thick slices: rings, terraces and streaks, their cause and their fix", "",
-         f"Measured on {_doc.machine_line()}; {seconds:.0f} s. Every picture and number: isplat's default technique, "
+         f"Measured on {_doc.machine_line()}; {seconds:.0f} s. Every picture and number but those of the MIP section: isplat's default technique, "
          f"**post-classified** splatting (`render.classification = \"post\"`), {size} x {size}, orthographic, "
          "shaded (examples/ct-preset.toml's lights and Phong terms), early termination at its default. Each case is "
          "an isplat sample made with thick slices (`isplat sample NAME --shape ...`, augmented with `--spacing`) and "
@@ -446,6 +535,7 @@ def render_doc(rows, costs, size, quick, seconds, ratios=()) -> str:
         L += ["", f"With `--thin-slices`: {min(r[0] for r in ratios_):.2f}-{max(r[0] for r in ratios_):.2f} times "
               f"the seconds, {min(r[1] for r in ratios_):.0f}-{max(r[1] for r in ratios_):.0f} MB more peak memory, "
               f"{min(r[2] for r in ratios_):.1f}-{max(r[2] for r in ratios_):.1f} times the file."]
+    L += mip_section(mip)
     L += ["", reading(rows, costs, ratios), ""]
     return "\n".join(L)
 

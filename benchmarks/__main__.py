@@ -10,9 +10,10 @@ import benchmarks as pkg
 from benchmarks import _doc
 
 
-# not part of `all`: compares two versions of isplat, run as `python benchmarks/commits.py --old REV`; and
-# `python -m benchmarks.threadload` (threads quiet and under load, on any checkout through PYTHONPATH)
-STANDALONE = ("commits", "threadload")
+# not part of `all`: compares two versions of isplat, run as `python benchmarks/commits.py --old REV`;
+# `python -m benchmarks.threadload` (threads quiet and under load, on any checkout through PYTHONPATH); and
+# `python -m benchmarks.contour_shift` (a prototype between thick slices, measured against the cubic; prints a table)
+STANDALONE = ("commits", "threadload", "contour_shift")
 # run by name only, not in `all` (so not in CI's bench-check): compiles an older commit's kernels (~4 min)
 BY_NAME_ONLY = ("sampler",)
 

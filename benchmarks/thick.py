@@ -17,7 +17,10 @@ Measures: the *streak* strength (:func:`streak`: the high-frequency luminance's 
 RMSE over RGB against the object, the *band energy* of a side view (:func:`band_energy`), the sampler's cost in ns
 per sample (interleaved rounds, :func:`ns_per_sample`), ``--thin-slices``'s cost on the command line
 (``isplat augment``, /usr/bin/time), and the streak of linear and cubic against the grid's anisotropy
-(:data:`RATIO_CASES`: where ``isplat.splat.post.THICK_RATIO`` is set).
+(:data:`RATIO_CASES`: where ``isplat.splat.post.THICK_RATIO`` is set). The maximum-intensity projection of
+:data:`MIP_CASE` (``render.mode = "mip"``), linear and cubic between slices, against its object: streak, RMSE,
+band and cost (:func:`mip_rows`). A sphere label on 7 mm slices (:func:`label_rows`): its terraces, and whether the
+cubic would move its boundary (:func:`label_mismatch`).
 """
 
 from __future__ import annotations
@@ -35,8 +38,10 @@ import numpy as np
 
 from benchmarks import _doc
 
-TECHNIQUES = ["post"]
+TECHNIQUES = ["post", "mip"]
 SOURCES = _doc.sources(_doc.RENDER, _doc.AUGMENT, _doc.SAMPLES, ("isplat/resample.py", "benchmarks/thick.py",
+                                                                  "isplat/labels.py", "isplat/label_select.py",
+                                                                  "tests/streak_measure.py",
                                                                   "isplat/presets.py", "isplat/scene_parse.py",
                                                                   "examples/ct-preset.toml"))
 REPO = Path(__file__).resolve().parents[1]
@@ -55,6 +60,11 @@ SETTINGS = {"before": {"BETWEEN_SLICES": "linear"}, "after": {}, "monotone": {"B
 # the mr-head sample at these slice spacings (1 x 1 x R mm, 224 / R slices), linear and cubic between slices, the
 # cubic forced at every ratio: what the cubic gains against the anisotropy (isplat.splat.post.THICK_RATIO)
 RATIO_CASES = (1.5, 2.0, 3.0, 5.0, 7.0)
+# the case the maximum-intensity projection is measured on (mip_rows), as CASES
+MIP_CASE = CASES[3]
+# the label measured between thick slices (label_rows): a sphere's radius (mm), its centre's offset along the thick
+# axis (mm), the grid's in-slice voxels (1 mm each; the thick grid has n / 7 slices of 7 mm)
+LABEL_SPHERE = (45.0, 2.6, 126)
 ROUNDS = 41               # interleaved rounds of the timing (ns_per_sample; frames of 10-50 ms on a shared machine)
 WINDOWS = {"ct-head": (-1024.0, 3071.0), "ct-chest": (-1024.0, 3071.0)}
 
@@ -63,8 +73,9 @@ def _log(msg):
     print(f"[thick] {msg}", file=sys.stderr, flush=True)
 
 
-def scene(aug: Path, preset: str, view: str, size: int, shaded: bool = True):
-    """The scene of examples/ct-preset.toml with ``preset`` (in data units: read through ``aug``'s window)."""
+def scene(aug: Path, preset: str, view: str, size: int, shaded: bool = True, mode: str | None = None):
+    """The scene of examples/ct-preset.toml with ``preset`` (in data units: read through ``aug``'s window);
+    ``mode`` a ``render.mode`` ("mip": the maximum-intensity projection, scene version 6)."""
     from isplat.scene import load_scene
 
     az, el = VIEWS[view]
@@ -72,6 +83,8 @@ def scene(aug: Path, preset: str, view: str, size: int, shaded: bool = True):
           f"camera.azimuth={az}", f"camera.elevation={el}", 'camera.projection="orthographic"']
     if not shaded:
         ov.append("shading.enabled=false")
+    if mode is not None:
+        ov += ["version=6", f'render.mode="{mode}"']
     return load_scene(REPO / "examples" / "ct-preset.toml", ov)
 
 
@@ -194,16 +207,17 @@ def streak(img, phase, period_px: float) -> float:
     return _measure().streak(img, phase, period_px)
 
 
-def ns_per_sample(sc, c, rounds: int) -> dict:
-    """Interleaved rounds of the frame with the sampler linear between slices (before) and cubic (after): the
-    median frame seconds over the samples composited, in ns per sample, and the samples."""
+def interleaved(sc, c, keys, rounds: int) -> tuple[dict, dict]:
+    """Interleaved rounds of the frame with each of the :data:`SETTINGS` ``keys`` in turn (the order reversed
+    every other round: none always first), after a warm-up frame of each (one process, one selection): the
+    median frame seconds of each, and its samples."""
     from isplat.frame import render_frame, views_for
 
     sel = _selection(sc, c)
     view = views_for(sc, sel)[0]
-    t = {"before": [], "after": [], "corners": []}
+    t = {k: [] for k in keys}
     n = {}
-    for w in t:                      # compile and warm both
+    for w in t:                      # compile and warm each
         old = _sampler(SETTINGS[w])
         render_frame(sel, view)
         _sampler(old)
@@ -216,7 +230,13 @@ def ns_per_sample(sc, c, rounds: int) -> dict:
                 _sampler(old)
             t[w].append(st.seconds)
             n[w] = st.samples
-    med = {w: statistics.median(v) for w, v in t.items()}
+    return {w: statistics.median(v) for w, v in t.items()}, n
+
+
+def ns_per_sample(sc, c, rounds: int) -> dict:
+    """Interleaved rounds of the frame with the sampler linear between slices (before) and cubic (after): the
+    median frame seconds over the samples composited, in ns per sample, and the samples."""
+    med, n = interleaved(sc, c, ("before", "after", "corners"), rounds)
     return dict(before=med["before"] * 1e9 / max(1, n["before"]), after=med["after"] * 1e9 / max(1, n["after"]),
                 samples=n["after"], seconds_before=med["before"], seconds_after=med["after"], rounds=rounds,
                 corners=med["corners"] * 1e9 / max(1, n["corners"]), seconds_corners=med["corners"])
@@ -273,6 +293,187 @@ def run_case(case, views, size, img_dir: Path, rounds: int):
     return rows
 
 
+def mip_rows(size: int, img_dir: Path, rounds: int) -> list:
+    """:data:`MIP_CASE` as a maximum-intensity projection (``render.mode = "mip"``, its preset's opacity deciding
+    the quads of interest, the default window), each view linear (before) and cubic (after) between slices and
+    the object: the streak measure with the phase of the point of the object's highest density along the ray
+    (what a MIP shows), RMSE against the object, the band energy of the side view, and (oblique) the frame time
+    before and after in interleaved rounds. Writes img/thick-mip-CASE.png (before, after, object; side, oblique)."""
+    from isplat.samples import make_sample
+
+    tag, name, shape, sp, preset, nk_obj = MIP_CASE
+    _log(f"mip {tag}")
+    c = channels(make_sample(name, shape)[0], sp, None)
+    obj = channels(make_sample(name, (shape[0], shape[1], nk_obj))[0], (1.0, 1.0, 1.0), c["window"])
+    rows, pics = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        aug = Path(tmp) / "scene.aug.h5"
+        _write_aug(aug, c["raw"], name)
+        for view in VIEWS:
+            sc = scene(aug, preset, view, size, mode="mip")
+            imgs = {k: render_with(sc, c, k) for k in ("before", "after")}
+            imgs["object"] = render(sc, obj)
+            phase = _measure().surface_phase(_view(sc, obj), _view(sc, c), obj["density"], None)
+            period = max(sp) / pixel_size(sc, c)
+            row = dict(case=tag, view=view, preset=preset, spacing=sp, size=size,
+                       streak={k: streak(v, phase, period) for k, v in imgs.items()},
+                       rmse={k: rmse(imgs[k], imgs["object"]) for k in ("before", "after")})
+            if view == "side":
+                row["band"] = {k: band_energy(v, period) for k, v in imgs.items()}
+            if view == "oblique" and rounds:
+                med, n = interleaved(sc, c, ("before", "after"), rounds)
+                row["timing"] = dict(seconds_before=med["before"], seconds_after=med["after"], rounds=rounds,
+                                     samples=n["after"])
+            rows.append(row)
+            pics.append([imgs["before"], imgs["after"], imgs["object"]])
+    _write_png(Path(img_dir) / f"thick-mip-{tag}.png", pics)
+    return rows
+
+
+def mip_section(rows) -> list:
+    """The page's lines on MIP between thick slices (:func:`mip_rows`)."""
+    if not rows:
+        return []
+    tag = rows[0]["case"]
+    L = ["", "## MIP between thick slices", "",
+         "The maximum-intensity projection (`render.mode = \"mip\"`, isplat/splat/mip.py) samples the density as "
+         "the post-classified technique does, so on the same grids it takes the same reconstruction between slices: "
+         "the Catmull-Rom cubic along the thick in-slice axis at and above `THICK_RATIO` (clamped to the codes; "
+         "`isplat.splat.post._density_at`, imported), bilinear below it, bit for bit as before (tests/test_mip.py). "
+         "A unit's bound (the most a sample of its quads can reach, which lets the index skip it) is widened by "
+         "what the cubic can overshoot its eight voxels (1/8 of their range). "
+         f"The {tag} sample, {rows[0]['size']} x {rows[0]['size']}, orthographic, the mri-t1-head preset's opacity deciding the "
+         "quads of interest, the default window (codes 0..255 as grey): *before* linear between slices "
+         "(`BETWEEN_SLICES = \"linear\"`), *after* the cubic (the default), the *object* (1 mm slices). The streak "
+         "measure's phase is that of the point of the object's highest density along each ray (what a MIP shows; "
+         "tests/streak_measure.py `surface_phase` with no level).", "",
+         f"![mip-{tag}](img/thick-mip-{tag}.png)", "",
+         f"`img/thick-mip-{tag}.png` (MIP, `render.mode = \"mip\"`): before, after, object; side, then oblique.",
+         "", "| case | technique, mode | view | streak before | after | object | RMSE before | after | "
+         "band before | after | object |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        s, e, b = r["streak"], r["rmse"], r.get("band")
+        L.append(f"| {r['case']} | MIP (`render.mode = \"mip\"`) | {r['view']} | {_f(s['before'])} | "
+                 f"**{_f(s['after'])}** | {_f(s['object'])} | {_f(e['before'])} | **{_f(e['after'])}** | " +
+                 (f"{_f(b['before'])} | **{_f(b['after'])}** | {_f(b['object'])} |" if b else "| | |"))
+    timed = [r for r in rows if "timing" in r]
+    for r in timed:
+        t = r["timing"]
+        L += ["", f"Its cost (MIP, {r['view']} view, {t['rounds']} interleaved rounds of linear and cubic, the "
+              f"order swapped every round, after a warm-up frame of each; the median frame time, the whole frame): "
+              f"{t['seconds_before'] * 1e3:.1f} ms linear, {t['seconds_after'] * 1e3:.1f} ms cubic, "
+              f"{t['seconds_after'] / t['seconds_before']:.2f} times ({t['samples']:,} samples); a machine shared "
+              "with other work, so the ratio is what to read."]
+    return L
+
+
+def sphere_label(n: int, dz: float, radius: float = LABEL_SPHERE[0], centre: float = LABEL_SPHERE[1]) -> np.ndarray:
+    """Label 1 on an ``n`` x ``n`` x ``n / dz`` grid of 1 x 1 x ``dz`` mm voxels (``[k, j, i]``, uint8): a sphere
+    of ``radius`` mm about the grid's middle, ``centre`` mm off it along k (so the poles fall between slices)."""
+    nk = int(round(n / dz))
+    x = np.arange(n) - (n - 1) / 2.0
+    z = (np.arange(nk) - (nk - 1) / 2.0) * dz - centre
+    return (x[None, None, :] ** 2 + x[None, :, None] ** 2 + z[:, None, None] ** 2 <= radius ** 2).astype(np.uint8)
+
+
+def _label_render(tmp: Path, lab: np.ndarray, dz: float, view: str, size: int):
+    """The shaded render of label 1 of ``lab`` (density 0 everywhere, its opacity 0: the label alone) on 1 x 1 x
+    ``dz`` mm voxels, post-classified (the only technique that shows labels): the image and the view."""
+    from isplat.augfile import write_augmented
+    from isplat.renderer import Renderer
+    from isplat.scene import parse_scene
+
+    aug = tmp / f"labels-{dz:g}.aug.h5"
+    if not aug.exists():
+        d = np.zeros(lab.shape, np.uint8)
+        write_augmented(aug, d, d, np.full(d.shape, 0x8080, np.uint16), (1.0, 1.0, dz), (0.0, 255.0), 0.0,
+                        labels=lab)
+    az, el = VIEWS[view]
+    text = (f'version = 6\n[data]\naugmented = "{aug}"\n[image]\nwidth = {size}\nheight = {size}\n[camera]\n'
+            f'projection = "orthographic"\nazimuth = {az}\nelevation = {el}\n[render]\nmethod = "full"\n'
+            '[transfer]\nopacity = [[0, 0], [255, 0]]\n[shading]\nambient = 0.2\ndiffuse = 0.75\nspecular = 0.3\n'
+            'shininess = 30\n[labels.1]\ncolor = [0.9, 0.75, 0.6]\nopacity = 1.0\n')
+    r = Renderer(parse_scene(text, tmp, "labels.toml"))
+    return r.render_view(0)[0].astype(np.float64), r.views[0]
+
+
+def label_mismatch(n: int, dz: float, cubic: bool, phases: int = 32) -> float:
+    """The label's shape between slices, without rendering: the 1/2 level of its indicator along the thick axis
+    (linear, or ``cubic`` Catmull-Rom clamped to [0, 1] as the post technique's density) at every in-slice voxel
+    column, at ``phases`` points between each two slices, against the true sphere: the mean number of columns
+    (1 mm^2 each) whose membership is wrong, per point."""
+    from isplat.splat.post import cubic as cr
+
+    lab = sphere_label(n, dz).astype(np.float64)
+    nk = lab.shape[0]
+    x = np.arange(n) - (n - 1) / 2.0
+    r2 = x[None, :] ** 2 + x[:, None] ** 2
+    wrong, count = 0, 0
+    for k in range(nk - 1):
+        for t in np.arange(phases) / phases:
+            if cubic:
+                q = [lab[min(max(k + d, 0), nk - 1)] for d in (-1, 0, 1, 2)]
+                ind = np.minimum(np.vectorize(lambda a, b, c, e: cr(a, b, c, e, t, 1))(*q), 1.0)
+            else:
+                ind = (1 - t) * lab[k] + t * lab[k + 1]
+            z = ((k + t) - (nk - 1) / 2.0) * dz - LABEL_SPHERE[1]
+            wrong += int(((ind > 0.5) != (r2 + z * z <= LABEL_SPHERE[0] ** 2)).sum())
+            count += 1
+    return wrong / count
+
+
+def label_rows(size: int) -> list:
+    """The sphere label (:func:`sphere_label`) on 1 x 1 x 7 mm voxels against the same sphere on 1 mm voxels (the
+    object), each view: the streak (phase of the object's label surface), RMSE and band energy of the label's
+    shaded render, post-classified; and :func:`label_mismatch` of the linear and the cubic indicator."""
+    n, dz = LABEL_SPHERE[2], 7.0
+    thick, obj = sphere_label(n, dz), sphere_label(n, 1.0)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for view in VIEWS:
+            _log(f"labels: {view}")
+            img, vt = _label_render(Path(tmp), thick, dz, view, size)
+            ref, vo = _label_render(Path(tmp), obj, 1.0, view, size)
+            phase = _measure().surface_phase(vo, vt, obj * 255, 128.0)
+            period = dz / vt.frame.pixel_size
+            row = dict(view=view, streak=streak(img, phase, period), object=streak(ref, phase, period),
+                       rmse=rmse(img, ref))
+            if view == "side":
+                row["band"], row["band_object"] = band_energy(img, period), band_energy(ref, period)
+            rows.append(row)
+    rows.append(dict(mismatch={k: label_mismatch(n, dz, k == "cubic") for k in ("linear", "cubic")}))
+    return rows
+
+
+def label_section(rows) -> list:
+    """The page's lines on labels between thick slices (:func:`label_rows`)."""
+    if not rows:
+        return []
+    views, mm = rows[:-1], rows[-1]["mismatch"]
+    r0, c0, n = LABEL_SPHERE
+    L = ["", "## Labels between thick slices", "",
+         f"A sphere label (radius {r0:g} mm, its centre {c0:g} mm off the grid's middle along the slices' axis) on "
+         f"{n} x {n} x {round(n / 7)} voxels of 1 x 1 x 7 mm, against the same sphere on 1 mm voxels (the object), "
+         "rendered alone (the density's opacity 0), shaded, orthographic, by the **post-classified** technique "
+         "(`[labels]` scenes: membership by the quad's bilinear indicator above 1/2, normals from the label's "
+         "smoothed indicator, isplat/splat/labels.py). The streak's phase is that of the object's label surface.", "",
+         "| label | technique | view | streak | object | RMSE | band | object |", "|---|---|---|---:|---:|---:|---:|---:|"]
+    for r in views:
+        L.append(f"| sphere, 1 x 1 x 7 | post-classified, `[labels]` | {r['view']} | {_f(r['streak'])} | "
+                 f"{_f(r['object'])} | {_f(r['rmse'])} | {_f(r.get('band'))} | {_f(r.get('band_object'))} |")
+    L += ["", "The label shows the terraces of the slices (streak and band about twice the object's). The density's "
+          "cubic would not remove them: a label's indicator is 0 or 1 at every voxel, and along the thick axis a "
+          "Catmull-Rom cubic between a 1 and a 0 that each continue for a slice (1, 1, 0, 0) crosses 1/2 half-way, "
+          "exactly where the linear one does; it differs only next to a label one slice thick. Measured without "
+          "rendering (`label_mismatch`: the 1/2 level of the indicator at every in-slice voxel column, 32 points "
+          "between each two slices, against the true sphere), the columns whose membership is wrong, per point: "
+          f"linear {mm['linear']:.1f}, Catmull-Rom clamped to [0, 1] {mm['cubic']:.1f}. So labels keep the "
+          "bilinear indicator. What would move a label's boundary between slices is shape-based interpolation "
+          "(each slice's signed distance to the label's contour, interpolated between slices: Raya and Udupa "
+          "1990), which needs a distance per voxel and label, not the ids."]
+    return L
+
+
 def _write_aug(path: Path, o: dict, name: str):
     from isplat.augfile import write_augmented
 
@@ -302,8 +503,10 @@ def run(out_dir: Path, quick: bool) -> Path:
         if not quick:
             costs[tag] = thin_cost(name, shape, sp, WINDOWS.get(name))
     ratios = ratio_rows(size, RATIO_CASES[:1] if quick else RATIO_CASES)
+    mip = mip_rows(size, Path(out_dir) / "img", 2 if quick else ROUNDS)
+    labels = label_rows(size)
     path = Path(out_dir) / "thick-slices.md"
-    path.write_text(render_doc(rows, costs, size, quick, time.perf_counter() - t0, ratios))
+    path.write_text(render_doc(rows, costs, size, quick, time.perf_counter() - t0, ratios, mip, labels))
     return path
 
 
@@ -351,10 +554,10 @@ def _get(rows, case, view):
     return next((r for r in rows if r["case"] == case and r["view"] == view), None)
 
 
-def render_doc(rows, costs, size, quick, seconds, ratios=()) -> str:
+def render_doc(rows, costs, size, quick, seconds, ratios=(), mip=(), labels=()) -> str:
     L = ["```", "python -m benchmarks thick" + (" --quick" if quick else ""), "```", "",
          "# Thick slices: rings, terraces and streaks, their cause and their fix", "",
-         f"Measured on {_doc.machine_line()}; {seconds:.0f} s. Every picture and number: isplat's default technique, "
+         f"Measured on {_doc.machine_line()}; {seconds:.0f} s. Every picture and number but those of the MIP section: isplat's default technique, "
          f"**post-classified** splatting (`render.classification = \"post\"`), {size} x {size}, orthographic, "
          "shaded (examples/ct-preset.toml's lights and Phong terms), early termination at its default. Each case is "
          "an isplat sample made with thick slices (`isplat sample NAME --shape ...`, augmented with `--spacing`) and "
@@ -446,6 +649,8 @@ def render_doc(rows, costs, size, quick, seconds, ratios=()) -> str:
         L += ["", f"With `--thin-slices`: {min(r[0] for r in ratios_):.2f}-{max(r[0] for r in ratios_):.2f} times "
               f"the seconds, {min(r[1] for r in ratios_):.0f}-{max(r[1] for r in ratios_):.0f} MB more peak memory, "
               f"{min(r[2] for r in ratios_):.1f}-{max(r[2] for r in ratios_):.1f} times the file."]
+    L += mip_section(mip)
+    L += label_section(labels)
     L += ["", reading(rows, costs, ratios), ""]
     return "\n".join(L)
 

@@ -4,7 +4,11 @@ Each pixel's own ray (the pixel centre on the image plane; from the eye in persp
 slice plane of the principal axis (points nearer than the near plane left out), the cutting planes tested at the
 crossing, and the bilinear density there (the edge voxel repeated up to half a voxel beyond the outer centres),
 taken only in quads one of whose four voxels has a density of non-zero opacity; the pixel keeps the largest (MIP)
-or smallest (MinIP). No index, no ordering, no skipping: every slice of every ray.
+or smallest (MinIP). On a grid whose thicker in-slice axis is at least isplat.splat.post.THICK_RATIO times the
+finest spacing (and BETWEEN_SLICES not "linear"), the density there is the post reference's cubic along that axis
+instead (tests/post_reference.py ``_thick_axis``, ``_density``: a cubic Hermite through the four voxels around
+the point in each of the quad's two rows, indices clamped to the volume, Catmull-Rom clamped to 0..255, then
+linear across). No index, no ordering, no skipping: every slice of every ray.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import numpy as np
 
 from isplat import camera as C
 from isplat.transfer import piecewise_linear
+from post_reference import _density, _thick_axis
 
 
 EDGE = 1e-7        # grid units: a crossing this near a quad's edge may fall in either quad (mip_bounds)
@@ -40,6 +45,8 @@ def _reference(density, view, scene, mode, bounds):
     frame, geom = view.frame, view.geom
     axis, _ = C.principal_axis(frame, geom)
     ia, ib, ic = C.SLICE_AXES[axis]
+    thick = _thick_axis(geom.spacing, ia, ib, None)
+    density = np.asarray(density, np.float64)          # the cubic's differences: no uint8 wrap-around
     n_ijk = density.shape[::-1]
     opac = piecewise_linear(scene.transfer.opacity, np.arange(256.0), True)[:, 0]
     interest = opac > 0
@@ -69,7 +76,7 @@ def _reference(density, view, scene, mode, bounds):
                 X = geom.q + g @ geom.steps
                 if any((X - np.asarray(cut.point)) @ np.asarray(cut.normal) < 0 for cut in scene.cuts):
                     continue
-                got = [bilinear(density, g[ia] + du, g[ib] + dv, c, (ia, ib, ic), n_ijk, interest)
+                got = [bilinear(density, g[ia] + du, g[ib] + dv, c, (ia, ib, ic), n_ijk, interest, thick)
                        for du, dv in shifts]
                 found = [s for s in got if s is not None]
                 if found and len(found) == len(got):
@@ -87,8 +94,9 @@ def _reference(density, view, scene, mode, bounds):
     return out, loose_out, span
 
 
-def bilinear(density, u, v, c, axes, n_ijk, interest):
-    """The bilinear density at (u, v) of slice c, or None outside the slice or in a quad of no interest."""
+def bilinear(density, u, v, c, axes, n_ijk, interest, thick=None):
+    """The bilinear density at (u, v) of slice c (or, ``thick`` not None, the post reference's cubic along the
+    thick axis: tests/post_reference.py ``_density``), or None outside the slice or in a quad of no interest."""
     ia, ib, ic = axes
     n_a, n_b = n_ijk[ia], n_ijk[ib]
     if not (-0.5 <= u < n_a - 0.5 and -0.5 <= v < n_b - 0.5):
@@ -102,6 +110,8 @@ def bilinear(density, u, v, c, axes, n_ijk, interest):
         val = int(density[ijk[2], ijk[1], ijk[0]])
         any_interest |= bool(interest[val])
         total += w * val
+    if any_interest and thick is not None:
+        return _density(density, qa, qb, fu, fv, c, axes, n_ijk, thick)
     return total if any_interest else None
 
 
@@ -123,6 +133,8 @@ def mip_reference_vectorized(density, view, interest, mode="mip", cuts=()):
     frame, geom = view.frame, view.geom
     axis, _ = C.principal_axis(frame, geom)
     ia, ib, ic = C.SLICE_AXES[axis]
+    if _thick_axis(geom.spacing, ia, ib, None) is not None:
+        raise ValueError("mip_reference_vectorized: bilinear only; a grid this thick takes the cubic (mip_reference)")
     n_ijk = density.shape[::-1]
     n_a, n_b = n_ijk[ia], n_ijk[ib]
     persp = frame.projection == "perspective"

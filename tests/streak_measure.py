@@ -28,11 +28,12 @@ def blur(L, sigma: float):
     return L
 
 
-def surface_phase(vo, vt, dens, level: float) -> np.ndarray:
+def surface_phase(vo, vt, dens, level: float | None) -> np.ndarray:
     """Per pixel, where the first surface the ray meets lies between two of the *thick* slices: the fraction
     0..1 of the slice step at the object's first point whose density code reaches ``level`` (a march through the
     object, half a voxel a step, nearest voxel), in the thick grid's slice coordinate; NaN where the ray meets
-    none. ``vo``, ``vt``: the same view (isplat.frame.views_for) of the object and of the thick data, whose
+    none. ``level`` None: the point of the ray's highest density instead (the first of equals; what a maximum
+    intensity projection shows), NaN where the ray misses the box. ``vo``, ``vt``: the same view (isplat.frame.views_for) of the object and of the thick data, whose
     grids are placed on the same box, centred (isplat.camera.volume_geometry); ``dens``: the object's density
     codes [k, j, i]. Orthographic views only."""
     f, g, gt = vo.frame, vo.geom, vt.geom
@@ -53,15 +54,20 @@ def surface_phase(vo, vt, dens, level: float) -> np.ndarray:
     lo = np.nanmax(np.minimum(t0, t1), axis=1)
     hi = np.nanmin(np.maximum(t0, t1), axis=1)
     hit = np.full(len(P), np.nan)
+    best = np.full(len(P), -1)
     t = lo.copy()
     live = hi > lo
     while live.any():
         idx = np.flatnonzero(live)
         q = og[idx] + t[idx, None] * dg[None]
         ijk = np.clip(np.rint(q).astype(np.int64), 0, (n - 1).astype(np.int64))
-        found = dens[ijk[:, 2], ijk[:, 1], ijk[:, 0]] >= level
+        val = dens[ijk[:, 2], ijk[:, 1], ijk[:, 0]].astype(np.int64)
+        found = val > best[idx] if level is None else val >= level
         hit[idx[found]] = t[idx[found]]
-        live[idx[found]] = False
+        if level is None:
+            best[idx[found]] = val[found]
+        else:
+            live[idx[found]] = False
         t[idx] += step
         live &= t < hi
     X = g.q + (og + hit[:, None] * dg[None]) @ g.steps          # world points

@@ -1,6 +1,7 @@
 """Maximum- and minimum-intensity projection (render.mode = "mip" / "minip", isplat.splat.mip) against the slow
 brute-force reference (tests/mip_reference.py), the window's grey ramp, the scene's checks and the command line."""
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -144,6 +145,111 @@ def test_random_volumes_and_views(seed, az, el, persp, minip, lo, shape):
     view = views_for(scene, sel)[0]
     rgba, _ = render_frame(sel, view)
     within(rgba, dens, view, scene, mode)      # equal to the reference but where a crossing is on a quad's edge
+
+
+# ---- between thick slices: the post technique's cubic along the thick in-slice axis -----------------------------
+@contextlib.contextmanager
+def _between(kind):
+    """Context: isplat.splat.post.BETWEEN_SLICES set to ``kind`` (which MIP follows, as the post technique)."""
+    from isplat.splat import post
+
+    old = post.BETWEEN_SLICES
+    post.BETWEEN_SLICES = kind
+    try:
+        yield
+    finally:
+        post.BETWEEN_SLICES = old
+
+
+THICK = (1.0, 0.9, 4.5)         # spacing i, j, k: k five times the finest (isplat.splat.post.THICK_RATIO: 4)
+
+
+@pytest.fixture(scope="module")
+def thick_data(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("mip-thick")
+    dens = lumpy(5, (6, 12, 13))
+    aug, idx = write_volume(tmp, dens, spacing=THICK, name="thick")
+    return tmp, aug, idx, dens
+
+
+@pytest.mark.parametrize("cam", CAMERAS)
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+@pytest.mark.parametrize("mode", ["mip", "minip"])
+def test_thick_slices_take_the_cubic_as_the_reference(thick_data, cam, proj, mode):
+    """Slices 5 times thicker than the finest spacing: the image is the reference's with the cubic between the
+    slices (indexed and full methods), and (views not along k) not the bilinear reference's."""
+    tmp, aug, idx, dens = thick_data
+    sc = scene_for(aug, idx, tmp, mode, f'projection = "{proj}"\n{cam}')
+    check(sc, dens)
+    check(scene_for(aug, idx, tmp, mode, f'projection = "{proj}"\n{cam}', render='method = "full"'), dens)
+    if "elevation = 90" not in cam:          # the view along k: samples on the slices, nothing between them
+        r = Renderer(sc)
+        rgba = r.render_view(0)[0]
+        with _between("linear"):
+            lin = grey(mip_reference(dens, r.views[0], sc, mode), sc.image.background)
+        assert np.abs(rgba - lin).max() > 1e-3
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), az=st.floats(-180, 180), el=st.floats(-89, 89), persp=st.booleans(),
+       minip=st.booleans(), lo=st.integers(1, 200), shape=st.tuples(*[st.integers(2, 7)] * 3),
+       thick=st.integers(0, 2), ratio=st.floats(4.0, 10.0), smooth=st.booleans())
+def test_random_thick_volumes_and_views(seed, az, el, persp, minip, lo, shape, thick, ratio, smooth):
+    """Random volumes (noise, or lumps whose cubic overshoots little) on grids with one axis ``ratio`` >= 4 times the
+    others, any view, MIP and MinIP: the image is the cubic reference's but where a crossing is on a quad's edge
+    (the units' bounds, widened for the cubic's overshoot, never skip a unit that would raise a pixel)."""
+    dens = lumpy(seed, shape) if smooth else np.random.default_rng(seed).integers(0, 256, shape).astype(np.uint8)
+    spacing = [1.0, 1.0, 1.0]
+    spacing[thick] = ratio
+    mode = "minip" if minip else "mip"
+    tf = f"opacity = [[0, 0.0], [{lo}, 0.0], [{lo + 1}, 1.0], [255, 1.0]]"
+    text = (f'[image]\nwidth = 17\nheight = 13\n[camera]\nprojection = "{"perspective" if persp else "orthographic"}"'
+            f'\nazimuth = {az}\nelevation = {el}\n[transfer]\n{tf}\n[render]\nmode = "{mode}"\nthreads = 1\n')
+    scene = parse_scene(text, ".", "h.toml", data_required=False)
+    sel = Selection.from_arrays(dens, scene, spacing=tuple(spacing))
+    view = views_for(scene, sel)[0]
+    rgba, _ = render_frame(sel, view)
+    within(rgba, dens, view, scene, mode)
+
+
+@settings(max_examples=300, deadline=None)
+@given(taps=st.lists(st.integers(0, 255), min_size=8, max_size=8), t=st.floats(0.0, 1.0), g=st.floats(0.0, 1.0),
+       kind=st.sampled_from([0, 1]), along=st.sampled_from([1, 2]))
+def test_cubic_bounds_hold_every_sample_of_the_quad(taps, t, g, kind, along):
+    """isplat.splat.mip._cubic_bounds: every density the post technique's cubic makes in a quad (both kinds, any
+    point) lies within the unit's bound, which is what lets a unit be skipped."""
+    from isplat.splat.mip import _cubic_bounds
+    from isplat.splat.post import _density_at, _taps
+
+    # a 4 x 2 slice (along a) or 2 x 4 (along b); the quad (1, 0) or (0, 1): its neighbours inside the slice
+    n_a, n_b = (4, 2) if along == 1 else (2, 4)
+    grid = np.asarray(taps, np.uint8).reshape(2, 4)          # [row across, position along]
+    density = np.ascontiguousarray(grid if along == 1 else grid.T).ravel()
+    strides = np.array([1, n_a, n_a * n_b, 0], np.int64)
+    qa, qb = (1, 0) if along == 1 else (0, 1)
+    voxel = (density, density, density, strides, n_a, n_b, 0, (along, kind, 0))
+    fu, fv = (t, g) if along == 1 else (g, t)
+    d = _density_at(density, qa * strides[0] + qb * strides[1], strides[0], strides[1], fu, fv,
+                    _taps(qa, qb, voxel))
+    hi, lo = _cubic_bounds(density, 0, strides[0], strides[1], qa, qb, n_a, n_b, along)
+    assert lo - 1e-9 <= d <= hi + 1e-9, (d, lo, hi)
+
+
+@pytest.mark.parametrize("spacing", [(1.0, 1.0, 1.0), (1.0, 1.2, 0.8), (0.7, 0.7, 2.5), (1.0, 1.0, 3.99)])
+def test_below_the_ratio_images_are_the_bilinear_ones_bit_for_bit(tmp_path, spacing):
+    """Isotropic data and grids less anisotropic than THICK_RATIO: the same bilinear samples as before, bit for
+    bit, whatever BETWEEN_SLICES says; at 4.5:1 the cubic changes the picture (the switch is the ratio)."""
+    dens = lumpy(9, (7, 8, 9))
+    images = {}
+    for sp in (spacing, (1.0, 1.0, 4.5)):
+        aug, idx = write_volume(tmp_path, dens, spacing=sp, name=f"r{sp[2]}")
+        sc = scene_for(aug, idx, tmp_path, "mip", "azimuth = 30\nelevation = 20")
+        for kind in ("linear", "catmull-rom"):
+            with _between(kind):
+                images[sp, kind] = Renderer(sc).render_view(0)[0]
+    assert images[spacing, "linear"][..., 0].max() > 0.3
+    assert np.array_equal(images[spacing, "linear"], images[spacing, "catmull-rom"])
+    assert not np.array_equal(images[(1.0, 1.0, 4.5), "linear"], images[(1.0, 1.0, 4.5), "catmull-rom"])
 
 
 # ---- the window and the colours ----------------------------------------------------------------------------------

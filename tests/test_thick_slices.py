@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from isplat.augment import augment_array
 from isplat.frame import render_frame, views_for
@@ -154,3 +156,20 @@ def test_cubic_between_slices_removes_the_terraces_of_7mm_mr_slices(tmp_path):
     assert np.isfinite(phase).sum() > 3000
     assert s_cub <= 0.85 * s_lin, (s_lin, s_cub, floor)
     assert s_cub - floor <= 0.75 * (s_lin - floor), (s_lin, s_cub, floor)
+
+
+@settings(max_examples=200, deadline=None)
+@given(taps=st.lists(st.integers(0, 1), min_size=4, max_size=4), t=st.floats(0.0, 1.0))
+def test_the_cubic_moves_no_label_boundary_between_runs_of_slices(taps, t):
+    """Why labels keep the bilinear indicator on thick slices (docs/thick-slices.md, "Labels between thick
+    slices"): a binary indicator whose values each continue for a slice either side (pm == p0, p1 == p2) has its
+    1/2 level where the linear one has it, Catmull-Rom or not; only next to a run one slice long can they differ
+    (and do: 0, 1, 0, 0 just past half-way, 0.52)."""
+    from isplat.splat.post import cubic
+
+    pm, p0, p1, p2 = taps
+    lin = (1 - t) * p0 + t * p1
+    cub = min(cubic(pm, p0, p1, p2, t, 1), 1.0)
+    if pm == p0 and p1 == p2 and abs(t - 0.5) > 1e-9:
+        assert (cub > 0.5) == (lin > 0.5), (taps, t, cub, lin)
+    assert (min(cubic(0, 1, 0, 0, 0.52, 1), 1.0) > 0.5) != ((1 - 0.52) * 1 > 0.5)

@@ -3,14 +3,19 @@
 Reconstruction is the default technique's (:mod:`isplat.splat.post`): along each pixel's ray the density is
 sampled where the ray crosses the slice planes of the principal axis, bilinearly in each slice (the trilinear
 field at the slice planes; the edge voxel repeated half a voxel beyond the outer centres), at the quads (squares
-between four voxels) one of whose voxels is of interest (a density of non-zero opacity). The pixel keeps the
-largest (MIP) or smallest (MinIP) sample: what a ray caster's MIP shows at the same sampling.
+between four voxels) one of whose voxels is of interest (a density of non-zero opacity); on a grid whose thicker
+in-slice axis is at least :data:`isplat.splat.post.THICK_RATIO` times the finest, the post technique's cubic
+along that axis (Catmull-Rom, clamped to the codes: :func:`isplat.splat.post._density_at`), so a MIP of thick
+slices shows no terraces of them either (docs/thick-slices.md). The pixel keeps the largest (MIP) or smallest
+(MinIP) sample: what a ray caster's MIP shows at the same sampling.
 
 The order is the index's, not the slices': the unit of work is a cell of the selection (4 x 4 voxels of one slice,
 the voxels of interest among them) with the quads it owns (those whose first corner of interest is one of its
 voxels, so that each quad belongs to one unit), and its *bound*, the highest density of those quads' corners
 (MIP; the lowest for MinIP): no sample of the unit can exceed it, since a bilinear sample lies between its
-corners. The units of a selection's axis are made once (:func:`units_of`, kept beside the selection) and copied
+corners (along a thick axis, where the density is the post-classified technique's cubic between slices, those
+corners' and the cubic's neighbours' extremes widened by what the cubic can overshoot them, :func:`_cubic_bounds`).
+The units of a selection's axis are made once (:func:`units_of`, kept beside the selection) and copied
 in order of bound, from high to low (MIP) or from low to high (MinIP), so a frame visits the high densities
 first and reads the units in sequence. A unit is skipped when every pixel it reaches already holds at least
 its bound: such pixels are finished for it and for every unit after it, whose bounds are no higher, so a tile
@@ -40,7 +45,7 @@ from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
 from .select import BLOCK, CELL, REGION
 from .traverse import X0, XA, XB, XC, Y0, YA, YB, YC, cut_away, register, slice_bases
-from .post import SPAN_MARGIN, _cell_pixels, _ortho_inverse, _row_span, _slice_point
+from .post import SPAN_MARGIN, _cell_pixels, _density_at, _ortho_inverse, _row_span, _slice_point, _taps
 
 Units = namedtuple("Units", "c a0 b0 owned ext count hi lo")
 Units.__doc__ = """The units of one axis of a selection (one row per cell holding a voxel of interest): slice
@@ -48,14 +53,16 @@ Units.__doc__ = """The units of one axis of a selection (one row per cell holdin
 of the 5 x 5 quads from (a0 - 1, b0 - 1); :func:`_put`), ``ext`` the columns and rows of the 5 x 5 that hold
 an owned quad (first and one past the last, 3 bits each: ka0, ka1, kb0, kb1), ``count`` its voxels of interest, and the highest
 (``hi``) and lowest (``lo``) density of its quads' corners (int32 each)."""
-MipPlan = namedtuple("MipPlan", "units in_frame whole geo sign window color use_color held")
+MipPlan = namedtuple("MipPlan", "units in_frame whole geo sign window color use_color held between")
 MipPlan.__doc__ = """A frame's tables: ``units`` (:data:`Units`) by bound (high to low for MIP, low to high for
 MinIP, :func:`sorted_units`), ``in_frame`` uint8 per slice (1: a slice of the view's order), ``whole`` the whole
 channels (:data:`isplat.splat.traverse.WholeVolume`), ``geo`` :data:`isplat.splat.traverse.SliceGeometry`,
 ``sign`` 1.0 (MIP) or -1.0 (MinIP; a pixel holds ``sign * density``), ``window`` (lo, hi) the codes mapped to
 black and white, ``color`` float64[256, 6] the transfer function's colour with its steps to the next code
 (:func:`isplat.splat.post.lerp_tables`) and ``use_color``; ``held`` (:data:`Held`), shared by the threads (each
-writes its bands' rows, whole tiles)."""
+writes its bands' rows, whole tiles); ``between`` the reconstruction between thick slices
+(:func:`isplat.splat.post.between_slices`: (0, 0, 0) bilinear; else the cubic along the thick in-slice axis, as the
+post-classified technique's :func:`isplat.splat.post._density_at`)."""
 Held = namedtuple("Held", "px tile_done")
 Held.__doc__ = """What the pixels hold: ``px`` float64 (H, W) each pixel's ``sign *`` extreme so far (-inf: no
 sample); per TILE x TILE tile ``tile_done`` how many of its pixels, in row order, are known to hold the bound of
@@ -70,29 +77,32 @@ _UNITS = {}             # (id(selection), axis, sign) -> Units, dropped with the
 AHEAD = 4               # units prefetched ahead of the one sampled
 
 
-def units_of(sel, axis: str, sign: float) -> Units:
+def units_of(sel, axis: str, sign: float, thick: int = 0) -> Units:
     """The :data:`Units` of ``axis`` of the selection ``sel`` (the index's voxels of interest; with the full method
     every voxel of a density of interest) in the frame's order for ``sign`` 1 (MIP) or -1 (MinIP)
-    (:func:`sorted_units`), so that a frame reads them in sequence; made once and kept while the selection lives."""
-    key = (id(sel), axis, sign)
+    (:func:`sorted_units`), so that a frame reads them in sequence, their bounds those of the cubic along the
+    in-slice axis ``thick`` (1 a, 2 b; 0 bilinear); made once and kept while the selection lives."""
+    key = (id(sel), axis, sign, thick)
     got = _UNITS.get(key)
     if got is None:
-        units = make_units(sel, axis)
+        units = make_units(sel, axis, thick)
         got = Units(*(np.ascontiguousarray(x[sorted_units(units, sign)]) for x in units))
         _UNITS[key] = got
         weakref.finalize(sel, _UNITS.pop, key, None)
     return got
 
 
-def make_units(sel, axis: str) -> Units:
-    """The :data:`Units` of ``axis`` of ``sel`` in the selection's order (slice, region, block, cell)."""
+def make_units(sel, axis: str, thick: int = 0) -> Units:
+    """The :data:`Units` of ``axis`` of ``sel`` in the selection's order (slice, region, block, cell); ``thick``
+    as :func:`units_of`."""
     w = sel.whole_volume(axis)
     interest = interest_table(sel.luts.intervals)
     if sel.method == "full":
-        return Units(*_full_units(w.density, interest, w.strides, w.n_a, w.n_b, _n_slices(sel, axis)))
+        return Units(*_full_units(w.density, interest, w.strides, w.n_a, w.n_b, _n_slices(sel, axis), thick))
     v = sel.voxels(axis)
     return Units(*_indexed_units(v.slice_ptr, v.region_ptr, v.region_id, v.block_pos, v.block_ptr, v.block_voxel,
-                                 v.cell_pos, v.cell_count, v.offset, w.density, interest, w.strides, w.n_a, w.n_b))
+                                 v.cell_pos, v.cell_count, v.offset, w.density, interest, w.strides, w.n_a, w.n_b,
+                                 thick))
 
 
 def interest_table(intervals) -> np.ndarray:
@@ -111,8 +121,9 @@ def _n_slices(sel, axis: str) -> int:
 
 @jit
 def _indexed_units(slice_ptr, region_ptr, region_id, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
-                   offset, density, interest, strides, n_a, n_b):
-    """:data:`Units` from the index's hierarchy of one axis (slices, regions, blocks, cells, voxels)."""
+                   offset, density, interest, strides, n_a, n_b, thick):
+    """:data:`Units` from the index's hierarchy of one axis (slices, regions, blocks, cells, voxels); ``thick`` the
+    axis of the cubic between slices (:func:`_put`)."""
     n_cells = block_ptr[region_ptr[slice_ptr[slice_ptr.shape[0] - 1]]]
     if n_cells < 0 or n_cells > cell_pos.shape[0]:
         raise ValueError("mip: the selection's cell table is inconsistent")
@@ -132,13 +143,14 @@ def _indexed_units(slice_ptr, region_ptr, region_id, block_pos, block_ptr, block
                         m |= 1 << offset[t]
                     n += cell_count[q]
                     _put(q, c, ba0 + (cell_pos[q] % 4) * CELL, bb0 + (cell_pos[q] // 4) * CELL, m, density,
-                         interest, strides, n_a, n_b, c_of, a_of, b_of, owned, ext, count, hi, lo)
+                         interest, strides, n_a, n_b, thick, c_of, a_of, b_of, owned, ext, count, hi, lo)
     return c_of, a_of, b_of, owned, ext, count, hi, lo
 
 
 @jit
-def _full_units(density, interest, strides, n_a, n_b, n_slices):
-    """:data:`Units` of every voxel whose density is of interest (``interest`` uint8[256]), for the full method."""
+def _full_units(density, interest, strides, n_a, n_b, n_slices, thick):
+    """:data:`Units` of every voxel whose density is of interest (``interest`` uint8[256]), for the full method;
+    ``thick`` the axis of the cubic between slices (:func:`_put`)."""
     nca = (n_a + CELL - 1) // CELL
     ncb = (n_b + CELL - 1) // CELL
     c_of, a_of, b_of, owned, ext, count, hi, lo = _unit_arrays(n_slices * nca * ncb)
@@ -153,8 +165,8 @@ def _full_units(density, interest, strides, n_a, n_b, n_slices):
                         if interest[density[cbase + a * strides[0] + b * strides[1]]]:
                             m |= 1 << ((b - cb * CELL) * CELL + a - ca * CELL)
                 if m:
-                    _put(nu, c, ca * CELL, cb * CELL, m, density, interest, strides, n_a, n_b, c_of, a_of, b_of,
-                         owned, ext, count, hi, lo)
+                    _put(nu, c, ca * CELL, cb * CELL, m, density, interest, strides, n_a, n_b, thick, c_of, a_of,
+                         b_of, owned, ext, count, hi, lo)
                     nu += 1
     return c_of[:nu], a_of[:nu], b_of[:nu], owned[:nu], ext[:nu], count[:nu], hi[:nu], lo[:nu]
 
@@ -166,12 +178,14 @@ def _unit_arrays(n):
 
 
 @leaf
-def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, c_of, a_of, b_of, owned, ext, count, hi, lo):
+def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, thick, c_of, a_of, b_of, owned, ext, count, hi,
+         lo):
     """Unit ``u``: the cell from (a0, b0) of slice ``c`` with voxels of interest ``m``. Its quads are those whose
     first corner of interest (in the order (qa, qb), (qa + 1, qb), (qa, qb + 1), (qa + 1, qb + 1), clamped at
     the slice's edge) is one of its voxels, so every quad with a corner of interest belongs to exactly one unit
     (the quads from (a0 - 1, b0 - 1) to (a0 + 3, b0 + 3) are the only ones that can); its bounds are the extremes
-    of those quads' corners."""
+    of those quads' corners, or with a cubic along a thick axis (``thick`` 1 a, 2 b: :func:`_cubic_bounds`)
+    of the samples the cubic can make of them."""
     cbase = c * strides[2] + strides[3]
     sa, sb = strides[0], strides[1]
     dmax = 0
@@ -192,6 +206,8 @@ def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, c_of, a_of, b_of
                     first = corner
                     mine = a0 <= ca < a0 + CELL and b0 <= cb < b0 + CELL
             if first >= 0 and mine:
+                if thick != 0:
+                    dq_max, dq_min = _cubic_bounds(density, cbase, sa, sb, qa, qb, n_a, n_b, thick)
                 bits |= 1 << ((qb - b0 + 1) * 5 + qa - a0 + 1)
                 dmax = max(dmax, dq_max)
                 dmin = min(dmin, dq_min)
@@ -201,6 +217,27 @@ def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, c_of, a_of, b_of
     ka0, ka1, kb0, kb1 = _owned_extent(bits)
     c_of[u], a_of[u], b_of[u], owned[u], count[u], hi[u], lo[u] = c, a0, b0, bits, k, dmax, dmin
     ext[u] = ka0 | (ka1 << 3) | (kb0 << 6) | (kb1 << 9)
+
+
+@leaf
+def _cubic_bounds(density, cbase, sa, sb, qa, qb, n_a, n_b, thick):
+    """The highest and lowest density the cubic along the thick axis (``thick`` 1 a, 2 b) can make in quad (qa, qb)
+    (:func:`isplat.splat.post._density_at`): each of its two rows is a cubic through four voxels (clamped at the
+    slice's edges) whose weights sum to 1 and whose negative ones (Catmull-Rom's, the monotone kind has none) sum
+    to at least -1/8, so it lies within the eight voxels' extremes P, Q widened by (P - Q) / 8 (and the codes);
+    the linear mix of the two rows too."""
+    dmax = 0
+    dmin = 255
+    for k in range(-1, 3):
+        for j in range(2):
+            a, b = (qa + k, qb + j) if thick == 1 else (qa + j, qb + k)
+            a = min(max(a, 0), n_a - 1)
+            b = min(max(b, 0), n_b - 1)
+            d = np.int32(density[cbase + a * sa + b * sb])
+            dmax = max(dmax, d)
+            dmin = min(dmin, d)
+    over = (dmax - dmin + 7) // 8
+    return min(dmax + over, 255), max(dmin - over, 0)
 
 
 def sorted_units(units: Units, sign: float) -> np.ndarray:
@@ -215,14 +252,15 @@ def plan(tables):
     """The frame's :data:`MipPlan`, each thread's (empty) scratch and the frame's one sheet, from
     :class:`isplat.frame.FrameTables`."""
     from ..errors import IsplatError
-    from .post import lerp_tables
+    from .post import between_slices, lerp_tables
 
     sel, view = tables.sel, tables.view
     ro = view.render
     if not sel.post or sel.whole is None:
         raise IsplatError(f"render.mode = {ro.mode!r} needs a selection made for it (the whole density channel)")
     sign = 1.0 if ro.mode == "mip" else -1.0
-    units = units_of(sel, tables.axis, sign)
+    between = between_slices(view.geom.spacing, tables.axis)
+    units = units_of(sel, tables.axis, sign, between[0])
     in_frame = np.zeros(_n_slices(sel, tables.axis), np.uint8)
     in_frame[view.order] = 1
     _, color = lerp_tables(tables.atab, sel.luts.color)
@@ -230,7 +268,7 @@ def plan(tables):
     H, W = view.frame.height, view.frame.width
     held = Held(np.empty((H, W), np.float64), np.empty((-(-H // TILE), -(-W // TILE)), np.int32))
     p = MipPlan(units, in_frame, sel.whole_volume(tables.axis), tables.geo, sign, window,
-                color, ro.intensity_color == "transfer", held)
+                color, ro.intensity_color == "transfer", held, between)
     return p, [np.empty(0, np.int64) for _ in range(tables.threads)], np.zeros(1, np.int64)
 
 
@@ -293,7 +331,7 @@ def _band_units(plan, cs, mine, buf, band):
             continue                # its tiles were finished when looked at ahead, and stay so
         bound = plan.sign * (units.hi[u] if plan.sign > 0 else units.lo[u])
         n = _unit(units.c[u], units.a0[u], units.b0[u], units.owned[u], units.ext[u], bound, w, plan.geo, plan.sign,
-                  cs, held, img_w, y0b, y1b)
+                  cs, held, img_w, y0b, y1b, plan.between)
         if n >= 0:
             visited += units.count[u]
             samples += n
@@ -335,7 +373,7 @@ def _look_ahead(plan, mine, t, nm, cs, held, img_w, y0b, y1b):
     if x0 > x1 or y0 > y1 or _tiles_finished(held, x0, x1, y0, y1):
         mine[t] = -1 - u
     else:
-        _prefetch_unit(units.c[u], units.a0[u], units.b0[u], w)
+        _prefetch_unit(units.c[u], units.a0[u], units.b0[u], w, plan.between[0])
     return t + 1
 
 
@@ -360,27 +398,30 @@ def _run_end(units, mine, t, nm):
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
-def _prefetch_unit(c, a0, b0, w):
+def _prefetch_unit(c, a0, b0, w, thick):
     """Ask the CPU for the cache lines of the densities a unit's quads read (rows b0 - 1 .. b0 + 4 of its slice,
-    columns a0 - 1 .. a0 + 4): the units go by bound, not by place, so each unit's rows are lines of their own
-    (as :func:`isplat.splat.post._prefetch_square`)."""
+    columns a0 - 1 .. a0 + 4; one more each side along a thick axis ``thick``, 1 a, 2 b, for the cubic): the
+    units go by bound, not by place, so each unit's rows are lines of their own (as
+    :func:`isplat.splat.post._prefetch_square`)."""
     sa, sb = w.strides[0], w.strides[1]
     cbase = c * w.strides[2] + w.strides[3]
-    a_lo = max(a0 - 1, 0)
-    a_hi = min(a0 + CELL, w.n_a - 1)
+    ea, eb = int(thick == 1), int(thick == 2)
+    a_lo = max(a0 - 1 - ea, 0)
+    a_hi = min(a0 + CELL + ea, w.n_a - 1)
     da = max(1, 32 // sa)
-    for b in range(max(b0 - 1, 0), min(b0 + CELL, w.n_b - 1) + 1):
+    for b in range(max(b0 - 1 - eb, 0), min(b0 + CELL + eb, w.n_b - 1) + 1):
         row = cbase + b * sb
         for a in range(a_lo, a_hi + da, da):
             prefetch(w.density, np.uint64(row + min(a, a_hi) * sa))
 
 
 @leaf(forceinline=True)
-def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b):
+def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b, between):
     """Sample the quads ``owned`` by one unit (:func:`_put`; the cell from (a0, b0) of slice ``c``) at the pixels
     of rows ``[y0b, y1b)`` that do not yet hold ``bound`` (``sign *`` density); returns the samples taken, or -1
-    when every pixel it reaches already held its bound (skipped). One function of over 60 lines: the per-pixel
-    scan is its inner loop, as :func:`isplat.splat.post._sample_square`'s."""
+    when every pixel it reaches already held its bound (skipped). The density is the post-classified technique's
+    (:func:`isplat.splat.post._density_at`: bilinear, or the cubic along a thick axis, ``between``). One function
+    of over 60 lines: the per-pixel scan is its inner loop, as :func:`isplat.splat.post._sample_square`'s."""
     n_a, n_b = w.n_a, w.n_b
     coef, persp = geo.coef, geo.persp
     if persp:
@@ -396,6 +437,7 @@ def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b)
     sa, sb = w.strides[0], w.strides[1]
     cbase = c * w.strides[2] + w.strides[3]
     density = w.density
+    voxel = (density, w.gm, w.nrm, w.strides, n_a, n_b, c, between)     # what _taps reads
     open_ = False
     n = 0
     for y in range(y0, y1 + 1):
@@ -426,12 +468,8 @@ def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b)
                 continue
             fu = max(u - qa, 0.0)
             fv = max(v - qb, 0.0)
-            qa1 = min(qa + 1, n_a - 1)
-            qb1 = min(qb + 1, n_b - 1)
-            d = ((1.0 - fu) * (1.0 - fv) * density[np.uint64(cbase + qa * sa + qb * sb)]
-                 + fu * (1.0 - fv) * density[np.uint64(cbase + qa1 * sa + qb * sb)]
-                 + (1.0 - fu) * fv * density[np.uint64(cbase + qa * sa + qb1 * sb)]
-                 + fu * fv * density[np.uint64(cbase + qa1 * sa + qb1 * sb)])
+            d = _density_at(density, cbase + qa * sa + qb * sb, sa if qa + 1 < n_a else 0,
+                            sb if qb + 1 < n_b else 0, fu, fv, _taps(qa, qb, voxel))
             n += 1
             if sign * d > h:
                 px[np.uint64(y), np.uint64(x)] = sign * d

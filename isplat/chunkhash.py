@@ -302,7 +302,7 @@ class Verifier:
             return 0
         rows = np.ravel_multi_index(tuple(bricks.T), grid)
         # runs: consecutive rows (same k, j; consecutive i)
-        cut = np.flatnonzero(np.diff(rows) != 1) + 1
+        cut = np.flatnonzero((np.diff(rows) != 1) | np.any(np.diff(bricks[:, :-1], axis=0) != 0, axis=1)) + 1
         starts, ends = np.r_[0, cut], np.r_[cut, rows.size]
         total = 0
         for s0, s1 in zip(starts.tolist(), ends.tolist()):

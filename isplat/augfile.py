@@ -108,12 +108,22 @@ class AugmentedVolume:
             raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
         lo, hi = box if box is not None else ((0, 0, 0), self.shape)
         out = np.zeros(tuple(int(b) - int(a) for a, b in zip(lo, hi)), dtype=CHANNELS[channel])
+        bricks = np.asarray(bricks, dtype=np.int64).reshape(-1, 3)
         with hdf5_errors(self.path, f"dataset {channel!r}"):
             with self._open_channels(channel) as f:
-                n = self.verifier.read_chunks(f, channel, bricks, out,
-                                              self._check_ranges if channel == "density" else None, lo)
+                n, mm = self.verifier.read_chunks(f, channel, bricks, out, tuple(int(x) for x in lo), minmax=True)
+        if channel == "density" and bricks.shape[0]:
+            want = self.brick_range[tuple(bricks.T)]
+            bad = np.flatnonzero(np.any(mm != want, axis=1))
+            if bad.size:
+                self._range_error(bricks[bad[0]], mm[bad[0]], want[bad[0]])
         self.bytes_read += n * out.itemsize
         return out
+
+    def _range_error(self, g, got, want):
+        off = ", ".join(str(int(x) * int(e)) for x, e in zip(g, self.bricks))
+        raise IsplatError(f"{self.path}: dataset 'density', brick at ({off}): densities {int(got[0])}..{int(got[1])}, "
+                          f"/{BRICK_RANGE} says {int(want[0])}..{int(want[1])}; rebuild it: {self.verifier.rebuild}")
 
     @contextlib.contextmanager
     def _open_channels(self, channel: str = "density"):
@@ -147,10 +157,7 @@ class AugmentedVolume:
         bad = np.argwhere(np.any(got != want, axis=-1))
         if bad.size:
             g = bad[0]
-            off = ", ".join(str((int(a) + int(x)) * int(e)) for a, x, e in zip(g0, g, c))
-            raise IsplatError(f"{self.path}: dataset 'density', brick at ({off}): densities "
-                              f"{int(got[tuple(g)][0])}..{int(got[tuple(g)][1])}, /{BRICK_RANGE} says "
-                              f"{int(want[tuple(g)][0])}..{int(want[tuple(g)][1])}; rebuild it: {self.verifier.rebuild}")
+            self._range_error(np.asarray(g0) + g, got[tuple(g)], want[tuple(g)])
 
     @property
     def has_labels(self) -> bool:

@@ -154,9 +154,13 @@ class WholeChannels:
     density: np.ndarray
     gradient_magnitude: np.ndarray
     normal: np.ndarray
+    held: int = -1          # bricks read (post, version 5): the bytes of the memory pages they filled; -1: nbytes
 
     def arrays(self) -> list[np.ndarray]:
         return [self.density, self.gradient_magnitude, self.normal]
+
+    def held_bytes(self) -> int:
+        return self.held if self.held >= 0 else int(sum(a.nbytes for a in self.arrays()))
 
 
 @dataclass(frozen=True, eq=False)
@@ -215,9 +219,8 @@ class Selection:
 
     def held_bytes(self) -> int:
         """Bytes of volume data held for the frames (selection and gathered values, or whole channels)."""
-        arrays = self.whole.arrays() if self.whole is not None else []
-        arrays += [a for s in self.axes.values() for a in s.arrays()]
-        return int(sum(a.nbytes for a in arrays))
+        held = self.whole.held_bytes() if self.whole is not None else 0
+        return held + int(sum(a.nbytes for s in self.axes.values() for a in s.arrays()))
 
     @classmethod
     def from_arrays(cls, density, scene, normal=None, gradient_magnitude=None, gradient_magnitude_scale=None,
@@ -616,8 +619,34 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
     bricks = np.argwhere(need)
     out = {ch: aug.read_bricks(ch, bricks, (tuple(lo), tuple(hi))).reshape(-1) for ch in rep.channels}
     rep.values_from = f"bricks ({len(bricks):,} of {int(np.prod(need.shape)):,})"
-    whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16))
+    box = tuple(h - l for l, h in zip(lo, hi))
+    held = sum(pages_filled(bricks, b, lo, box, out[ch].itemsize) for ch in out)
+    whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
+                          held)
     return replace(sel, whole=whole, slab=slab)
+
+
+PAGE = 4096
+
+
+def pages_filled(bricks: np.ndarray, size, lo, shape, itemsize: int) -> int:
+    """Bytes of the memory pages that bricks (grid indices, bricks of ``size`` (k, j, i)) written into a zeroed
+    C-order array of ``shape`` holding the block from element ``lo`` touch: what the operating system holds of
+    an ``np.zeros`` array once they are written (pages never written are not allocated)."""
+    if bricks.shape[0] == 0:
+        return 0
+    b0 = bricks * np.asarray(size) - np.asarray(lo)
+    pages = []
+    for dk in range(size[0]):
+        k = b0[:, 0] + dk
+        for dj in range(size[1]):
+            j = b0[:, 1] + dj
+            i0, i1 = np.maximum(b0[:, 2], 0), np.minimum(b0[:, 2] + size[2], shape[2])
+            ok = (k >= 0) & (k < shape[0]) & (j >= 0) & (j < shape[1]) & (i1 > i0)
+            start = ((k * shape[1] + j) * shape[2] + i0)[ok] * itemsize
+            end = ((k * shape[1] + j) * shape[2] + i1)[ok] * itemsize - 1
+            pages += [start // PAGE, end // PAGE]
+    return int(np.unique(np.concatenate(pages)).size) * PAGE
 
 
 def _slab_reader(aug, axes, slices):

@@ -101,13 +101,13 @@ class AugmentedVolume:
     def read_bricks(self, channel: str, bricks: np.ndarray, box=None) -> np.ndarray:
         """The whole ``channel`` (shape ``shape``) holding only the bricks whose grid indices are the rows of
         ``bricks`` (int64[n, 3], C order of the grid, unique), zero elsewhere (``np.zeros``: pages never written
-        are not held); each brick checked against its chunk hash, and the density's against ``brick_range``
+        are not held: :func:`lazy_zeros`); each brick checked against its chunk hash, and the density's against ``brick_range``
         (its smallest and largest code). ``box``: ``(lo, hi)`` (k, j, i) element bounds: the array holds just
         that block (a slab's slices). Adds the bricks' bytes to :attr:`bytes_read`."""
         if channel not in CHANNELS:
             raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
         lo, hi = box if box is not None else ((0, 0, 0), self.shape)
-        out = np.zeros(tuple(int(b) - int(a) for a, b in zip(lo, hi)), dtype=CHANNELS[channel])
+        out = lazy_zeros(tuple(int(b) - int(a) for a, b in zip(lo, hi)), CHANNELS[channel])
         bricks = np.asarray(bricks, dtype=np.int64).reshape(-1, 3)
         with hdf5_errors(self.path, f"dataset {channel!r}"):
             with self._open_channels(channel) as f:
@@ -210,6 +210,17 @@ class AugmentedVolume:
         with hdf5_errors(self.path, "channels"), open_counted(self.path, self.io) as f:
             for ch in hashed_datasets(self.has_labels, self.format_version):
                 self.verifier.verify_all(f, ch)
+
+
+def lazy_zeros(shape, dtype) -> np.ndarray:
+    """A zeroed array whose memory pages are allocated only when written: anonymous memory of 4 KiB pages (numpy
+    asks the kernel for huge pages for large arrays, so that one brick written would fill 2 MiB)."""
+    import mmap
+
+    n = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    if n == 0:
+        return np.zeros(shape, dtype)
+    return np.frombuffer(mmap.mmap(-1, n), dtype=dtype).reshape(shape)
 
 
 def hashed_datasets(labels: bool, version: int = FORMAT_VERSION) -> list[str]:

@@ -623,7 +623,8 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
     out = {ch: aug.read_bricks(ch, bricks, (tuple(lo), tuple(hi))).reshape(-1) for ch in rep.channels}
     rep.values_from = f"bricks ({len(bricks):,} of {int(np.prod(need.shape)):,})"
     box = tuple(h - l for l, h in zip(lo, hi))
-    held = sum(pages_filled(bricks, b, lo, box, out[ch].itemsize) for ch in out)
+    per = {n: pages_filled(bricks, b, lo, box, n) for n in {a.itemsize for a in out.values()}}
+    held = sum(per[a.itemsize] for a in out.values())
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
                           held)
     return replace(sel, whole=whole, slab=slab)

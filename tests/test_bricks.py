@@ -108,9 +108,15 @@ def test_the_bytes_read_are_the_bricks_read(make_scene, files):
     assert a.bricked and rep.values_from == f"bricks ({n:,} of {5 * 5 * 6:,})"
 
 
-def test_slabs_read_their_bricks_and_draw_the_one_pass_frame(make_scene, files):
+@pytest.mark.parametrize("share", [1.0, 0.0])
+def test_slabs_read_their_bricks_and_draw_the_one_pass_frame(make_scene, files, monkeypatch, share):
+    """Each slab reads its own slices' bricks (share 1: bricks however many are needed), or its slices' whole
+    channels (share 0): the one-pass frame of the whole channels either way."""
+    from isplat import selection as S
     from isplat.renderer import Renderer
     from isplat.slabs import render_streamed
+
+    monkeypatch.setattr(S, "BRICK_SHARE", share)
 
     for kind in ("iso", "thick"):
         aug, old, idx = files[kind]
@@ -120,7 +126,9 @@ def test_slabs_read_their_bricks_and_draw_the_one_pass_frame(make_scene, files):
             for k in (2, 3, 5):
                 got, _, report = render_streamed(r.request, r.views[0], k)
                 assert np.array_equal(got, want) and want[..., 3].any(), (kind, cam, k)
-                assert report.values_from.startswith("bricks")
+                # (the first slab's source; a slab needing no brick reads none either way)
+                assert report.values_from.startswith("bricks") == (share == 1.0) or \
+                    report.values_from.startswith("bricks (0 of")
 
 
 @pytest.mark.slow

@@ -15,6 +15,10 @@ quads read on the view's axis x the channel bytes it reads; both + the index blo
 intervals). *Load*: constructing the :class:`isplat.renderer.Renderer` (open both files, read, decode, select);
 *frame*: one frame rendered from it (one thread). Techniques interleaved in rotating order, median of several
 rounds after a warm-up round. *Held*: ``Renderer.held_bytes()`` over the voxels of interest.
+
+Post is measured twice (issue 26, old against new, interleaved with pre in one run): from the augmented file of
+format 5 (channels in 8^3 bricks: post reads the bricks its quads touch) and from the same volume written as
+format 4 (``isplat.augfile.write_augmented(..., version=4)``: chunks of whole rows, read as whole channels).
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ from pathlib import Path
 from . import _doc
 
 TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
+VARIANTS = {"pre": "pre", "post": "post", "post-v4": "post"}   # rows: post from bricks, and from a version-4 file
+LABELS = {"pre": "pre", "post": "post (format 5: bricks)", "post-v4": "post (format 4: whole channels)"}
 SOURCES = _doc.sources(_doc.READ, _doc.AUGMENT, _doc.SAMPLES, _doc.RENDER, ("isplat/stats.py",
                        "benchmarks/paper.py", "benchmarks/selective_read.py"))
 
@@ -105,13 +111,33 @@ def cases(work: Path, quick: bool) -> list[dict]:
     return out
 
 
-def _scene(work: Path, c: dict, idx: Path, technique: str) -> Path:
+def as_version4(aug: Path, out: Path) -> Path:
+    """``aug`` written again as an augmented file of format 4 (chunks of whole rows), k-slab by k-slab."""
+    from isplat.augfile import (HASHED_ATTRIBUTES, create_augmented, finish_augmented, open_augmented)
+    from isplat.fileio import create_hdf5
+
+    a = open_augmented(aug)
+    keep = {n: a.attrs[n] for _, n in HASHED_ATTRIBUTES[7:] if n in a.attrs and n != "labels_sha256"}
+    with create_hdf5(out) as f:
+        create_augmented(f, a.shape, a.spacing_ijk, a.density_window, a.gradient_magnitude_scale,
+                         a.density_sha256, keep, version=4)
+        step = max(8, (1 << 24) // max(1, a.shape[1] * a.shape[2]) // 8 * 8)
+        for k0 in range(0, a.shape[0], step):
+            for ch in ("density", "gradient_magnitude", "normal"):
+                f[ch][k0:k0 + step] = a.read(ch, k0, k0 + step)
+        finish_augmented(f)
+    return out
+
+
+def _scene(work: Path, c: dict, idx: Path, variant: str) -> Path:
     from isplat.scene_schema import SCENE_VERSION
 
     from .paper import _COMMON
 
-    p = work / f"{c['name']}-{technique}.toml"
-    p.write_text(f'version = {SCENE_VERSION}\n\n[data]\naugmented = "{c["aug"]}"\nindex = "{idx}"\n'
+    technique = VARIANTS[variant]
+    aug = c["aug_v4"] if variant == "post-v4" else c["aug"]
+    p = work / f"{c['name']}-{variant}.toml"
+    p.write_text(f'version = {SCENE_VERSION}\n\n[data]\naugmented = "{aug}"\nindex = "{idx}"\n'
                  + _COMMON.format(size=256, azimuth=c.get("azimuth", 0.0), elevation=c.get("elevation", 10.0),
                                   threads=1, technique=technique) + "\n" + c["tf"])
     return p
@@ -161,20 +187,23 @@ def measure(c: dict, work: Path, repeats: int, quick: bool) -> list[dict]:
     idx = work / f"{c['name']}.idx.h5"
     _index(c["aug"], idx, quick)
     ixf = index_figures(idx)
-    scenes = {t: load_scene(_scene(work, c, idx, t)) for t in TECHNIQUES}
-    times = {t: ([], []) for t in TECHNIQUES}
+    c["aug_v4"] = as_version4(c["aug"], work / f"{c['name']}.v4.aug.h5")
+    order = list(VARIANTS)
+    scenes = {t: load_scene(_scene(work, c, idx, t)) for t in order}
+    times = {t: ([], []) for t in order}
     last = {}
     for n in range(repeats + 1):                       # the first round warms up (numba, page cache)
-        for t in TECHNIQUES[n % 2:] + TECHNIQUES[:n % 2]:
+        for t in order[n % 3:] + order[:n % 3]:
             load, frame, rep, held = _once(scenes[t])
             if n:
                 times[t][0].append(load)
                 times[t][1].append(frame)
             last[t] = (rep, held)
     rows = []
-    for t in TECHNIQUES:
+    for t in order:
         rep, held = last[t]
-        rows.append(dict(name=c["name"], what=c["what"], source=c["source"], technique=t, shape=_shape(c["aug"]),
+        rows.append(dict(name=c["name"], what=c["what"], source=c["source"], technique=VARIANTS[t], variant=t,
+                         shape=_shape(c["aug"]),
                          intervals=rep.intervals, axis=rep.needed_axis, voi=rep.voxels_of_interest,
                          needed_voxels=rep.needed_voxels, per_voxel=rep.channel_bytes_per_voxel,
                          channels=list(rep.channels), values_from=rep.values_from, read=rep.file_bytes,
@@ -183,6 +212,7 @@ def measure(c: dict, work: Path, repeats: int, quick: bool) -> list[dict]:
                          frame=statistics.median(times[t][1]), index=ixf))
     idx.unlink()
     Path(str(idx).replace(".idx.h5", ".values.idx.h5")).unlink(missing_ok=True)
+    c["aug_v4"].unlink()
     return rows
 
 
@@ -202,8 +232,8 @@ def run(out_dir: Path, quick: bool) -> Path:
         for c in cases(work, quick):
             _log(f"{c['name']}: {c['what']}")
             rows += measure(c, work, repeats, quick)
-            for r in rows[-2:]:
-                _log(f"  {r['technique']}: read {_mb(r['read'])} MB for {_mb(r['needed'])} MB needed "
+            for r in rows[-3:]:
+                _log(f"  {LABELS[r['variant']]}: read {_mb(r['read'])} MB for {_mb(r['needed'])} MB needed "
                      f"({r['ratio']:.2f}x), held {r['held'] / max(1, r['voi']):.1f} B per voxel of interest, load "
                      f"{1000 * r['load']:.0f} ms, frame {1000 * r['frame']:.0f} ms")
             if c["aug"].parent == work:
@@ -226,24 +256,29 @@ def render_doc(rows, quick: bool, repeats: int, seconds: float) -> str:
     if quick:
         L += ["", "**QUICK RUN (smoke test): volumes at 1/4 resolution, 2 rounds, builds in this process; not the "
                   "reference numbers.**"]
-    L += ["", *_explanation(repeats), "", *_table(rows), "", *_index_table(rows), "",
+    L += ["", *_explanation(repeats), "", *_table(rows), "", *_old_new(rows), "", *_index_table(rows), "",
           "Sources: " + "; ".join(dict.fromkeys(f"{r['name']}: {r['source']}" for r in rows)) + ".", ""]
     return "\n".join(L)
 
 
 def _explanation(repeats: int) -> list[str]:
     return [
-        "What is read today, per technique (format of `isplat index` and the augmented file as they are):",
+        "What is read, per technique (format of `isplat index` and the augmented file as they are):",
         "",
         "- **pre** (the paper's pre-classified splatting, `render.classification = \"pre\"`): the index blocks "
         "and table rows of the transfer function's intervals, and the voxels of interest's normals (and gradient "
         "magnitudes, when the transfer function uses them) from the index's values file (`NAME.values.idx.h5`, "
         "index format 6), one row range per interval. Only the voxels of interest are read; *read* includes the "
         "values file's opening.",
-        "- **post** (the default, post-classification): the same index blocks, and **the whole channels** it "
-        "samples, read from the augmented file: the density, and when shaded the normal and the gradient "
-        "magnitude (4 B per voxel of the volume). It reads every voxel of the volume, not only the voxels of "
-        "interest and their neighbours; the values file is not read.",
+        "- **post (format 5: bricks)** (the default, post-classification): the same index blocks, and of the "
+        "channels it samples (the density, and when shaded the normal and the gradient magnitude) only the 8^3 "
+        "bricks its quads can read: for each 4 x 4 cell of interest of the index, its quads, their in-slice "
+        "neighbours and the cubic's taps between thick slices, in the cell's slice (each brick checked against "
+        "its chunk hash, the density's against `/brick_range`). Whole channels when more than "
+        "`isplat.selection.BRICK_SHARE` of the bricks are needed.",
+        "- **post (format 4: whole channels)**: the same volume written as format 4 (chunks of whole rows): the "
+        "whole channels, as before format 5 (4 B per voxel of the volume when shaded). Post never reads the "
+        "values file.",
         "",
         "*Needed* is each technique's own ([stats.md](stats.md#bytes-needed-per-technique)): pre, the voxels of "
         "interest x the channel bytes it reads; post, the voxels its quads read on the view's axis (the voxels of "
@@ -262,12 +297,33 @@ def _table(rows) -> list[str]:
          "|---|---|---|---|---:|---:|---|---:|---:|---:|---|---:|---:|---:|"]
     for r in rows:
         ivs = ", ".join(f"{lo}..{hi}" for lo, hi in r["intervals"])
+        tech = LABELS[r["variant"]]
         ok = "met" if r["ratio"] <= BAR[r["technique"]] else "**not met**"
         axis = f" ({r['axis']})" if r["axis"] else ""
-        L.append(f"| {r['name']}: {r['what']} | {r['technique']} | {r['shape']} | {ivs} | {r['voi']:,} | "
+        L.append(f"| {r['name']}: {r['what']} | {tech} | {r['shape']} | {ivs} | {r['voi']:,} | "
                  f"{r['needed_voxels']:,}{axis} | {', '.join(r['channels']) or '-'} ({r['per_voxel']} B) | "
                  f"{_mb(r['needed'])} | {_mb(r['read'])} | **{r['ratio']:.2f}** | <= {BAR[r['technique']]} {ok} | "
                  f"{r['held'] / max(1, r['voi']):.1f} | {1000 * r['load']:.0f} | {1000 * r['frame']:.0f} |")
+    return L
+
+
+def _old_new(rows) -> list[str]:
+    """Post from bricks against post from whole channels, per case: bytes read, load and frame time."""
+    L = ["Post, format 5 (bricks) against format 4 (whole channels), the same volume and scene, interleaved: "
+         "bytes read from the augmented file, held, load and frame time (medians), and the ratios new / old.", "",
+         "| case | channel values from | augmented read, new / old (MB) | read / needed, new / old | held per voxel "
+         "of interest, new / old (B) | load new / old (ms) | load ratio | frame new / old (ms) | frame ratio |",
+         "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    by = {(r["name"], r["variant"]): r for r in rows}
+    for name in dict.fromkeys(r["name"] for r in rows):
+        n, o = by.get((name, "post")), by.get((name, "post-v4"))
+        if n is None or o is None:
+            continue
+        voi = max(1, n["voi"])
+        L.append(f"| {name} | {n['values_from']} | {_mb(n['aug_read'])} / {_mb(o['aug_read'])} | "
+                 f"{n['ratio']:.2f} / {o['ratio']:.2f} | {n['held'] / voi:.1f} / {o['held'] / voi:.1f} | "
+                 f"{1000 * n['load']:.0f} / {1000 * o['load']:.0f} | {n['load'] / max(1e-9, o['load']):.2f} | "
+                 f"{1000 * n['frame']:.0f} / {1000 * o['frame']:.0f} | {n['frame'] / max(1e-9, o['frame']):.2f} |")
     return L
 
 
@@ -278,7 +334,7 @@ def _index_table(rows) -> list[str]:
          "out).", "",
          "| case | index format | index file (MB) | B per indexed voxel per axis | of which axes | values file (MB) |",
          "|---|---:|---:|---:|---:|---:|"]
-    for r in rows[::2]:
+    for r in [r for r in rows if r["variant"] == "pre"]:
         ix = r["index"]
         L.append(f"| {r['name']} | {ix['version']} | {_mb(ix['file'])} | {ix['per_voxel_axis']:.2f} | "
                  f"{ix['axes_per_voxel_axis']:.2f} | {_mb(ix['values'])} |")

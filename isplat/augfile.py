@@ -15,6 +15,7 @@ ignores them).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,8 +30,10 @@ from .fileio import (ReadCounter, attr_array, attr_string, check_checked_dataset
 from .orientation import check_axes_lps
 
 FORMAT_NAME = "isplat-augmented"
-FORMAT_VERSION = 4              # version 4: + the optional label channel (formats/augmented.md §2.1)
-OLDER_VERSIONS = (3,)           # version 3: + /chunk_hashes, a keyed hash per chunk (§1.1); read (it has no labels)
+FORMAT_VERSION = 5              # version 5: channels in 8^3 bricks + /brick_range (formats/augmented.md §2.2)
+OLDER_VERSIONS = (4, 3)         # 4: + the optional label channel (§2.1); 3: + /chunk_hashes (§1.1); read whole
+BRICK = (8, 8, 8)               # (k, j, i) voxels of a brick: the channels' HDF5 chunk (version 5)
+BRICK_RANGE = "brick_range"     # uint8[gk, gj, gi, 2]: each brick's smallest and largest density code
 LABELS = "labels"
 LABEL_VOXELS = "label_voxels"
 LABEL_DTYPES = {"|u1": np.uint8, "<u2": np.uint16}
@@ -83,6 +86,78 @@ class AugmentedVolume:
     verifier: object = None                      # isplat.chunkhash.Verifier: checks each chunk read
     label_voxels: np.ndarray | None = None       # int64[L + 1]: voxels per label id; None: the file has no labels
     format_version: int = FORMAT_VERSION
+    brick_range: np.ndarray | None = None         # version 5: uint8[gk, gj, gi, 2]; None: channels read whole
+
+    @property
+    def bricked(self) -> bool:
+        """True when the channels are stored in bricks (version 5) and can be read brick by brick."""
+        return self.brick_range is not None
+
+    @property
+    def bricks(self) -> tuple:
+        """The brick shape (k, j, i) of a version-5 file."""
+        return brick_chunks(self.shape)
+
+    def read_bricks(self, channel: str, bricks: np.ndarray, box=None) -> np.ndarray:
+        """The whole ``channel`` (shape ``shape``) holding only the bricks whose grid indices are the rows of
+        ``bricks`` (int64[n, 3], C order of the grid, unique), zero elsewhere (``np.zeros``: pages never written
+        are not held: :func:`lazy_zeros`); each brick checked against its chunk hash, and the density's against ``brick_range``
+        (its smallest and largest code). ``box``: ``(lo, hi)`` (k, j, i) element bounds: the array holds just
+        that block (a slab's slices). Adds the bricks' bytes to :attr:`bytes_read`."""
+        if channel not in CHANNELS:
+            raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
+        lo, hi = box if box is not None else ((0, 0, 0), self.shape)
+        out = lazy_zeros(tuple(int(b) - int(a) for a, b in zip(lo, hi)), CHANNELS[channel])
+        bricks = np.asarray(bricks, dtype=np.int64).reshape(-1, 3)
+        with hdf5_errors(self.path, f"dataset {channel!r}"):
+            with self._open_channels(channel) as f:
+                n, mm = self.verifier.read_chunks(f, channel, bricks, out, tuple(int(x) for x in lo), minmax=True)
+        if channel == "density" and bricks.shape[0]:
+            want = self.brick_range[tuple(bricks.T)]
+            bad = np.flatnonzero(np.any(mm != want, axis=1))
+            if bad.size:
+                self._range_error(bricks[bad[0]], mm[bad[0]], want[bad[0]])
+        self.bytes_read += n * out.itemsize
+        return out
+
+    def _range_error(self, g, got, want):
+        off = ", ".join(str(int(x) * int(e)) for x, e in zip(g, self.bricks))
+        raise IsplatError(f"{self.path}: dataset 'density', brick at ({off}): densities {int(got[0])}..{int(got[1])}, "
+                          f"/{BRICK_RANGE} says {int(want[0])}..{int(want[1])}; rebuild it: {self.verifier.rebuild}")
+
+    @contextlib.contextmanager
+    def _open_channels(self, channel: str = "density"):
+        """The file opened to read channel chunks. Version 5: HDF5's own file driver (h5py's Python file object
+        costs about 8 us per chunk, as much as the read, and a whole channel is 2,000 bricks per M voxels), the
+        bytes read counted as the chunks checked times their stored size (elements + 4-byte checksum; the chunk
+        index HDF5 reads to find them is not counted); older versions: counted at the file object."""
+        if not self.bricked:
+            with open_counted(self.path, self.io) as f:
+                yield f
+            return
+        n0 = self.verifier.chunks_verified
+        size = int(np.prod(self.bricks)) * np.dtype(CHANNELS.get(channel, np.uint16)).itemsize + 4
+        with h5py.File(self.path, "r") as f:
+            if channel == LABELS:
+                size = int(np.prod(self.bricks)) * f[LABELS].dtype.itemsize + 4
+            try:
+                yield f
+            finally:
+                n = self.verifier.chunks_verified - n0
+                self.io.bytes += n * size
+                self.io.reads += n
+
+    def _check_ranges(self, arr: np.ndarray, lo) -> None:
+        """The bricks of a block of the density read from element ``lo`` have the smallest and largest code
+        ``brick_range`` says (formats/augmented.md §2.2): corrupted bytes are refused, not rendered."""
+        c = self.bricks
+        got = brick_ranges(arr, c)
+        g0 = [int(x) // int(e) for x, e in zip(lo, c)]
+        want = self.brick_range[tuple(slice(a, a + n) for a, n in zip(g0, got.shape[:3]))]
+        bad = np.argwhere(np.any(got != want, axis=-1))
+        if bad.size:
+            g = bad[0]
+            self._range_error(np.asarray(g0) + g, got[tuple(g)], want[tuple(g)])
 
     @property
     def has_labels(self) -> bool:
@@ -110,8 +185,9 @@ class AugmentedVolume:
         if channel not in CHANNELS:
             raise IsplatError(f"{self.path}: unknown channel {channel!r}; expected one of {sorted(CHANNELS)}")
         with hdf5_errors(self.path, f"dataset {channel!r}"):
-            with open_counted(self.path, self.io) as f:
-                arr = self.verifier.read(f, channel, tuple(block))
+            with self._open_channels(channel) as f:
+                arr = self.verifier.read(f, channel, tuple(block),
+                                         self._check_ranges if channel == "density" and self.bricked else None)
         arr = np.ascontiguousarray(arr, dtype=CHANNELS[channel])
         self.bytes_read += arr.nbytes
         return arr
@@ -120,7 +196,7 @@ class AugmentedVolume:
         """``labels[block]`` as uint16 (whatever the stored type), each chunk checked, and every id checked to be
         one ``label_voxels`` counts (< its length): compiled code may index tables by them."""
         with hdf5_errors(self.path, f"dataset {LABELS!r}"):
-            with open_counted(self.path, self.io) as f:
+            with self._open_channels(LABELS) as f:
                 arr = self.verifier.read(f, LABELS, tuple(block))
         self.bytes_read += arr.nbytes
         arr = np.ascontiguousarray(arr, dtype=np.uint16)
@@ -132,13 +208,54 @@ class AugmentedVolume:
     def verify_all(self) -> None:
         """Check every chunk of the channels against the file's chunk hashes (``isplat stats``)."""
         with hdf5_errors(self.path, "channels"), open_counted(self.path, self.io) as f:
-            for ch in hashed_datasets(self.has_labels):
+            for ch in hashed_datasets(self.has_labels, self.format_version):
                 self.verifier.verify_all(f, ch)
 
 
-def hashed_datasets(labels: bool) -> list[str]:
+def lazy_zeros(shape, dtype) -> np.ndarray:
+    """A zeroed array whose memory pages are allocated only when written: anonymous memory of 4 KiB pages (numpy
+    asks the kernel for huge pages for large arrays, so that one brick written would fill 2 MiB)."""
+    import mmap
+
+    n = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    if n == 0:
+        return np.zeros(shape, dtype)
+    return np.frombuffer(mmap.mmap(-1, n), dtype=dtype).reshape(shape)
+
+
+def hashed_datasets(labels: bool, version: int = FORMAT_VERSION) -> list[str]:
     """The datasets the chunk hashes cover, in the file key's order (formats/augmented.md §1.1)."""
-    return list(CHANNELS) + ([LABELS, LABEL_VOXELS] if labels else [])
+    return list(CHANNELS) + ([BRICK_RANGE] if version >= 5 else []) + ([LABELS, LABEL_VOXELS] if labels else [])
+
+
+def brick_chunks(shape) -> tuple:
+    """The bricks of a version-5 volume of ``shape`` (k, j, i): 8^3, smaller along an axis shorter than 8."""
+    return tuple(min(b, max(1, int(n))) for b, n in zip(BRICK, shape))
+
+
+def brick_ranges(density: np.ndarray, chunks) -> np.ndarray:
+    """uint8[gk, gj, gi, 2]: the smallest and largest code of each brick of ``density`` (a chunk-aligned block)."""
+    from .chunkhash import grid_shape, uniform_pieces
+
+    out = np.zeros(grid_shape(density.shape, chunks) + (2,), dtype=np.uint8)
+    for g, pieces in uniform_pieces(density, chunks):
+        idx = tuple(g.T)
+        out[idx + (0,)] = pieces.min(axis=1)
+        out[idx + (1,)] = pieces.max(axis=1)
+    return out
+
+
+def _write_brick_range(f: h5py.File) -> None:
+    """``/brick_range`` of open version-5 file ``f`` from its density, read a layer of 8 k-planes at a time."""
+    ds = f["density"]
+    chunks = tuple(int(c) for c in ds.chunks)
+    from .chunkhash import grid_shape
+
+    out = np.zeros(grid_shape(ds.shape, chunks) + (2,), dtype=np.uint8)
+    step = max(1, (1 << 24) // max(1, chunks[0] * ds.shape[1] * ds.shape[2])) * chunks[0]
+    for k0 in range(0, ds.shape[0], step):
+        out[k0 // chunks[0]:(k0 + step) // chunks[0]] = brick_ranges(ds[k0:k0 + step], chunks)
+    create_checked_dataset(f, BRICK_RANGE, out.shape, "|u1", out)
 
 
 def _rebuild_hint(p, f) -> str:
@@ -188,11 +305,34 @@ def open_augmented(path) -> AugmentedVolume:
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
         version = int(a["format_version"])
         has_labels = version >= 4 and (LABELS in f or LABEL_VOXELS in f)
-        verifier = chunkhash.open_verifier(p, f, sha, hashed_datasets(has_labels),
+        verifier = chunkhash.open_verifier(p, f, sha, hashed_datasets(has_labels, version),
                                            chunkhash.attributes_of(f, HASHED_ATTRIBUTES), _rebuild_hint(p, f))
+        ranges = _check_bricks(p, f, shape, verifier, has_labels) if version >= 5 else None
         counts = _check_labels(p, f, shape, verifier) if has_labels else None
     return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs, io=counter, axes_lps=axes,
-                           verifier=verifier, label_voxels=counts, format_version=version)
+                           verifier=verifier, label_voxels=counts, format_version=version, brick_range=ranges)
+
+
+def _check_bricks(p, f, shape, verifier, has_labels) -> np.ndarray:
+    """Version 5 (formats/augmented.md §2.2): the channels (and labels) chunked in the file's bricks, and
+    ``/brick_range`` uint8[gk, gj, gi, 2] read (its chunks checked against their hashes) with min <= max."""
+    chunks = brick_chunks(shape)
+    for name in list(CHANNELS) + ([LABELS] if has_labels and LABELS in f else []):
+        if tuple(f[name].chunks) != chunks:
+            raise IsplatError(f"{p}: dataset {name!r} is chunked {tuple(f[name].chunks)}, expected bricks of "
+                              f"{chunks} (format version 5)")
+    want = chunkhash.grid_shape(shape, chunks) + (2,)
+    if BRICK_RANGE not in f or not isinstance(f[BRICK_RANGE], h5py.Dataset):
+        raise IsplatError(f"{p}: dataset {BRICK_RANGE!r} is missing")
+    ds = f[BRICK_RANGE]
+    if ds.dtype != np.dtype("|u1") or tuple(ds.shape) != want:
+        raise IsplatError(f"{p}: dataset {BRICK_RANGE!r} is {ds.dtype} {tuple(ds.shape)}, expected uint8 {want} "
+                          f"(the smallest and largest density of each brick)")
+    check_checked_dataset(f"{p}: dataset {BRICK_RANGE!r}", ds)
+    ranges = np.asarray(verifier.read(f, BRICK_RANGE), dtype=np.uint8)
+    if ranges.size and not np.all(ranges[..., 0] <= ranges[..., 1]):
+        raise IsplatError(f"{p}: dataset {BRICK_RANGE!r} holds a brick whose smallest density exceeds its largest")
+    return ranges
 
 
 def _check_labels(p, f, shape, verifier) -> np.ndarray:
@@ -228,13 +368,14 @@ def _check_labels(p, f, shape, verifier) -> np.ndarray:
 
 
 def write_augmented(path, density, gradient_magnitude, normal, spacing_ijk, density_window,
-                    gradient_magnitude_scale, extra_attrs: dict | None = None, labels=None) -> None:
+                    gradient_magnitude_scale, extra_attrs: dict | None = None, labels=None,
+                    version: int = FORMAT_VERSION) -> None:
     """Write a complete augmented file at ``path`` (the caller makes it atomic); ``labels``: an integer array
     of the same shape (ids 0..65535), stored as the label channel."""
     shape = tuple(int(x) for x in density.shape)
     with create_hdf5(path) as f:
         create_augmented(f, shape, spacing_ijk, density_window, gradient_magnitude_scale,
-                         density_sha256(density), extra_attrs)
+                         density_sha256(density), extra_attrs, version)
         f["density"][...] = density
         f["gradient_magnitude"][...] = gradient_magnitude
         f["normal"][...] = normal
@@ -258,7 +399,9 @@ def write_labels(f: h5py.File, labels, counts=None) -> None:
         arr = np.asarray(labels)
         counts = label_counts(arr)
         labels = [(0, shape[0], arr)]
-    ds = create_checked_dataset(f, LABELS, shape, label_dtype(len(counts) - 1))
+    bricked = int(f.attrs["format_version"]) >= 5
+    ds = create_checked_dataset(f, LABELS, shape, label_dtype(len(counts) - 1),
+                                chunks=brick_chunks(shape) if bricked else None)
     h = hashlib.sha256(np.asarray(shape, dtype="<i8").tobytes())
     for k0, k1, slab in labels:
         ds[k0:k1] = slab
@@ -277,18 +420,23 @@ def label_counts(arr) -> np.ndarray:
 
 
 def finish_augmented(f: h5py.File) -> None:
-    """Write the chunk hashes of open file ``f`` once its channels are written (formats/augmented.md §1.1)."""
-    chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), hashed_datasets(LABELS in f),
+    """Write the brick ranges (version 5) and the chunk hashes of open file ``f`` once its channels are written
+    (formats/augmented.md §1.1, §2.2)."""
+    version = int(f.attrs["format_version"])
+    if version >= 5 and BRICK_RANGE not in f:
+        _write_brick_range(f)
+    chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), hashed_datasets(LABELS in f, version),
                            chunkhash.attributes_of(f, HASHED_ATTRIBUTES))
 
 
 def create_augmented(f: h5py.File, shape, spacing_ijk, density_window, gradient_magnitude_scale,
-                     sha: str, extra_attrs: dict | None = None) -> None:
-    """Create the attributes and empty channel datasets of an augmented file in open file ``f``."""
+                     sha: str, extra_attrs: dict | None = None, version: int = FORMAT_VERSION) -> None:
+    """Create the attributes and empty channel datasets of an augmented file in open file ``f`` (``version``:
+    an older version's layout, 4 or 3, for tests and benchmarks)."""
     from . import __version__
 
     set_string_attr(f, "format", FORMAT_NAME)
-    f.attrs["format_version"] = np.int64(FORMAT_VERSION)
+    f.attrs["format_version"] = np.int64(version)
     f.attrs["shape"] = np.asarray(shape, dtype="<i8")
     f.attrs["spacing_ijk"] = np.asarray(spacing_ijk, dtype="<f8")
     f.attrs["density_window"] = np.asarray(density_window, dtype="<f8")
@@ -301,4 +449,4 @@ def create_augmented(f: h5py.File, shape, spacing_ijk, density_window, gradient_
         else:
             f.attrs[k] = v
     for name, dt in CHANNEL_DTYPES.items():
-        create_checked_dataset(f, name, shape, dt)
+        create_checked_dataset(f, name, shape, dt, chunks=brick_chunks(shape) if version >= 5 else None)

@@ -373,13 +373,14 @@ def chunk_shape(shape, itemsize: int, target: int = MAX_CHUNK_BYTES) -> tuple:
     return tuple(chunk)
 
 
-def create_checked_dataset(group, name: str, shape, dtype, data=None, target: int = MAX_CHUNK_BYTES):
-    """A chunked dataset with the Fletcher-32 filter, chunks of about ``target`` bytes (empty datasets are
-    resizable, so a chunk fits)."""
+def create_checked_dataset(group, name: str, shape, dtype, data=None, target: int = MAX_CHUNK_BYTES, chunks=None):
+    """A chunked dataset with the Fletcher-32 filter, chunks of about ``target`` bytes or ``chunks`` (empty
+    datasets are resizable, so a chunk fits)."""
     shape = tuple(int(n) for n in shape)
     dt = np.dtype(dtype)
     kw = {"maxshape": tuple(None if n == 0 else n for n in shape)} if 0 in shape else {}
-    return group.create_dataset(name, shape=shape, dtype=dt, data=data, chunks=chunk_shape(shape, dt.itemsize, target),
+    return group.create_dataset(name, shape=shape, dtype=dt, data=data,
+                                chunks=tuple(chunks) if chunks else chunk_shape(shape, dt.itemsize, target),
                                 fletcher32=True, track_times=False, **kw)
 
 

@@ -382,7 +382,7 @@ def rehash(path: Path) -> None:
 # Mutant classes that byte damage below HDF5 does not make, and that Fletcher-32 cannot see (issue 30): each is
 # ``fn(path, rng) -> description`` applied in place to a copy of a fixture file; every mutant must be refused
 # (the chunk hashes) with one line, never rendered.
-HASHED = {"aug": ("density", "gradient_magnitude", "normal"),
+HASHED = {"aug": ("density", "gradient_magnitude", "normal", "brick_range"),
           "idx": ("axes/k/bytes", "axes/k/entry_slice", "axes/k/entry_voxel_count", "axes/k/entry_byte_offset",
                   "axes/i/bytes", "axes/j/density_entry_ptr"),
           # the index's values file (index format 6, formats/index.md §9.1), read by the pre technique
@@ -426,17 +426,21 @@ def fletcher_blind_word(path: Path, rng, target: str) -> str:
     so it cannot tell them apart."""
     import h5py
 
-    def logical_bytes(ds, c):       # the chunk's elements inside the dataset (the rest is padding, never read)
-        inside = [min(int(k), int(n) - int(o)) for k, n, o in zip(ds.chunks, ds.shape, c.chunk_offset)]
-        return int(np.prod(inside)) * ds.dtype.itemsize if inside[1:] == list(ds.chunks[1:]) else c.size - 4
+    def logical_words(ds, c):       # the chunk's words within elements inside the dataset (the rest is padding,
+        inside = [min(int(k), int(n) - int(o)) for k, n, o in zip(ds.chunks, ds.shape, c.chunk_offset)]  # never read)
+        m = np.zeros(tuple(int(k) for k in ds.chunks), bool)
+        m[tuple(slice(0, n) for n in inside)] = True
+        b = np.repeat(m.reshape(-1), ds.dtype.itemsize)
+        return b[0:b.size - b.size % 2:2] & b[1::2]
 
     with h5py.File(path, "r") as f:
-        spots = [(name, c, logical_bytes(f[name], c)) for name in HASHED[target] for c in _chunks(f[name])]
+        spots = [(name, c, logical_words(f[name], c)) for name in HASHED[target] if name in f
+                 for c in _chunks(f[name])]
     data = bytearray(path.read_bytes())
     for n in rng.permutation(len(spots)):
-        name, c, size = spots[int(n)]
-        words = np.frombuffer(bytes(data[c.byte_offset:c.byte_offset + size - size % 2]), dtype=">u2")
-        hits = np.flatnonzero((words == 0) | (words == 0xFFFF))
+        name, c, ok = spots[int(n)]
+        words = np.frombuffer(bytes(data[c.byte_offset:c.byte_offset + 2 * ok.size]), dtype=">u2")
+        hits = np.flatnonzero(((words == 0) | (words == 0xFFFF)) & ok)
         if hits.size:
             w = int(hits[int(rng.integers(hits.size))])
             at = c.byte_offset + 2 * w

@@ -226,7 +226,8 @@ def test_valid_example_decodes_to_expected_values():
     assert density_sha256(aug.read("density")) == exp["density_sha256"]
     assert aug.axes_lps.tolist() == exp["axes_lps"]
     assert exp["normal"][0][0][0] == N.NO_NORMAL
-    assert aug.format_version == 4 and aug.read("labels").tolist() == exp["labels"]
+    assert aug.format_version == 5 and aug.read("labels").tolist() == exp["labels"]
+    assert aug.bricked and aug.brick_range.tolist() == exp["brick_range"]
     assert aug.label_voxels.tolist() == exp["label_voxels"]
     from isplat.index.labels import open_label_index, shown_ids_volume
 
@@ -237,6 +238,10 @@ def test_valid_example_decodes_to_expected_values():
         for shown in ([1], [2], [1, 2]):
             ids, _ = shown_ids_volume(li, axis, shown, aug.shape)
             assert ids.tolist() == np.where(np.isin(lab, shown), lab, 0).reshape(-1).tolist()
+    v4 = open_augmented(EXAMPLES / "valid-v4.aug.h5")              # version 4: read whole, with labels
+    assert v4.format_version == 4 and not v4.bricked and v4.read("labels").tolist() == exp["labels"]
+    for ch in ("density", "gradient_magnitude", "normal"):
+        assert v4.read(ch).tolist() == exp[ch]
     old = open_augmented(EXAMPLES / "valid-v3.aug.h5")             # version 3: read, without labels
     assert old.format_version == 3 and not old.has_labels and old.read("density").tolist() == exp["density"]
 
@@ -252,7 +257,9 @@ def test_valid_example_decodes_to_expected_values():
                                                                        ".* rebuild it: isplat augment"),
                                        ("invalid-flipped-bit.aug.h5", "'normal'.*Fletcher-32"),
                                        ("invalid-axes-lps.aug.h5", "'axes_lps'.*orthonormal"),
-                                       ("invalid-label-id.aug.h5", "'labels' holds id 7, expected ids below 3")])
+                                       ("invalid-label-id.aug.h5", "'labels' holds id 7, expected ids below 3"),
+                                       ("invalid-brick-range.aug.h5", "brick at \\(0, 0, 0\\): densities .*"
+                                                                      "/brick_range says")])
 def test_invalid_examples_refused(name, what):
     with pytest.raises(IsplatError, match=what):
         aug = open_augmented(EXAMPLES / name)

@@ -70,7 +70,7 @@ def build(out_dir: Path) -> list[Path]:
     wrong_version = out_dir / "invalid-wrong-version.aug.h5"
     write_augmented(wrong_version, *args, extra_attrs=extra)
     with h5py.File(wrong_version, "a") as f:
-        f.attrs["format_version"] = np.int64(5)
+        f.attrs["format_version"] = np.int64(6)
         set_string_attr(f, "created_by", "isplat 0.1.0")
 
     from isplat.augfile import open_augmented
@@ -81,11 +81,21 @@ def build(out_dir: Path) -> list[Path]:
     with h5py.File(label_index, "a") as f:
         set_string_attr(f, "created_by", "isplat 0.1.0")
 
-    v3 = out_dir / "valid-v3.aug.h5"                 # version 3 (no labels): still read
-    write_augmented(v3, *args, extra_attrs=extra)
-    with h5py.File(v3, "a") as f:
-        f.attrs["format_version"] = np.int64(3)
+    v4 = out_dir / "valid-v4.aug.h5"                 # version 4 (labels, chunks of whole rows): still read
+    write_augmented(v4, *args, extra_attrs=extra, labels=example_labels(), version=4)
+    with h5py.File(v4, "a") as f:
         set_string_attr(f, "created_by", "isplat 0.1.0")
+
+    v3 = out_dir / "valid-v3.aug.h5"                 # version 3 (no labels): still read
+    write_augmented(v3, *args, extra_attrs=extra, version=3)
+    with h5py.File(v3, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+
+    bad_range = out_dir / "invalid-brick-range.aug.h5"   # a brick's range edited, hashes recomputed
+    write_augmented(bad_range, *args, extra_attrs=extra)
+    with h5py.File(bad_range, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+        f["brick_range"][0, 0, 0, 1] = int(f["brick_range"][0, 0, 0, 1]) - 1
         _rehash(f)
 
     bad_label = out_dir / "invalid-label-id.aug.h5"   # a label id beyond label_voxels, hashes recomputed
@@ -125,7 +135,7 @@ def build(out_dir: Path) -> list[Path]:
     flipped.write_bytes(bytes(data))
 
     old2 = out_dir / "invalid-version-2.aug.h5"      # version 2: chunks with Fletcher-32, no chunk hashes
-    write_augmented(old2, *args, extra_attrs=extra)
+    write_augmented(old2, *args, extra_attrs=extra, version=4)
     with h5py.File(old2, "a") as f:
         del f["chunk_hashes"]
         del f.attrs["chunk_hash_check"]
@@ -158,7 +168,8 @@ def build(out_dir: Path) -> list[Path]:
         "normal_decoded": np.round(normals.decode(nrm).astype(np.float64), 6).tolist(),
         "labels": example_labels().tolist(),
         "label_voxels": np.bincount(example_labels().reshape(-1)).tolist(),
-        "read": ["valid-v3.aug.h5"],
+        "brick_range": [[[[int(aug["density"].min()), int(aug["density"].max())]]]],
+        "read": ["valid-v4.aug.h5", "valid-v3.aug.h5"],
         "refused": {
             "invalid-wrong-version.aug.h5": "format_version",
             "invalid-wrong-format.aug.h5": "format",
@@ -169,11 +180,12 @@ def build(out_dir: Path) -> list[Path]:
             "invalid-version-2.aug.h5": "format_version",
             "invalid-edited-value.aug.h5": "chunk at (0, 0, 0)",
             "invalid-label-id.aug.h5": "labels",
+            "invalid-brick-range.aug.h5": "brick_range",
         },
     }
     exp = out_dir / "valid.expected.json"
     exp.write_text(json.dumps(expected, indent=1) + "\n")
-    return [valid, label_index, v3, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes,
+    return [valid, label_index, v4, v3, bad_range, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes,
             bad_label, exp]
 
 

@@ -55,6 +55,8 @@ import os
 from collections import namedtuple
 
 import numpy as np
+from numba import types
+from numba.extending import overload
 
 from ..jit import leaf, prefetch, stage
 from .composite import TILE
@@ -101,9 +103,11 @@ orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next cod
 (:mod:`isplat.splat.shade`); ``use_shade`` 0 unshaded, 1 the corners' Phong factors weighted bilinearly, 2
 weighted by the bilinear weights times the corners' gradient magnitude codes (:data:`WEIGHTED_SHADING`);
 ``lab`` the segmentation labels shown (:mod:`isplat.splat.labels`: the label
-channel, the colour table, steps; empty without labels); ``between`` (axis, kind): the in-slice axis along which
-the density is a cubic between voxels (1 a, 2 b, 0 none: bilinear), the cubic's kind and whether the shading
-follows it (1: :func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`)."""
+channel, the colour table, steps; empty without labels); ``between`` (axis, kind, shade): the in-slice axis along
+which the density is a cubic between voxels (1 a, 2 b), the cubic's kind and whether the shading follows it (1:
+:func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`), or None on a grid that takes the bilinear
+sampler: a type of its own, so that numba compiles that frame's kernel with the constants of :func:`_between`
+and no cubic in it (:func:`plan`)."""
 PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
@@ -133,8 +137,9 @@ def plan(tables):
     whole = sel.whole_volume(tables.axis)
     # 2: the corners' Phong factors weighted by their gradient magnitudes too (_sample), when those were read
     shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
+    between = between_slices(tables.view.geom.spacing, tables.axis)
     cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables),
-                       between_slices(tables.view.geom.spacing, tables.axis))
+                       between if between[0] else None)     # None: the bilinear kernel (_between)
     ex, ey = reach(tables.proj.coef)
     tent = (float(ex), float(ey))
     source = whole if sel.method == "full" else \
@@ -160,6 +165,22 @@ def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | N
     if kind == "linear" or max(sp[ia], sp[ib]) < ratio * min(sp):
         return 0, 0, 0
     return t, CUBIC_KINDS[kind], int(bool(SHADE_BETWEEN))
+
+
+def _between(between):
+    """:data:`PostClassify`'s ``between`` as the sampler reads it: (0, 0, 0), the bilinear sampler, when None.
+    Compiled (the overload below), None is a type of its own: the kernel of a frame without a thick axis is
+    compiled with these constants, and LLVM leaves the cubic's taps and branches out of its per-sample loop (they
+    cost 8-11% per sample when they were values read at run time, ``python -m benchmarks sampler``); a thick
+    grid's frames compile a kernel of their own, from the same source."""
+    return (0, 0, 0) if between is None else between
+
+
+@overload(_between, inline="always")
+def _typed_between(between):
+    if isinstance(between, types.NoneType):
+        return lambda between: (0, 0, 0)
+    return lambda between: between
 
 
 def _labels_of(tables):
@@ -357,7 +378,8 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     along b lie a plane or a row of the volume apart, so each row of the square is lines of its own that the
     CPU's own prefetchers do not foresee: without this the samples wait for memory (most of a frame's time on a
     volume larger than the caches, docs/design.md)."""
-    density, gm, nrm, strides, n_a, n_b, c, between = voxel
+    density, gm, nrm, strides, n_a, n_b, c, thick = voxel
+    between = _between(thick)
     sa, sb = strides[0], strides[1]
     a1 = min(a0 + unit, n_a - 1)
     b1 = min(b0 + unit, n_b - 1)
@@ -387,7 +409,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`).
     One function of over 60 lines: its per-pixel loop is the scan's inner loop, inlined by LLVM, with the
     flags' test and the sample (:func:`_sample`) in it."""
-    density, gm, nrm, strides, n_a, n_b, c, between = voxel
+    density, gm, nrm, strides, n_a, n_b, c, _ = voxel
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp
     nca = (n_a + CELL - 1) // CELL
@@ -583,7 +605,7 @@ def _taps(qa, qb, voxel):
     volume (the edge voxel repeated; 0 steps back at the first voxel), and whether the shading follows
     (:func:`_shade_between`). (0, 0, 0, 0, 0): bilinear. The slices of a
     slab (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
-    strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], voxel[7]
+    strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], _between(voxel[7])
     t = between[0]
     if t == 0:
         return 0, 0, 0, 0, 0

@@ -106,8 +106,8 @@ weighted by the bilinear weights times the corners' gradient magnitude codes (:d
 channel, the colour table, steps; empty without labels); ``between`` (axis, kind, shade): the in-slice axis along
 which the density is a cubic between voxels (1 a, 2 b), the cubic's kind and whether the shading follows it (1:
 :func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`), or None on a grid that takes the bilinear
-sampler: a type of its own, so that numba compiles that frame's kernel with the constants of :func:`_between`
-and no cubic in it (:func:`plan`)."""
+sampler: a type of its own, so that numba compiles that frame's kernel with no cubic in it (:func:`_taps`,
+:func:`_between`)."""
 PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
@@ -139,7 +139,7 @@ def plan(tables):
     shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
     between = between_slices(tables.view.geom.spacing, tables.axis)
     cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables),
-                       between if between[0] else None)     # None: the bilinear kernel (_between)
+                       between if between[0] else None)     # None: the bilinear kernel (_taps)
     ex, ey = reach(tables.proj.coef)
     tent = (float(ex), float(ey))
     source = whole if sel.method == "full" else \
@@ -168,11 +168,10 @@ def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | N
 
 
 def _between(between):
-    """:data:`PostClassify`'s ``between`` as the sampler reads it: (0, 0, 0), the bilinear sampler, when None.
-    Compiled (the overload below), None is a type of its own: the kernel of a frame without a thick axis is
-    compiled with these constants, and LLVM leaves the cubic's taps and branches out of its per-sample loop (they
-    cost 8-11% per sample when they were values read at run time, ``python -m benchmarks sampler``); a thick
-    grid's frames compile a kernel of their own, from the same source."""
+    """:data:`PostClassify`'s ``between`` as :func:`_prefetch_square` reads it: (0, 0, 0), the bilinear
+    sampler's, when None. Compiled (the overload below), None is a type of its own: the kernel of a frame without
+    a thick axis is compiled with these constants, and LLVM leaves the branches out; a thick grid's frames compile
+    a kernel of their own, from the same source (:func:`_taps`)."""
     return (0, 0, 0) if between is None else between
 
 
@@ -545,7 +544,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
-    if use_shade and taps[4] != 0:      # a thick axis: the Phong factors with the B-spline's weights along it
+    if use_shade and taps is not None and taps[4] != 0:      # a thick axis: the Phong factors with the B-spline's weights along it
         cr, cg, cb = _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade)
     elif use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
@@ -597,15 +596,29 @@ def _composite_alpha(img, sat, tile_sat, x, y, a, et):
     return 1
 
 
-@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _taps(qa, qb, voxel):
-    """What :func:`_density_at` needs of quad (qa, qb) beyond its corners: ``(axis, kind, back, fwd, shade)``,
-    the thick axis and the cubic's kind (``voxel[7]``, :data:`PostClassify`'s ``between``), the steps from the
-    quad's first corner to the voxel before it and to the voxel two after it along that axis, clamped to the
-    volume (the edge voxel repeated; 0 steps back at the first voxel), and whether the shading follows
-    (:func:`_shade_between`). (0, 0, 0, 0, 0): bilinear. The slices of a
-    slab (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
-    strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], _between(voxel[7])
+    """What :func:`_density_at` needs of quad (qa, qb) beyond its corners (:func:`_thick_taps`), or None
+    without a thick axis (``voxel[7]``, :data:`PostClassify`'s ``between``, None). Compiled, the choice is the
+    type's (the overload below): a sample of a frame without a thick axis is compiled with ``taps`` None, and
+    numba prunes the branches on ``taps is None`` (:func:`_sample`, :func:`_density_at`) before typing it."""
+    return None if voxel[7] is None else _thick_taps(qa, qb, voxel)
+
+
+@overload(_taps, inline="always")
+def _typed_taps(qa, qb, voxel):
+    if isinstance(voxel[7], types.NoneType):
+        return lambda qa, qb, voxel: None
+    return lambda qa, qb, voxel: _thick_taps(qa, qb, voxel)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _thick_taps(qa, qb, voxel):
+    """:func:`_taps` along a thick axis: ``(axis, kind, back, fwd, shade)``, the thick axis and the cubic's kind
+    (``voxel[7]``), the steps from the quad's first corner to the voxel before it and to the voxel two after it
+    along that axis, clamped to the volume (the edge voxel repeated; 0 steps back at the first voxel), and
+    whether the shading follows (:func:`_shade_between`). (0, 0, 0, 0, 0): bilinear. The slices of a slab
+    (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
+    strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], voxel[7]
     t = between[0]
     if t == 0:
         return 0, 0, 0, 0, 0
@@ -620,7 +633,8 @@ def _taps(qa, qb, voxel):
 def _density_at(density, i00, sa, sb, fu, fv, taps):
     """The density of the quad whose first voxel is at ``i00`` of the density channel (its next voxels ``sa``
     and ``sb`` away; 0 at the volume's edge) at (fu, fv) in [0, 1) in it: the one place a sample reads the
-    densities. Bilinear when ``taps[0]`` is 0 (isotropic data render bit for bit as before); else a cubic
+    densities. Bilinear when ``taps`` is None or ``taps[0]`` is 0 (isotropic data render bit for bit as
+    before; None: numba prunes the cubic out before typing); else a cubic
     (:func:`cubic`, kind ``taps[1]``) along the thick axis (1 a, 2 b) through the voxel before the quad
     (``taps[2]`` back), its two corners and the voxel after (``taps[3]`` on) in each of the quad's two rows (or
     columns), then linear between those two (:func:`_taps`)."""
@@ -628,12 +642,11 @@ def _density_at(density, i00, sa, sb, fu, fv, taps):
     i10 = i00 + np.uint64(sa)
     i01 = i00 + np.uint64(sb)
     i11 = i01 + np.uint64(sa)
-    t = taps[0]
-    if t == 0:
+    if taps is None or taps[0] == 0:
         return ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
                 + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
     back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
-    if t == 1:      # rows along a from i00 and from i01, then linear along b
+    if taps[0] == 1:      # rows along a from i00 and from i01, then linear along b
         r0 = cubic(density[i00 - back], density[i00], density[i10], density[i00 + fwd], fu, taps[1])
         r1 = cubic(density[i01 - back], density[i01], density[i11], density[i01 + fwd], fu, taps[1])
         return (1.0 - fv) * r0 + fv * r1

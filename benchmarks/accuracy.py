@@ -3,9 +3,9 @@
 ``python -m benchmarks accuracy [--out docs] [--quick]`` writes ``accuracy.md``, ``accuracy.csv`` and
 ``img/accuracy_pareto.png`` (and ``img/popping_head.png``). For each case (the head, the engine and the
 Marschner-Lobb sample, see :mod:`benchmarks.reference`) and each setting (the format defaults, then one knob
-changed at a time: early termination, footprint radius, table and sigma, precision, thread count, method, and
-``render.sheets`` when this isplat has it), the median frame time (every setting of a case rendered in turn,
-round after round: interleaved) and the error of the image against reference (a), the converged ray integral of
+changed at a time: early termination, footprint radius, table and sigma, precision, thread count, method, the slice
+stride (``render.slice_stride``: 1 is the defaults' point) and ``render.sheets`` when this isplat has it), the median
+frame time (every setting of a case rendered in turn, round after round: interleaved) and the error of the image against reference (a), the converged ray integral of
 the same 8-bit densities, and for Marschner-Lobb also against (b), the analytic signal. When VTK is importable
 and can open an offscreen context, ``vtkFixedPointVolumeRayCastMapper`` at sample distances 2, 1 (its default),
 0.5 and 0.25 voxel is timed in the same rounds and measured against the same references.
@@ -43,6 +43,7 @@ KNOBS = [                    # knobs of the default, post-classified, renderer
     ("precision", ["float64"]),
     ("threads", [1]),
     ("method", ["full"]),
+    ("slice_stride", [2, 3, 4]),      # every n-th slice, the opacity corrected for n slices (issue 27 item 3)
 ]
 PRE_KNOBS = [                # the footprint's knobs, which act on pre-classified splatting only
     ("footprint_radius", [1.5, 2.0, 3.0, 4.0]),
@@ -172,7 +173,7 @@ def _label(row):
         return f"VTK {row['value']:g}"
     short = {"early_termination": "ET", "footprint_radius": "pre, radius", "footprint_table": "pre, table",
              "footprint_sigma": "pre, sigma", "precision": "", "threads": "threads", "method": "",
-             "sheets": "pre, sheets", "classification": ""}
+             "sheets": "pre, sheets", "classification": "", "slice_stride": "stride"}
     label = f"{short[row['knob']]} {row['value']}".strip()
     return label if label.startswith("pre") else "post, " + label
 
@@ -360,6 +361,25 @@ def front_sentences(rows_by_case, conv) -> list[str]:
     return out
 
 
+def stride_sentences(rows_by_case, conv) -> list[str]:
+    """Where the slice stride's points (1, the defaults, and each n of KNOBS) lie against the defaults and the
+    front, per case and reference; and whether the default stride, 1, stays on the front."""
+    out = ["`render.slice_stride = n` samples the slices whose index is a multiple of n, each with the opacity "
+           "1 - (1 - alpha)^n of n slices (isplat/splat/post.py, formats/scene.md); stride 1 is the defaults' point. "
+           "Per case and reference: each stride's time and RMSE, and whether it is on isplat's front.\n"]
+    for case, rows in rows_by_case.items():
+        iso = [r for r in rows if r["renderer"] == "isplat"]
+        pts = [r for r in iso if r["knob"] in ("defaults", "slice_stride")]
+        for k in REF.kinds_for(case):
+            front = set(pareto([(r["ms"], r[k]["rmse"]) for r in iso], conv[(case, k)]["rmse"]))
+            on = [iso.index(r) in front for r in pts]
+            parts = [f"{r['value'] or 1}: {r['ms']:.1f} ms, {r[k]['rmse']:.4f}{' (front)' if o else ''}"
+                     for r, o in zip(pts, on)]
+            out.append(f"- **{case}**, against {'(a)' if k == 'grid' else '(b)'}: stride " + "; ".join(parts)
+                       + f". The default stride 1 {'stays' if on[0] else 'is **not**'} on the front.")
+    return out
+
+
 def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sheets, vtk_cls, gain, ppv) -> str:
     from isplat.splat.footprint import MIN_SIGMA_PIXELS
 
@@ -412,6 +432,7 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
              "at the start above); a setting that differs from the defaults only in a knob that does not change the "
              "work (precision, table size) can land on either side of them by chance.\n")
     L += front_sentences(rows_by_case, conv)
+    L += ["", "### Every n-th slice (`render.slice_stride`)\n"] + stride_sentences(rows_by_case, conv)
     L.append("")
     for c, rows in rows_by_case.items():
         L.append(f"## {c}\n")

@@ -108,14 +108,16 @@ which the density is a cubic between voxels (1 a, 2 b), the cubic's kind and whe
 :func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`), or None on a grid that takes the bilinear
 sampler: a type of its own, so that numba compiles that frame's kernel with no cubic in it (:func:`_taps`,
 :func:`_between`)."""
-PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
+PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach stride")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
 :data:`isplat.splat.traverse.WholeVolume`, each voxel classified); ``whole`` the whole channels
 (:data:`isplat.splat.traverse.WholeVolume`), which give the four densities of each sample; ``unit`` the side of
 the squares scanned together (:func:`scan_unit`); ``cls`` :data:`PostClassify`; ``geo``
 :data:`isplat.splat.traverse.SliceGeometry`; ``reach`` the tent's reach in pixels (:func:`reach`), which the
-occlusion tests and the bins take. A thread's scratch is its list of a slice's visible cells (int64[C, 4])."""
+occlusion tests and the bins take; ``stride`` ``render.slice_stride``: only the slices whose index is a multiple of
+it are sampled (:func:`_slice`; ``cls`` and ``geo`` corrected for the path of that many slices). A thread's scratch
+is its list of a slice's visible cells (int64[C, 4])."""
 
 
 def reach(coef) -> tuple[float, float]:
@@ -146,7 +148,8 @@ def plan(tables):
         indexed_source(view.order, sel.voxels(tables.axis), tables.geo, tent, tables.rows, view.frame.width)
     n_cells = max_cells(sel, tables.axis)
     lists = [np.empty((n_cells, 4), np.int64) for _ in range(tables.threads)]
-    return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent), lists, None
+    stride = int(tables.view.render.slice_stride)
+    return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent, stride), lists, None
 
 
 def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | None = None) -> tuple[int, int, int]:
@@ -190,7 +193,7 @@ def _labels_of(tables):
     lab = getattr(tables.sel, "labels", None)
     if lab is None:
         return no_labels()
-    r = None if tables.geo.persp else float(tables.proj.ds / tables.unit)
+    r = None if tables.geo.persp else float(tables.view.render.slice_stride * tables.proj.ds / tables.unit)
     return lab.ids, frame_table(lab.table, tables.geo.persp, r), lab.frame_steps(tables.axis), lab.normals
 
 
@@ -204,7 +207,10 @@ def _scratch(plan):
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _slice(plan, cells, scratch, c, pos, buf, band):
     """Slice ``c`` for one band: its regions (:func:`isplat.splat.traverse.slice_regions`), then
-    :func:`_post_slice`."""
+    :func:`_post_slice`; nothing when ``c`` is not a multiple of ``plan.stride`` (``render.slice_stride``: by the
+    slice's index, so a frame cut into slabs samples the same slices)."""
+    if c % plan.stride != 0:
+        return
     regions, p0, p1, hier, _, _, _ = slice_regions(plan.source, scratch[0], c, pos, plan.cls.alpha, plan.cls.use_gm,
                                                    plan.geo, plan.reach, buf, band)
     _post_slice(c, regions, p0, p1, hier[:7], plan.whole, plan.unit, plan.cls, plan.geo, plan.reach, cells, buf,
@@ -544,7 +550,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
-    if use_shade and taps is not None and taps[4] != 0:      # a thick axis: the Phong factors with the B-spline's weights along it
+    if use_shade and taps is not None and taps[4] != 0:   # a thick axis: the B-spline's weights along it
         cr, cg, cb = _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade)
     elif use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]

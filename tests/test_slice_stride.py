@@ -171,3 +171,25 @@ def test_a_stride_in_the_file_is_named_by_file_and_line(tmp_path):
     assert str(info.value) == (f"s.toml:{line}: render.slice_stride = -2: expected an integer 1..64 (sample every "
                                "n-th slice of the principal axis, the opacity corrected for the longer step; 1 = "
                                "every slice)")
+
+
+def test_a_shown_label_is_corrected_for_the_stride_too(tmp_path):
+    """A segmentation label shown with opacity alpha over a uniform block of 8 slices seen head-on (labels are
+    composited by the post-classified sampler, isplat.splat.labels): 1 - (1 - alpha)^(n ceil(8 / n)), as the
+    density's opacity."""
+    from isplat.augfile import write_augmented
+    from isplat.scene import parse_scene
+
+    lab = np.ones((8, 8, 8), np.uint8)
+    d = np.zeros(lab.shape, np.uint8)
+    write_augmented(tmp_path / "l.aug.h5", d, d, np.full(d.shape, 0x8080, np.uint16), (1.0, 1.0, 1.0),
+                    (0.0, 255.0), 0.0, labels=lab)
+    for stride in (1, 2, 3):
+        text = ('version = 6\n[data]\naugmented = "l.aug.h5"\n[render]\nmethod = "full"\nearly_termination = 1.0\n'
+                f'slice_stride = {stride}\n[image]\nwidth = 64\nheight = 64\nbackground = [0, 0, 0, 0]\n[camera]\n'
+                'elevation = 90\nzoom = 0.25\n[transfer]\nopacity = [[0, 0], [255, 0]]\n[shading]\nenabled = false\n'
+                '[labels.1]\ncolor = [1.0, 0.0, 0.0]\nopacity = 0.1\n')
+        img, _ = Renderer(parse_scene(text, tmp_path, "l.toml")).render_view(0)
+        inside = img[..., 3][img[..., 3] > 0.5 * img[..., 3].max()]
+        assert inside.size >= 64
+        assert np.abs(inside - (1 - 0.9 ** (stride * -(-8 // stride)))).max() < 1e-5, stride

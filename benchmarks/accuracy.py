@@ -3,10 +3,11 @@
 ``python -m benchmarks accuracy [--out docs] [--quick]`` writes ``accuracy.md``, ``accuracy.csv`` and
 ``img/accuracy_pareto.png`` (and ``img/popping_head.png``). For each case (the head, the engine and the
 Marschner-Lobb sample, see :mod:`benchmarks.reference`) and each setting (the format defaults, then one knob
-changed at a time: early termination, footprint radius, table and sigma, precision, thread count, method, and
-``render.sheets`` when this isplat has it), the median frame time (every setting of a case rendered in turn,
-round after round: interleaved) and the error of the image against reference (a), the converged ray integral of
-the same 8-bit densities, and for Marschner-Lobb also against (b), the analytic signal. When VTK is importable
+changed at a time: early termination, footprint radius, table and sigma, precision, thread count, method, the slice
+stride (``render.slice_stride``: 1 is the defaults' point) and ``render.sheets`` when this isplat has it), the median
+frame time (every setting of a case rendered in turn, round after round: interleaved) and the error of the image
+against reference (a), the converged ray integral of the same 8-bit densities, and for Marschner-Lobb also against
+(b), the analytic signal. When VTK is importable
 and can open an offscreen context, ``vtkFixedPointVolumeRayCastMapper`` at sample distances 2, 1 (its default),
 0.5 and 0.25 voxel is timed in the same rounds and measured against the same references.
 
@@ -43,7 +44,12 @@ KNOBS = [                    # knobs of the default, post-classified, renderer
     ("precision", ["float64"]),
     ("threads", [1]),
     ("method", ["full"]),
+    ("slice_stride", [2, 3, 4]),      # every n-th slice, the opacity corrected for n slices (issue 27 item 3)
 ]
+# knobs of a newer scene version than the cases' scene files say (examples/*.toml: version 4): their settings say
+# version = 6, whose other new defaults (camera.view, volume.axes) change nothing on the samples, which record no
+# orientation
+NEWER_KEYS = ("slice_stride",)
 PRE_KNOBS = [                # the footprint's knobs, which act on pre-classified splatting only
     ("footprint_radius", [1.5, 2.0, 3.0, 4.0]),
     ("footprint_table", [32, 128, 65536]),
@@ -76,7 +82,8 @@ def settings(sheets):
     """(knob, value, overrides) of every setting measured; the defaults first."""
     out = [("defaults", "", [])]
     for knob, values in KNOBS:
-        out += [(knob, v, REF.render_overrides({knob: v})) for v in values]
+        since = ["version=6"] if knob in NEWER_KEYS else []     # the case's scene may say an older version
+        out += [(knob, v, since + REF.render_overrides({knob: v})) for v in values]
     out.append(("classification", "pre", REF.render_overrides(PRE)))
     for knob, values in PRE_KNOBS:
         out += [(knob, v, REF.render_overrides({**PRE, knob: v})) for v in values]
@@ -172,7 +179,7 @@ def _label(row):
         return f"VTK {row['value']:g}"
     short = {"early_termination": "ET", "footprint_radius": "pre, radius", "footprint_table": "pre, table",
              "footprint_sigma": "pre, sigma", "precision": "", "threads": "threads", "method": "",
-             "sheets": "pre, sheets", "classification": ""}
+             "sheets": "pre, sheets", "classification": "", "slice_stride": "stride"}
     label = f"{short[row['knob']]} {row['value']}".strip()
     return label if label.startswith("pre") else "post, " + label
 
@@ -339,8 +346,7 @@ def front_sentences(rows_by_case, conv) -> list[str]:
             front = pareto(pts, tol)
             di = next(i for i, r in enumerate(iso) if r["default"])
             d = iso[di]
-            beat = [r for r in iso if r is not d and r["ms"] <= d["ms"] and r[k]["rmse"] <= d[k]["rmse"] + tol
-                    and (r["ms"] < d["ms"] or r[k]["rmse"] < d[k]["rmse"] - tol)]
+            beat = _beaters(iso, d, k, tol)
             on = di in front
             txt = (f"- **{case}**, against {'(a)' if k == 'grid' else '(b)'}: the defaults "
                    f"({d['ms']:.1f} ms, RMSE {d[k]['rmse']:.4f}) are {'on' if on else '**not** on'} isplat's front")
@@ -356,6 +362,41 @@ def front_sentences(rows_by_case, conv) -> list[str]:
                         f"isplat's defaults, {vd['ms'] / d['ms']:.2f}x their time)")
                 txt += ("; VTK points that beat isplat's defaults in both: "
                         + (", ".join(f"step {r['value']:g}" for r in faster_better) or "none") + ".")
+            out.append(txt)
+    return out
+
+
+def _beaters(iso, d, k, tol):
+    """The isplat rows that beat row ``d`` against reference ``k``: at least as fast and as close, one of the two
+    by more than the tie margin ``tol``."""
+    return [r for r in iso if r is not d and r["ms"] <= d["ms"] and r[k]["rmse"] <= d[k]["rmse"] + tol
+            and (r["ms"] < d["ms"] or r[k]["rmse"] < d[k]["rmse"] - tol)]
+
+
+def stride_sentences(rows_by_case, conv) -> list[str]:
+    """Where the slice stride's points (1, the defaults, and each n of KNOBS) lie, per case and reference, and
+    whether the default stride, 1, stays on the front: beaten by no stride, and on isplat's whole front or not."""
+    out = ["`render.slice_stride = n` samples the slices whose index is a multiple of n, each with the opacity "
+           "1 - (1 - alpha)^n of n slices (isplat/splat/post.py, formats/scene.md); stride 1 is the defaults' point. "
+           "Per case and reference: each stride's time and RMSE (*front*: on isplat's front), and whether a stride "
+           "beats the default stride 1 (at least as fast and as close, one of the two by more than the tie margin).\n"]
+    for case, rows in rows_by_case.items():
+        iso = [r for r in rows if r["renderer"] == "isplat"]
+        pts = [r for r in iso if r["knob"] in ("defaults", "slice_stride")]
+        for k in REF.kinds_for(case):
+            tol = conv[(case, k)]["rmse"]
+            front = set(pareto([(r["ms"], r[k]["rmse"]) for r in iso], tol))
+            parts = [f"{r['value'] or 1}: {r['ms']:.1f} ms, {r[k]['rmse']:.4f}"
+                     + (" (front)" if iso.index(r) in front else "") for r in pts]
+            beat = _beaters(iso, pts[0], k, tol)
+            strides = [f"stride {r['value']}" for r in beat if r["knob"] == "slice_stride"]
+            others = [_label(r) for r in beat if r["knob"] != "slice_stride"]
+            txt = (f"- **{case}**, against {'(a)' if k == 'grid' else '(b)'}: stride " + "; ".join(parts) + ". "
+                   + (f"{', '.join(strides)} beat the default stride 1" if strides else
+                      "No stride beats the default stride 1: it stays on the front of the strides")
+                   + ("; it is on isplat's whole front." if not beat else
+                      f"; on isplat's whole front it is beaten by {', '.join(others)} (not strides; see above)."
+                      if others else "."))
             out.append(txt)
     return out
 
@@ -412,6 +453,7 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
              "at the start above); a setting that differs from the defaults only in a knob that does not change the "
              "work (precision, table size) can land on either side of them by chance.\n")
     L += front_sentences(rows_by_case, conv)
+    L += ["", "### Every n-th slice (`render.slice_stride`)\n"] + stride_sentences(rows_by_case, conv)
     L.append("")
     for c, rows in rows_by_case.items():
         L.append(f"## {c}\n")

@@ -5,8 +5,9 @@
 
 Issue 27's scene: the ``ct-chest`` sample made at 512 x 512 x 133 voxels, augmented at spacing 0.703125,
 0.703125, 2.5 mm with ``--window=-1000,2000``, a semi-transparent veil (opacity 0.03 from code 62 to 78) and
-opaque bone (opacity 1 from code 140), orthographic from -y, 512 px, unshaded and shaded; and the head sample's
-bone scene (examples/head.toml), shaded. ``render.threads = 1``.
+opaque bone (opacity 1 from code 140), orthographic from -y, 512 px, unshaded and shaded; the head sample's
+bone scene (examples/head.toml), shaded; and the same chest made with 48 slices 7 mm thick, shaded, whose view
+from -y takes the cubic between slices (:data:`isplat.splat.post.THICK_RATIO`). ``render.threads = 1``.
 
 Each version runs in a worker process of its own (the old one from ``git archive`` of its ``isplat/`` under
 out/bench-sampler/, its kernels compiled there once); the frames go in turn, old and new, round after round, so
@@ -53,6 +54,8 @@ CASES = [
     ("chest veil + bone, unshaded", "chest", [*CHEST_TF, "shading.enabled=false"]),
     ("chest veil + bone, shaded", "chest", CHEST_TF),
     ("head bone (examples/head.toml), shaded", "head", []),
+    # 7 mm slices seen from the side: the cubic between slices (isplat.splat.post.THICK_RATIO)
+    ("chest 7 mm slices, veil + bone, shaded (cubic)", "chest7", CHEST_TF),
 ]
 
 WORKER = r"""
@@ -90,8 +93,10 @@ def data(quick: bool) -> dict:
     d = WORK / "data"
     d.mkdir(parents=True, exist_ok=True)
     chest_shape = "256,256,67" if quick else "512,512,133"
+    chest7_shape = "256,256,24" if quick else "512,512,48"
     specs = {"chest": ("ct-chest", chest_shape, ["--spacing", "0.703125,0.703125,2.5", "--window=-1000,2000"]),
-             "head": ("head", None, [])}
+             "head": ("head", None, []),
+             "chest7": ("ct-chest", chest7_shape, ["--spacing", "0.703125,0.703125,7", "--window=-1000,2000"])}
     out = {}
     for tag, (sample, shape, aug_args) in specs.items():
         name = f"{tag}-{shape or 'default'}"

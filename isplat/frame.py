@@ -232,16 +232,17 @@ def frame_tables(sel, view: View, dtype, threads: int, rows: np.ndarray, n_lists
     axis = view.axis_sign[0]
     proj = cam_mod.projection(frame, geom, axis)
     unit = sel.unit_distance or float(geom.spacing.min())
+    n = ro.slice_stride             # every n-th slice sampled (post): each for the path of n slices
     ic = grid.SLICE_AXES[axis][2]
     coef, steps = _floats(proj.coef), tuple(_floats(row) for row in proj.steps)
     cuts = cut_coefficients(view.cuts, geom, axis)
     if frame.projection == "perspective":
         atab = alpha_table(sel.luts, None)
-        geo = T.SliceGeometry(coef, steps, _floats(geom.q - frame.e), True, float(geom.spacing[ic]) / unit,
+        geo = T.SliceGeometry(coef, steps, _floats(geom.q - frame.e), True, n * float(geom.spacing[ic]) / unit,
                               float((geom.q - frame.e) @ geom.unit_axes[ic]), float(geom.spacing[ic]), cuts,
-                              eye_terms(frame, geom, ic, ro.footprint_radius))
+                              eye_terms(frame, geom, ic, ro.footprint_radius, n))
     else:
-        atab = alpha_table(sel.luts, proj.ds / unit)
+        atab = alpha_table(sel.luts, n * proj.ds / unit)
         geo = T.SliceGeometry(coef, steps, (0.0, 0.0, 0.0), False, 1.0, 0.0, 1.0, cuts, (0.0,) * 9)
     shade = (shade_table(view.shading, frame, geom, threads=threads) if sel.use_shade
              else np.zeros((1, 6), np.float32))
@@ -257,9 +258,10 @@ def frame_tables(sel, view: View, dtype, threads: int, rows: np.ndarray, n_lists
 WIDE_ANGLE = 1.0 / 40.0
 
 
-def eye_terms(frame, geom, ic: int, radius: float) -> tuple:
+def eye_terms(frame, geom, ic: int, radius: float, stride: int = 1) -> tuple:
     """The per-frame terms of traverse.SliceGeometry.eye (layout traverse.EY_*) for slices along grid axis ``ic``
-    and a footprint cut off at ``radius`` sigmas."""
+    and a footprint cut off at ``radius`` sigmas; ``stride``: every n-th slice sampled (render.slice_stride),
+    each slab that many slices thick."""
     ds = float(geom.spacing[ic])
     n_c = int(geom.n_ijk[ic])
     ce = float(geom.to_grid(frame.e)[ic])
@@ -267,7 +269,8 @@ def eye_terms(frame, geom, ic: int, radius: float) -> tuple:
     diag = float(np.linalg.norm(geom.n_ijk * geom.spacing))
     f = float((frame.e - frame.p) @ frame.w) / frame.pixel_size  # focal length in pixels
     n = geom.unit_axes[ic]
-    return (ds, h0, float(frame.clip), min(1.0, ds / diag), WIDE_ANGLE * f * radius, float(frame.u @ n),
+    slab = stride * ds
+    return (slab, h0, float(frame.clip), min(1.0, slab / diag), WIDE_ANGLE * f * radius, float(frame.u @ n),
             -float(frame.v @ n), -float(frame.w @ n) * f, f * f)
 
 

@@ -113,6 +113,9 @@ VARIANTS = ([], ['render.classification="pre"'], ['render.method="full"'],
             ['shading.enabled=false', 'render.threads=1'], ['version=6', 'render.mode="mip"'],
             ['version=6', 'render.mode="minip"', 'render.method="full"'],
             ['version=6', 'render.mode="mip"', 'render.precision="float64"'])
+# the same sample with slices 5 times thicker along k, seen from the front (j's slices, a thick in-slice axis): the
+# post-classified kernel with the cubic between slices, a type of its own (isplat.splat.post._taps)
+THICK_VARIANTS = ([], ['render.method="full"'], ['render.precision="float64"'], ['camera.projection="perspective"'])
 
 
 def isplat_workload() -> None:
@@ -134,6 +137,7 @@ def isplat_workload() -> None:
         _run(["-q", "sample", "engine", "-o", "e.npy", "--shape", "40,36,24"])
         _run(["-q", "augment", "e.npy", "-o", "e.aug.h5"])
         _run(["-q", "index", "e.aug.h5", "-o", "e.idx.h5"])
+        _run(["-q", "augment", "e.npy", "-o", "t.aug.h5", "--spacing", "1,1,5", "--index"])
         _run(["-q", "sample", "ct-head", "-o", "c.npy", "--shape", "32,32,24"])      # int16 Hounsfield units
         _run(["-q", "augment", "c.npy", "-o", "c.aug.h5"])
         with open("s.toml", "w", encoding="utf-8") as f:
@@ -141,6 +145,9 @@ def isplat_workload() -> None:
                     'height = 40\n[transfer]\nopacity = [[60, 0.0], [120, 0.6], [255, 0.9]]\n')
         for i, sets in enumerate(VARIANTS):
             _run(["-q", "render", "s.toml", "-o", f"{i}.png", *[f"--set={s}" for s in sets]])
+        thick = ['--set=data.augmented="t.aug.h5"', '--set=data.index="t.idx.h5"']
+        for i, sets in enumerate(THICK_VARIANTS):
+            _run(["-q", "render", "s.toml", "-o", f"t{i}.png", *thick, *[f"--set={s}" for s in sets]])
         _run(["-q", "render", "s.toml", "-o", "slabs.png", "--slabs", "3"])
         _run(["-q", "render", "s.toml", "-o", "dask.png", "--slabs", "2", "--scheduler", "local:2"])
         _run(["-q", "stats", "e.aug.h5", "e.idx.h5", "--scene", "s.toml"])

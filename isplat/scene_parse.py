@@ -21,9 +21,9 @@ from .limits import MAX_VIEWS
 from .scene_schema import (CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS, DEFAULT_ORBIT_STEPS,
                            DEFAULT_PATH_FRAMES, DEFAULTS_BEFORE, FOV_MAX, IDENTITY_AXES, IMAGE_KEYS, KEYS_SINCE,
                            LIGHT_KEYS, OLD_DEFAULT_MEANING, ORTHONORMAL_TOLERANCE, PARALLEL_TOLERANCE, RENDER_KEYS,
-                           SCENE_VERSION, SHADING_KEYS, SUPERSAMPLE_MAX, TOP_KEYS, TRANSFER_KEYS, VIEW_CHOICES,
-                           VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light, RenderOptions, Scene, Shading,
-                           Transfer, Vec3, Volume, default_for, defaults, spacing_problem, unit)
+                           SCENE_VERSION, SHADING_KEYS, SLICE_STRIDE_MAX, SUPERSAMPLE_MAX, TOP_KEYS, TRANSFER_KEYS,
+                           VIEW_CHOICES, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light, RenderOptions, Scene,
+                           Shading, Transfer, Vec3, Volume, default_for, defaults, spacing_problem, unit)
 from .scene_validate import Ctx, Table, dotted, fmt, kind
 
 __all__ = ["build_scene", "DensityWindow", "WindowUnavailable", "NO_WINDOW"]
@@ -475,7 +475,21 @@ def _render(ctx: Ctx, tree: dict) -> RenderOptions:
                             "and height, box-filtered down; 1 = off)", 1, SUPERSAMPLE_MAX)
     mode, color = _mode(ctx, t, classification, sheets)
     return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets, classification,
-                         supersample, mode, None, color)
+                         supersample, mode, None, color, _slice_stride(t, classification, mode))
+
+
+def _slice_stride(t: Table, classification: str, mode: str) -> int:
+    """``render.slice_stride``: an integer 1..SLICE_STRIDE_MAX; above 1 only for the post-classified composite
+    (isplat.splat.post), refused in one line with "pre" and with an intensity projection."""
+    n = t.integer("slice_stride", f"expected an integer 1..{SLICE_STRIDE_MAX} (sample every n-th slice of the "
+                  "principal axis, the opacity corrected for the longer step; 1 = every slice)", 1, SLICE_STRIDE_MAX)
+    if n > 1 and classification != "post":
+        t.fail("slice_stride", 'render.slice_stride > 1 samples the post-classified slices; it takes '
+                               'render.classification = "post"')
+    if n > 1 and mode != "composite":
+        t.fail("slice_stride", f'render.slice_stride > 1 corrects the opacity of a composited ray; it takes '
+                               f'render.mode = "composite" (the mode is "{mode}")')
+    return n
 
 
 MODES = ("composite", "mip", "minip")

@@ -33,7 +33,8 @@ KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "pa
               ("views", "fps"): 2, ("render", "sheets"): 3,
               ("render", "classification"): 4, ("render", "supersample"): 4, ("camera", "view"): 5,
               ("render", "mode"): 6, ("render", "window"): 6, ("render", "intensity_color"): 6,
-              ("labels", "names"): 6, ("labels", "show"): 6, ("labels", "opacity"): 6}
+              ("labels", "names"): 6, ("labels", "show"): 6, ("labels", "opacity"): 6,
+              ("render", "slice_stride"): 6}
 # tables added by a version after 1 (the whole table is new)
 TABLES_SINCE = {"labels": 6}
 # defaults a version changed: (table, key) -> (that version, the default of a file that says an older one)
@@ -49,6 +50,7 @@ VIEW_CHOICES = NAMED_VIEW_NAMES + ("auto", "none")
 
 Vec3 = tuple[float, float, float]
 SUPERSAMPLE_MAX = 8
+SLICE_STRIDE_MAX = 64         # render.slice_stride: every n-th slice at most this far apart
 DEFAULT_LIGHT_DIRECTION = (-0.4, 0.6, 1.0)   # towards the light, camera space; normalised as typed-in ones are
 
 
@@ -169,6 +171,8 @@ class RenderOptions:
                                   # ray (isplat.splat.mip), version 6
     window: tuple[float, float] | None = None   # mip/minip: the density codes mapped to black..white (None: 0..255)
     intensity_color: str = "grey" # mip/minip: "grey" (the window's ramp) or "transfer" (the transfer's colour)
+    slice_stride: int = 1         # post: sample every n-th slice of the principal axis (c % n == 0), each sample's
+                                  # opacity corrected for the n slices' path (isplat.splat.post), version 6
 
 
 @dataclass(frozen=True)
@@ -247,7 +251,7 @@ LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
                "precision", "threads", "sheets", "classification", "supersample", "mode", "window",
-               "intensity_color")
+               "intensity_color", "slice_stride")
 VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
 DEFAULT_ORBIT_STEPS = 0      # views.orbit_steps: 0 = no orbit
 DEFAULT_PATH_FRAMES = 60     # views.frames of a views.path

@@ -12,7 +12,10 @@ Hermite through the four voxels around the point (indices clamped to the volume)
 linear across them: monotone (Fritsch-Butland slopes) or Catmull-Rom clamped to 0..255; and the shading mixes
 the Phong factors of those eight voxels, weighted by the cubic B-spline's weights along the thick axis times the
 linear weights across (times the gradient magnitude codes, normalised, as the four corners' otherwise). A quad (the square between
-four voxels) is sampled only when one of its voxels has a density of non-zero opacity.
+four voxels) is sampled only when one of its voxels has a density of non-zero opacity. With
+``render.slice_stride`` N > 1 only the slices whose index is a multiple of N are sampled, each for a path N
+slices long (the opacity 1 - (1 - alpha)^(N r) of one slice's r; in perspective the first slab kept reaches back
+N slices too, and the cosine's bound is N slice spacings over the box's diagonal).
 """
 
 from __future__ import annotations
@@ -30,9 +33,10 @@ from phong_reference import camera_lights, phong
 ALPHA_MAX = 1 - 2.0 ** -40
 
 
-def post_reference(scene, view=0, et=1.0, weighted=True, between=None):
+def post_reference(scene, view=0, et=1.0, weighted=True, between=None, stride=None):
     """Straight RGBA (H, W, 4) over the scene's background. ``between``: "linear", "monotone" or "catmull-rom"
-    (None: isplat.splat.post.BETWEEN_SLICES)."""
+    (None: isplat.splat.post.BETWEEN_SLICES); ``stride``: every n-th slice (None: render.slice_stride)."""
+    stride = scene.render.slice_stride if stride is None else stride
     aug = open_augmented(scene.data.augmented)
     dens = aug.read("density").astype(np.float64)
     nrm = aug.read("normal")
@@ -54,7 +58,7 @@ def post_reference(scene, view=0, et=1.0, weighted=True, between=None):
     lights = camera_lights(sh, frame)
     normal_axis = geom.unit_axes[ic]
     cos_ortho = abs(frame.w @ normal_axis)
-    cos_min = min(1.0, geom.spacing[ic] / float(np.linalg.norm(geom.n_ijk * geom.spacing)))
+    cos_min = min(1.0, stride * geom.spacing[ic] / float(np.linalg.norm(geom.n_ijk * geom.spacing)))
     if persp:
         ce = geom.to_grid(frame.e)[ic]
         h0 = max(-0.5 - ce, ce - (n_ijk[ic] - 0.5), 0.0) * geom.spacing[ic]
@@ -69,7 +73,7 @@ def post_reference(scene, view=0, et=1.0, weighted=True, between=None):
             og, dg = (o - geom.q) @ to_grid.T, d @ to_grid.T
             if abs(dg[ic]) < 1e-15:
                 continue
-            hits = sorted(((c - og[ic]) / dg[ic], c) for c in range(n_ijk[ic]))
+            hits = sorted(((c - og[ic]) / dg[ic], c) for c in range(0, n_ijk[ic], stride))
             acc = np.zeros(4)
             for t, c in hits:
                 if acc[3] >= et:
@@ -84,12 +88,12 @@ def post_reference(scene, view=0, et=1.0, weighted=True, between=None):
                 if s is None:
                     continue
                 lo, hi, f, rgb = s
-                thick = geom.spacing[ic]
+                thick = stride * geom.spacing[ic]
                 if persp:
                     # as the splatting reference: the first slab kept reaches back to the eye (or a set near
                     # plane, not in front of the box); the cosine bounded by slice spacing / box diagonal
                     cos = max(abs(d @ normal_axis), cos_min)
-                    hc = abs(c - og[ic]) * thick
+                    hc = abs(c - og[ic]) * geom.spacing[ic]
                     depth = t * float(-(d @ frame.w))
                     if depth * (hc - thick) < frame.near * hc:
                         thick = max(hc + 0.5 * thick - max(h0, frame.clip * hc / depth), 0.0)

@@ -115,6 +115,20 @@ def test_a_frame_split_into_slabs_on_workers_is_the_one_process_frame(files, cli
             assert np.abs(rgba - F.finish_image(whole.img, view.background)).max() <= 1e-5
 
 
+def test_a_slice_stride_on_workers_is_the_one_process_frame(files, client):
+    """render.slice_stride = 2 (every other slice, by its index): a frame rendered whole on a worker, or in
+    slabs on the workers, is the one-process frame (to rounding), which is not the every-slice frame."""
+    scene = make(files, ["render.slice_stride=2", "render.early_termination=1.0", "views.orbit_steps=0",
+                         "camera.azimuth=200"])
+    want = one_process(scene)[0]
+    view = views_of(scene)[0]
+    for slabs in (1, 2, 3):
+        (_, rgba, _, _), = D.render_views(client, scene, [view], slabs=slabs)
+        assert np.abs(rgba - want).max() <= 1e-5, slabs
+    every = one_process(make(files, ["render.early_termination=1.0", "views.orbit_steps=0", "camera.azimuth=200"]))
+    assert np.abs(every[0] - want).max() > 1e-3
+
+
 def test_supersampled_frames_on_workers_are_box_filtered_like_one_process(files, client):
     """render.supersample = 2: a view rendered whole or in slabs on the workers is finished at the image's size,
     as in one process."""

@@ -519,3 +519,38 @@ def test_density_at_is_the_bilinear_density(seed, fu, fv, edge_a, edge_b):
             + (1 - fu) * fv * float(plane[b1, a]) + fu * fv * float(plane[b1, a1]))
     got = post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, (0, 0, 0, 0, 0))
     assert got == want
+    # taps None: the variant a frame without a thick axis compiles (the cubic pruned out), the same value
+    assert post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, None) == want
+
+
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_the_linear_and_the_cubic_sampler_are_two_compiled_kernels(tmp_path, make_scene, proj):
+    """Below THICK_RATIO a frame's plan carries ``between`` None and the sampler is compiled without the cubic's
+    taps (_taps gives None; the bilinear sampler of before the cubic, whose images the sampler benchmark
+    compares bit for bit with 2e683d4's); above it the thick axis: another numba type of the plan, so another
+    compiled kernel of traverse.render. Each renders its reference, and the cubic's is not the linear one's."""
+    import numba
+
+    from isplat import frame as F
+    from isplat.splat import post
+    from isplat.splat import traverse as T
+
+    plans = {}
+    for name, spacing in (("linear", (1.0, 1.2, 0.8)), ("cubic", THICK)):
+        shape = (6, 7, 8)
+        aug, idx = write_volume(tmp_path, rng_volume(11, shape), spacing=spacing, normal=random_normals(11, shape),
+                                name=name)
+        sc = post_scene(make_scene, aug, idx, CAMERAS[4], proj)
+        r = Renderer(sc)
+        plans[name] = F.prepare(r.selection, r.views[0]).plan
+        img, _ = r.render_view(0)
+        assert np.abs(img - post_reference(sc)).max() <= 2e-4
+        if name == "cubic":
+            assert np.abs(img - post_reference(sc, between="linear")).max() > 1e-3
+    assert plans["linear"].cls.between is None and plans["cubic"].cls.between[0] in (1, 2)
+    types = {k: numba.typeof(p) for k, p in plans.items()}
+    assert types["linear"] != types["cubic"]
+    assert {types["linear"], types["cubic"]} <= {sig[2] for sig in T.render.signatures}
+    voxel = (None,) * 7
+    assert post._taps(3, 4, voxel + (None,)) is None
+    assert post._taps(3, 4, (None, None, None, np.array([1, 8, 64, 0]), 8, 8, 0, (1, 1, 1))) == (1, 1, 1, 2, 1)

@@ -60,7 +60,7 @@ def test_valid_example_decodes_as_expected(path):
     expected = json.loads(path.with_suffix(".expected.json").read_text())
     # the expected files (formats/, kept by the formats' owner) predate scene version 6: its render keys take
     # their defaults there
-    for key in ("mode", "window", "intensity_color"):
+    for key in ("mode", "window", "intensity_color", "slice_stride"):
         expected["render"].setdefault(key, defaults(RenderOptions)[key])
     assert got == expected
     assert scene.path == path.resolve()

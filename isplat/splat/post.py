@@ -55,6 +55,8 @@ import os
 from collections import namedtuple
 
 import numpy as np
+from numba import types
+from numba.extending import overload
 
 from ..jit import leaf, prefetch, stage
 from .composite import TILE
@@ -101,17 +103,21 @@ orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next cod
 (:mod:`isplat.splat.shade`); ``use_shade`` 0 unshaded, 1 the corners' Phong factors weighted bilinearly, 2
 weighted by the bilinear weights times the corners' gradient magnitude codes (:data:`WEIGHTED_SHADING`);
 ``lab`` the segmentation labels shown (:mod:`isplat.splat.labels`: the label
-channel, the colour table, steps; empty without labels); ``between`` (axis, kind): the in-slice axis along which
-the density is a cubic between voxels (1 a, 2 b, 0 none: bilinear), the cubic's kind and whether the shading
-follows it (1: :func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`)."""
-PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach")
+channel, the colour table, steps; empty without labels); ``between`` (axis, kind, shade): the in-slice axis along
+which the density is a cubic between voxels (1 a, 2 b), the cubic's kind and whether the shading follows it (1:
+:func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`), or None on a grid that takes the bilinear
+sampler: a type of its own, so that numba compiles that frame's kernel with no cubic in it (:func:`_taps`,
+:func:`_between`)."""
+PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach stride")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
 :data:`isplat.splat.traverse.WholeVolume`, each voxel classified); ``whole`` the whole channels
 (:data:`isplat.splat.traverse.WholeVolume`), which give the four densities of each sample; ``unit`` the side of
 the squares scanned together (:func:`scan_unit`); ``cls`` :data:`PostClassify`; ``geo``
 :data:`isplat.splat.traverse.SliceGeometry`; ``reach`` the tent's reach in pixels (:func:`reach`), which the
-occlusion tests and the bins take. A thread's scratch is its list of a slice's visible cells (int64[C, 4])."""
+occlusion tests and the bins take; ``stride`` ``render.slice_stride``: only the slices whose index is a multiple of
+it are sampled (:func:`_slice`; ``cls`` and ``geo`` corrected for the path of that many slices). A thread's scratch
+is its list of a slice's visible cells (int64[C, 4])."""
 
 
 def reach(coef) -> tuple[float, float]:
@@ -133,15 +139,17 @@ def plan(tables):
     whole = sel.whole_volume(tables.axis)
     # 2: the corners' Phong factors weighted by their gradient magnitudes too (_sample), when those were read
     shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
+    between = between_slices(tables.view.geom.spacing, tables.axis)
     cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables),
-                       between_slices(tables.view.geom.spacing, tables.axis))
+                       between if between[0] else None)     # None: the bilinear kernel (_taps)
     ex, ey = reach(tables.proj.coef)
     tent = (float(ex), float(ey))
     source = whole if sel.method == "full" else \
         indexed_source(view.order, sel.voxels(tables.axis), tables.geo, tent, tables.rows, view.frame.width)
     n_cells = max_cells(sel, tables.axis)
     lists = [np.empty((n_cells, 4), np.int64) for _ in range(tables.threads)]
-    return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent), lists, None
+    stride = int(tables.view.render.slice_stride)
+    return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent, stride), lists, None
 
 
 def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | None = None) -> tuple[int, int, int]:
@@ -162,6 +170,21 @@ def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | N
     return t, CUBIC_KINDS[kind], int(bool(SHADE_BETWEEN))
 
 
+def _between(between):
+    """:data:`PostClassify`'s ``between`` as :func:`_prefetch_square` reads it: (0, 0, 0), the bilinear
+    sampler's, when None. Compiled (the overload below), None is a type of its own: the kernel of a frame without
+    a thick axis is compiled with these constants, and LLVM leaves the branches out; a thick grid's frames compile
+    a kernel of their own, from the same source (:func:`_taps`)."""
+    return (0, 0, 0) if between is None else between
+
+
+@overload(_between, inline="always")
+def _typed_between(between):
+    if isinstance(between, types.NoneType):
+        return lambda between: (0, 0, 0)
+    return lambda between: between
+
+
 def _labels_of(tables):
     """The frame's ``lab`` tuple (:mod:`isplat.splat.labels`): the selection's labels with their opacities
     corrected for this view's path length, or none."""
@@ -170,7 +193,7 @@ def _labels_of(tables):
     lab = getattr(tables.sel, "labels", None)
     if lab is None:
         return no_labels()
-    r = None if tables.geo.persp else float(tables.proj.ds / tables.unit)
+    r = None if tables.geo.persp else float(tables.view.render.slice_stride * tables.proj.ds / tables.unit)
     return lab.ids, frame_table(lab.table, tables.geo.persp, r), lab.frame_steps(tables.axis), lab.normals
 
 
@@ -184,7 +207,10 @@ def _scratch(plan):
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _slice(plan, cells, scratch, c, pos, buf, band):
     """Slice ``c`` for one band: its regions (:func:`isplat.splat.traverse.slice_regions`), then
-    :func:`_post_slice`."""
+    :func:`_post_slice`; nothing when ``c`` is not a multiple of ``plan.stride`` (``render.slice_stride``: by the
+    slice's index, so a frame cut into slabs samples the same slices)."""
+    if c % plan.stride != 0:
+        return
     regions, p0, p1, hier, _, _, _ = slice_regions(plan.source, scratch[0], c, pos, plan.cls.alpha, plan.cls.use_gm,
                                                    plan.geo, plan.reach, buf, band)
     _post_slice(c, regions, p0, p1, hier[:7], plan.whole, plan.unit, plan.cls, plan.geo, plan.reach, cells, buf,
@@ -357,7 +383,8 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     along b lie a plane or a row of the volume apart, so each row of the square is lines of its own that the
     CPU's own prefetchers do not foresee: without this the samples wait for memory (most of a frame's time on a
     volume larger than the caches, docs/design.md)."""
-    density, gm, nrm, strides, n_a, n_b, c, between = voxel
+    density, gm, nrm, strides, n_a, n_b, c, thick = voxel
+    between = _between(thick)
     sa, sb = strides[0], strides[1]
     a1 = min(a0 + unit, n_a - 1)
     b1 = min(b0 + unit, n_b - 1)
@@ -387,7 +414,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`).
     One function of over 60 lines: its per-pixel loop is the scan's inner loop, inlined by LLVM, with the
     flags' test and the sample (:func:`_sample`) in it."""
-    density, gm, nrm, strides, n_a, n_b, c, between = voxel
+    density, gm, nrm, strides, n_a, n_b, c, _ = voxel
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp
     nca = (n_a + CELL - 1) // CELL
@@ -523,7 +550,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
-    if use_shade and taps[4] != 0:      # a thick axis: the Phong factors with the B-spline's weights along it
+    if use_shade and taps is not None and taps[4] != 0:   # a thick axis: the B-spline's weights along it
         cr, cg, cb = _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade)
     elif use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
@@ -575,14 +602,28 @@ def _composite_alpha(img, sat, tile_sat, x, y, a, et):
     return 1
 
 
-@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
 def _taps(qa, qb, voxel):
-    """What :func:`_density_at` needs of quad (qa, qb) beyond its corners: ``(axis, kind, back, fwd, shade)``,
-    the thick axis and the cubic's kind (``voxel[7]``, :data:`PostClassify`'s ``between``), the steps from the
-    quad's first corner to the voxel before it and to the voxel two after it along that axis, clamped to the
-    volume (the edge voxel repeated; 0 steps back at the first voxel), and whether the shading follows
-    (:func:`_shade_between`). (0, 0, 0, 0, 0): bilinear. The slices of a
-    slab (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
+    """What :func:`_density_at` needs of quad (qa, qb) beyond its corners (:func:`_thick_taps`), or None
+    without a thick axis (``voxel[7]``, :data:`PostClassify`'s ``between``, None). Compiled, the choice is the
+    type's (the overload below): a sample of a frame without a thick axis is compiled with ``taps`` None, and
+    numba prunes the branches on ``taps is None`` (:func:`_sample`, :func:`_density_at`) before typing it."""
+    return None if voxel[7] is None else _thick_taps(qa, qb, voxel)
+
+
+@overload(_taps, inline="always")
+def _typed_taps(qa, qb, voxel):
+    if isinstance(voxel[7], types.NoneType):
+        return lambda qa, qb, voxel: None
+    return lambda qa, qb, voxel: _thick_taps(qa, qb, voxel)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _thick_taps(qa, qb, voxel):
+    """:func:`_taps` along a thick axis: ``(axis, kind, back, fwd, shade)``, the thick axis and the cubic's kind
+    (``voxel[7]``), the steps from the quad's first corner to the voxel before it and to the voxel two after it
+    along that axis, clamped to the volume (the edge voxel repeated; 0 steps back at the first voxel), and
+    whether the shading follows (:func:`_shade_between`). (0, 0, 0, 0, 0): bilinear. The slices of a slab
+    (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
     strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], voxel[7]
     t = between[0]
     if t == 0:
@@ -598,7 +639,8 @@ def _taps(qa, qb, voxel):
 def _density_at(density, i00, sa, sb, fu, fv, taps):
     """The density of the quad whose first voxel is at ``i00`` of the density channel (its next voxels ``sa``
     and ``sb`` away; 0 at the volume's edge) at (fu, fv) in [0, 1) in it: the one place a sample reads the
-    densities. Bilinear when ``taps[0]`` is 0 (isotropic data render bit for bit as before); else a cubic
+    densities. Bilinear when ``taps`` is None or ``taps[0]`` is 0 (isotropic data render bit for bit as
+    before; None: numba prunes the cubic out before typing); else a cubic
     (:func:`cubic`, kind ``taps[1]``) along the thick axis (1 a, 2 b) through the voxel before the quad
     (``taps[2]`` back), its two corners and the voxel after (``taps[3]`` on) in each of the quad's two rows (or
     columns), then linear between those two (:func:`_taps`)."""
@@ -606,12 +648,11 @@ def _density_at(density, i00, sa, sb, fu, fv, taps):
     i10 = i00 + np.uint64(sa)
     i01 = i00 + np.uint64(sb)
     i11 = i01 + np.uint64(sa)
-    t = taps[0]
-    if t == 0:
+    if taps is None or taps[0] == 0:
         return ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
                 + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
     back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
-    if t == 1:      # rows along a from i00 and from i01, then linear along b
+    if taps[0] == 1:      # rows along a from i00 and from i01, then linear along b
         r0 = cubic(density[i00 - back], density[i00], density[i10], density[i00 + fwd], fu, taps[1])
         r1 = cubic(density[i01 - back], density[i01], density[i11], density[i01 + fwd], fu, taps[1])
         return (1.0 - fv) * r0 + fv * r1

@@ -36,19 +36,37 @@ shininess = 30
 """
 
 
+def _frame(sc, a, spacing, setting, value):
+    """The first view of scene ``sc`` over the channels ``a`` (``spacing``) with ``post.<setting>`` set to
+    ``value`` for the render: the image (float64) and the view."""
+    sel = Selection.from_arrays(a["density"], sc, normal=a["normal"], gradient_magnitude=a["gradient_magnitude"],
+                                gradient_magnitude_scale=a["gradient_magnitude_scale"], spacing=spacing)
+    v = views_for(sc, sel)[0]
+    old = getattr(post, setting)
+    setattr(post, setting, value)
+    try:
+        return render_frame(sel, v)[0].astype(np.float64), v
+    finally:
+        setattr(post, setting, old)
+
+
+def _streaks(sc, vo, vt, density, images):
+    """The streak measure of each of ``images`` (views ``vt`` of the thick slices) at the phase of the surface of
+    the thin object (``density``, view ``vo``) at half the transfer function's highest opacity, with the number of
+    pixels whose phase is known."""
+    op = np.asarray(sc.transfer.opacity)
+    codes = np.arange(256.0)
+    al = np.interp(codes, op[:, 0], op[:, 1], left=0.0, right=0.0)
+    phase = surface_phase(vo, vt, density, float(codes[np.argmax(al >= 0.5 * al.max())]))
+    period = 7.0 / vt.frame.pixel_size
+    return [streak(x, phase, period) for x in images], int(np.isfinite(phase).sum())
+
+
 def _render(a, spacing, view, weighted):
     az, el = view
     sc = parse_scene(SCENE.format(az=az, el=el), ".", "t.toml", data_required=False,
                      density_window=DensityWindow(WINDOW, "the head"))
-    sel = Selection.from_arrays(a["density"], sc, normal=a["normal"], gradient_magnitude=a["gradient_magnitude"],
-                                gradient_magnitude_scale=a["gradient_magnitude_scale"], spacing=spacing)
-    v = views_for(sc, sel)[0]
-    old = post.WEIGHTED_SHADING
-    post.WEIGHTED_SHADING = weighted
-    try:
-        return render_frame(sel, v)[0].astype(np.float64), v, sc
-    finally:
-        post.WEIGHTED_SHADING = old
+    return (*_frame(sc, a, spacing, "WEIGHTED_SHADING", weighted), sc)
 
 
 @pytest.fixture(scope="module")
@@ -70,13 +88,8 @@ def test_weighted_shading_removes_the_rings_of_7mm_slices(heads):
     before, vt, sc = _render(thick, (1.0, 1.0, 7.0), view, False)
     after, _, _ = _render(thick, (1.0, 1.0, 7.0), view, True)
     floor_img, vo, _ = _render(obj, (1.0, 1.0, 1.0), view, True)
-    op = np.asarray(sc.transfer.opacity)
-    codes = np.arange(256.0)
-    a = np.interp(codes, op[:, 0], op[:, 1], left=0.0, right=0.0)
-    phase = surface_phase(vo, vt, obj["density"], float(codes[np.argmax(a >= 0.5 * a.max())]))
-    period = 7.0 / vt.frame.pixel_size
-    s_before, s_after, floor = (streak(x, phase, period) for x in (before, after, floor_img))
-    assert np.isfinite(phase).sum() > 3000                   # the surface covers the picture's middle
+    (s_before, s_after, floor), n_phase = _streaks(sc, vo, vt, obj["density"], (before, after, floor_img))
+    assert n_phase > 3000                   # the surface covers the picture's middle
     assert s_after <= 1.10 * floor, (s_before, s_after, floor)
     assert s_before >= 1.15 * s_after, (s_before, s_after, floor)
 
@@ -122,15 +135,7 @@ def _mr_render(tmp, a, spacing, kind):
         write_augmented(aug, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
                         a["density_window"], a["gradient_magnitude_scale"], {"source": "isplat sample mr-head"})
     sc = parse_scene(MR_SCENE.format(aug=aug), str(tmp), "t.toml")
-    sel = Selection.from_arrays(a["density"], sc, normal=a["normal"], gradient_magnitude=a["gradient_magnitude"],
-                                gradient_magnitude_scale=a["gradient_magnitude_scale"], spacing=spacing)
-    v = views_for(sc, sel)[0]
-    old = post.BETWEEN_SLICES
-    post.BETWEEN_SLICES = kind
-    try:
-        return render_frame(sel, v)[0].astype(np.float64), v, sc
-    finally:
-        post.BETWEEN_SLICES = old
+    return (*_frame(sc, a, spacing, "BETWEEN_SLICES", kind), sc)
 
 
 def test_cubic_between_slices_removes_the_terraces_of_7mm_mr_slices(tmp_path):
@@ -147,13 +152,8 @@ def test_cubic_between_slices_removes_the_terraces_of_7mm_mr_slices(tmp_path):
     lin, vt, sc = _mr_render(tmp_path, a, (1.0, 1.0, 7.0), "linear")
     cub, _, _ = _mr_render(tmp_path, a, (1.0, 1.0, 7.0), "catmull-rom")
     floor_img, vo, _ = _mr_render(tmp_path, o, (1.0, 1.0, 1.0), "catmull-rom")
-    op = np.asarray(sc.transfer.opacity)
-    codes = np.arange(256.0)
-    al = np.interp(codes, op[:, 0], op[:, 1], left=0.0, right=0.0)
-    phase = surface_phase(vo, vt, o["density"], float(codes[np.argmax(al >= 0.5 * al.max())]))
-    period = 7.0 / vt.frame.pixel_size
-    s_lin, s_cub, floor = (streak(x, phase, period) for x in (lin, cub, floor_img))
-    assert np.isfinite(phase).sum() > 3000
+    (s_lin, s_cub, floor), n_phase = _streaks(sc, vo, vt, o["density"], (lin, cub, floor_img))
+    assert n_phase > 3000
     assert s_cub <= 0.85 * s_lin, (s_lin, s_cub, floor)
     assert s_cub - floor <= 0.75 * (s_lin - floor), (s_lin, s_cub, floor)
 

@@ -13,13 +13,12 @@ linear across). No index, no ordering, no skipping: every slice of every ray.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from isplat import camera as C
 from isplat.transfer import piecewise_linear
-from post_reference import _density, _thick_axis
+from post_reference import _density, _thick_axis, pixel_ray, quad_corners, ray_point
 
 
 EDGE = 1e-7        # grid units: a crossing this near a quad's edge may fall in either quad (mip_bounds)
@@ -50,10 +49,7 @@ def _reference(density, view, scene, mode, bounds):
     n_ijk = density.shape[::-1]
     opac = piecewise_linear(scene.transfer.opacity, np.arange(256.0), True)[:, 0]
     interest = opac > 0
-    persp = frame.projection == "perspective"
-    to_grid = geom.unit_axes / geom.spacing[:, None]
     W, H = frame.width, frame.height
-    cx, cy = W / 2.0 - 0.5, H / 2.0 - 0.5
     pick = max if mode == "mip" else min
     out = np.full((H, W), np.nan)
     loose_out = np.full((H, W), np.nan)
@@ -61,20 +57,13 @@ def _reference(density, view, scene, mode, bounds):
     shifts = [(du, dv) for du in (-EDGE, 0.0, EDGE) for dv in (-EDGE, 0.0, EDGE)] if bounds else [(0.0, 0.0)]
     for y in range(H):
         for x in range(W):
-            P = frame.p + (x - cx) * frame.pixel_size * frame.u - (y - cy) * frame.pixel_size * frame.v
-            o, d = (frame.e, P - frame.e) if persp else (P, -frame.w)
-            d = d / np.linalg.norm(d)
-            og, dg = (o - geom.q) @ to_grid.T, d @ to_grid.T
+            d, og, dg = pixel_ray(frame, geom, x, y)
             if abs(dg[ic]) < 1e-15:
                 continue
             best, loose = None, None
             for c in range(n_ijk[ic]):
-                t = (c - og[ic]) / dg[ic]
-                if persp and t * float(-(d @ frame.w)) < frame.near:
-                    continue
-                g = og + t * dg
-                X = geom.q + g @ geom.steps
-                if any((X - np.asarray(cut.point)) @ np.asarray(cut.normal) < 0 for cut in scene.cuts):
+                g = ray_point(frame, geom, scene.cuts, d, og, dg, (c - og[ic]) / dg[ic])
+                if g is None:
                     continue
                 got = [bilinear(density, g[ia] + du, g[ib] + dv, c, (ia, ib, ic), n_ijk, interest, thick)
                        for du, dv in shifts]
@@ -97,17 +86,13 @@ def _reference(density, view, scene, mode, bounds):
 def bilinear(density, u, v, c, axes, n_ijk, interest, thick=None):
     """The bilinear density at (u, v) of slice c (or, ``thick`` not None, the post reference's cubic along the
     thick axis: tests/post_reference.py ``_density``), or None outside the slice or in a quad of no interest."""
-    ia, ib, ic = axes
-    n_a, n_b = n_ijk[ia], n_ijk[ib]
-    if not (-0.5 <= u < n_a - 0.5 and -0.5 <= v < n_b - 0.5):
+    quad = quad_corners(u, v, c, axes, n_ijk)
+    if quad is None:
         return None
-    qa, qb = max(math.floor(u), 0), max(math.floor(v), 0)
-    fu, fv = max(u - qa, 0.0), max(v - qb, 0.0)
+    qa, qb, fu, fv, corners, weights = quad
     total, any_interest = 0.0, False
-    for da, db, w in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):
-        ijk = [0, 0, 0]
-        ijk[ia], ijk[ib], ijk[ic] = min(qa + da, n_a - 1), min(qb + db, n_b - 1), c
-        val = int(density[ijk[2], ijk[1], ijk[0]])
+    for k, w in zip(corners, weights):
+        val = int(density[k])
         any_interest |= bool(interest[val])
         total += w * val
     if any_interest and thick is not None:

@@ -62,15 +62,10 @@ def post_reference(scene, view=0, et=1.0, weighted=True, between=None, stride=No
     if persp:
         ce = geom.to_grid(frame.e)[ic]
         h0 = max(-0.5 - ce, ce - (n_ijk[ic] - 0.5), 0.0) * geom.spacing[ic]
-    to_grid = geom.unit_axes / geom.spacing[:, None]
     img = np.zeros((H, W, 4))
-    cx, cy = W / 2.0 - 0.5, H / 2.0 - 0.5
     for y in range(H):
         for x in range(W):
-            P = frame.p + (x - cx) * frame.pixel_size * frame.u - (y - cy) * frame.pixel_size * frame.v
-            o, d = (frame.e, P - frame.e) if persp else (P, -frame.w)
-            d = d / np.linalg.norm(d)
-            og, dg = (o - geom.q) @ to_grid.T, d @ to_grid.T
+            d, og, dg = pixel_ray(frame, geom, x, y)
             if abs(dg[ic]) < 1e-15:
                 continue
             hits = sorted(((c - og[ic]) / dg[ic], c) for c in range(0, n_ijk[ic], stride))
@@ -78,11 +73,8 @@ def post_reference(scene, view=0, et=1.0, weighted=True, between=None, stride=No
             for t, c in hits:
                 if acc[3] >= et:
                     break
-                if persp and t * float(-(d @ frame.w)) < frame.near:
-                    continue
-                g = og + t * dg
-                X = geom.q + g @ geom.steps
-                if any((X - np.asarray(cut.point)) @ np.asarray(cut.normal) < 0 for cut in scene.cuts):
+                g = ray_point(frame, geom, scene.cuts, d, og, dg, t)
+                if g is None:
                     continue
                 s = _sample(dens, nrm, g[ia], g[ib], c, (ia, ib, ic), n_ijk, opac, col, sh, lights, geom, gm, along)
                 if s is None:
@@ -109,6 +101,30 @@ def post_reference(scene, view=0, et=1.0, weighted=True, between=None, stride=No
     alpha = A + (1 - A) * bg[3]
     out = np.concatenate([np.where(alpha > 0, rgb / np.maximum(alpha, 1e-300), 0.0), alpha], axis=-1)
     return np.clip(out, 0, 1)
+
+
+def pixel_ray(frame, geom, x, y):
+    """Pixel (x, y)'s own ray: its unit direction ``d`` (world), and its origin and direction in grid units
+    (``og + t dg`` is the grid point at distance t along it): from the pixel centre on the image plane along the
+    view (orthographic), or from the eye through it (perspective)."""
+    cx, cy = frame.width / 2.0 - 0.5, frame.height / 2.0 - 0.5
+    P = frame.p + (x - cx) * frame.pixel_size * frame.u - (y - cy) * frame.pixel_size * frame.v
+    o, d = (frame.e, P - frame.e) if frame.projection == "perspective" else (P, -frame.w)
+    d = d / np.linalg.norm(d)
+    to_grid = geom.unit_axes / geom.spacing[:, None]
+    return d, (o - geom.q) @ to_grid.T, d @ to_grid.T
+
+
+def ray_point(frame, geom, cuts, d, og, dg, t):
+    """The grid point at distance ``t`` along a :func:`pixel_ray`, or None when it is nearer than the near plane
+    (perspective) or a cutting plane cuts it away."""
+    if frame.projection == "perspective" and t * float(-(d @ frame.w)) < frame.near:
+        return None
+    g = og + t * dg
+    X = geom.q + g @ geom.steps
+    if any((X - np.asarray(cut.point)) @ np.asarray(cut.normal) < 0 for cut in cuts):
+        return None
+    return g
 
 
 def _thick_axis(spacing, ia, ib, between):
@@ -157,18 +173,10 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=Non
     """The sample at (u, v) of slice c: the opacities of the two codes around the interpolated density, the
     fraction between them and the shaded colour; None when outside the volume, in a quad of no interest, or
     transparent."""
-    ia, ib, ic = axes
-    n_a, n_b = n_ijk[ia], n_ijk[ib]
-    if not (-0.5 <= u < n_a - 0.5 and -0.5 <= v < n_b - 0.5):
+    quad = quad_corners(u, v, c, axes, n_ijk)
+    if quad is None:
         return None
-    qa, qb = max(math.floor(u), 0), max(math.floor(v), 0)
-    fu, fv = max(u - qa, 0.0), max(v - qb, 0.0)
-    corners, weights = [], []
-    for da, db, w in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):
-        ijk = [0, 0, 0]
-        ijk[ia], ijk[ib], ijk[ic] = min(qa + da, n_a - 1), min(qb + db, n_b - 1), c
-        corners.append((ijk[2], ijk[1], ijk[0]))
-        weights.append(w)
+    qa, qb, fu, fv, corners, weights = quad
     if not any(opac[int(dens[k])] > 0 for k in corners):
         return None
     d = _density(dens, qa, qb, fu, fv, c, axes, n_ijk, thick)
@@ -191,6 +199,25 @@ def _sample(dens, nrm, u, v, c, axes, n_ijk, opac, col, sh, lights, geom, gm=Non
             spec += w * ss
         rgb = rgb * diff + spec
     return opac[di], opac[di + 1], f, rgb
+
+
+def quad_corners(u, v, c, axes, n_ijk):
+    """The quad of slice c that holds (u, v): ``(qa, qb, fu, fv, corners, weights)``, its first voxel, the point's
+    place in it, its four voxels' (k, j, i) indices (clamped: the edge voxel repeated up to half a voxel beyond
+    the outer centres) and their bilinear weights; None outside the slice."""
+    ia, ib, ic = axes
+    n_a, n_b = n_ijk[ia], n_ijk[ib]
+    if not (-0.5 <= u < n_a - 0.5 and -0.5 <= v < n_b - 0.5):
+        return None
+    qa, qb = max(math.floor(u), 0), max(math.floor(v), 0)
+    fu, fv = max(u - qa, 0.0), max(v - qb, 0.0)
+    corners, weights = [], []
+    for da, db, w in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):
+        ijk = [0, 0, 0]
+        ijk[ia], ijk[ib], ijk[ic] = min(qa + da, n_a - 1), min(qb + db, n_b - 1), c
+        corners.append((ijk[2], ijk[1], ijk[0]))
+        weights.append(w)
+    return qa, qb, fu, fv, corners, weights
 
 
 def _bspline_corners(qa, qb, fu, fv, c, axes, n_ijk, along):

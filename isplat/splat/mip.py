@@ -43,7 +43,7 @@ import numpy as np
 
 from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
-from .select import BLOCK, CELL, REGION
+from .select import BLOCK, CELL, cell_origins
 from .traverse import X0, XA, XB, XC, Y0, YA, YB, YC, cut_away, register, slice_bases
 from .post import SPAN_MARGIN, _cell_pixels, _density_at, _ortho_inverse, _row_span, _slice_point, _taps
 
@@ -122,28 +122,18 @@ def _n_slices(sel, axis: str) -> int:
 @jit
 def _indexed_units(slice_ptr, region_ptr, region_id, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
                    offset, density, interest, strides, n_a, n_b, thick):
-    """:data:`Units` from the index's hierarchy of one axis (slices, regions, blocks, cells, voxels); ``thick`` the
-    axis of the cubic between slices (:func:`_put`)."""
-    n_cells = block_ptr[region_ptr[slice_ptr[slice_ptr.shape[0] - 1]]]
-    if n_cells < 0 or n_cells > cell_pos.shape[0]:
-        raise ValueError("mip: the selection's cell table is inconsistent")
-    c_of, a_of, b_of, owned, ext, count, hi, lo = _unit_arrays(n_cells)
-    nra = (n_a + REGION - 1) // REGION
-    for c in range(slice_ptr.shape[0] - 1):
-        for g in range(slice_ptr[c], slice_ptr[c + 1]):
-            ra0 = (region_id[g] % nra) * REGION
-            rb0 = (region_id[g] // nra) * REGION
-            for r in range(region_ptr[g], region_ptr[g + 1]):
-                ba0 = ra0 + (block_pos[r] % 4) * BLOCK
-                bb0 = rb0 + (block_pos[r] // 4) * BLOCK
-                n = block_voxel[r]
-                for q in range(block_ptr[r], block_ptr[r + 1]):
-                    m = 0
-                    for t in range(n, n + cell_count[q]):
-                        m |= 1 << offset[t]
-                    n += cell_count[q]
-                    _put(q, c, ba0 + (cell_pos[q] % 4) * CELL, bb0 + (cell_pos[q] // 4) * CELL, m, density,
-                         interest, strides, n_a, n_b, thick, c_of, a_of, b_of, owned, ext, count, hi, lo)
+    """:data:`Units` from the index's hierarchy of one axis (slices, regions, blocks, cells, voxels: the cells in
+    order, :func:`isplat.splat.select.cell_origins`); ``thick`` the axis of the cubic between slices
+    (:func:`_put`)."""
+    cc, ca, cb, cv = cell_origins(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos,
+                                  cell_count, n_a)
+    c_of, a_of, b_of, owned, ext, count, hi, lo = _unit_arrays(cc.shape[0])
+    for q in range(cc.shape[0]):
+        m = 0
+        for t in range(cv[q], cv[q] + cell_count[q]):
+            m |= 1 << offset[t]
+        _put(q, cc[q], ca[q], cb[q], m, density, interest, strides, n_a, n_b, thick, c_of, a_of, b_of, owned, ext,
+             count, hi, lo)
     return c_of, a_of, b_of, owned, ext, count, hi, lo
 
 

@@ -201,14 +201,18 @@ def select_voxels(slice_block_ptr, block_density, block_voxel_ptr, positions, in
             sel[0], sel[1], sel[2])
 
 
-@jit
-def expand_coordinates(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
-                       offset, n_a):
-    """Every voxel's ``(c, a, b)`` from the hierarchy (the inverse of :func:`select_voxels`' ordering)."""
-    n = offset.shape[0]
-    cc = np.empty(n, np.int64)
-    aa = np.empty(n, np.int64)
-    bb = np.empty(n, np.int64)
+@stage
+def cell_origins(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count, n_a):
+    """The hierarchy walked once: per cell, in order, its slice, first voxel ``(a0, b0)`` and first voxel's row
+    in the selection (int64 arrays ``c, a0, b0, v0``), for :func:`expand_coordinates` and
+    :func:`isplat.splat.mip.make_units`."""
+    n_cells = block_ptr[region_ptr[slice_ptr[slice_ptr.shape[0] - 1]]]
+    if n_cells < 0 or n_cells > cell_pos.shape[0]:
+        raise ValueError("the selection's cell table is inconsistent")
+    c_of = np.empty(n_cells, np.int64)
+    a_of = np.empty(n_cells, np.int64)
+    b_of = np.empty(n_cells, np.int64)
+    v_of = np.empty(n_cells, np.int64)
     nra = (n_a + REGION - 1) // REGION
     for c in range(slice_ptr.shape[0] - 1):
         for g in range(slice_ptr[c], slice_ptr[c + 1]):
@@ -217,11 +221,29 @@ def expand_coordinates(slice_ptr, region_id, region_ptr, block_pos, block_ptr, b
             for r in range(region_ptr[g], region_ptr[g + 1]):
                 v = block_voxel[r]
                 for q in range(block_ptr[r], block_ptr[r + 1]):
-                    a0 = ra0 + (block_pos[r] % 4) * BLOCK + (cell_pos[q] % 4) * CELL
-                    b0 = rb0 + (block_pos[r] // 4) * BLOCK + (cell_pos[q] // 4) * CELL
-                    for _ in range(cell_count[q]):
-                        cc[v] = c
-                        aa[v] = a0 + offset[v] % CELL
-                        bb[v] = b0 + offset[v] // CELL
-                        v += 1
+                    c_of[q] = c
+                    a_of[q] = ra0 + (block_pos[r] % 4) * BLOCK + (cell_pos[q] % 4) * CELL
+                    b_of[q] = rb0 + (block_pos[r] // 4) * BLOCK + (cell_pos[q] // 4) * CELL
+                    v_of[q] = v
+                    v += cell_count[q]
+    return c_of, a_of, b_of, v_of
+
+
+@jit
+def expand_coordinates(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
+                       offset, n_a):
+    """Every voxel's ``(c, a, b)`` from the hierarchy (the inverse of :func:`select_voxels`' ordering)."""
+    n = offset.shape[0]
+    cc = np.empty(n, np.int64)
+    aa = np.empty(n, np.int64)
+    bb = np.empty(n, np.int64)
+    c_of, a_of, b_of, v_of = cell_origins(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel,
+                                          cell_pos, cell_count, n_a)
+    for q in range(c_of.shape[0]):
+        v = v_of[q]
+        for _ in range(cell_count[q]):
+            cc[v] = c_of[q]
+            aa[v] = a_of[q] + offset[v] % CELL
+            bb[v] = b_of[q] + offset[v] // CELL
+            v += 1
     return cc, aa, bb

@@ -28,7 +28,7 @@ first, then walks them with the next units' densities prefetched (they lie anywh
 A technique of :mod:`isplat.splat.traverse`: its plan (:data:`MipPlan`) has one "sheet" (the frame's one pass
 over the sorted units), its slice stage (:func:`_slice`) walks the units for one band of image rows and writes
 the band's pixels, and it reuses the traversal's per-slice bases, cuts and the post technique's pixel scan
-(:func:`isplat.splat.post._cell_pixels`, ``_row_span``, ``_slice_point``, ``_ortho_inverse``). Counters:
+(:func:`isplat.splat.post._cell_pixels`, ``_row_pixels``, ``_pixel_quad``, ``_ortho_inverse``). Counters:
 ``stats[band, 0]`` the voxels of interest of the frame's slices, ``[band, 1]`` those in units visited (not
 skipped) in the band, ``[band, 2]`` samples taken.
 """
@@ -45,7 +45,7 @@ from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
 from .select import BLOCK, CELL, cell_origins
 from .traverse import X0, XA, XB, XC, Y0, YA, YB, YC, cut_away, register, slice_bases
-from .post import SPAN_MARGIN, _cell_pixels, _density_at, _ortho_inverse, _row_span, _slice_point, _taps
+from .post import _cell_pixels, _density_at, _ortho_inverse, _pixel_box, _pixel_quad, _row_pixels, _taps
 
 Units = namedtuple("Units", "c a0 b0 owned ext count hi lo")
 Units.__doc__ = """The units of one axis of a selection (one row per cell holding a voxel of interest): slice
@@ -431,25 +431,15 @@ def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b,
     open_ = False
     n = 0
     for y in range(y0, y1 + 1):
-        xa, xb = x0, x1
-        if not persp:
-            xa, xb = _row_span(y, u0, u1, v0, v1, inv, x0, x1)
+        xa, xb = _row_pixels(y, persp, u0, u1, v0, v1, inv, x0, x1)
         for x in range(xa, xb + 1):
             h = px[np.uint64(y), np.uint64(x)]
             if h >= bound:
                 continue                                # finished for this unit and every one after it
-            if persp:
-                ok, u, v = _slice_point(x, y, base, coef)
-                if not ok:
-                    continue
-            else:
-                u = inv[0] + x * inv[1] + y * inv[2]
-                v = inv[3] + x * inv[4] + y * inv[5]
-            if u < u0 or u >= u1 or v < v0 or v >= v1:
+            ok, u, v, qa, qb = _pixel_quad(x, y, persp, base, coef, inv, u0, u1, v0, v1)
+            if not ok:
                 continue
             open_ = True
-            qa = max(int(u + 1.0) - 1, 0)               # floor: u, v >= -0.5 here
-            qb = max(int(v + 1.0) - 1, 0)
             la = qa - a0 + 1
             lb = qb - b0 + 1
             if la < 0 or la > 4 or lb < 0 or lb > 4 or (owned >> (lb * 5 + la)) & 1 == 0:
@@ -506,10 +496,7 @@ def _ortho_rect_box(c, u0, u1, v0, v1, coef, img_w, y0b, y1b):
     cx1 = xs + max(xa0, xa1) + max(xb0, xb1)
     cy0 = ys + min(ya0, ya1) + min(yb0, yb1)
     cy1 = ys + max(ya0, ya1) + max(yb0, yb1)
-    if cx1 < 0.0 or cy1 < y0b or cx0 > img_w - 1 or cy0 > y1b - 1:
-        return 1, 0, 1, 0
-    return (max(int(math.ceil(cx0 - SPAN_MARGIN)), 0), min(int(math.floor(cx1 + SPAN_MARGIN)), img_w - 1),
-            max(int(math.ceil(cy0 - SPAN_MARGIN)), y0b), min(int(math.floor(cy1 + SPAN_MARGIN)), y1b - 1))
+    return _pixel_box(cx0, cx1, cy0, cy1, img_w, y0b, y1b)
 
 
 @leaf

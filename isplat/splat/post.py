@@ -439,23 +439,13 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     drawn = 0
     newly = 0
     for y in range(y0, y1 + 1):
-        xa, xb = x0, x1
-        if not persp:
-            xa, xb = _row_span(y, u0, u1, v0, v1, inv, x0, x1)
+        xa, xb = _row_pixels(y, persp, u0, u1, v0, v1, inv, x0, x1)
         for x in range(xa, xb + 1):
             if sat[np.uint64(y), np.uint64(x)] != 0:      # unsigned: no negative-index wrap-around
                 continue
-            if persp:
-                ok, u, v = _slice_point(x, y, base, coef)
-                if not ok:
-                    continue
-            else:
-                u = inv[0] + x * inv[1] + y * inv[2]
-                v = inv[3] + x * inv[4] + y * inv[5]
-            if u < u0 or u >= u1 or v < v0 or v >= v1:
-                continue                    # another square's quad
-            qa = max(int(u + 1.0) - 1, 0)      # floor: u, v >= -0.5 here
-            qb = max(int(v + 1.0) - 1, 0)
+            ok, u, v, qa, qb = _pixel_quad(x, y, persp, base, coef, inv, u0, u1, v0, v1)
+            if not ok:
+                continue                    # another square's quad, or behind the near plane
             if not every:
                 flags = mark[np.uint64((qb // CELL) * nca + qa // CELL)]
                 la = qa % CELL
@@ -479,6 +469,34 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
             newly += done > 1
     counts[0] += drawn
     counts[1] += newly
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _row_pixels(y, persp, u0, u1, v0, v1, inv, x0, x1):
+    """The pixels ``xa, xb`` of row ``y`` of the box [x0, x1] that a scan of [u0, u1) x [v0, v1) of the slice
+    plane looks at: all in perspective, :func:`_row_span`'s when orthographic (the per-row span of
+    :func:`_sample_square` and :func:`isplat.splat.mip._unit`)."""
+    if persp:
+        return x0, x1
+    return _row_span(y, u0, u1, v0, v1, inv, x0, x1)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _pixel_quad(x, y, persp, base, coef, inv, u0, u1, v0, v1):
+    """The exact per-pixel test of a scan (:func:`_sample_square`, :func:`isplat.splat.mip._unit`): ``ok, u, v,
+    qa, qb``, the point (u, v) of the slice plane that pixel (x, y) sees (perspective: :func:`_slice_point`;
+    orthographic: the inverse map ``inv``, :func:`_ortho_inverse`) and the quad (qa, qb) that holds it; ``ok``
+    False (and no quad) when it is not in [u0, u1) x [v0, v1) or is at or behind the near plane."""
+    if persp:
+        ok, u, v = _slice_point(x, y, base, coef)
+        if not ok:
+            return False, u, v, 0, 0
+    else:
+        u = inv[0] + x * inv[1] + y * inv[2]
+        v = inv[3] + x * inv[4] + y * inv[5]
+    if u < u0 or u >= u1 or v < v0 or v >= v1:
+        return False, u, v, 0, 0
+    return True, u, v, max(int(u + 1.0) - 1, 0), max(int(v + 1.0) - 1, 0)     # floor: u, v >= -0.5 here
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
@@ -764,10 +782,17 @@ def _cell_pixels(u0, u1, v0, v1, base, coef, persp, img_w, y0b, y1b):
     ok, cx0, cx1, cy0, cy1, _ = rect_hull(u0, u1, v0, v1, base, coef, persp)
     if not ok:
         return 0, img_w - 1, y0b, y1b - 1
+    return _pixel_box(cx0, cx1, cy0, cy1, img_w, y0b, y1b)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _pixel_box(cx0, cx1, cy0, cy1, img_w, y0b, y1b):
+    """The pixels (x0, x1, y0, y1) of the image and the band (rows [y0b, y1b)) whose centres lie in the box
+    [cx0, cx1] x [cy0, cy1] of the image plane, grown by SPAN_MARGIN for rounding (a pixel centre on the edge
+    belongs to the square by the exact test per pixel, which the inverse map decides); empty: x0 > x1
+    (:func:`_cell_pixels`, :func:`isplat.splat.mip._ortho_rect_box`)."""
     if cx1 < 0.0 or cy1 < y0b or cx0 > img_w - 1 or cy0 > y1b - 1:
         return 1, 0, 1, 0
-    # grown by SPAN_MARGIN for rounding: a pixel centre on the edge belongs to the square by the exact test per
-    # pixel, which the inverse map decides
     return (max(int(math.ceil(cx0 - SPAN_MARGIN)), 0), min(int(math.floor(cx1 + SPAN_MARGIN)), img_w - 1),
             max(int(math.ceil(cy0 - SPAN_MARGIN)), y0b), min(int(math.floor(cy1 + SPAN_MARGIN)), y1b - 1))
 

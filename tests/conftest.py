@@ -1,3 +1,4 @@
+import contextlib
 import os
 from pathlib import Path
 
@@ -31,6 +32,20 @@ def write_volume(tmp: Path, density, spacing=(1.0, 1.0, 1.0), name="v", gm=None,
     if index:
         build_index_file(aug, idx)
     return aug, idx
+
+
+@contextlib.contextmanager
+def post_setting(name: str, value):
+    """Context: the module setting ``isplat.splat.post.<name>`` (BETWEEN_SLICES, WEIGHTED_SHADING, ...) set to
+    ``value``, restored after (a frame reads it when planned)."""
+    from isplat.splat import post
+
+    old = getattr(post, name)
+    setattr(post, name, value)
+    try:
+        yield
+    finally:
+        setattr(post, name, old)
 
 
 def scene_text(aug, idx, **sections) -> str:

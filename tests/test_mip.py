@@ -1,7 +1,6 @@
 """Maximum- and minimum-intensity projection (render.mode = "mip" / "minip", isplat.splat.mip) against the slow
 brute-force reference (tests/mip_reference.py), the window's grey ramp, the scene's checks and the command line."""
 
-import contextlib
 import os
 import subprocess
 import sys
@@ -9,7 +8,7 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 import pytest
-from conftest import scene_text, write_volume
+from conftest import post_setting, scene_text, write_volume
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mip_reference import grey, mip_bounds, mip_reference
@@ -136,29 +135,27 @@ def test_index_leaves_out_voxels_below_what_pixels_hold(tmp_path):
        persp=st.booleans(), minip=st.booleans(), lo=st.integers(1, 200), shape=st.tuples(*[st.integers(2, 7)] * 3))
 def test_random_volumes_and_views(seed, az, el, persp, minip, lo, shape):
     dens = np.random.default_rng(seed).integers(0, 256, shape).astype(np.uint8)
+    _random_frame_within(dens, az, el, persp, minip, lo)
+
+
+def _random_frame_within(dens, az, el, persp, minip, lo, spacing=None):
+    """A 17 x 13 frame of ``dens`` (one thread; opacity 1 from code ``lo + 1``) from (az, el), equal to the
+    reference but where a crossing is on a quad's edge (:func:`within`)."""
     mode = "minip" if minip else "mip"
     tf = f"opacity = [[0, 0.0], [{lo}, 0.0], [{lo + 1}, 1.0], [255, 1.0]]"
     text = (f'[image]\nwidth = 17\nheight = 13\n[camera]\nprojection = "{"perspective" if persp else "orthographic"}"'
             f'\nazimuth = {az}\nelevation = {el}\n[transfer]\n{tf}\n[render]\nmode = "{mode}"\nthreads = 1\n')
     scene = parse_scene(text, ".", "h.toml", data_required=False)
-    sel = Selection.from_arrays(dens, scene)
+    sel = Selection.from_arrays(dens, scene, spacing=spacing)
     view = views_for(scene, sel)[0]
     rgba, _ = render_frame(sel, view)
-    within(rgba, dens, view, scene, mode)      # equal to the reference but where a crossing is on a quad's edge
+    within(rgba, dens, view, scene, mode)
 
 
 # ---- between thick slices: the post technique's cubic along the thick in-slice axis -----------------------------
-@contextlib.contextmanager
 def _between(kind):
     """Context: isplat.splat.post.BETWEEN_SLICES set to ``kind`` (which MIP follows, as the post technique)."""
-    from isplat.splat import post
-
-    old = post.BETWEEN_SLICES
-    post.BETWEEN_SLICES = kind
-    try:
-        yield
-    finally:
-        post.BETWEEN_SLICES = old
+    return post_setting("BETWEEN_SLICES", kind)
 
 
 THICK = (1.0, 0.9, 4.5)         # spacing i, j, k: k five times the finest (isplat.splat.post.THICK_RATIO: 4)
@@ -201,15 +198,7 @@ def test_random_thick_volumes_and_views(seed, az, el, persp, minip, lo, shape, t
     dens = lumpy(seed, shape) if smooth else np.random.default_rng(seed).integers(0, 256, shape).astype(np.uint8)
     spacing = [1.0, 1.0, 1.0]
     spacing[thick] = ratio
-    mode = "minip" if minip else "mip"
-    tf = f"opacity = [[0, 0.0], [{lo}, 0.0], [{lo + 1}, 1.0], [255, 1.0]]"
-    text = (f'[image]\nwidth = 17\nheight = 13\n[camera]\nprojection = "{"perspective" if persp else "orthographic"}"'
-            f'\nazimuth = {az}\nelevation = {el}\n[transfer]\n{tf}\n[render]\nmode = "{mode}"\nthreads = 1\n')
-    scene = parse_scene(text, ".", "h.toml", data_required=False)
-    sel = Selection.from_arrays(dens, scene, spacing=tuple(spacing))
-    view = views_for(scene, sel)[0]
-    rgba, _ = render_frame(sel, view)
-    within(rgba, dens, view, scene, mode)
+    _random_frame_within(dens, az, el, persp, minip, lo, tuple(spacing))
 
 
 @settings(max_examples=300, deadline=None)

@@ -1,10 +1,9 @@
 """Post-classified splatting (render.classification = "post", isplat.splat.post) against its slow reference."""
 
-import contextlib
 
 import numpy as np
 import pytest
-from conftest import write_volume
+from conftest import post_setting, write_volume
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from post_reference import post_reference
@@ -327,8 +326,6 @@ def test_reference_weighting_is_what_the_kernel_does(tmp_path, make_scene):
     """The corners' Phong factors weighted by their gradient magnitudes (isplat.splat.post._sample): the kernel
     agrees with the weighted reference and not with the bilinear one on random gradient magnitudes, and with
     the bilinear one when the sampler's weighting is switched off."""
-    from isplat.splat import post
-
     shape = (5, 6, 7)
     gm = np.random.default_rng(3).integers(0, 256, shape)
     gm.flat[::5] = 0                    # corners that count for nothing (and quads whose four are all 0)
@@ -338,29 +335,17 @@ def test_reference_weighting_is_what_the_kernel_does(tmp_path, make_scene):
     img, _ = render(sc, "full")
     weighted, plain = post_reference(sc), post_reference(sc, weighted=False)
     assert np.abs(img - weighted).max() <= 2e-4 < np.abs(img - plain).max()
-    old = post.WEIGHTED_SHADING
-    post.WEIGHTED_SHADING = False
-    try:
+    with post_setting("WEIGHTED_SHADING", False):
         img, _ = render(sc, "full")
-    finally:
-        post.WEIGHTED_SHADING = old
     assert np.abs(img - plain).max() <= 2e-4
 
 
 THICK = (1.0, 0.9, 4.5)         # spacing i, j, k: k five times the finest (isplat.splat.post.THICK_RATIO: 4)
 
 
-@contextlib.contextmanager
 def _between(kind):
     """Context: isplat.splat.post.BETWEEN_SLICES set to ``kind``."""
-    from isplat.splat import post
-
-    old = post.BETWEEN_SLICES
-    post.BETWEEN_SLICES = kind
-    try:
-        yield
-    finally:
-        post.BETWEEN_SLICES = old
+    return post_setting("BETWEEN_SLICES", kind)
 
 
 @pytest.mark.parametrize("kind", ["monotone", "catmull-rom"])

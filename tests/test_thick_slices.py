@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import post_setting
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -15,7 +16,6 @@ from isplat.frame import render_frame, views_for
 from isplat.samples import make_sample
 from isplat.scene import DensityWindow, parse_scene
 from isplat.selection import Selection
-from isplat.splat import post
 from streak_measure import streak, surface_phase
 
 WINDOW = (-1024.0, 3071.0)
@@ -37,17 +37,13 @@ shininess = 30
 
 
 def _frame(sc, a, spacing, setting, value):
-    """The first view of scene ``sc`` over the channels ``a`` (``spacing``) with ``post.<setting>`` set to
-    ``value`` for the render: the image (float64) and the view."""
+    """The first view of scene ``sc`` over the channels ``a`` (``spacing``) with the setting
+    ``isplat.splat.post.<setting>`` set to ``value`` for the render: the image (float64) and the view."""
     sel = Selection.from_arrays(a["density"], sc, normal=a["normal"], gradient_magnitude=a["gradient_magnitude"],
                                 gradient_magnitude_scale=a["gradient_magnitude_scale"], spacing=spacing)
     v = views_for(sc, sel)[0]
-    old = getattr(post, setting)
-    setattr(post, setting, value)
-    try:
+    with post_setting(setting, value):
         return render_frame(sel, v)[0].astype(np.float64), v
-    finally:
-        setattr(post, setting, old)
 
 
 def _streaks(sc, vo, vt, density, images):

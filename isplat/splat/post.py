@@ -563,8 +563,8 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     if geo.persp:
         a, _ = path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
     c0, c1, c2 = np.uint64(0), np.uint64(1), np.uint64(2)
-    if SAMPLE_STAGES == 2:
-        return _composite_alpha(img, sat, tile_sat, x, y, a, et)
+    if SAMPLE_STAGES == 2:         # the opacity alone composited (for measuring only)
+        return _composite(img, sat, tile_sat, x, y, a, et, 0.0, 0.0, 0.0, False)
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
@@ -591,27 +591,22 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
             cr, cg, cb = cr * s0 + s3, cg * s1 + s4, cb * s2 + s5
         else:
             cr, cg, cb = cr * s0 + s1, cg * s0 + s1, cb * s0 + s1
+    return _composite(img, sat, tile_sat, x, y, a, et, cr, cg, cb, True)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _composite(img, sat, tile_sat, x, y, a, et, cr, cg, cb, colour):
+    """Composite opacity ``a`` (and, ``colour`` True, the colour (cr, cg, cb) times it) over pixel (x, y), front
+    to back; 2 when the pixel then reached the early-termination opacity ``et`` (marked in ``sat`` and its tile's
+    count), else 1. ``colour`` False: the opacity alone (``SAMPLE_STAGES == 2``, for measuring only)."""
     uy, ux = np.uint64(y), np.uint64(x)
     ai = img[uy, ux, np.uint64(3)]
     ta = (1.0 - ai) * a
-    img[uy, ux, c0] += ta * cr
-    img[uy, ux, c1] += ta * cg
-    img[uy, ux, c2] += ta * cb
+    if colour:
+        img[uy, ux, np.uint64(0)] += ta * cr
+        img[uy, ux, np.uint64(1)] += ta * cg
+        img[uy, ux, np.uint64(2)] += ta * cb
     an = ai + ta
-    img[uy, ux, np.uint64(3)] = an
-    if ai < et and an >= et:
-        sat[uy, ux] = 1
-        tile_sat[y // TILE, x // TILE] += 1
-        return 2
-    return 1
-
-
-@leaf(forceinline=True)
-def _composite_alpha(img, sat, tile_sat, x, y, a, et):
-    """The opacity alone composited over pixel (x, y) (``SAMPLE_STAGES == 2``, for measuring only)."""
-    uy, ux = np.uint64(y), np.uint64(x)
-    ai = img[uy, ux, np.uint64(3)]
-    an = ai + (1.0 - ai) * a
     img[uy, ux, np.uint64(3)] = an
     if ai < et and an >= et:
         sat[uy, ux] = 1

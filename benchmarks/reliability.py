@@ -154,7 +154,7 @@ class _PlainReads:
 
     chunks_verified = 0
 
-    def read(self, f, dataset, sel=None):
+    def read(self, f, dataset, sel=None, check=None):
         ds = f[dataset]
         return ds[tuple(sel)] if sel else ds[()]
 

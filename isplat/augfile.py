@@ -115,10 +115,11 @@ class AugmentedVolume:
         self.bytes_read += n * out.itemsize
         return out
 
-    def _read_into(self, f, channel: str, bricks: np.ndarray, out: np.ndarray, lo) -> int:
+    def _read_into(self, f, channel: str, bricks: np.ndarray, out: np.ndarray, lo, bulk: bool = False) -> int:
         """Bricks ``bricks`` of ``channel`` into ``out`` (the block from element ``lo``), each checked against its
         chunk hash and, for the density, against ``brick_range``; returns the elements read."""
-        n, mm = self.verifier.read_bricks_direct(f, channel, bricks, out, tuple(int(x) for x in lo), minmax=True)
+        n, mm = self.verifier.read_bricks_direct(f, channel, bricks, out, tuple(int(x) for x in lo), minmax=True,
+                                                 bulk=bulk)
         if channel == "density" and bricks.shape[0]:
             want = self.brick_range[tuple(bricks.T)]
             bad = np.flatnonzero(np.any(mm != want, axis=1))
@@ -139,9 +140,10 @@ class AugmentedVolume:
         c = self.bricks
         g = [np.arange(a // e, -(-b // e)) for a, b, e in zip(lo, hi, c)]
         step = max(1, (1 << 24) // max(1, c[0] * out.shape[1] * out.shape[2] * out.itemsize))
+        bulk = 4 * g[0].size * g[1].size * g[2].size > self.brick_range[..., 0].size   # > 1/4: walk HDF5's index
         for n0 in range(0, g[0].size, step):
             mesh = np.meshgrid(g[0][n0:n0 + step], g[1], g[2], indexing="ij")
-            self._read_into(f, channel, np.stack([m.reshape(-1) for m in mesh], axis=1), out, lo)
+            self._read_into(f, channel, np.stack([m.reshape(-1) for m in mesh], axis=1), out, lo, bulk=bulk)
         return out
 
     def _range_error(self, g, got, want):

@@ -184,9 +184,10 @@ class Verifier:
         self._base = hashlib.blake2b(digest_size=DIGEST, key=key)
         self._rows = {}                      # (dataset, table chunk index) -> bytes of its rows
         self._tables_checked = set()         # datasets whose table's presence and shape were checked
+        self._places = {}                    # dataset -> int64[chunks]: each stored chunk's file offset (bulk reads)
 
     def __getstate__(self):                  # picklable (a hashlib state is not): rebuilt from the key
-        return {k: v for k, v in self.__dict__.items() if k != "_base"}
+        return {k: (v if k != "_places" else {}) for k, v in self.__dict__.items() if k != "_base"}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
@@ -363,12 +364,14 @@ class Verifier:
         return (total, mm) if minmax else total
 
     def read_bricks_direct(self, f, dataset: str, bricks: np.ndarray, out: np.ndarray, origin=(0, 0, 0),
-                           minmax: bool = False):
+                           minmax: bool = False, bulk: bool = False):
         """As :meth:`read_chunks`, each chunk read raw (``H5Dread_chunk``: about 5 us a chunk, half a hyperslab's
         cost, and no copy through HDF5's chunk cache), its stored size and filter mask checked (the elements and
         the 4-byte Fletcher-32 checksum, which is not recomputed: the keyed chunk hash, stronger, covers every
         element), hashed and placed in bulk: one numpy call per class of equally cut bricks (at most 27), not
-        one per brick. ``bricks`` must lie in the chunk grid (the caller's own computation; checked)."""
+        one per brick. ``bricks`` must lie in the chunk grid (the caller's own computation; checked). ``bulk``
+        (whole reads): the chunks' file offsets taken once from HDF5's chunk index (:meth:`_chunk_places`) and
+        the chunks read from the file by run of neighbouring chunks (:meth:`_bulk_chunks`)."""
         ds = f[dataset]
         if dataset not in self._tables_checked:
             _check_table(self.path, f, dataset, ds, self.rebuild)
@@ -383,8 +386,10 @@ class Verifier:
             raise IsplatError(f"{self.path}: dataset '{dataset}': a brick outside its grid {grid} was asked for")
         ch = np.asarray(chunks, dtype=np.int64)
         offs = np.ascontiguousarray(bricks * ch, dtype="<i8")
-        want = self._rows_of(f, dataset, np.ravel_multi_index(tuple(bricks.T), grid))
-        data = self._raw_chunks(ds, dataset, offs, chunks)
+        rows = np.ravel_multi_index(tuple(bricks.T), grid)
+        want = self._rows_of(f, dataset, rows)
+        data = (self._bulk_chunks(ds, dataset, rows, chunks, grid) if bulk else
+                self._raw_chunks(ds, dataset, offs, chunks))
         ext = np.minimum(ch, np.asarray(shape, dtype=np.int64) - offs)
         got = np.empty((n, DIGEST), dtype=np.uint8)
         prefix = dataset.encode("utf-8") + b"\0"
@@ -418,6 +423,54 @@ class Verifier:
             parts.append(b)
         raw = np.frombuffer(b"".join(parts), dtype=np.uint8).reshape(len(parts), size + 4)[:, :size]
         return np.ascontiguousarray(raw).view(ds.dtype.newbyteorder("<")).reshape((len(parts),) + tuple(chunks))
+
+    def _chunk_places(self, ds, dataset: str, chunks, grid) -> np.ndarray:
+        """int64[chunks]: the file offset of each stored chunk, by grid row, from HDF5's chunk index (walked once
+        per dataset: about 1.6 us a chunk, against 5 us for a raw read through HDF5), checked: every chunk
+        listed once, at a chunk's offset in the grid, stored whole with its checksum (filter mask 0) and inside
+        the file. What lies there is then checked by each chunk's hash."""
+        import os
+
+        size = int(np.prod(chunks)) * ds.dtype.itemsize + 4
+        coords, where, bad = [], [], []
+
+        def visit(si):
+            coords.append(si.chunk_offset)
+            where.append(si.byte_offset)
+            if si.filter_mask or si.size != size:
+                bad.append(si)
+        ds.id.chunk_iter(visit)
+        if bad:
+            self.fail(dataset, bad[0].chunk_offset, f"stored as {bad[0].size} bytes with filter mask "
+                                                    f"{bad[0].filter_mask}, expected {size} (elements and Fletcher-32), "
+                                                    f"so it cannot be checked")
+        ch, g = np.asarray(chunks, dtype=np.int64), np.asarray(grid, dtype=np.int64)
+        c = np.asarray(coords, dtype=np.int64).reshape(-1, 3)
+        places = np.full(int(np.prod(grid)), -1, dtype=np.int64)
+        if c.shape[0] == places.size and not np.any(c % ch) and c.min(initial=0) >= 0 and np.all(c // ch < g):
+            places[np.ravel_multi_index(tuple((c // ch).T), grid)] = where
+        end = os.path.getsize(self.path)
+        if np.any(places < 0) or np.any(places > end - size):
+            self.fail(dataset, (0, 0, 0), "HDF5's chunk index does not list each brick once, inside the file")
+        return places
+
+    def _bulk_chunks(self, ds, dataset: str, rows: np.ndarray, chunks, grid) -> np.ndarray:
+        """As :meth:`_raw_chunks` for the chunks of grid rows ``rows``, read from a memory map of the file, one
+        slice per run of chunks stored back to back (HDF5 writes them so, with its index nodes between runs)."""
+        if dataset not in self._places:
+            self._places[dataset] = self._chunk_places(ds, dataset, chunks, grid)
+        size = int(np.prod(chunks)) * ds.dtype.itemsize
+        at = self._places[dataset][rows]
+        order = np.argsort(at, kind="stable")
+        s = at[order]
+        cut = np.flatnonzero(np.diff(s) != size + 4) + 1
+        mm = np.memmap(self.path, dtype=np.uint8, mode="r")
+        if mm.size < int(s[-1]) + size + 4:
+            self.fail(dataset, (0, 0, 0), "the file is shorter than its chunk index says")
+        raw = np.empty((rows.size, size), dtype=np.uint8)
+        for a, b in zip(np.r_[0, cut].tolist(), np.r_[cut, rows.size].tolist()):
+            raw[order[a:b]] = mm[int(s[a]):int(s[a]) + (b - a) * (size + 4)].reshape(b - a, size + 4)[:, :size]
+        return raw.view(ds.dtype.newbyteorder("<")).reshape((rows.size,) + tuple(chunks))
 
     @staticmethod
     def _place(out, arr, lo, hi, origin) -> None:

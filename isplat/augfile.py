@@ -111,7 +111,7 @@ class AugmentedVolume:
         bricks = np.asarray(bricks, dtype=np.int64).reshape(-1, 3)
         with hdf5_errors(self.path, f"dataset {channel!r}"):
             with self._open_channels(channel) as f:
-                n = self._read_into(f, channel, bricks, out, lo)
+                n = self._read_into(f, channel, bricks, out, lo, bulk=self._bulk(channel, bricks.shape[0]))
         self.bytes_read += n * out.itemsize
         return out
 
@@ -127,6 +127,12 @@ class AugmentedVolume:
                 self._range_error(bricks[bad[0]], mm[bad[0]], want[bad[0]])
         return n
 
+    def _bulk(self, channel: str, n: int) -> bool:
+        """Read ``n`` bricks of ``channel`` through HDF5's chunk index walked once (about 1.6 us a brick of the
+        channel) rather than each raw through HDF5 (about 5 us a brick read): for more than a quarter of the bricks,
+        or once walked. (k-slabs of whole planes too: a sweep, as ``isplat index`` or pre with ``--slabs`` read.)"""
+        return 4 * n > self.brick_range[..., 0].size or channel in self.verifier._places
+
     def _read_bricked_block(self, f, channel: str, block) -> np.ndarray:
         """``channel[block]`` of a version-5 file: the bricks the block touches, read raw a layer of bricks
         (about 16 MiB) at a time (:meth:`_read_into`)."""
@@ -140,7 +146,7 @@ class AugmentedVolume:
         c = self.bricks
         g = [np.arange(a // e, -(-b // e)) for a, b, e in zip(lo, hi, c)]
         step = max(1, (1 << 24) // max(1, c[0] * out.shape[1] * out.shape[2] * out.itemsize))
-        bulk = 4 * g[0].size * g[1].size * g[2].size > self.brick_range[..., 0].size   # > 1/4: walk HDF5's index
+        bulk = self._bulk(channel, g[0].size * g[1].size * g[2].size) or out.shape[1:] == tuple(self.shape[1:])
         for n0 in range(0, g[0].size, step):
             mesh = np.meshgrid(g[0][n0:n0 + step], g[1], g[2], indexing="ij")
             self._read_into(f, channel, np.stack([m.reshape(-1) for m in mesh], axis=1), out, lo, bulk=bulk)

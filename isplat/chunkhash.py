@@ -305,68 +305,13 @@ class Verifier:
         table = np.stack(parts)
         return table[np.searchsorted(chunks, rows // TABLE_CHUNK_ROWS), rows % TABLE_CHUNK_ROWS]
 
-    def read_chunks(self, f, dataset: str, bricks: np.ndarray, out: np.ndarray, origin=None, minmax: bool = False):
-        """Read the chunks of 3-D ``dataset`` whose grid indices are the rows of ``bricks`` (int64[n, 3], in C
-        order of the grid, unique) into ``out`` (the dataset's shape, or the block from element ``origin``:
-        what of each chunk lies within it), each checked against its hash: each run of chunks along the last
-        axis is one hyperslab read (HDF5 verifies their Fletcher-32), through h5py's low-level calls (its
-        slicing costs about 0.2 ms a call). Returns the elements read, and with ``minmax`` uint8[n, 2] each
-        chunk's smallest and largest value (in ``bricks``' order)."""
-        import h5py
-
-        ds = f[dataset]
-        if dataset not in self._tables_checked:
-            _check_table(self.path, f, dataset, ds, self.rebuild)
-            self._tables_checked.add(dataset)
-        shape, chunks = tuple(int(n) for n in ds.shape), tuple(int(c) for c in ds.chunks)
-        grid = grid_shape(shape, chunks)
-        n_all = bricks.shape[0]
-        mm = np.zeros((n_all, 2), dtype=np.uint8) if minmax else None
-        if n_all == 0:
-            return (0, mm) if minmax else 0
-        rows = np.ravel_multi_index(tuple(bricks.T), grid)
-        want = self._rows_of(f, dataset, rows)
-        cut = np.flatnonzero((np.diff(rows) != 1) | np.any(np.diff(bricks[:, :-1], axis=0) != 0, axis=1)) + 1
-        starts, ends = np.r_[0, cut].tolist(), np.r_[cut, n_all].tolist()
-        prefix = dataset.encode("utf-8") + b"\0"
-        offsets = np.ascontiguousarray(bricks * np.asarray(chunks, dtype=np.int64), dtype="<i8")
-        dsid, fspace = ds.id, ds.id.get_space()
-        dtype = ds.dtype
-        digests, total = [], 0
-        for s0, s1 in zip(starts, ends):
-            lo = offsets[s0].tolist()
-            hi = [min(shape[0], lo[0] + chunks[0]), min(shape[1], lo[1] + chunks[1]),
-                  min(shape[2], int(offsets[s1 - 1, 2]) + chunks[2])]
-            ext = tuple(h - l for l, h in zip(lo, hi))
-            arr = np.empty(ext, dtype=dtype)
-            fspace.select_hyperslab(tuple(lo), ext)
-            dsid.read(h5py.h5s.create_simple(ext), fspace, arr)
-            n = s1 - s0
-            if ext == (chunks[0], chunks[1], n * chunks[2]):
-                pieces = [arr.reshape(chunks[0], chunks[1], n, chunks[2]).transpose(2, 0, 1, 3).reshape(n, -1)]
-            else:                                   # partial chunks at the dataset's edges: one at a time
-                pieces = [np.ascontiguousarray(arr[..., m * chunks[2]:(m + 1) * chunks[2]]).reshape(1, -1)
-                          for m in range(n)]
-            m = s0
-            for p in pieces:
-                digests += hash_pieces(self._base, prefix, offsets[m:m + p.shape[0]], p)
-                if minmax:
-                    mm[m:m + p.shape[0], 0] = p.min(axis=1)
-                    mm[m:m + p.shape[0], 1] = p.max(axis=1)
-                m += p.shape[0]
-            self._place(out, arr, lo, hi, origin)
-            total += arr.size
-        got = np.frombuffer(b"".join(digests), dtype=np.uint8).reshape(-1, DIGEST)
-        bad = np.flatnonzero(np.any(got != want, axis=1))
-        if bad.size:
-            self.fail(dataset, tuple(offsets[bad[0]].tolist()))
-        self.chunks_verified += n_all
-        return (total, mm) if minmax else total
-
     def read_bricks_direct(self, f, dataset: str, bricks: np.ndarray, out: np.ndarray, origin=(0, 0, 0),
                            minmax: bool = False, bulk: bool = False):
-        """As :meth:`read_chunks`, each chunk read raw (``H5Dread_chunk``: about 5 us a chunk, half a hyperslab's
-        cost, and no copy through HDF5's chunk cache), its stored size and filter mask checked (the elements and
+        """Read the chunks (bricks) of 3-D ``dataset`` whose grid indices are the rows of ``bricks`` (int64[n, 3],
+        unique) into ``out`` (the block from element ``origin``: what of each brick lies within it), each checked
+        against its hash; returns the elements read, and with ``minmax`` uint8[n, 2] each brick's smallest and
+        largest value (in ``bricks``' order). Each chunk is read raw (``H5Dread_chunk``: about 5 us a chunk, half a
+        hyperslab's cost), its stored size and filter mask checked (the elements and
         the 4-byte Fletcher-32 checksum, which is not recomputed: the keyed chunk hash, stronger, covers every
         element), hashed and placed in bulk: one numpy call per class of equally cut bricks (at most 27), not
         one per brick. ``bricks`` must lie in the chunk grid (the caller's own computation; checked). ``bulk``
@@ -471,18 +416,6 @@ class Verifier:
         for a, b in zip(np.r_[0, cut].tolist(), np.r_[cut, rows.size].tolist()):
             raw[order[a:b]] = mm[int(s[a]):int(s[a]) + (b - a) * (size + 4)].reshape(b - a, size + 4)[:, :size]
         return raw.view(ds.dtype.newbyteorder("<")).reshape((rows.size,) + tuple(chunks))
-
-    @staticmethod
-    def _place(out, arr, lo, hi, origin) -> None:
-        """``arr`` (elements ``lo`` .. ``hi`` of the dataset) into ``out`` (from element ``origin``, or 0)."""
-        if origin is None:
-            out[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] = arr
-            return
-        a = [max(x, o) for x, o in zip(lo, origin)]
-        b = [min(x, o + n) for x, o, n in zip(hi, origin, out.shape)]
-        if all(x < y for x, y in zip(a, b)):
-            out[tuple(slice(x - o, y - o) for x, y, o in zip(a, b, origin))] = \
-                arr[tuple(slice(x - l, y - l) for x, y, l in zip(a, b, lo))]
 
     def verify_all(self, f, dataset: str) -> None:
         """Check every chunk of ``dataset`` (``isplat stats``)."""

@@ -212,6 +212,13 @@ class AugmentedVolume:
         self.bytes_read += arr.nbytes
         return arr
 
+    def read_open(self, f, channel: str, block=()) -> np.ndarray:
+        """``channel[block]`` from ``f``, this file already open (a builder's handle), checked as :meth:`read_block`
+        checks it (bricks raw with their hashes and the density's ranges, or chunks through HDF5); not counted."""
+        if self.bricked:
+            return self._read_bricked_block(f, channel, block)
+        return self.verifier.read(f, channel, tuple(block))
+
     def _read_labels(self, block) -> np.ndarray:
         """``labels[block]`` as uint16 (whatever the stored type), each chunk checked, and every id checked to be
         one ``label_voxels`` counts (< its length): compiled code may index tables by them."""

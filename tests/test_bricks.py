@@ -268,3 +268,20 @@ def test_a_brick_stored_without_its_checksum_is_refused(files, tmp_path):
         a.read_bricks("normal", np.array([[1, 2, 3]]))
     with pytest.raises(IsplatError, match=r"dataset 'normal', chunk at \(8, 16, 24\)"):
         a.verify_all()
+
+
+def test_the_index_of_a_bricked_file_is_the_index_of_its_whole_channels(files, tmp_path):
+    """isplat index reads version 5's bricks (raw, hashed, ranges checked) in k-slabs: the same index as from v4."""
+    from isplat.index import build_index_file
+
+    aug, old, _ = files["thick"]
+    built = {}
+    for name, src in (("new", aug), ("old", old)):
+        build_index_file(src, tmp_path / f"{name}.idx.h5", force=True, slab_voxels=5 * SHAPE[1] * SHAPE[2])
+        with h5py.File(tmp_path / f"{name}.idx.h5") as f:
+            names = []
+            f.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
+            built[name] = {n: f[n][()] for n in names}
+    assert built["new"].keys() == built["old"].keys() and len(built["new"]) > 5
+    for n, v in built["new"].items():
+        assert np.array_equal(v, built["old"][n]), n

@@ -175,7 +175,7 @@ def build(out_dir: Path) -> list[Path]:
             "invalid-wrong-format.aug.h5": "format",
             "invalid-missing-normal.aug.h5": "normal",
             "invalid-version-1.aug.h5": "format_version",
-            "invalid-flipped-bit.aug.h5": "Fletcher-32",
+            "invalid-flipped-bit.aug.h5": "chunk at (0, 0, 0)",
             "invalid-axes-lps.aug.h5": "axes_lps",
             "invalid-version-2.aug.h5": "format_version",
             "invalid-edited-value.aug.h5": "chunk at (0, 0, 0)",

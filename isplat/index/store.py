@@ -212,7 +212,7 @@ def _channel_reader(aug, density: np.ndarray | None = None):
                 return density[k0:k1]
             with hdf5_errors(aug.path, f"dataset {ch!r} [{k0}:{k1}]"):
                 v = getattr(aug, "verifier", None)
-                arr = v.read(src, ch, (slice(k0, k1),)) if v is not None else src[ch][k0:k1]
+                arr = aug.read_open(src, ch, (slice(k0, k1),)) if v is not None else src[ch][k0:k1]
                 return np.ascontiguousarray(arr, dtype=CHANNELS[ch])
         yield read
     finally:

@@ -31,6 +31,7 @@ from .orientation import check_axes_lps
 
 FORMAT_NAME = "isplat-augmented"
 FORMAT_VERSION = 5              # version 5: channels in 8^3 bricks + /brick_range (formats/augmented.md §2.2)
+ROWS_VERSION = 4                # what `isplat augment` writes without --bricks: chunks of whole rows (docs/design.md)
 OLDER_VERSIONS = (4, 3)         # 4: + the optional label channel (§2.1); 3: + /chunk_hashes (§1.1); read whole
 BRICK = (8, 8, 8)               # (k, j, i) voxels of a brick: the channels' HDF5 chunk (version 5)
 BRICK_RANGE = "brick_range"     # uint8[gk, gj, gi, 2]: each brick's smallest and largest density code

@@ -285,3 +285,23 @@ def test_the_index_of_a_bricked_file_is_the_index_of_its_whole_channels(files, t
     assert built["new"].keys() == built["old"].keys() and len(built["new"]) > 5
     for n, v in built["new"].items():
         assert np.array_equal(v, built["old"][n]), n
+
+
+
+def test_augment_writes_bricks_only_when_asked(tmp_path):
+    """`isplat augment` keeps format 4 (whole rows) by default and writes format 5 (bricks) with --bricks; the
+    channels are the same either way."""
+    from click.testing import CliRunner
+
+    from isplat.cli.main import cli
+
+    np.save(tmp_path / "v.npy", _shell(SHAPE, (15, 17, 22), 9, 2.5, np.random.default_rng(3)))
+    files = {}
+    for flag, version in (([], 4), (["--bricks"], 5)):
+        out = tmp_path / f"v{version}.aug.h5"
+        r = CliRunner().invoke(cli, ["augment", str(tmp_path / "v.npy"), "-o", str(out), "-q"] + flag)
+        assert r.exit_code == 0, r.output
+        files[version] = a = open_augmented(out)
+        assert a.format_version == version and a.bricked == (version == 5)
+    for ch in ("density", "gradient_magnitude", "normal"):
+        assert np.array_equal(files[4].read(ch, 0, SHAPE[0]), files[5].read(ch, 0, SHAPE[0])), ch

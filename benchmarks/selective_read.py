@@ -270,13 +270,15 @@ def _explanation(repeats: int) -> list[str]:
         "magnitudes, when the transfer function uses them) from the index's values file (`NAME.values.idx.h5`, "
         "index format 6), one row range per interval. Only the voxels of interest are read; *read* includes the "
         "values file's opening.",
-        "- **post (format 5: bricks)** (the default, post-classification): the same index blocks, and of the "
+        "- **post (format 5: bricks)** (the default technique, post-classification, from a file written by "
+        "`isplat augment --bricks`): the same index blocks, and of the "
         "channels it samples (the density, and when shaded the normal and the gradient magnitude) only the 8^3 "
         "bricks its quads can read: for each 4 x 4 cell of interest of the index, its quads, their in-slice "
         "neighbours and the cubic's taps between thick slices, in the cell's slice (each brick checked against "
         "its chunk hash, the density's against `/brick_range`). Whole channels when more than "
         "`isplat.selection.BRICK_SHARE` of the bricks are needed.",
-        "- **post (format 4: whole channels)**: the same volume written as format 4 (chunks of whole rows): the "
+        "- **post (format 4: whole channels)**: the same volume written as format 4 (chunks of whole rows, the layout "
+        "`isplat augment` writes by default): the "
         "whole channels, as before format 5 (4 B per voxel of the volume when shaded). Post never reads the "
         "values file.",
         "",

@@ -506,9 +506,8 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
     of i, j, k, over the file's. ``labels``: a label map on the scan's grid (:func:`isplat.labels.read_label_volume`),
     stored as the label channel (formats/augmented.md §2.1). ``bricks``: write format 5 (the channels in 8^3
     bricks, which the post technique reads only where its scene needs them), else format 4 (chunks of whole rows,
-    read whole: faster to load on volumes of tens of millions of voxels, docs/selective-read.md). Returns a summary dict (shape, window, gradient
-    scale, sha256, ``axes_lps``
-    or None, ``hounsfield`` (why the data are taken as Hounsfield units, or None), and where spacing and
+    read whole: faster to load on volumes of tens of millions of voxels, docs/selective-read.md). Returns a
+    summary dict (shape, window, gradient scale, sha256, ``axes_lps`` or None, ``hounsfield`` (why the data are taken as Hounsfield units, or None), and where spacing and
     orientation came from).
     """
     check_output(out, force)  # fail before any work

@@ -84,7 +84,7 @@ def checksum_cost(folder: Path, shape_ijk=(256, 256, 160), repeats: int = 7) -> 
     from unittest import mock
 
     from isplat import augfile, fileio
-    from isplat.augfile import open_augmented, write_augmented
+    from isplat.augfile import ROWS_VERSION, open_augmented, write_augmented
     from isplat.augment import augment_array
     from isplat.index import build_index_file, open_index
     from isplat.index import store
@@ -94,7 +94,7 @@ def checksum_cost(folder: Path, shape_ijk=(256, 256, 160), repeats: int = 7) -> 
     a = augment_array(arr, spacing)
     aug, idx = folder / "cost.aug.h5", folder / "cost.idx.h5"
     write_augmented(aug, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
-                    a["density_window"], a["gradient_magnitude_scale"])
+                    a["density_window"], a["gradient_magnitude_scale"], version=ROWS_VERSION)
     build_index_file(aug, idx, force=True)
     aug0, idx0 = folder / "cost0.aug.h5", folder / "cost0.idx.h5"
     _rewrite_unchecked(aug, aug0)
@@ -183,7 +183,7 @@ def chunk_hash_cost(folder: Path, shape_ijk=(128, 128, 96), repeats: int = 5) ->
     axis whole), of ``isplat stats``'s check of every chunk, and of writing the files, with the chunk hashes
     checked (as isplat reads) and not checked (the same files, Fletcher-32 only), interleaved in one run; and the
     bytes HDF5 read for the selection each way."""
-    from isplat.augfile import open_augmented, write_augmented
+    from isplat.augfile import ROWS_VERSION, open_augmented, write_augmented
     from isplat.augment import augment_array
     from isplat.index import build_index_file, open_index
     from isplat.samples import make_sample
@@ -196,7 +196,7 @@ def chunk_hash_cost(folder: Path, shape_ijk=(128, 128, 96), repeats: int = 5) ->
 
     def write_files():
         write_augmented(aug, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
-                        a["density_window"], a["gradient_magnitude_scale"])
+                        a["density_window"], a["gradient_magnitude_scale"], version=ROWS_VERSION)
         build_index_file(aug, idx, force=True)
 
     def write_files_without_tables():
@@ -304,7 +304,9 @@ def write_hash_cost(out: Path, c: dict, note: str = "") -> Path:
         "",
         f"Made by `{command}` at commit {git_rev()} on {machine_line()}.{(' ' + note) if note else ''}",
         "",
-        f"A head of {shape} voxels (augmented file {c['aug_bytes']:,} B in {c['aug_chunks']} chunks, index "
+        f"A head of {shape} voxels (augmented file of format 4, the layout `isplat augment` writes by default "
+        f"(format 5's cost per brick: docs/design.md, \"Bricked channels\"), {c['aug_bytes']:,} B in "
+        f"{c['aug_chunks']} chunks, index "
         f"{c['idx_bytes']:,} B in {c['idx_chunks']:,} chunks); median of {c['repeats']} interleaved runs. "
         "*hashed*: as isplat reads (formats/augmented.md §1.1: every chunk a read touches is read whole, hashed "
         "with BLAKE2b and compared with its row of the file's table, which is read too); *Fletcher-32 only*: the "

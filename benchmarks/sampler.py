@@ -83,14 +83,16 @@ def _log(msg):
     print(f"[sampler] {msg}", file=sys.stderr, flush=True)
 
 
-def _cli(*args):
-    subprocess.run([sys.executable, "-m", "isplat", *map(str, args), "-q"], check=True, cwd=REPO,
-                   env=dict(os.environ, PYTHONPATH=str(REPO)))
+def _cli(*args, root: Path = REPO):
+    subprocess.run([sys.executable, "-m", "isplat", *map(str, args), "-q"], check=True, cwd=root,
+                   env=dict(os.environ, PYTHONPATH=str(root)))
 
 
-def data(quick: bool) -> dict:
-    """(augmented, index) of each data tag, made once under out/bench-sampler/data."""
-    d = WORK / "data"
+def data(quick: bool, old: Path) -> dict:
+    """(augmented, index) of each data tag, made once under out/bench-sampler/<old commit>/data: indexed by the
+    old commit's isplat (tree ``old``), whose index format both read (the new reads older index formats; the old
+    may not read the new one)."""
+    d = old / "data"
     d.mkdir(parents=True, exist_ok=True)
     chest_shape = "256,256,67" if quick else "512,512,133"
     chest7_shape = "256,256,24" if quick else "512,512,48"
@@ -104,7 +106,7 @@ def data(quick: bool) -> dict:
         if not idx.exists():
             _cli("sample", sample, "-o", npy, "--force", *(["--shape", shape] if shape else []))
             _cli("augment", npy, "-o", aug, "--force", *aug_args)
-            _cli("index", aug, "-o", idx, "--force")
+            _cli("index", aug, "-o", idx, "--force", root=old)
             npy.unlink()
         out[tag] = (aug, idx)
     return out
@@ -235,8 +237,9 @@ def run(out_dir: Path, quick: bool) -> Path:
     from isplat.frame import FrameStats  # noqa: F401  (the working tree is importable)
 
     rounds = 3 if quick else ROUNDS
-    files = data(quick)
-    workers = {"old": Worker(old_tree(BASELINE)), "new": Worker(REPO)}
+    old = old_tree(BASELINE)
+    files = data(quick, old)
+    workers = {"old": Worker(old), "new": Worker(REPO)}
     try:
         res = interleaved(workers, CASES, files, rounds)
     finally:

@@ -461,7 +461,7 @@ def select(request, aug=None, idx=None) -> Selection:
     rep = sel.report
     bricked = _reads_bricks(sel, aug)       # post, version 5: the bricks its quads read, after the index
     if bricked:
-        pass
+        pass                                # (read below, once the index's cells are selected)
     elif sel.post and sel.method == "indexed" and slices is not None and len(axes) == 1 and not sel.empty:
         whole, slab = _slab_channels(sel, aug, axes, slices)     # post: only the slab's slices
         sel = replace(sel, whole=whole, slab=slab)
@@ -557,19 +557,13 @@ def _reads_bricks(sel: Selection, aug) -> bool:
 
 
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every cell's slice and first voxel ``(c, a0, b0)`` (int64, the hierarchy's order)."""
-    from .splat.select import BLOCK, CELL, REGION
+    """Every cell's slice and first voxel ``(c, a0, b0)`` (int64, the hierarchy's order): the walk of
+    :func:`isplat.splat.select.cell_origins`, which also checks the cell table."""
+    from .splat.select import cell_origins as walk
 
-    nra = (s.n_a + REGION - 1) // REGION
-    g_c = np.repeat(np.arange(s.slice_ptr.shape[0] - 1, dtype=np.int64), np.diff(s.slice_ptr))
-    rid = s.region_id.astype(np.int64)
-    r_g = np.repeat(np.arange(rid.shape[0]), np.diff(s.region_ptr))
-    bp = s.block_pos.astype(np.int64)
-    ba = (rid[r_g] % nra) * REGION + (bp % 4) * BLOCK
-    bb = (rid[r_g] // nra) * REGION + (bp // 4) * BLOCK
-    q_r = np.repeat(np.arange(bp.shape[0]), np.diff(s.block_ptr))
-    cp = s.cell_pos.astype(np.int64)
-    return g_c[r_g][q_r], ba[q_r] + (cp % 4) * CELL, bb[q_r] + (cp // 4) * CELL
+    c, a0, b0, _ = walk(s.slice_ptr, s.region_id, s.region_ptr, s.block_pos, s.block_ptr, s.block_voxel,
+                        s.cell_pos, s.cell_count, s.n_a)
+    return c, a0, b0
 
 
 def post_bricks(sel: Selection, bricks) -> np.ndarray:

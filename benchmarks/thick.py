@@ -20,7 +20,12 @@ per sample (interleaved rounds, :func:`ns_per_sample`), ``--thin-slices``'s cost
 (:data:`RATIO_CASES`: where ``isplat.splat.post.THICK_RATIO`` is set). The maximum-intensity projection of
 :data:`MIP_CASE` (``render.mode = "mip"``), linear and cubic between slices, against its object: streak, RMSE,
 band and cost (:func:`mip_rows`). A sphere label on 7 mm slices (:func:`label_rows`): its terraces, and whether the
-cubic would move its boundary (:func:`label_mismatch`).
+cubic would move its boundary (:func:`label_mismatch`). The 7 mm cases (:data:`BEST_CASES`) also resampled to
+the object's grid by the best standard interpolators from the thick data alone (:func:`best_effort_images`,
+benchmarks/_thick_resample.py: B-splines of degree 3 and 5, Lanczos-3, the Catmull-Rom cubic as a copy, and copies
+with the default's own shading) and rendered by the default: whether any reconstruction from the same slices
+comes nearer the object than the default (:func:`best_section`, its sentences computed from the numbers), with
+a column of the pictures for the copy nearest the object.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from benchmarks import _doc
 
 TECHNIQUES = ["post", "mip"]
 SOURCES = _doc.sources(_doc.RENDER, _doc.AUGMENT, _doc.SAMPLES, ("isplat/resample.py", "benchmarks/thick.py",
+                                                                  "benchmarks/_thick_resample.py",
                                                                   "isplat/labels.py", "isplat/label_select.py",
                                                                   "tests/streak_measure.py",
                                                                   "isplat/presets.py", "isplat/scene_parse.py",
@@ -65,6 +71,10 @@ MIP_CASE = CASES[3]
 # the label measured between thick slices (label_rows): a sphere's radius (mm), its centre's offset along the thick
 # axis (mm), the grid's in-slice voxels (1 mm each; the thick grid has n / 7 slices of 7 mm)
 LABEL_SPHERE = (45.0, 2.6, 126)
+# the cases resampled to the object's grid by the best standard reconstructions from the thick data alone
+# (best_effort_images, benchmarks/_thick_resample.py), and those reconstructions
+BEST_CASES = ("ct-head-7mm", "mr-head-7mm")
+BEST_METHODS = ("bspline3", "bspline5", "lanczos3", "catmull-rom", "bspline3+shading", "catmull-rom+shading")
 ROUNDS = 41               # interleaved rounds of the timing (ns_per_sample; frames of 10-50 ms on a shared machine)
 WINDOWS = {"ct-head": (-1024.0, 3071.0), "ct-chest": (-1024.0, 3071.0)}
 
@@ -251,7 +261,9 @@ def level(sc) -> float:
     return float(codes[np.argmax(a >= 0.5 * a.max())])
 
 
-def run_case(case, views, size, img_dir: Path, rounds: int):
+def run_case(case, views, size, img_dir: Path, rounds: int, methods=()):
+    """Renders, measures and pictures of one :data:`CASES` entry; ``methods``: the best-effort copies
+    (:func:`best_effort_images`) to render and measure too."""
     from isplat.resample import thin_slices
     from isplat.samples import make_sample
 
@@ -266,10 +278,11 @@ def run_case(case, views, size, img_dir: Path, rounds: int):
     s0 = min(sp)
     obj_vol, _ = make_sample(name, (shape[0], shape[1], nk_obj))
     obj = channels(obj_vol, (s0, s0, s0), window)
-    rows, pics = [], []
+    rows, shown = [], {}
     tmp = tempfile.TemporaryDirectory()
     aug = Path(tmp.name) / "scene.aug.h5"       # the scene's presets read their data units (or, MRI, the
     _write_aug(aug, c["raw"], name)             # histogram they are placed on) through this file
+    copies = best_effort_images(thick, c, sp, nk_obj, aug, preset, views, size, methods)
     for view in views:
         _log(f"{tag}: {view}")
         sc = scene(aug, preset, view, size)
@@ -286,11 +299,66 @@ def run_case(case, views, size, img_dir: Path, rounds: int):
         if view == "oblique" and rounds:
             row["timing"] = ns_per_sample(sc, c, rounds)
             _log(f"{tag}: {row['timing']['before']:.1f} -> {row['timing']['after']:.1f} ns per sample")
+        if copies:
+            row["best"] = {m: dict(streak=streak(im[view], phase, period), rmse=rmse(im[view], imgs["object"]),
+                                   band=band_energy(im[view], period) if view == "side" else None)
+                           for m, im in copies.items()}
+            # unshaded (density and opacity alone): which part of a difference is the density's reconstruction
+            flat = scene(aug, preset, view, size, shaded=False)
+            ref = render_with(flat, obj, "after")
+            un = {"default": render_with(flat, c, "after"), "object": ref,
+                  **{m: im[(view, "flat")] for m, im in copies.items()}}
+            row["unshaded"] = {k: dict(streak=streak(v, phase, period), rmse=rmse(v, ref)) for k, v in un.items()}
         rows.append(row)
-        pics.append([imgs["before"], imgs["after"], imgs["thin"], imgs["object"]])
+        shown[view] = [imgs["before"], imgs["after"], imgs["thin"], imgs["object"]]
+    best = _picture_method(rows)
+    for row in rows:
+        row["shown"] = best
+    pics = [p[:3] + ([copies[best][v]] if best else []) + p[3:] for v, p in shown.items()]
     _write_png(img_dir / f"thick-{tag}.png", pics)
     tmp.cleanup()
     return rows
+
+
+def best_effort_images(thick, c, sp, nk_obj, aug, preset, views, size, methods) -> dict:
+    """The thick sample resampled along its thick axis (array axis 0) to the object's grid (``nk_obj`` slices of
+    the in-slice spacing) by each of ``methods`` (benchmarks/_thick_resample.py: B-splines, Lanczos, the
+    Catmull-Rom cubic as a copy; ``M+shading``: M's density with the normals and gradient magnitudes of the thick
+    channels ``c`` mixed along k by the cubic B-spline's weights, the default's shading between slices), augmented
+    in ``c``'s window and rendered by the default at each view:
+    ``{method: {view: image, (view, "flat"): the unshaded image}}``. Only the thick data goes in: what the best
+    standard reconstructions make of it."""
+    from benchmarks import _thick_resample
+
+    s0 = min(sp)
+    if not methods:
+        return {}
+    if not (sp[0] == sp[1] == s0 < sp[2]):
+        raise ValueError(f"best-effort copies: spacing {sp}; expected the thick axis k, i and j equal")
+    out = {}
+    for m in methods:
+        _log(f"best effort: {m}")
+        base, _, shading = m.partition("+")
+        vol = _thick_resample.resample(thick, sp[2], nk_obj, s0, base)
+        ch = channels(vol, (s0, s0, s0), c["window"])
+        del vol
+        if shading:          # the thick file's normals, mixed along k as the sampler's shading between slices
+            ch["normal"], ch["gm"] = _thick_resample.blend_gradients(c["normal"], c["gm"], sp[2], nk_obj, s0)
+            ch["gscale"] = c["gscale"]
+        out[m] = {v: render_with(scene(aug, preset, v, size), ch, "after") for v in views}
+        out[m].update({(v, "flat"): render_with(scene(aug, preset, v, size, shaded=False), ch, "after")
+                       for v in views})
+        del ch
+    return out
+
+
+def _picture_method(rows):
+    """The best-effort copy the pictures show: of those measured, the nearest the object (the lowest RMSE summed
+    over the views)."""
+    rows = [r for r in rows if r.get("best")]
+    if not rows:
+        return None
+    return min(rows[0]["best"], key=lambda m: sum(r["best"][m]["rmse"] for r in rows))
 
 
 def mip_rows(size: int, img_dir: Path, rounds: int) -> list:
@@ -498,7 +566,9 @@ def run(out_dir: Path, quick: bool) -> Path:
     cases = CASES[:1] if quick else CASES
     rows, costs = [], {}
     for case in cases:
-        rows += run_case(case, list(VIEWS), size, Path(out_dir) / "img", 2 if quick else ROUNDS)
+        # quick: one copy on the one case, to run the code; else every copy on the 7 mm cases
+        methods = BEST_METHODS[:1] if quick else (BEST_METHODS if case[0] in BEST_CASES else ())
+        rows += run_case(case, list(VIEWS), size, Path(out_dir) / "img", 2 if quick else ROUNDS, methods)
         tag, name, shape, sp = case[:4]
         if not quick:
             costs[tag] = thin_cost(name, shape, sp, WINDOWS.get(name))
@@ -573,8 +643,11 @@ def render_doc(rows, costs, size, quick, seconds, ratios=(), mip=(), labels=()) 
          "shading weighted by the corners' gradient magnitudes (`WEIGHTED_SHADING`, an earlier run of this page); "
          "only the reconstruction between slices differs.", ""]
     for tag in dict.fromkeys(r["case"] for r in rows):
+        shown = next(r.get("shown") for r in rows if r["case"] == tag)
+        col = (f"the best-effort copy nearest the object ({BEST_NAMES[shown]}, the lowest RMSE: section *Best "
+               "efforts from the thick data*), " if shown else "")
         L += [f"![{tag}](img/thick-{tag}.png)", "",
-              f"`img/thick-{tag}.png` (post-classified): before, after, thin, object; side, then oblique.", ""]
+              f"`img/thick-{tag}.png` (post-classified): before, after, thin, {col}object; side, then oblique.", ""]
     L += ["## Streaks, measured", "",
           "*streak*: how much the picture's fine shading depends on where the surface lies between two thick "
           "slices (`streak` in benchmarks/thick.py): per pixel, the first point of the object's surface (the "
@@ -599,6 +672,7 @@ def render_doc(rows, costs, size, quick, seconds, ratios=(), mip=(), labels=()) 
                  f"{_f(e['corners'])} | {_f(e['thin'])} | " +
                  (f"{_f(b['before'])} | **{_f(b['after'])}** | {_f(b['thin'])} | {_f(b['object'])} |" if b
                   else "| | | |"))
+    L += best_section(rows)
     if ratios:
         L += ["", "## Where the cubic starts", "",
               "The mr-head sample (mri-t1-head, oblique) made with slices 1 x 1 x R mm (224 / R slices), linear and "
@@ -653,6 +727,150 @@ def render_doc(rows, costs, size, quick, seconds, ratios=(), mip=(), labels=()) 
     L += label_section(labels)
     L += ["", reading(rows, costs, ratios), ""]
     return "\n".join(L)
+
+
+BEST_NAMES = {"bspline3": "B-spline 3", "bspline5": "B-spline 5", "lanczos3": "Lanczos-3",
+              "catmull-rom": "Catmull-Rom copy", "bspline3+shading": "B-spline 3, default's shading",
+              "catmull-rom+shading": "Catmull-Rom, default's shading"}
+TIE = 1.05           # "at or below": the default's measure at most this many times the best copy's
+CLEAR = 0.9          # "clearly better": a copy's measure below this many times the default's
+FLOOR = 1.2          # "at the object's floor": the default's streak at most this many times the object's
+
+
+def best_section(rows) -> list:
+    """The page's lines on the best-effort copies (:func:`best_effort_images`): the tables and, from their
+    numbers, whether any reconstruction from the thick data alone comes nearer the object than the default."""
+    best = [r for r in rows if r.get("best")]
+    if not best:
+        return []
+    ms = list(best[0]["best"])
+    pure = [m for m in ms if "+" not in m]
+    L = ["", "## Best efforts from the thick data", "",
+         "Could any reconstruction from the thick slices do better than the default? Each thick sample resampled "
+         "along its thick axis to the object's grid (1 mm slices: the copy and the object have the same voxels) "
+         "by the best standard interpolators, using the thick data only (benchmarks/_thick_resample.py, each a "
+         "matrix from thick to thin slices): interpolating B-splines of degree 3 and 5 (what "
+         "`scipy.ndimage.zoom(order=3|5, mode=\"mirror\")` computes along that axis), the windowed sinc Lanczos-3, "
+         "and the renderer's own Catmull-Rom cubic as a copy (the same density as *after*, but its normals "
+         "differenced on the thin grid); values clipped to the thick data's range, augmented in the thick file's "
+         "window (as `--thin-slices` is) and rendered by the default at the same camera, size and preset. "
+         "*default's shading*: a copy's density (B-spline 3, or the Catmull-Rom cubic as a control) with the "
+         "thick file's own normals and gradient magnitudes instead of its own, their gradients mixed along the "
+         "thick axis with the cubic B-spline's weights (`blend_gradients`; the sampler mixes the Phong factors "
+         "with those weights, `_shade_between`): what the default would show with that density between slices. "
+         "*default*: the thick file rendered by the default (*after* above: the cubic in the sampler, no copy); "
+         "*thin*: `--thin-slices`; *object*: the sample painted on 1 mm slices, which no reconstruction from the "
+         "thick data can know (the floor).", ""]
+
+    def table(title, cells, cols, extra):
+        head = " | ".join(BEST_NAMES[m] for m in cols)
+        L.extend([title, "", f"| case | view | default | {head} | " + " | ".join(extra) + " |",
+                  "|---|---|" + "---:|" * (1 + len(cols) + len(extra))])
+        for r in best:
+            c = cells(r)
+            if c is not None:
+                L.append(f"| {r['case']} | {r['view']} | **{_f(c[0])}** | " + " | ".join(_f(x) for x in c[1:]) + " |")
+        L.append("")
+
+    table("Streak (shaded):", lambda r: [r["streak"]["after"]] + [r["best"][m]["streak"] for m in ms] +
+          [r["streak"]["thin"], r["streak"]["object"]], ms, ["thin", "object"])
+    table("RMSE against the object:", lambda r: [r["rmse"]["after"]] + [r["best"][m]["rmse"] for m in ms] +
+          [r["rmse"]["thin"]], ms, ["thin"])
+    table("Band energy (side views):", lambda r: None if "band" not in r else
+          [r["band"]["after"]] + [r["best"][m]["band"] for m in ms] + [r["band"]["object"]], ms, ["object"])
+    table("Unshaded (`shading.enabled = false`: the density's reconstruction alone, the same phases), streak and "
+          "RMSE against the unshaded object:",
+          lambda r: [r["unshaded"]["default"]["streak"]] + [r["unshaded"][m]["streak"] for m in pure] +
+          [r["unshaded"]["object"]["streak"], r["unshaded"]["default"]["rmse"]] +
+          [r["unshaded"][m]["rmse"] for m in pure], pure,
+          ["object", "RMSE default"] + [BEST_NAMES[m] for m in pure])
+    L += [best_reading(best)]
+    return L
+
+
+def best_reading(best) -> str:
+    """What the best-effort tables say, from their numbers (:data:`TIE`, :data:`CLEAR`, :data:`FLOOR`): per view,
+    the default against the lowest copy; where the default's streak is above the object's floor, whether a copy
+    removes the excess (then it is the default's reconstruction, else the data's)."""
+    def low(r, key, part="best"):
+        d = r[part]
+        m = min((m for m in d if m in BEST_NAMES), key=lambda m: d[m][key])
+        return m, d[m][key]
+
+    out = []
+    for r in best:
+        (ms, vs), (me, ve) = low(r, "streak"), low(r, "rmse")
+        out.append(f"- *{r['case']}* {r['view']}: streak default {r['streak']['after']:.4f}, lowest copy "
+                   f"{vs:.4f} ({BEST_NAMES[ms]}), object {r['streak']['object']:.4f}; RMSE default "
+                   f"{r['rmse']['after']:.4f}, lowest copy {ve:.4f} ({BEST_NAMES[me]}, "
+                   f"{(ve / r['rmse']['after'] - 1) * 100:+.0f}%).")
+    out = ["\n".join(out)]
+    floor = [r for r in best if r["streak"]["after"] <= FLOOR * r["streak"]["object"]]
+    above = [r for r in best if r not in floor]
+    if floor:
+        out.append(f"At the object's floor (the default's streak at most {FLOOR:g} times the object's: nothing locked "
+                   "to the slices left to remove) in " + ", ".join(f"{r['case']} {r['view']}" for r in floor) +
+                   "; there only the RMSE can improve, by the percentages above.")
+    for r in above:
+        m, v = low(r, "streak")
+        times = r["streak"]["after"] / r["streak"]["object"]
+        if v < CLEAR * r["streak"]["after"] and low(r, "rmse")[1] <= TIE * r["rmse"]["after"]:
+            u = r["unshaded"]
+            why = []
+            mu, vu = low(r, "streak", "unshaded")
+            if vu < CLEAR * u["default"]["streak"]:
+                why.append(f"the density between slices (unshaded streak {BEST_NAMES[mu]} {vu:.4f} against the "
+                           f"default's {u['default']['streak']:.4f}, the object's {u['object']['streak']:.4f})")
+            cr = r["best"].get("catmull-rom")
+            if (cr and cr["streak"] < CLEAR * r["streak"]["after"]
+                    and u["catmull-rom"]["streak"] <= TIE * u["default"]["streak"]):
+                why.append(f"the shading (the Catmull-Rom copy, the default's own density with normals differenced "
+                           f"on the thin grid, streaks {cr['streak']:.4f} shaded against the default's "
+                           f"{r['streak']['after']:.4f}, unshaded {u['catmull-rom']['streak']:.4f} against "
+                           f"{u['default']['streak']:.4f})")
+            out.append(f"**{r['case']} {r['view']}: the default's streak is {times:.2f} "
+                       f"times the object's, and a copy made from the same slices removes the excess** "
+                       f"({BEST_NAMES[m]}: streak {v:.4f}, {v / r['streak']['object']:.2f} times the object's" +
+                       (" (below the object's own: the measure's floor holds the object's fine detail, which a "
+                        "smooth interpolant lacks, so the RMSE is the surer sign)" if v < 0.8 * r["streak"]["object"]
+                        else "") +
+                       f"; RMSE {r['best'][m]['rmse']:.4f} against the default's {r['rmse']['after']:.4f}): the "
+                       "excess is not "
+                       "information missing from the slices but the default's reconstruction" +
+                       (", in " + " and in ".join(why) if why else "") + ".")
+        else:
+            out.append(f"**{r['case']} {r['view']}**: the default's streak is {times:.2f} "
+                       f"times the object's and no copy is clearly lower (the lowest {v / r['streak']['object']:.2f} "
+                       "times): the excess is what the slices do not hold, within what the data allows.")
+    return "\n\n".join(out + _hybrid_reading(best))
+
+
+def _hybrid_reading(best) -> list:
+    """The sentences on the B-spline density with the default's shading against its Catmull-Rom control and the
+    default (:func:`best_reading`)."""
+    h, k = "bspline3+shading", "catmull-rom+shading"
+    if not all(h in r["best"] and k in r["best"] for r in best):
+        return []
+
+    def rel(a, b):
+        return (a / b - 1) * 100 if b else 0.0
+
+    ctl_s = [rel(r["best"][k]["streak"], r["streak"]["after"]) for r in best]
+    ctl_e = [rel(r["best"][k]["rmse"], r["rmse"]["after"]) for r in best]
+    e_lower = sum(r["best"][h]["rmse"] < r["best"][k]["rmse"] for r in best)
+    s_lower = sum(r["best"][h]["streak"] < r["best"][k]["streak"] for r in best)
+    return [f"**The density's reconstruction with the default's shading.** The control (Catmull-Rom, default's "
+            f"shading: the default's density and, approximately, its shading, as a copy) is within "
+            f"{min(ctl_s):+.0f}..{max(ctl_s):+.0f}% of the default's streak and {min(ctl_e):+.0f}..{max(ctl_e):+.0f}% "
+            f"of its RMSE. Against it, the interpolating cubic B-spline's density (B-spline 3, default's shading) "
+            f"has the lower RMSE in {e_lower} of {len(best)} views and the lower streak in {s_lower}: " +
+            "; ".join(f"{r['case']} {r['view']} streak {r['best'][k]['streak']:.4f} -> {r['best'][h]['streak']:.4f}"
+                      f" (default {r['streak']['after']:.4f}, object {r['streak']['object']:.4f}), RMSE "
+                      f"{r['best'][k]['rmse']:.4f} -> {r['best'][h]['rmse']:.4f} (default "
+                      f"{r['rmse']['after']:.4f})" for r in best) +
+            ". In the sampler that density needs no thin copy: the cubic B-spline's weights over the same four "
+            "slices, applied to coefficients prefiltered along the thick axis (a grid of the file's size); not built "
+            "or measured in the renderer here."]
 
 
 def reading(rows, costs, ratios=()) -> str:

@@ -16,6 +16,7 @@ Writes the section "outofcore" of docs/scale.md.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import resource
@@ -50,7 +51,7 @@ AUTO = re.compile(r"each frame in (\d+) slabs front to back")
 
 def run_stage(args, limited: bool, cwd):
     """``isplat ARGS`` in a subprocess: (ok, seconds, peak RSS bytes or None, last stderr line, the slabs a
-    render chose by itself or None)."""
+    render chose by itself or None, a render's ``--json`` report or None)."""
     cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "isplat", *map(str, args)]
     env = dict(os.environ, ISPLAT_PROGRESS="0")
     t0 = time.perf_counter()
@@ -59,12 +60,25 @@ def run_stage(args, limited: bool, cwd):
     m = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
     auto = AUTO.search(r.stderr)
     lines = [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith(("\t", "Command"))]
+    try:
+        report = json.loads(r.stdout) if r.returncode == 0 and "--json" in map(str, args) else None
+    except ValueError:
+        report = None
     return (r.returncode == 0, dt, (int(m.group(1)) * 1024 if m else None), (lines[-1] if lines else ""),
-            int(auto.group(1)) if auto else None)
+            int(auto.group(1)) if auto else None, report)
 
 
 SEMI = ["transfer.opacity=[[60, 0.0], [110, 0.02], [170, 0.02], [200, 0.6], [255, 0.6]]",
         "transfer.color=[[60, 0.9, 0.6, 0.5], [170, 0.9, 0.6, 0.5], [200, 1, 1, 0.95]]"]
+
+
+def _aug_format(aug: Path) -> str:
+    """The augmented file's format, as the table's caption names it."""
+    if not aug.exists():
+        return "not written"
+    import h5py
+    with h5py.File(aug, "r") as f:
+        return f"format {int(f.attrs['format_version'])}"
 
 
 def run(out_dir: Path, quick: bool) -> Path:
@@ -74,7 +88,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     npy, aug, idx = work / "head.npy", work / "head.aug.h5", work / "head.idx.h5"
     if not npy.exists():
         _log(f"sample head {n}^3 (not limited)")
-        ok, *_, err, _ = run_stage(["sample", "head", "-o", npy, "--shape", f"{n},{n},{n}", "--force", "-q"], False,
+        ok, *_, err, _, _ = run_stage(["sample", "head", "-o", npy, "--shape", f"{n},{n},{n}", "--force", "-q"], False,
                                    work)
         if not ok:
             raise RuntimeError(f"isplat sample failed: {err}")
@@ -83,7 +97,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     post = [f'data.augmented="{aug}"', f'data.index="{idx}"', "image.width=512", "image.height=512"]
     scene = post + ['render.classification="pre"']
     def render(png, sets, *extra):
-        return ["render", ROOT / "examples/head.toml", "-o", work / png, "--force", *extra,
+        return ["render", ROOT / "examples/head.toml", "-o", work / png, "--force", "--json", *extra,
                 *sum((["--set", s] for s in sets), [])]
     stages = [("augment", ["augment", npy, "-o", aug, "--force", "-q"], True),
               ("index", ["index", aug, "-o", idx, "--force", "-q"], True),
@@ -101,8 +115,8 @@ def run(out_dir: Path, quick: bool) -> Path:
     for name, args, again in stages:
         limited = name != ONE_PASS
         _log(f"{name} (limited to {LIMIT >> 30} GiB)" if limited else f"{name} (not limited)")
-        ok, dt, rss, err, auto = run_stage(args, limited, work)
-        row = [name, ok, dt, rss, err, None, auto]
+        ok, dt, rss, err, auto, report = run_stage(args, limited, work)
+        row = [name, ok, dt, rss, err, None, auto, report]
         if not ok and again:
             _log(f"{name} failed under the limit ({err}); again without it")
             row[5] = run_stage(args, False, work)
@@ -112,21 +126,29 @@ def run(out_dir: Path, quick: bool) -> Path:
     sizes = {p: p.stat().st_size if p.exists() else None for p in (aug, idx)}
     gib = lambda b: f"{b / 2**30:.2f} GiB" if b else "n/a"            # noqa: E731
 
+    def read(report):
+        """Bytes read from the files for the frame, and over the technique's bytes needed (docs/stats.md)."""
+        if not report:
+            return " | "
+        got, need = report["file_bytes_read"], report["bytes_needed"]
+        return f"{got / 2**20:,.0f} MiB | " + (f"{got / need:.2f}" if need else "")
+
     def line(r):
-        name, ok, dt, rss, err, again, auto = r
+        name, ok, dt, rss, err, again, auto, report = r
         shown = name                            # every row about rendering names its technique
         if name.startswith("render") and "post-classified" not in name:
             shown = name + ", pre-classified"
         if name == ONE_PASS:
-            return f"| {shown} | not limited | {dt:.1f} s | {gib(rss)} | {'' if ok else 'fails: `' + err[:160] + '`'} |"
+            return (f"| {shown} | not limited | {dt:.1f} s | {gib(rss)} | {read(report)} | "
+                    f"{'' if ok else 'fails: `' + err[:160] + '`'} |")
         if ok:
             note = f"in {auto} slabs, chosen by itself (the selection does not fit)" if auto else ""
-            return f"| {shown} | ok | {dt:.1f} s | {gib(rss)} | {note} |"
+            return f"| {shown} | ok | {dt:.1f} s | {gib(rss)} | {read(report)} | {note} |"
         note = f"fails: `{err[:160]}`"
         if again:
             note += (f"; without the limit {again[1]:.1f} s, peak RSS {gib(again[2])}" if again[0]
                      else f"; fails without the limit too: `{again[3][:120]}`")
-        return f"| {shown} | **no** | {dt:.1f} s | {gib(rss)} | {note} |"
+        return f"| {shown} | **no** | {dt:.1f} s | {gib(rss)} | {read(None)} | {note} |"
     body = f"""```
 python -m benchmarks outofcore{' --quick' if quick else ''}
 ```
@@ -137,10 +159,12 @@ each stage a process limited to {LIMIT >> 30} GiB of address space (`setrlimit(R
 examples/head.toml at 512 x 512 (bone), and the same with a faint veil of soft tissue over the bone,
 pre-classified (`render.classification = "pre"`, the paper's splatting) and, in the last two rows,
 post-classified (the default: a slab then also holds its slices' channels, density and normals, 3 bytes a
-voxel, which `isplat render` counts when it chooses the slabs).
+voxel, which `isplat render` counts when it chooses the slabs). *Read*: the bytes a render read from the
+augmented file ({_aug_format(aug)}) and the index (`isplat render --json`'s `file_bytes_read`, every slab's
+summed), and that over the technique's bytes needed (`bytes_needed`, docs/stats.md).
 
-| stage | under {LIMIT >> 30} GiB | wall time | peak RSS | note |
-|---|---|---|---|---|
+| stage | under {LIMIT >> 30} GiB | wall time | peak RSS | read | read / needed | note |
+|---|---|---|---|---:|---:|---|
 """ + "\n".join(line(r) for r in rows) + "\n"
     def same(a, b):
         if not all((work / f).exists() for f in (a, b)):

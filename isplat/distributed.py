@@ -178,12 +178,12 @@ def slab_task(request, view, start, stop, et):
 
 def composite_task(front, back, et):
     """``front`` over ``back`` (each a (Partial, LoadReport, seconds)), in visibility order; the seconds
-    add up (worker time spent on the frame)."""
+    add up (worker time spent on the frame), and so do the slabs' reports (bytes read and needed)."""
     from .frame import composite
 
     t0 = time.perf_counter()
     out = composite(front[0], back[0], et)
-    return out, front[1], front[2] + back[2] + time.perf_counter() - t0
+    return out, front[1].plus(back[1]), front[2] + back[2] + time.perf_counter() - t0
 
 
 def finish_task(parts, view):

@@ -86,6 +86,19 @@ class LoadReport:
         self._resolve()
         return self.__dict__
 
+    SUMMED = ("augmented_bytes", "index_bytes", "augmented_file_bytes", "index_file_bytes", "values_bytes",
+              "values_file_bytes", "index_decoded_bytes", "index_block_bytes", "voxels_of_interest",
+              "index_bytes_needed")
+
+    def plus(self, other: "LoadReport") -> "LoadReport":
+        """The report of two slabs of one frame (streamed, or on Dask workers): what each read, requested and
+        needed, added up; the rest (technique, channels, axes, intervals) is the same for every slab."""
+        (axis, n), (axis2, n2) = self._resolve(), other._resolve()
+        out = replace(self, footprint=None, _needed=(axis or axis2, n + n2))
+        for name in self.SUMMED:
+            setattr(out, name, getattr(self, name) + getattr(other, name))
+        return out
+
     @property
     def channel_bytes_needed(self) -> int:
         return self.needed_voxels * self.channel_bytes_per_voxel

@@ -175,7 +175,8 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
     slabs front to back, each slab's selection made (:func:`isplat.selection.select` of the request for the
     slab's slices), rendered over the partial image of the slabs in front and dropped: the one-pass frame
     exactly (same image and counters, early termination included), holding one slab's selection at a time.
-    Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs: bytes read added up).
+    Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs: bytes read, requested and needed
+    added up, :meth:`isplat.selection.LoadReport.plus`).
 
     Each slab reads and decodes only its slices' index blocks. What is still whole: the full method's channels
     (read once, kept for every slab); for the i and j axes each slab's channel values are gathered from every
@@ -196,21 +197,24 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
         from .index import open_index
 
         idx = open_index(request.index)
+    opened = idx.io.bytes if idx is not None else 0        # (each slab counts its own reads of the index)
     axis = view.axis_sign[0]
     part = report = whole = None
     for a, b in slab_bounds(len(view.order), n_slabs):
-        start = aug.bytes_read
         if whole is not None:          # the full method reads whole channels: once, for every slab
             sel = whole
         else:
             runs = tuple(slice_runs(view.order[a:b], 1 << 62))
+            start = (aug.bytes_read, aug.io.bytes)      # ``aug`` counts from its opening: this slab's share
             sel = select(dataclasses.replace(request, axes=axis, slab=runs), aug, idx)
-            whole = sel if sel.method == "full" else None
-        if report is None:             # (the first slab's figures; its footprint counted now, so that the
-            sel.report.needed_voxels   # report does not keep that slab's density alive: docs/stats.md)
-            report = dataclasses.replace(sel.report, augmented_bytes=0, index_bytes=0)
-        report.augmented_bytes += int(aug.bytes_read - start)
-        report.index_bytes += sel.report.index_bytes
+            sel.report.augmented_bytes = int(aug.bytes_read - start[0])
+            sel.report.augmented_file_bytes = int(aug.io.bytes - start[1])
+            if report is None:         # (the files' openings, counted once, with the first slab)
+                sel.report.augmented_bytes += int(start[0])
+                sel.report.augmented_file_bytes += int(start[1])
+                sel.report.index_file_bytes += int(opened)
+            report = sel.report if report is None else report.plus(sel.report)   # each slab's footprint counted
+            whole = sel if sel.method == "full" else None                          # now, its density dropped
         setup = prepare(sel, view, et)
         part = blank(setup) if part is None else part
         render_slab(setup, a, b, part)

@@ -106,8 +106,10 @@ def test_a_frame_split_into_slabs_on_workers_is_the_one_process_frame(files, cli
         sel = Renderer(scene).selection
         whole = F.render_slab(F.prepare(sel, view))
         fut = D.submit_slabs(client, D.request_for(scene, [view]), view, n_slabs, None, f"t{n_slabs}-{et}")
-        part, _, _ = fut.result()
+        part, report, _ = fut.result()
         assert np.abs(part.img - whole.img).max() <= tol
+        assert report.voxels_of_interest == sel.report.voxels_of_interest      # the slabs' reports added up
+        assert report.file_bytes > 0 and report.needed_voxels >= sel.report.needed_voxels
         assert part.band_stats[:, 2].sum() >= whole.band_stats[:, 2].sum()
         if et == 1.0:
             assert part.band_stats[:, 2].sum() == whole.band_stats[:, 2].sum()   # every voxel splatted once

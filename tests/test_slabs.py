@@ -7,6 +7,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from conftest import write_volume
 from isplat import frame as F
 from isplat import grid
+from isplat.augfile import open_augmented
 from isplat.errors import IsplatError
 from isplat.selection import Selection, select_from_files
 from isplat.slabs import restrict, slice_runs
@@ -155,6 +156,12 @@ def test_a_frame_streamed_slab_by_slab_is_the_one_pass_frame(make_scene, volume,
         assert report.index_bytes >= r.report.index_block_bytes and report.axes == r.report.axes  # blocks, each slab
         if method == "full":
             assert report.augmented_bytes == r.report.augmented_bytes          # whole channels read once
+        else:                                                   # each slab's reads and needs, added up
+            assert report.voxels_of_interest == r.report.voxels_of_interest, k
+            assert report.needed_voxels >= r.report.needed_voxels, k
+        aug = open_augmented(sc.data.augmented)
+        report = render_streamed(r.request, r.views[0], k, aug)[2]
+        assert report.augmented_file_bytes == aug.io.bytes, k      # every slab's reads, the opening once
 
 
 def test_cli_slabs_without_a_scheduler_stream_the_same_image(volume, tmp_path):

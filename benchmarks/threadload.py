@@ -58,8 +58,9 @@ def _pair(rs, views, bands):
 
 def pin_threads() -> None:
     """Pin this process's calling thread to core 1 and the 2-thread pool's threads to cores 0 and 1 (by their
-    names' numbers), so that with ``BusyCore(cpu=0)`` one rendering thread shares its core with the busy
-    process and the one-thread frame has a core of its own: a thread slowed by another process, every time."""
+    names' numbers; a version of isplat whose calling thread renders beside a pool of one: that thread to core
+    0), so that with ``BusyCore(cpu=0)`` one rendering thread shares its core with the busy process and the
+    one-thread frame has a core of its own: a thread slowed by another process, every time."""
     import os
     import threading
 
@@ -69,8 +70,10 @@ def pin_threads() -> None:
     gate = threading.Barrier(2)
 
     def pin(_):
-        gate.wait()                     # both pool threads take one item each
-        os.sched_setaffinity(0, {int(threading.current_thread().name.rsplit("_", 1)[1]) % 2})
+        gate.wait()                     # both rendering threads take one item each
+        name = threading.current_thread().name
+        if name.startswith("isplat"):   # a pool's thread (the calling thread stays on core 1)
+            os.sched_setaffinity(0, {int(name.rsplit("_", 1)[1]) % 2})
     run_parallel(pin, [0, 1], 2)
 
 

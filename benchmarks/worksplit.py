@@ -85,7 +85,10 @@ def cpu_frame(r, view) -> dict:
     times hold where wall times do not)."""
     from isplat import frame as F
 
-    parts, orig, overlapped = [], F.run_parallel, []
+    import threading
+
+    parts, orig, overlapped, here = [], F.run_parallel, [], []
+    caller = threading.get_ident()
 
     def timed(fn, items, threads, meanwhile=None):
         part = []
@@ -95,6 +98,8 @@ def cpu_frame(r, view) -> dict:
             t = time.thread_time()
             out = fn(x)
             part.append(time.thread_time() - t)
+            if threading.get_ident() == caller:     # counted in the calling thread's time too
+                here.append(part[-1])
             return out
 
         def aside():                # learning the bands of the frame before, while the threads render
@@ -111,9 +116,10 @@ def cpu_frame(r, view) -> dict:
     finally:
         F.run_parallel = orig
     inline = view.render.threads <= 1                 # one thread: the parallel parts ran in this thread
-    # the calling thread's work while the threads render is not serial (with one thread it is: it runs after)
+    # the calling thread's work while the threads render is not serial (with one thread it is: it runs after);
+    # the items it rendered itself (all of them on one thread) are the parallel parts'
     aside = 0.0 if inline else sum(overlapped)
-    return dict(wall=wall, serial=main - aside - (sum(map(sum, parts)) if inline else 0.0), threads=parts[0],
+    return dict(wall=wall, serial=main - aside - sum(here), threads=parts[0],
                 rest=sum(map(sum, parts[1:])), rest_busiest=sum(max(p, default=0.0) for p in parts[1:]))
 
 

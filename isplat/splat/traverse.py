@@ -426,10 +426,9 @@ def pixels_saturated(sat, x0, x1, y0, y1):
 def bin_regions(order, vox, geo, ex, ey, rows, img_w):
     """Per frame, before any slice: for every band (``rows``: image rows ``[y0, y1)``, whole tiles, tiling the
     image's rows from 0) the regions of each slice of ``order`` whose footprints can reach its rows; the
-    occlusion tests then run per band on only those. Returns :data:`Bins`' ``(ptr, regions)``: two passes,
-    the first counts the regions per band and slice into ``ptr``, the second puts them at
-    ``regions[pos[...]]``. (One function: a stage called with ``fill`` False and True would be compiled twice,
-    for each literal.)"""
+    occlusion tests then run per band on only those. Returns :data:`Bins`' ``(ptr, regions)``: the first pass
+    finds each region's first and last band (its box, once) and counts the regions per band and slice into
+    ``ptr``, the second puts them at ``regions[pos[...]]``."""
     nbands = rows.shape[0]
     img_h = rows[nbands - 1, 1]
     of_tile = np.empty((img_h + TILE - 1) // TILE, dtype=np.int64)      # tile row -> its band
@@ -442,34 +441,43 @@ def bin_regions(order, vox, geo, ex, ey, rows, img_w):
     nra = (vox.n_a + REGION - 1) // REGION
     cs = np.empty(max(geo.cuts.shape[0], 1), dtype=np.float64)
     ptr = np.zeros((nbands, order.shape[0] + 1), dtype=np.int64)
-    pos = ptr
-    regions = np.empty(0, dtype=np.int64)
-    for fill in range(2):
-        if fill:
-            start = 0
-            for bi in range(nbands):            # counts -> offsets, band after band
-                for oi in range(order.shape[0] + 1):
-                    ptr[bi, oi], start = start, start + ptr[bi, oi]
-            regions = np.empty(start, dtype=np.int64)
-            pos = ptr.copy()
-        for oi in range(order.shape[0]):
-            c = order[oi]
-            base = slice_bases(c, geo, cs)
-            for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
-                a0 = (vox.region_id[g] % nra) * REGION
-                b0 = (vox.region_id[g] // nra) * REGION
-                ok, box = _rect_box(a0, min(a0 + REGION, vox.n_a) - 1, b0, min(b0 + REGION, vox.n_b) - 1, base,
-                                    geo.coef, geo.persp, ex, ey)
-                if ok and (box[1] < 0 or box[0] > img_w - 1 or box[3] < 0 or box[2] > img_h - 1):
-                    continue
+    n_regions = 0
+    for oi in range(order.shape[0]):
+        n_regions += vox.slice_ptr[order[oi] + 1] - vox.slice_ptr[order[oi]]
+    span = np.empty((n_regions, 2), dtype=np.int32)     # per region in the order's sequence: first, last band
+    k = 0
+    for oi in range(order.shape[0]):
+        c = order[oi]
+        base = slice_bases(c, geo, cs)
+        for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
+            a0 = (vox.region_id[g] % nra) * REGION
+            b0 = (vox.region_id[g] // nra) * REGION
+            ok, box = _rect_box(a0, min(a0 + REGION, vox.n_a) - 1, b0, min(b0 + REGION, vox.n_b) - 1, base,
+                                geo.coef, geo.persp, ex, ey)
+            if ok and (box[1] < 0 or box[0] > img_w - 1 or box[3] < 0 or box[2] > img_h - 1):
+                first, last = 0, -1                     # off the image: in no band
+            else:
                 first = of_tile[max(box[2], 0) // TILE] if ok else 0
                 last = of_tile[min(box[3], img_h - 1) // TILE] if ok else nbands - 1
-                for bi in range(first, last + 1):
-                    if fill:
-                        regions[pos[bi, oi]] = g
-                        pos[bi, oi] += 1
-                    else:
-                        ptr[bi, oi] += 1
+            span[k, 0] = first
+            span[k, 1] = last
+            k += 1
+            for bi in range(first, last + 1):
+                ptr[bi, oi] += 1
+    start = 0
+    for bi in range(nbands):            # counts -> offsets, band after band
+        for oi in range(order.shape[0] + 1):
+            ptr[bi, oi], start = start, start + ptr[bi, oi]
+    regions = np.empty(start, dtype=np.int64)
+    pos = ptr.copy()
+    k = 0
+    for oi in range(order.shape[0]):
+        c = order[oi]
+        for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
+            for bi in range(span[k, 0], span[k, 1] + 1):
+                regions[pos[bi, oi]] = g
+                pos[bi, oi] += 1
+            k += 1
     return ptr, regions
 
 

@@ -579,8 +579,9 @@ def post_bricks(sel: Selection, bricks) -> np.ndarray:
         lo_a, hi_a = np.maximum(a0 - back, 0), np.minimum(a0 + ahead, s.n_a - 1)
         lo_b, hi_b = np.maximum(b0 - back, 0), np.minimum(b0 + ahead, s.n_b - 1)
         ka, kb, kc = {"k": (2, 1, 0), "j": (2, 0, 1), "i": (1, 0, 2)}[ax]   # (k, j, i) dims of a, b, c
-        for a in (lo_a, hi_a):
-            for b in (lo_b, hi_b):
+        ea, eb = int(bricks[ka]), int(bricks[kb])   # every brick the reach crosses: 3 of 4^3 bricks, 2 of 8^3
+        for a in [np.minimum(lo_a + m * ea, hi_a) for m in range(-(-(back + ahead) // ea) + 1)]:
+            for b in [np.minimum(lo_b + m * eb, hi_b) for m in range(-(-(back + ahead) // eb) + 1)]:
                 idx = [None, None, None]
                 idx[ka], idx[kb], idx[kc] = a // bricks[ka], b // bricks[kb], c // bricks[kc]
                 out[tuple(idx)] = True

@@ -159,6 +159,9 @@ class AugmentedVolume:
         nb, size = int(np.prod(grid)), e ** 3 * np.dtype(dt).itemsize
         rows = np.ravel_multi_index(tuple(bricks.T), grid)
         mm = np.memmap(self.path, dtype=np.uint8, mode="r")
+        if mm.size < max(d_off + nb * size, h_off + nb * 8):          # (checked at open; the file may have changed)
+            raise IsplatError(f"{self.path}: dataset '{channel}': the file is {mm.size} bytes, shorter than its "
+                              f"bricks and hashes (changed since it was opened?); rebuild it: {self.verifier.rebuild}")
         table = mm[d_off:d_off + nb * size].reshape(nb, size)
         layer = grid[1] * grid[2]
         whole = bool(rows[0] % layer == 0 and n % layer == 0 and rows[-1] - rows[0] == n - 1 and
@@ -186,7 +189,7 @@ class AugmentedVolume:
             if b > a:
                 out[a - lo[0]:b - lo[0]] = block[a - k0:b - k0]
         else:
-            chunkhash.place_bricks(out, vals, offs, ext, tuple(int(x) for x in lo))
+            brickstore.place_bricks(out, vals, offs, ext, np.asarray(lo, dtype=np.int64))
         return int(np.prod(ext, axis=1).sum()), mm_
 
     def _bulk(self, channel: str, n: int) -> bool:

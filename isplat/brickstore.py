@@ -100,3 +100,20 @@ def from_bricks(data: np.ndarray, grid, shape) -> np.ndarray:
     e = data.shape[1]
     whole = data.reshape(tuple(grid) + (e, e, e)).transpose(0, 3, 1, 4, 2, 5).reshape([g * e for g in grid])
     return whole[:shape[0], :shape[1], :shape[2]]
+
+
+@numba.njit(cache=True, nogil=True)
+def place_bricks(out: np.ndarray, data: np.ndarray, offs: np.ndarray, ext: np.ndarray, lo: np.ndarray) -> None:
+    """Write bricks ``data`` [n, e, e, e] (brick ``r``'s first voxel at ``offs[r]`` (k, j, i), its part inside
+    the volume ``ext[r]``) into ``out``, the block of the volume from voxel ``lo``: each brick clipped to the block
+    here (every index written lies inside ``out`` by construction, whatever ``offs``)."""
+    n0, n1, n2 = out.shape
+    for r in range(data.shape[0]):
+        o0, o1, o2 = offs[r, 0] - lo[0], offs[r, 1] - lo[1], offs[r, 2] - lo[2]
+        z0, z1 = max(0, -o0), min(ext[r, 0], n0 - o0)
+        y0, y1 = max(0, -o1), min(ext[r, 1], n1 - o1)
+        x0, x1 = max(0, -o2), min(ext[r, 2], n2 - o2)
+        for z in range(z0, z1):
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    out[o0 + z, o1 + y, o2 + x] = data[r, z, y, x]

@@ -201,28 +201,29 @@ def test_an_edited_brick_is_refused_not_rendered(make_scene, files, tmp_path):
     a = open_augmented(aug)
     e = a.edge
     row = np.ravel_multi_index((15 // e, 17 // e, 31 // e), a.brick_range.shape[:3])
-    at = a.store["density"][0] + row * e ** 3 + (15 % e) * e * e + (17 % e) * e + 31 % e
+    start = a.store["density"][0] + row * e ** 3                   # brick `row`; the one before it is copied over it
+    at = start + (15 % e) * e * e + (17 % e) * e + 31 % e
     raw = bytearray(aug.read_bytes())
     assert raw[at] == a.read("density")[15, 17, 31] and raw[at] > 0
+    corner = r"\(" + ", ".join(str(x // e * e) for x in (15, 17, 31)) + r"\)"
     for what, edit in (("byte", lambda b: b.__setitem__(at, b[at] ^ 0x10)),
-                       ("moved", lambda b: b.__setitem__(slice(at - 31 % e, at - 31 % e + e ** 3),
-                                                         b[at - 31 % e - e ** 3:at - 31 % e]))):
+                       ("moved", lambda b: b.__setitem__(slice(start, start + e ** 3), b[start - e ** 3:start]))):
         bad = tmp_path / f"{what}.aug.h5"
         b = bytearray(raw)
         edit(b)
         bad.write_bytes(b)
-        with pytest.raises(IsplatError, match=rf"{what}\.aug\.h5: dataset 'density', brick {row} at \(12, 16, 28\): its "
+        with pytest.raises(IsplatError, match=rf"{what}\.aug\.h5: dataset 'density', brick {row} at {corner}: its "
                                               rf"content does not match its hash in /brick_hashes/density .*rebuild"):
             Renderer(_scene(make_scene, bad, idx, *CAMS[0], True)).render_view(0)
     ranged = _copy(aug, tmp_path / "ranged.aug.h5")    # the range table edited, hashes recomputed
     with h5py.File(ranged, "a") as f:
-        f["brick_range"][3, 4, 7, 0] = 1
+        f["brick_range"][15 // e, 17 // e, 31 // e, 0] = 1
         del f["chunk_hashes"]
         del f.attrs["chunk_hash_check"]
         ds = hashed_datasets(False, 6)
         chunkhash.write_tables(f, a.density_sha256, ds, chunkhash.attributes_of(f, hashed_attributes(6)),
                                tables=["brick_range"])
-    with pytest.raises(IsplatError, match=r"brick at \(12, 16, 28\): densities .* /brick_range says 1\.\."):
+    with pytest.raises(IsplatError, match=rf"brick at {corner}: densities .* /brick_range says 1\.\."):
         Renderer(_scene(make_scene, ranged, idx, *CAMS[0], True)).render_view(0)
 
 

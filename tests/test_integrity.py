@@ -326,7 +326,9 @@ def test_an_edit_that_recomputes_the_hashes_is_not_caught(head):
     original = path.read_bytes()
     try:
         with h5py.File(path, "r+") as f:
-            f["gradient_magnitude"][3, 4, 5] = (int(f["gradient_magnitude"][3, 4, 5]) + 7) % 256
+            ds = f["gradient_magnitude"]          # (format 6: brick 0's voxel (3, 4, 5); formats/augmented.md §2.3)
+            at = (3, 4, 5) if ds.ndim == 3 else (0, 3, 4, 5)
+            ds[at] = (int(ds[at]) + 7) % 256
         assert R.run_render(head["full"], head["folder"] / "edited")[0] == 2
         R.rehash(path)
         code, _, images = R.run_render(head["full"], head["folder"] / "edited")

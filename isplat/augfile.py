@@ -1,4 +1,4 @@
-"""The augmented-volume container (formats/augmented.md), version 4 (version 3, without labels, read too).
+"""The augmented-volume container (formats/augmented.md), version 6 (versions 5, 4 and 3 read too).
 
 Three datasets of one shape ``(n_k, n_j, n_i)``, C order, i fastest (the paper's ``ind = i + j * n_i``):
 
@@ -11,6 +11,9 @@ and, OPTIONAL since version 4, ``labels`` (uint8 or uint16, a segmentation's lab
 augmented voxel, stored as three channels so that a scene reads
 only the channels it uses (no normals when shading is off, no magnitudes when the transfer function
 ignores them).
+
+Since version 6 each channel is stored as its bricks (``[n_bricks, e, e, e]``, contiguous, brick order) with a
+64-bit hash per brick (:mod:`isplat.brickstore`, formats/augmented.md §2.3); readers see the same arrays.
 """
 
 from __future__ import annotations
@@ -31,9 +34,9 @@ from .orientation import check_axes_lps
 
 FORMAT_NAME = "isplat-augmented"
 FORMAT_VERSION = 6              # version 6: isplat's own brick store + /brick_hashes (formats/augmented.md §2.3)
-CHUNK_BRICKS_VERSION = 5        # version 5: channels in 8^3 bricks as HDF5 chunks + /brick_range (§2.2)
-ROWS_VERSION = 4                # what `isplat augment` writes without --bricks: chunks of whole rows (docs/design.md)
-OLDER_VERSIONS = (5, 4, 3)      # 4: + the optional label channel (§2.1); 3: + /chunk_hashes (§1.1); read whole
+ROWS_VERSION = 4                # what `isplat augment --rows` writes: chunks of whole rows (docs/design.md)
+OLDER_VERSIONS = (5, 4, 3)      # 5: 8^3 bricks as HDF5 chunks (§2.2), read brick by brick; 4: + the optional label
+                                # channel (§2.1); 3: + /chunk_hashes (§1.1); 4 and 3 read whole
 BRICK = (8, 8, 8)               # (k, j, i) voxels of a brick: the channels' HDF5 chunk (version 5)
 BRICK_EDGES = (4, 8)            # version 6: the brick edges a file may have (attribute brick_edge)
 BRICK_EDGE = 8                  # version 6: the edge `isplat augment` writes (docs/design.md, "Bricked channels")

@@ -559,7 +559,7 @@ def _reads_bricks(sel: Selection, aug) -> bool:
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every cell's slice and first voxel ``(c, a0, b0)`` (int64, the hierarchy's order): the walk of
     :func:`isplat.splat.select.cell_origins`, which also checks the cell table."""
-    from .splat.select import cell_origins as walk
+    from .splat.select import cell_origins_py as walk
 
     c, a0, b0, _ = walk(s.slice_ptr, s.region_id, s.region_ptr, s.block_pos, s.block_ptr, s.block_voxel,
                         s.cell_pos, s.cell_count, s.n_a)

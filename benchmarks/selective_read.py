@@ -17,7 +17,8 @@ intervals). *Load*: constructing the :class:`isplat.renderer.Renderer` (open bot
 rounds after a warm-up round. *Held*: ``Renderer.held_bytes()`` over the voxels of interest.
 
 Post is measured twice (issue 26, old against new, interleaved with pre in one run): from the augmented file of
-format 5 (channels in 8^3 bricks: post reads the bricks its quads touch) and from the same volume written as
+format 6 (channels in 8^3 bricks of isplat's own store: post reads the bricks its quads touch) and from the same
+volume written as
 format 4 (``isplat.augfile.write_augmented(..., version=4)``: chunks of whole rows, read as whole channels).
 """
 
@@ -35,7 +36,7 @@ from . import _doc
 
 TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
 VARIANTS = {"pre": "pre", "post": "post", "post-v4": "post"}   # rows: post from bricks, and from a version-4 file
-LABELS = {"pre": "pre", "post": "post (format 5: bricks)", "post-v4": "post (format 4: whole channels)"}
+LABELS = {"pre": "pre", "post": "post (format 6: bricks)", "post-v4": "post (format 4: whole channels)"}
 SOURCES = _doc.sources(_doc.READ, _doc.AUGMENT, _doc.SAMPLES, _doc.RENDER, ("isplat/stats.py",
                        "benchmarks/paper.py", "benchmarks/selective_read.py"))
 
@@ -113,18 +114,25 @@ def cases(work: Path, quick: bool) -> list[dict]:
 
 def as_version4(aug: Path, out: Path) -> Path:
     """``aug`` written again as an augmented file of format 4 (chunks of whole rows), k-slab by k-slab."""
-    from isplat.augfile import (HASHED_ATTRIBUTES, create_augmented, finish_augmented, open_augmented)
+    return as_version(aug, out, 4)
+
+
+def as_version(aug: Path, out: Path, version: int, edge: int | None = None) -> Path:
+    """``aug`` written again as an augmented file of ``version`` (6: bricks of ``edge``), k-slab by k-slab."""
+    from isplat.augfile import (BRICK_EDGE, HASHED_ATTRIBUTES, ChannelWriter, create_augmented, finish_augmented,
+                                open_augmented)
     from isplat.fileio import create_hdf5
 
     a = open_augmented(aug)
     keep = {n: a.attrs[n] for _, n in HASHED_ATTRIBUTES[7:] if n in a.attrs and n != "labels_sha256"}
     with create_hdf5(out) as f:
         create_augmented(f, a.shape, a.spacing_ijk, a.density_window, a.gradient_magnitude_scale,
-                         a.density_sha256, keep, version=4)
+                         a.density_sha256, keep, version=version, edge=edge or BRICK_EDGE)
+        w = ChannelWriter(f)
         step = max(8, (1 << 24) // max(1, a.shape[1] * a.shape[2]) // 8 * 8)
         for k0 in range(0, a.shape[0], step):
             for ch in ("density", "gradient_magnitude", "normal"):
-                f[ch][k0:k0 + step] = a.read(ch, k0, k0 + step)
+                w.write(ch, k0, min(a.shape[0], k0 + step), a.read(ch, k0, k0 + step))
         finish_augmented(f)
     return out
 
@@ -270,16 +278,16 @@ def _explanation(repeats: int) -> list[str]:
         "magnitudes, when the transfer function uses them) from the index's values file (`NAME.values.idx.h5`, "
         "index format 6), one row range per interval. Only the voxels of interest are read; *read* includes the "
         "values file's opening.",
-        "- **post (format 5: bricks)** (the default technique, post-classification, from a file written by "
-        "`isplat augment --bricks`): the same index blocks, and of the "
+        "- **post (format 6: bricks)** (the default technique, post-classification, from a file written by "
+        "`isplat augment`): the same index blocks, and of the "
         "channels it samples (the density, and when shaded the normal and the gradient magnitude) only the 8^3 "
         "bricks its quads can read: for each 4 x 4 cell of interest of the index, its quads, their in-slice "
         "neighbours and the cubic's taps between thick slices, in the cell's slice (each brick checked against "
-        "its chunk hash, the density's against `/brick_range`). Whole channels when more than "
+        "its brick hash, the density's against `/brick_range`). Whole channels when more than "
         "`isplat.selection.BRICK_SHARE` of the bricks are needed.",
         "- **post (format 4: whole channels)**: the same volume written as format 4 (chunks of whole rows, the layout "
-        "`isplat augment` writes by default): the "
-        "whole channels, as before format 5 (4 B per voxel of the volume when shaded). Post never reads the "
+        "`isplat augment --rows` writes): the "
+        "whole channels (4 B per voxel of the volume when shaded). Post never reads the "
         "values file.",
         "",
         "*Needed* is each technique's own ([stats.md](stats.md#bytes-needed-per-technique)): pre, the voxels of "
@@ -311,7 +319,7 @@ def _table(rows) -> list[str]:
 
 def _old_new(rows) -> list[str]:
     """Post from bricks against post from whole channels, per case: bytes read, load and frame time."""
-    L = ["Post, format 5 (bricks) against format 4 (whole channels), the same volume and scene, interleaved: "
+    L = ["Post, format 6 (bricks) against format 4 (whole channels), the same volume and scene, interleaved: "
          "bytes read from the augmented file, held, load and frame time (medians), and the ratios new / old.", "",
          "| case | channel values from | augmented read, new / old (MB) | read / needed, new / old | held per voxel "
          "of interest, new / old (B) | load new / old (ms) | load ratio | frame new / old (ms) | frame ratio |",

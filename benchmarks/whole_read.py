@@ -1,5 +1,6 @@
-"""Whole reads of an augmented file, format 5 (8^3 bricks) against the same volume as format 4 (chunks of whole
-rows): ``python -m benchmarks.whole_read [--shape NI,NJ,NK] [--repeats N]`` prints a table (not a docs page).
+"""Whole reads of an augmented file, format 6 (isplat's brick store) and format 5 (8^3 bricks as HDF5 chunks)
+against the same volume as format 4 (chunks of whole rows): ``python -m benchmarks.whole_read [--shape NI,NJ,NK]
+[--repeats N]`` prints a table (not a docs page).
 
 Per format, interleaved in rotating order after a warm-up round (page cache warm), median of ``--repeats``:
 *read*: the three channels read whole (``AugmentedVolume.read``, every chunk checked); *stats*: ``isplat stats``'s
@@ -53,7 +54,7 @@ def measure(files: dict, repeats: int) -> dict:
 
 
 def main(argv=None) -> int:
-    from .selective_read import as_version4, augment_sample
+    from .selective_read import as_version, augment_sample
 
     ap = argparse.ArgumentParser(prog="python -m benchmarks.whole_read", description=__doc__)
     ap.add_argument("--shape", default="256,256,225", help="the head sample's shape NI,NJ,NK")
@@ -61,14 +62,17 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     shape = tuple(int(x) for x in a.shape.split(","))
     with tempfile.TemporaryDirectory() as d:
-        v5 = augment_sample("head", shape, Path(d) / "v5.aug.h5")
-        files = {"format 5": v5, "format 4": as_version4(v5, Path(d) / "v4.aug.h5")}
+        v6 = augment_sample("head", shape, Path(d) / "v6.aug.h5")
+        files = {"format 6": v6, "format 5": as_version(v6, Path(d) / "v5.aug.h5", 5),
+                 "format 4": as_version(v6, Path(d) / "v4.aug.h5", 4)}
         times = measure(files, a.repeats)
-    print(f"head sample {shape}, median of {a.repeats} (s); ratio = format 5 / format 4")
-    print("| task | format 4 | format 5 | ratio |\n|---|---|---|---|")
+    print(f"head sample {shape}, median of {a.repeats} (s); ratios: median of the rounds' format N / format 4")
+    print("| task | format 4 | format 5 | format 6 | 5 / 4 | 6 / 4 |\n|---|---|---|---|---|---|")
     for task in TASKS:
-        old, new = (statistics.median(times[(task, v)]) for v in ("format 4", "format 5"))
-        print(f"| {task} | {old:.3f} | {new:.3f} | {new / old:.2f} |")
+        t = {v: statistics.median(times[(task, v)]) for v in files}
+        r = {v: statistics.median(x / y for x, y in zip(times[(task, v)], times[(task, "format 4")])) for v in files}
+        print(f"| {task} | {t['format 4']:.3f} | {t['format 5']:.3f} | {t['format 6']:.3f} | {r['format 5']:.2f} | "
+              f"{r['format 6']:.2f} |")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""The augmented-volume container (formats/augmented.md), version 4 (version 3, without labels, read too).
+"""The augmented-volume container (formats/augmented.md), version 6 (versions 5, 4 and 3 read too).
 
 Three datasets of one shape ``(n_k, n_j, n_i)``, C order, i fastest (the paper's ``ind = i + j * n_i``):
 
@@ -11,6 +11,9 @@ and, OPTIONAL since version 4, ``labels`` (uint8 or uint16, a segmentation's lab
 augmented voxel, stored as three channels so that a scene reads
 only the channels it uses (no normals when shading is off, no magnitudes when the transfer function
 ignores them).
+
+Since version 6 each channel is stored as its bricks (``[n_bricks, e, e, e]``, contiguous, brick order) with a
+64-bit hash per brick (:mod:`isplat.brickstore`, formats/augmented.md §2.3); readers see the same arrays.
 """
 
 from __future__ import annotations
@@ -30,10 +33,14 @@ from .fileio import (ReadCounter, attr_array, attr_string, check_checked_dataset
 from .orientation import check_axes_lps
 
 FORMAT_NAME = "isplat-augmented"
-FORMAT_VERSION = 5              # version 5: channels in 8^3 bricks + /brick_range (formats/augmented.md §2.2)
-ROWS_VERSION = 4                # what `isplat augment` writes without --bricks: chunks of whole rows (docs/design.md)
-OLDER_VERSIONS = (4, 3)         # 4: + the optional label channel (§2.1); 3: + /chunk_hashes (§1.1); read whole
+FORMAT_VERSION = 6              # version 6: isplat's own brick store + /brick_hashes (formats/augmented.md §2.3)
+ROWS_VERSION = 4                # what `isplat augment --rows` writes: chunks of whole rows (docs/design.md)
+OLDER_VERSIONS = (5, 4, 3)      # 5: 8^3 bricks as HDF5 chunks (§2.2), read brick by brick; 4: + the optional label
+                                # channel (§2.1); 3: + /chunk_hashes (§1.1); 4 and 3 read whole
 BRICK = (8, 8, 8)               # (k, j, i) voxels of a brick: the channels' HDF5 chunk (version 5)
+BRICK_EDGES = (4, 8)            # version 6: the brick edges a file may have (attribute brick_edge)
+BRICK_EDGE = 8                  # version 6: the edge `isplat augment` writes (docs/design.md, "Bricked channels")
+BRICK_HASHES = "brick_hashes"   # version 6: group of uint64[n_bricks] tables, one per stored channel
 BRICK_RANGE = "brick_range"     # uint8[gk, gj, gi, 2]: each brick's smallest and largest density code
 LABELS = "labels"
 LABEL_VOXELS = "label_voxels"
@@ -46,6 +53,11 @@ HASHED_ATTRIBUTES = tuple(("", n) for n in (
     "format", "format_version", "shape", "spacing_ijk", "density_window", "gradient_magnitude_scale", "density_sha256",
     "source", "source_format", "source_dtype", "density_window_method", "density_units",
     "density_clipped_fraction", "axes_lps", "labels_sha256"))
+
+
+def hashed_attributes(version: int) -> tuple:
+    """The attributes the file key covers: version 6 adds ``brick_edge`` (formats/augmented.md §1.1)."""
+    return HASHED_ATTRIBUTES + ((("", "brick_edge"),) if version >= 6 else ())
 
 
 def labels_sha256(labels: np.ndarray) -> str:
@@ -87,17 +99,19 @@ class AugmentedVolume:
     verifier: object = None                      # isplat.chunkhash.Verifier: checks each chunk read
     label_voxels: np.ndarray | None = None       # int64[L + 1]: voxels per label id; None: the file has no labels
     format_version: int = FORMAT_VERSION
-    brick_range: np.ndarray | None = None         # version 5: uint8[gk, gj, gi, 2]; None: channels read whole
+    brick_range: np.ndarray | None = None         # version 5, 6: uint8[gk, gj, gi, 2]; None: channels read whole
+    store: dict | None = None                     # version 6: channel -> (data offset, hash offset, dtype, seed)
+    edge: int = 0                                 # version 6: the brick edge
 
     @property
     def bricked(self) -> bool:
-        """True when the channels are stored in bricks (version 5) and can be read brick by brick."""
+        """True when the channels are stored in bricks (version 5 or 6) and can be read brick by brick."""
         return self.brick_range is not None
 
     @property
     def bricks(self) -> tuple:
-        """The brick shape (k, j, i) of a version-5 file."""
-        return brick_chunks(self.shape)
+        """The brick shape (k, j, i) of a version-5 or -6 file."""
+        return (self.edge,) * 3 if self.store is not None else brick_chunks(self.shape)
 
     def read_bricks(self, channel: str, bricks: np.ndarray, box=None) -> np.ndarray:
         """The whole ``channel`` (shape ``shape``) holding only the bricks whose grid indices are the rows of
@@ -119,8 +133,11 @@ class AugmentedVolume:
     def _read_into(self, f, channel: str, bricks: np.ndarray, out: np.ndarray, lo, bulk: bool = False) -> int:
         """Bricks ``bricks`` of ``channel`` into ``out`` (the block from element ``lo``), each checked against its
         chunk hash and, for the density, against ``brick_range``; returns the elements read."""
-        n, mm = self.verifier.read_bricks_direct(f, channel, bricks, out, tuple(int(x) for x in lo), minmax=True,
-                                                 bulk=bulk)
+        if self.store is not None:
+            n, mm = self._read_store(channel, bricks, out, lo)
+        else:
+            n, mm = self.verifier.read_bricks_direct(f, channel, bricks, out, tuple(int(x) for x in lo),
+                                                     minmax=True, bulk=bulk)
         if channel == "density" and bricks.shape[0]:
             want = self.brick_range[tuple(bricks.T)]
             bad = np.flatnonzero(np.any(mm != want, axis=1))
@@ -128,11 +145,61 @@ class AugmentedVolume:
                 self._range_error(bricks[bad[0]], mm[bad[0]], want[bad[0]])
         return n
 
+    def _read_store(self, channel: str, bricks: np.ndarray, out: np.ndarray, lo):
+        """Version 6: bricks ``bricks`` (grid indices) of ``channel`` from the brick store into ``out`` (the block
+        from element ``lo``): gathered from a memory map of the file (offsets checked at open), their hashes
+        checked in one compiled call, placed (whole layers by one transpose); returns the elements read and, for
+        the density, each brick's (min, max) within the volume."""
+        from . import brickstore
+
+        e, n = self.edge, bricks.shape[0]
+        grid = tuple(-(-s // e) for s in self.shape)
+        if n == 0:
+            return 0, np.zeros((0, 2), np.uint8)
+        if bricks.min() < 0 or np.any(bricks.max(axis=0) >= np.asarray(grid)):
+            raise IsplatError(f"{self.path}: dataset '{channel}': a brick outside its grid {grid} was asked for")
+        d_off, h_off, dt, seed = self.store[channel]
+        nb, size = int(np.prod(grid)), e ** 3 * np.dtype(dt).itemsize
+        rows = np.ravel_multi_index(tuple(bricks.T), grid)
+        mm = np.memmap(self.path, dtype=np.uint8, mode="r")
+        if mm.size < max(d_off + nb * size, h_off + nb * 8):          # (checked at open; the file may have changed)
+            raise IsplatError(f"{self.path}: dataset '{channel}': the file is {mm.size} bytes, shorter than its "
+                              f"bricks and hashes (changed since it was opened?); rebuild it: {self.verifier.rebuild}")
+        table = mm[d_off:d_off + nb * size].reshape(nb, size)
+        layer = grid[1] * grid[2]
+        whole = bool(rows[0] % layer == 0 and n % layer == 0 and rows[-1] - rows[0] == n - 1 and
+                     np.all(np.diff(rows) == 1))
+        data = np.array(table[rows[0]:rows[-1] + 1]) if whole else table[rows]
+        want = mm[h_off:h_off + nb * 8].view("<u8")[rows]
+        got = brickstore.hash_bricks(data.view("<u8"), rows, np.uint64(seed))
+        bad = np.flatnonzero(got != want)
+        if bad.size:
+            off = ", ".join(str(int(x) * e) for x in bricks[bad[0]])
+            raise IsplatError(f"{self.path}: dataset '{channel}', brick {int(rows[bad[0]])} at ({off}): its content "
+                              f"does not match its hash in /{BRICK_HASHES}/{channel} (changed, moved or copied from "
+                              f"elsewhere); rebuild it: {self.verifier.rebuild}")
+        self.io.bytes += n * (size + 8)
+        self.io.reads += 1
+        vals = data.view(np.dtype(dt)).reshape(n, e, e, e)
+        offs = bricks * e
+        ext = np.minimum(e, np.asarray(self.shape, dtype=np.int64) - offs)
+        mm_ = brickstore.brick_minmax(vals, ext) if channel == "density" else None
+        if whole and tuple(lo[1:]) == (0, 0) and tuple(out.shape[1:]) == tuple(self.shape[1:]):
+            k0 = int(offs[0, 0])
+            block = brickstore.from_bricks(vals, (n // layer,) + grid[1:],
+                                           (min(n // layer * e, self.shape[0] - k0),) + tuple(self.shape[1:]))
+            a, b = max(k0, lo[0]), min(k0 + block.shape[0], lo[0] + out.shape[0])
+            if b > a:
+                out[a - lo[0]:b - lo[0]] = block[a - k0:b - k0]
+        else:
+            brickstore.place_bricks(out, vals, offs, ext, np.asarray(lo, dtype=np.int64))
+        return int(np.prod(ext, axis=1).sum()), mm_
+
     def _bulk(self, channel: str, n: int) -> bool:
         """Read ``n`` bricks of ``channel`` through HDF5's chunk index walked once (about 1.6 us a brick of the
         channel) rather than each raw through HDF5 (about 5 us a brick read): for more than a quarter of the bricks,
         or once walked. (k-slabs of whole planes too: a sweep, as ``isplat index`` or pre with ``--slabs`` read.)"""
-        return 4 * n > self.brick_range[..., 0].size or channel in self.verifier._places
+        return self.store is None and (4 * n > self.brick_range[..., 0].size or channel in self.verifier._places)
 
     def _read_bricked_block(self, f, channel: str, block) -> np.ndarray:
         """``channel[block]`` of a version-5 file: the bricks the block touches, read raw a layer of bricks
@@ -141,7 +208,8 @@ class AugmentedVolume:
         bounds = [s.indices(n)[:2] for s, n in zip(sel, self.shape)]
         lo = [a for a, _ in bounds]
         hi = [max(a, b) for a, b in bounds]
-        out = np.empty(tuple(b - a for a, b in zip(lo, hi)), dtype=f[channel].dtype.newbyteorder("="))
+        dt = self.store[channel][2] if self.store is not None else f[channel].dtype
+        out = np.empty(tuple(b - a for a, b in zip(lo, hi)), dtype=np.dtype(dt).newbyteorder("="))
         if out.size == 0:
             return out
         c = self.bricks
@@ -167,6 +235,9 @@ class AugmentedVolume:
         if not self.bricked:
             with open_counted(self.path, self.io) as f:
                 yield f
+            return
+        if self.store is not None:         # version 6: read by file offset, counted by _read_store
+            yield None
             return
         n0 = self.verifier.chunks_verified
         size = int(np.prod(self.bricks)) * np.dtype(CHANNELS.get(channel, np.uint16)).itemsize + 4
@@ -325,10 +396,13 @@ def open_augmented(path) -> AugmentedVolume:
             raise IsplatError(f"{p}: attribute 'density_window' is {window}, expected LO < HI")
         if gscale < 0:
             raise IsplatError(f"{p}: attribute 'gradient_magnitude_scale' is {gscale}, expected a finite number >= 0")
+        version = int(a["format_version"])
         for name, dt in CHANNEL_DTYPES.items():
             if name not in f or not isinstance(f[name], h5py.Dataset):
                 raise IsplatError(f"{p}: dataset {name!r} is missing")
             ds = f[name]
+            if version >= 6:
+                continue                                  # the brick store: checked by _check_store
             if tuple(ds.shape) != shape:
                 raise IsplatError(f"{p}: dataset {name!r} has shape {ds.shape}, attribute 'shape' says {shape}")
             if ds.dtype != np.dtype(dt):
@@ -336,21 +410,70 @@ def open_augmented(path) -> AugmentedVolume:
             check_checked_dataset(f"{p}: dataset {name!r}", ds)
         axes = check_axes_lps(p, attr_array(p, a, "axes_lps", "f", (3, 3))) if "axes_lps" in a else None
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
-        version = int(a["format_version"])
         has_labels = version >= 4 and (LABELS in f or LABEL_VOXELS in f)
         verifier = chunkhash.open_verifier(p, f, sha, hashed_datasets(has_labels, version),
-                                           chunkhash.attributes_of(f, HASHED_ATTRIBUTES), _rebuild_hint(p, f))
-        ranges = _check_bricks(p, f, shape, verifier, has_labels) if version >= 5 else None
-        counts = _check_labels(p, f, shape, verifier) if has_labels else None
+                                           chunkhash.attributes_of(f, hashed_attributes(version)), _rebuild_hint(p, f))
+        store, edge = _check_store(p, f, shape, verifier.key, has_labels) if version >= 6 else (None, 0)
+        ranges = _check_bricks(p, f, shape, verifier, has_labels, edge) if version >= 5 else None
+        counts = _check_labels(p, f, shape, verifier, version) if has_labels else None
     return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs, io=counter, axes_lps=axes,
-                           verifier=verifier, label_voxels=counts, format_version=version, brick_range=ranges)
+                           verifier=verifier, label_voxels=counts, format_version=version, brick_range=ranges,
+                           store=store, edge=edge)
 
 
-def _check_bricks(p, f, shape, verifier, has_labels) -> np.ndarray:
+def store_grid(shape, edge: int) -> tuple:
+    """The brick grid (gk, gj, gi) of a version-6 volume of ``shape`` with bricks of ``edge``."""
+    return tuple(-(-int(n) // edge) for n in shape)
+
+
+def _check_store(p, f, shape, key: bytes, has_labels: bool):
+    """Version 6 (formats/augmented.md §2.3): ``brick_edge`` one of BRICK_EDGES; each stored channel a contiguous
+    dataset [n_bricks, e, e, e] of its type, wholly allocated inside the file, and its hash table
+    ``/brick_hashes/<channel>`` uint64[n_bricks] likewise; returns ``({channel: (data offset, hash offset,
+    dtype, seed)}, edge)``. Every offset and size is checked here, before any compiled code reads through them."""
+    import os
+
+    from .brickstore import channel_seed
+
+    e = f.attrs.get("brick_edge")
+    if e is None or np.asarray(e).shape != () or np.asarray(e).dtype.kind not in "iu" or int(e) not in BRICK_EDGES:
+        raise IsplatError(f"{p}: attribute 'brick_edge' is {e!r}, expected one of {list(BRICK_EDGES)} (format "
+                          f"version 6)")
+    e = int(e)
+    nb = int(np.prod(store_grid(shape, e)))
+    end = os.path.getsize(p)
+    names = dict(CHANNEL_DTYPES)
+    if has_labels and LABELS in f:
+        names[LABELS] = f[LABELS].dtype.str if f[LABELS].dtype.str in LABEL_DTYPES else "?"
+
+    def placed(name, want_shape, dt):
+        ds = f.get(name)
+        if not isinstance(ds, h5py.Dataset):
+            raise IsplatError(f"{p}: dataset {name!r} is missing")
+        if ds.dtype.str != np.dtype(dt).str or tuple(ds.shape) != want_shape:
+            raise IsplatError(f"{p}: dataset {name!r} is {ds.dtype} {tuple(ds.shape)}, expected {np.dtype(dt)} "
+                              f"{want_shape} (format version 6, bricks of {e}^3)")
+        off, size = ds.id.get_offset(), int(np.prod(want_shape)) * np.dtype(dt).itemsize
+        if ds.chunks is not None or off is None or ds.id.get_storage_size() != size or off + size > end:
+            raise IsplatError(f"{p}: dataset {name!r} is not stored contiguous, whole, inside the file (offset "
+                              f"{off}, {ds.id.get_storage_size()} bytes stored, expected {size} of a {end}-byte file)")
+        return int(off)
+
+    store = {}
+    for name, dt in names.items():
+        if dt not in LABEL_DTYPES and dt not in CHANNEL_DTYPES.values():
+            raise IsplatError(f"{p}: dataset 'labels' has dtype {f[LABELS].dtype}, expected uint8 or uint16")
+        store[name] = (placed(name, (nb, e, e, e), dt), placed(f"{BRICK_HASHES}/{name}", (nb,), "<u8"),
+                       np.dtype(dt).str, channel_seed(key, name))
+    return store, e
+
+
+def _check_bricks(p, f, shape, verifier, has_labels, edge: int = 0) -> np.ndarray:
     """Version 5 (formats/augmented.md §2.2): the channels (and labels) chunked in the file's bricks, and
-    ``/brick_range`` uint8[gk, gj, gi, 2] read (its chunks checked against their hashes) with min <= max."""
-    chunks = brick_chunks(shape)
-    for name in list(CHANNELS) + ([LABELS] if has_labels and LABELS in f else []):
+    ``/brick_range`` uint8[gk, gj, gi, 2] read (its chunks checked against their hashes) with min <= max.
+    Version 6 (``edge``): the range table of its bricks (the store itself is checked by :func:`_check_store`)."""
+    chunks = (edge,) * 3 if edge else brick_chunks(shape)
+    for name in [] if edge else list(CHANNELS) + ([LABELS] if has_labels and LABELS in f else []):
         if tuple(f[name].chunks) != chunks:
             raise IsplatError(f"{p}: dataset {name!r} is chunked {tuple(f[name].chunks)}, expected bricks of "
                               f"{chunks} (format version 5)")
@@ -368,7 +491,7 @@ def _check_bricks(p, f, shape, verifier, has_labels) -> np.ndarray:
     return ranges
 
 
-def _check_labels(p, f, shape, verifier) -> np.ndarray:
+def _check_labels(p, f, shape, verifier, version: int = FORMAT_VERSION) -> np.ndarray:
     """The label datasets' types and shapes (formats/augmented.md §2.1); returns ``label_voxels`` (read and
     checked against its chunk hashes): non-negative counts summing to the voxels, at most 256 entries for uint8
     labels and 65,536 for uint16."""
@@ -377,11 +500,12 @@ def _check_labels(p, f, shape, verifier) -> np.ndarray:
             raise IsplatError(f"{p}: dataset {name!r} is missing (a file with labels has both 'labels' and "
                               f"'label_voxels')")
     ds = f[LABELS]
-    if tuple(ds.shape) != shape:
+    if version < 6 and tuple(ds.shape) != shape:
         raise IsplatError(f"{p}: dataset 'labels' has shape {ds.shape}, attribute 'shape' says {shape}")
     if ds.dtype.str not in LABEL_DTYPES:
         raise IsplatError(f"{p}: dataset 'labels' has dtype {ds.dtype}, expected uint8 or uint16 (little-endian)")
-    check_checked_dataset(f"{p}: dataset 'labels'", ds)
+    if version < 6:
+        check_checked_dataset(f"{p}: dataset 'labels'", ds)
     cv = f[LABEL_VOXELS]
     most = 256 if ds.dtype.itemsize == 1 else 65536
     if cv.ndim != 1 or cv.dtype != np.dtype("<i8") or not 2 <= cv.shape[0] <= most:
@@ -402,16 +526,16 @@ def _check_labels(p, f, shape, verifier) -> np.ndarray:
 
 def write_augmented(path, density, gradient_magnitude, normal, spacing_ijk, density_window,
                     gradient_magnitude_scale, extra_attrs: dict | None = None, labels=None,
-                    version: int = FORMAT_VERSION) -> None:
+                    version: int = FORMAT_VERSION, edge: int | None = None) -> None:
     """Write a complete augmented file at ``path`` (the caller makes it atomic); ``labels``: an integer array
     of the same shape (ids 0..65535), stored as the label channel."""
     shape = tuple(int(x) for x in density.shape)
     with create_hdf5(path) as f:
         create_augmented(f, shape, spacing_ijk, density_window, gradient_magnitude_scale,
-                         density_sha256(density), extra_attrs, version)
-        f["density"][...] = density
-        f["gradient_magnitude"][...] = gradient_magnitude
-        f["normal"][...] = normal
+                         density_sha256(density), extra_attrs, version, edge)
+        w = ChannelWriter(f)
+        for name, arr in (("density", density), ("gradient_magnitude", gradient_magnitude), ("normal", normal)):
+            w.write(name, 0, shape[0], arr)
         if labels is not None:
             write_labels(f, labels)
         finish_augmented(f)
@@ -432,12 +556,16 @@ def write_labels(f: h5py.File, labels, counts=None) -> None:
         arr = np.asarray(labels)
         counts = label_counts(arr)
         labels = [(0, shape[0], arr)]
-    bricked = int(f.attrs["format_version"]) >= 5
-    ds = create_checked_dataset(f, LABELS, shape, label_dtype(len(counts) - 1),
-                                chunks=brick_chunks(shape) if bricked else None)
+    version = int(f.attrs["format_version"])
+    if version >= 6:
+        _create_store(f, LABELS, shape, label_dtype(len(counts) - 1))
+    else:
+        create_checked_dataset(f, LABELS, shape, label_dtype(len(counts) - 1),
+                               chunks=brick_chunks(shape) if version >= 5 else None)
     h = hashlib.sha256(np.asarray(shape, dtype="<i8").tobytes())
+    w = ChannelWriter(f)
     for k0, k1, slab in labels:
-        ds[k0:k1] = slab
+        w.write(LABELS, k0, k1, slab)
         h.update(np.ascontiguousarray(slab, dtype="<u2").tobytes())
     create_checked_dataset(f, LABEL_VOXELS, (len(counts),), "<i8", np.asarray(counts, "<i8"))
     set_string_attr(f, "labels_sha256", h.hexdigest())
@@ -453,17 +581,104 @@ def label_counts(arr) -> np.ndarray:
 
 
 def finish_augmented(f: h5py.File) -> None:
-    """Write the brick ranges (version 5) and the chunk hashes of open file ``f`` once its channels are written
-    (formats/augmented.md §1.1, §2.2)."""
+    """Write the brick ranges (version 5, 6), the brick hashes (version 6) and the chunk hashes of open file ``f``
+    once its channels are written (formats/augmented.md §1.1, §2.2, §2.3)."""
     version = int(f.attrs["format_version"])
-    if version >= 5 and BRICK_RANGE not in f:
+    datasets = hashed_datasets(LABELS in f, version)
+    attrs = chunkhash.attributes_of(f, hashed_attributes(version))
+    sha = attr_string(f.attrs, "density_sha256")
+    if version >= 6 and BRICK_HASHES not in f:
+        _finish_store(f, chunkhash.file_key(sha, datasets, attrs))
+    elif version >= 5 and BRICK_RANGE not in f:
         _write_brick_range(f)
-    chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), hashed_datasets(LABELS in f, version),
-                           chunkhash.attributes_of(f, HASHED_ATTRIBUTES))
+    chunkhash.write_tables(f, sha, datasets, attrs,
+                           tables=[d for d in datasets if version < 6 or d not in (*CHANNELS, LABELS)])
+
+
+def _create_store(f: h5py.File, name: str, shape, dtype) -> None:
+    """A version-6 channel: a contiguous dataset [n_bricks, e, e, e], allocated at creation (zeros)."""
+    e = int(f.attrs["brick_edge"])
+    _contiguous(f, name, (int(np.prod(store_grid(shape, e))), e, e, e), dtype)
+
+
+def _contiguous(parent, name: str, shape, dtype):
+    """A contiguous dataset (no chunks, no filters), its bytes allocated at creation, no timestamps."""
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_layout(h5py.h5d.CONTIGUOUS)
+    dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    dcpl.set_obj_track_times(False)
+    return h5py.h5d.create(parent.id, name.encode(), h5py.h5t.py_create(np.dtype(dtype)),
+                           h5py.h5s.create_simple(tuple(int(n) for n in shape)), dcpl=dcpl)
+
+
+def _finish_store(f: h5py.File, key: bytes) -> None:
+    """Version 6: ``/brick_range`` and ``/brick_hashes/<channel>`` of open file ``f``, read back a layer of bricks
+    (about 16 MiB) at a time."""
+    from .brickstore import brick_minmax, channel_seed, hash_bricks
+    from .fileio import create_group
+
+    e = int(f.attrs["brick_edge"])
+    shape = tuple(int(x) for x in f.attrs["shape"])
+    grid = store_grid(shape, e)
+    layer = grid[1] * grid[2]
+    step = max(1, (1 << 24) // max(1, layer * e ** 3)) * layer
+    g = create_group(f, BRICK_HASHES)
+    ranges = np.zeros((int(np.prod(grid)), 2), dtype=np.uint8)
+    for name in list(CHANNELS) + ([LABELS] if LABELS in f else []):
+        ds, seed = f[name], np.uint64(channel_seed(key, name))
+        table = np.zeros(ds.shape[0], dtype="<u8")
+        for r0 in range(0, ds.shape[0], step):
+            data = np.ascontiguousarray(ds[r0:r0 + step])
+            rows = np.arange(r0, r0 + data.shape[0], dtype=np.int64)
+            table[r0:r0 + data.shape[0]] = hash_bricks(data.reshape(data.shape[0], -1).view("<u8"), rows, seed)
+            if name == "density":
+                offs = np.stack(np.unravel_index(rows, grid), axis=1) * e
+                ranges[r0:r0 + data.shape[0]] = brick_minmax(data, np.minimum(e, np.asarray(shape) - offs))
+        _contiguous(g, name, table.shape, "<u8").write(h5py.h5s.ALL, h5py.h5s.ALL, table)
+    if BRICK_RANGE not in f:
+        create_checked_dataset(f, BRICK_RANGE, grid + (2,), "|u1", ranges.reshape(grid + (2,)))
+
+
+class ChannelWriter:
+    """Writes k-slabs ``[k0, k1)`` of the channels of an open augmented file of any version, in order; version 6
+    stores them as bricks, keeping the planes of an unfinished layer of bricks until the next slab."""
+
+    def __init__(self, f: h5py.File):
+        self.f = f
+        self.version = int(f.attrs["format_version"])
+        self.shape = tuple(int(x) for x in f.attrs["shape"])
+        self.edge = int(f.attrs["brick_edge"]) if self.version >= 6 else 0
+        self.pending = {}
+
+    def write(self, name: str, k0: int, k1: int, arr) -> None:
+        if self.version < 6:
+            self.f[name][k0:k1] = arr
+            return
+        from .brickstore import to_bricks
+
+        e, nk = self.edge, self.shape[0]
+        if name in self.pending:
+            p0, parr = self.pending.pop(name)
+            if p0 + parr.shape[0] != k0:
+                raise ValueError(f"{name}: slab {k0}..{k1} does not follow {p0}..{p0 + parr.shape[0]}")
+            arr, k0 = np.concatenate([parr, np.asarray(arr)]), p0
+        if k0 % e:
+            raise ValueError(f"{name}: slab {k0}..{k1} starts inside a layer of bricks")
+        cut = k1 if k1 == nk else k0 + (k1 - k0) // e * e
+        layer = int(np.prod(store_grid(self.shape, e)[1:]))
+        step = max(e, (1 << 24) // max(1, self.shape[1] * self.shape[2]) // e * e)
+        ds = self.f[name]
+        for a in range(k0, cut, step):
+            b = min(cut, a + step)
+            bricks = to_bricks(np.asarray(arr[a - k0:b - k0], dtype=ds.dtype), e)
+            ds[a // e * layer:a // e * layer + bricks.shape[0]] = bricks
+        if cut < k1:
+            self.pending[name] = (cut, np.array(arr[cut - k0:]))
 
 
 def create_augmented(f: h5py.File, shape, spacing_ijk, density_window, gradient_magnitude_scale,
-                     sha: str, extra_attrs: dict | None = None, version: int = FORMAT_VERSION) -> None:
+                     sha: str, extra_attrs: dict | None = None, version: int = FORMAT_VERSION,
+                     edge: int | None = None) -> None:
     """Create the attributes and empty channel datasets of an augmented file in open file ``f`` (``version``:
     an older version's layout, 4 or 3, for tests and benchmarks)."""
     from . import __version__
@@ -474,6 +689,8 @@ def create_augmented(f: h5py.File, shape, spacing_ijk, density_window, gradient_
     f.attrs["spacing_ijk"] = np.asarray(spacing_ijk, dtype="<f8")
     f.attrs["density_window"] = np.asarray(density_window, dtype="<f8")
     f.attrs["gradient_magnitude_scale"] = np.float64(gradient_magnitude_scale)
+    if version >= 6:
+        f.attrs["brick_edge"] = np.int64(edge or BRICK_EDGE)
     set_string_attr(f, "density_sha256", sha)
     set_string_attr(f, "created_by", f"isplat {__version__}")
     for k, v in (extra_attrs or {}).items():
@@ -482,4 +699,7 @@ def create_augmented(f: h5py.File, shape, spacing_ijk, density_window, gradient_
         else:
             f.attrs[k] = v
     for name, dt in CHANNEL_DTYPES.items():
-        create_checked_dataset(f, name, shape, dt, chunks=brick_chunks(shape) if version >= 5 else None)
+        if version >= 6:
+            _create_store(f, name, shape, dt)
+        else:
+            create_checked_dataset(f, name, shape, dt, chunks=brick_chunks(shape) if version >= 5 else None)

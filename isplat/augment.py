@@ -30,7 +30,7 @@ import numba
 import numpy as np
 
 from . import progress
-from .augfile import FORMAT_VERSION, ROWS_VERSION, create_augmented, finish_augmented, label_counts, write_labels
+from .augfile import FORMAT_VERSION, ROWS_VERSION, ChannelWriter, create_augmented, finish_augmented, label_counts, write_labels
 from .errors import IsplatError
 from .fileio import atomic_output, check_output, create_hdf5
 from .jit import jit, stage
@@ -496,7 +496,7 @@ def augment_array(array, spacing_ijk=(1.0, 1.0, 1.0), window=None, smooth_normal
 
 def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, dtype=None,
                  byte_order="little", header_bytes=0, level=None, series=None, thin_slices=None,
-                 orientation=None, labels=None, bricks=False) -> dict:
+                 orientation=None, labels=None, bricks=True) -> dict:
     """Augment the volume at ``inp`` (see :func:`isplat.volume_io.read_volume`) into ``out`` atomically.
 
     ``thin_slices``: a ratio (e.g. :data:`isplat.resample.THICK_RATIO`): axes whose spacing exceeds it times
@@ -504,9 +504,9 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
     is then held in memory); the window is chosen on the scan as read, so it is the one the scan gets without
     them. ``orientation``: a code such as ``LPS`` (:mod:`isplat.orientation`) giving the patient directions
     of i, j, k, over the file's. ``labels``: a label map on the scan's grid (:func:`isplat.labels.read_label_volume`),
-    stored as the label channel (formats/augmented.md §2.1). ``bricks``: write format 5 (the channels in 8^3
-    bricks, which the post technique reads only where its scene needs them), else format 4 (chunks of whole rows,
-    read whole: faster to load on volumes of tens of millions of voxels, docs/selective-read.md). Returns a
+    stored as the label channel (formats/augmented.md §2.1). ``bricks``: write format 6 (the channels in 8^3
+    bricks of isplat's own store, which the post technique reads only where its scene needs them), else format 4
+    (chunks of whole rows, read whole; docs/selective-read.md). Returns a
     summary dict (shape, window, gradient scale, sha256, ``axes_lps`` or None, ``hounsfield`` (why the data are taken as Hounsfield units, or None), and where spacing and
     orientation came from).
     """
@@ -540,10 +540,11 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
             with create_hdf5(tmp) as f:
                 create_augmented(f, vol.array.shape, (sl.si, sl.sj, sl.sk), (sl.lo, sl.hi), gmax / 255.0,
                                  sha, extra, FORMAT_VERSION if bricks else ROWS_VERSION)
+                w = ChannelWriter(f)
                 for k0, k1, d, mag, nrm in _second_pass(sl, gmax, bar):
-                    f["density"][k0:k1] = d
-                    f["gradient_magnitude"][k0:k1] = mag
-                    f["normal"][k0:k1] = nrm
+                    w.write("density", k0, k1, d)
+                    w.write("gradient_magnitude", k0, k1, mag)
+                    w.write("normal", k0, k1, nrm)
                 if lab is not None:
                     write_labels(f, lab)
                 finish_augmented(f)

@@ -150,14 +150,15 @@ def _hash_layer(key, dataset, arr, base, chunks, grid) -> np.ndarray:
     return np.concatenate(rows), np.frombuffer(b"".join(hashes), dtype=np.uint8).reshape(-1, DIGEST)
 
 
-def write_tables(f, density_sha256: str, datasets, attributes) -> None:
+def write_tables(f, density_sha256: str, datasets, attributes, tables=None) -> None:
     """Write ``/chunk_hashes`` and the root ``chunk_hash_check`` of open file ``f``, whose ``datasets`` (paths)
-    are complete and whose attributes are set. Reads every dataset back, a layer of chunks at a time."""
+    are complete and whose attributes are set. Reads every dataset back, a layer of chunks at a time. ``tables``:
+    the datasets that get a table (default all; the key covers all ``datasets``)."""
     from .fileio import create_checked_dataset, create_group, set_string_attr
 
     key = file_key(density_sha256, datasets, attributes)
     g = create_group(f, GROUP)
-    for d in datasets:
+    for d in datasets if tables is None else tables:
         ds = f[d]
         table = np.zeros((int(np.prod(grid_shape(ds.shape, ds.chunks))), DIGEST), dtype=np.uint8)
         if table.shape[0]:

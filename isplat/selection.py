@@ -572,7 +572,7 @@ def _reads_bricks(sel: Selection, aug) -> bool:
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every cell's slice and first voxel ``(c, a0, b0)`` (int64, the hierarchy's order): the walk of
     :func:`isplat.splat.select.cell_origins`, which also checks the cell table."""
-    from .splat.select import cell_origins as walk
+    from .splat.select import cell_origins_py as walk
 
     c, a0, b0, _ = walk(s.slice_ptr, s.region_id, s.region_ptr, s.block_pos, s.block_ptr, s.block_voxel,
                         s.cell_pos, s.cell_count, s.n_a)
@@ -592,8 +592,9 @@ def post_bricks(sel: Selection, bricks) -> np.ndarray:
         lo_a, hi_a = np.maximum(a0 - back, 0), np.minimum(a0 + ahead, s.n_a - 1)
         lo_b, hi_b = np.maximum(b0 - back, 0), np.minimum(b0 + ahead, s.n_b - 1)
         ka, kb, kc = {"k": (2, 1, 0), "j": (2, 0, 1), "i": (1, 0, 2)}[ax]   # (k, j, i) dims of a, b, c
-        for a in (lo_a, hi_a):
-            for b in (lo_b, hi_b):
+        ea, eb = int(bricks[ka]), int(bricks[kb])   # every brick the reach crosses: 3 of 4^3 bricks, 2 of 8^3
+        for a in [np.minimum(lo_a + m * ea, hi_a) for m in range(-(-(back + ahead) // ea) + 1)]:
+            for b in [np.minimum(lo_b + m * eb, hi_b) for m in range(-(-(back + ahead) // eb) + 1)]:
                 idx = [None, None, None]
                 idx[ka], idx[kb], idx[kc] = a // bricks[ka], b // bricks[kb], c // bricks[kc]
                 out[tuple(idx)] = True

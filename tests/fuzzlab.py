@@ -314,7 +314,9 @@ def corrupt(path: Path, obj: str, op: str) -> None:
     with h5py.File(path, "r+") as f:
         ds = f[obj]
         if op in ("flip_chunk", "flip_header", "dataspace"):
-            at = (ds.id.get_chunk_info(0).byte_offset if op == "flip_chunk" and ds.id.get_num_chunks()
+            chunked = ds.chunks is not None and ds.id.get_num_chunks()
+            at = (ds.id.get_chunk_info(0).byte_offset if op == "flip_chunk" and chunked else
+                  ds.id.get_offset() if op == "flip_chunk" and ds.chunks is None and ds.id.get_offset() is not None
                   else h5py.h5o.get_info(ds.id).addr + (16 if op == "flip_header" else 40))
         else:
             data, parent, name = ds[()], ds.parent, ds.name.rsplit("/", 1)[1]
@@ -374,6 +376,8 @@ def rehash(path: Path) -> None:
     with h5py.File(path, "r+") as f:
         if chunkhash.GROUP in f:
             del f[chunkhash.GROUP]
+        if "brick_hashes" in f:                    # augmented format 6: the brick hashes too (formats/augmented.md §2.3)
+            del f["brick_hashes"]
         if chunkhash.CHECK_ATTR in f.attrs:
             del f.attrs[chunkhash.CHECK_ATTR]
         (finish_index if f.attrs["format"] in (b"isplat-index", b"isplat-index-values") else finish_augmented)(f)
@@ -395,6 +399,14 @@ PAIRS = {"aug": (("density", "gradient_magnitude"),),
 
 
 def _chunks(ds):
+    """The stored chunks of ``ds``; for a brick store (augmented format 6: contiguous [B, e, e, e]) its bricks, as
+    chunk infos (byte_offset, size, chunk_offset = (brick row, 0, 0, 0))."""
+    if ds.chunks is None and ds.ndim == 4:
+        from types import SimpleNamespace
+
+        size = int(np.prod(ds.shape[1:])) * ds.dtype.itemsize
+        return [SimpleNamespace(byte_offset=ds.id.get_offset() + b * size, size=size, chunk_offset=(b, 0, 0, 0))
+                for b in range(ds.shape[0])]
     return [ds.id.get_chunk_info(n) for n in range(ds.id.get_num_chunks())]
 
 
@@ -427,6 +439,8 @@ def fletcher_blind_word(path: Path, rng, target: str) -> str:
     import h5py
 
     def logical_words(ds, c):       # the chunk's words within elements inside the dataset (the rest is padding,
+        if ds.chunks is None:       # never read); a brick store's bricks: every word (the padding is hashed too)
+            return np.ones(int(np.prod(ds.shape[1:])) * ds.dtype.itemsize // 2, bool)
         inside = [min(int(k), int(n) - int(o)) for k, n, o in zip(ds.chunks, ds.shape, c.chunk_offset)]  # never read)
         m = np.zeros(tuple(int(k) for k in ds.chunks), bool)
         m[tuple(slice(0, n) for n in inside)] = True
@@ -504,7 +518,8 @@ def foreign_dataset(path: Path, rng, target: str, other: Path | None = None) -> 
         name = names[int(rng.integers(len(names)))]
         if np.array_equal(o[name][()], f[name][()]):
             return "unchanged"
-        for n in (name, f"{GROUP}/{table_name(name)}"):
+        table = f"brick_hashes/{name}" if f"brick_hashes/{name}" in f else f"{GROUP}/{table_name(name)}"
+        for n in (name, table):
             del f[n]
             o.copy(o[n], f[n.rsplit("/", 1)[0]] if "/" in n else f, name=n.rsplit("/", 1)[-1])
     return f"{name} and its hashes from {Path(other).name}"

@@ -226,8 +226,8 @@ def test_valid_example_decodes_to_expected_values():
     assert density_sha256(aug.read("density")) == exp["density_sha256"]
     assert aug.axes_lps.tolist() == exp["axes_lps"]
     assert exp["normal"][0][0][0] == N.NO_NORMAL
-    assert aug.format_version == 5 and aug.read("labels").tolist() == exp["labels"]
-    assert aug.bricked and aug.brick_range.tolist() == exp["brick_range"]
+    assert aug.format_version == 6 and aug.read("labels").tolist() == exp["labels"]
+    assert aug.bricked and aug.brick_range.tolist() == exp["brick_range"] and aug.edge == exp["brick_edge"]
     assert aug.label_voxels.tolist() == exp["label_voxels"]
     from isplat.index.labels import open_label_index, shown_ids_volume
 
@@ -238,6 +238,10 @@ def test_valid_example_decodes_to_expected_values():
         for shown in ([1], [2], [1, 2]):
             ids, _ = shown_ids_volume(li, axis, shown, aug.shape)
             assert ids.tolist() == np.where(np.isin(lab, shown), lab, 0).reshape(-1).tolist()
+    v5 = open_augmented(EXAMPLES / "valid-v5.aug.h5")              # version 5: 8^3 bricks as HDF5 chunks
+    assert v5.format_version == 5 and v5.bricked and v5.read("labels").tolist() == exp["labels"]
+    for ch in ("density", "gradient_magnitude", "normal"):
+        assert v5.read(ch).tolist() == exp[ch]
     v4 = open_augmented(EXAMPLES / "valid-v4.aug.h5")              # version 4: read whole, with labels
     assert v4.format_version == 4 and not v4.bricked and v4.read("labels").tolist() == exp["labels"]
     for ch in ("density", "gradient_magnitude", "normal"):
@@ -253,9 +257,11 @@ def test_valid_example_decodes_to_expected_values():
                                                                     "isplat augment"),
                                        ("invalid-version-2.aug.h5", "version 2 lack this version's checksums, "
                                                                     "rebuild it: isplat augment"),
-                                       ("invalid-edited-value.aug.h5", "dataset 'density', chunk at \\(0, 0, 0\\): "
+                                       ("invalid-edited-value.aug.h5", "dataset 'density', brick 0 at \\(0, 0, 0\\): "
                                                                        ".* rebuild it: isplat augment"),
-                                       ("invalid-flipped-bit.aug.h5", "'normal'.*(Fletcher-32|chunk at \\(0, 0, 0\\))"),
+                                       ("invalid-flipped-bit.aug.h5", "dataset 'normal', brick 0 at \\(0, 0, 0\\)"),
+                                       ("invalid-brick-hashes.aug.h5", "'brick_hashes/density' is uint64 \\(0,\\), "
+                                                                       "expected uint64 \\(1,\\)"),
                                        ("invalid-axes-lps.aug.h5", "'axes_lps'.*orthonormal"),
                                        ("invalid-label-id.aug.h5", "'labels' holds id 7, expected ids below 3"),
                                        ("invalid-brick-range.aug.h5", "brick at \\(0, 0, 0\\): densities .*"

@@ -1,7 +1,7 @@
-"""Post reads only the bricks its quads touch (augmented format 5, formats/augmented.md §2.2): the image is bit for
-bit the image of the whole channels (the same volume written as version 4), for views along every axis,
-orthographic and perspective, shaded and not, the cubic between thick slices, slab by slab; corrupted bricks are
-refused, and the bytes read are the bricks read."""
+"""Post reads only the bricks its quads touch (augmented format 6, isplat's brick store, formats/augmented.md §2.3,
+and format 5, bricks as HDF5 chunks, §2.2): the image is bit for bit the image of the whole channels (the same
+volume written as version 4), for views along every axis, orthographic and perspective, shaded and not, the cubic
+between thick slices, slab by slab; corrupted bricks are refused, and the bytes read are the bricks read."""
 
 import h5py
 import numpy as np
@@ -23,8 +23,9 @@ def _shell(shape, centre, radius, width, rng):
     return np.clip(d, 0, 255).astype(np.uint8)
 
 
-def _pair(tmp, density, spacing, rng, name="v"):
-    """The volume as version 5 (with its index) and as version 4 (whole channels): (v5, v4, index)."""
+def _pair(tmp, density, spacing, rng, name="v", v5=False):
+    """The volume as version 6 (with its index) and as version 4 (whole channels): (v6, v4, index); ``v5``: + the
+    volume as version 5 (last)."""
     from isplat.normals import encode
 
     gm = rng.integers(0, 256, density.shape).astype(np.uint8)
@@ -32,7 +33,11 @@ def _pair(tmp, density, spacing, rng, name="v"):
     aug, idx = write_volume(tmp, density, spacing=spacing, gm=gm, normal=nrm, gscale=0.5, name=name)
     old = tmp / f"{name}.v4.aug.h5"
     write_augmented(old, density, gm, nrm, spacing, (0.0, 255.0), 0.5, version=4)
-    return aug, old, idx
+    if not v5:
+        return aug, old, idx
+    five = tmp / f"{name}.v5.aug.h5"
+    write_augmented(five, density, gm, nrm, spacing, (0.0, 255.0), 0.5, version=5)
+    return aug, old, idx, five
 
 
 @pytest.fixture(scope="module")
@@ -40,9 +45,9 @@ def files(tmp_path_factory):
     rng = np.random.default_rng(7)
     tmp = tmp_path_factory.mktemp("bricks")
     dens = _shell(SHAPE, (15, 17, 22), 9, 2.5, rng)
-    iso = _pair(tmp, dens, (1.0, 1.0, 1.0), rng, "iso")
-    thick = _pair(tmp, dens, (0.8, 0.8, 4.0), rng, "thick")      # k 5x the finest: the cubic between slices
-    return {"iso": iso, "thick": thick}
+    iso = _pair(tmp, dens, (1.0, 1.0, 1.0), rng, "iso", v5=True)
+    thick = _pair(tmp, dens, (0.8, 0.8, 4.0), rng, "thick", v5=True)   # k 5x the finest: the cubic between slices
+    return {"iso": iso[:3], "thick": thick[:3], "iso5": (iso[3],) + iso[1:3], "thick5": (thick[3],) + thick[1:3]}
 
 
 def _scene(make_scene, aug, idx, proj, cam, shaded, lo=150, spacing=(1.0, 1.0, 1.0)):
@@ -64,10 +69,10 @@ def _inside(spacing):
     return f'mode = "look_at"\nposition = {c.tolist()}\nlook_at = {(c + [3, 20, -4]).tolist()}'
 
 
-SPACING = {"iso": (1.0, 1.0, 1.0), "thick": (0.8, 0.8, 4.0)}
+SPACING = {"iso": (1.0, 1.0, 1.0), "thick": (0.8, 0.8, 4.0), "iso5": (1.0, 1.0, 1.0), "thick5": (0.8, 0.8, 4.0)}
 
 
-@pytest.mark.parametrize("kind", ["iso", "thick"])
+@pytest.mark.parametrize("kind", ["iso", "thick", "iso5", "thick5"])
 @pytest.mark.parametrize("proj,cam", CAMS)
 @pytest.mark.parametrize("shaded", [True, False])
 def test_bricks_render_the_image_of_the_whole_channels(make_scene, files, kind, proj, cam, shaded):
@@ -99,13 +104,15 @@ def test_the_bytes_read_are_the_bricks_read(make_scene, files):
     r = Renderer(_scene(make_scene, aug, idx, *CAMS[0], True))
     r.render_view(0)
     rep = r.report
-    n = int(post_bricks(r.selection, (8, 8, 8)).sum())
     a = open_augmented(aug)
-    bricks = np.argwhere(post_bricks(r.selection, (8, 8, 8)))
-    sizes = [np.prod([min(8, s - g * 8) for g, s in zip(b, SHAPE)]) for b in bricks]
-    assert rep.augmented_bytes == int(sum(sizes)) * 4 and n == len(bricks)      # density + gm + 2-byte normal
-    assert rep.augmented_file_bytes >= n * (512 * 4 + 12)                      # whole chunks + their checksums
-    assert a.bricked and rep.values_from == f"bricks ({n:,} of {5 * 5 * 6:,})"
+    e = a.edge
+    bricks = np.argwhere(post_bricks(r.selection, (e, e, e)))
+    n = len(bricks)
+    sizes = [np.prod([min(e, s - g * e) for g, s in zip(b, SHAPE)]) for b in bricks]
+    assert rep.augmented_bytes == int(sum(sizes)) * 4                          # density + gm + 2-byte normal
+    assert rep.augmented_file_bytes >= n * (e ** 3 * 4 + 24)                   # whole bricks + their hashes
+    grid = [-(-s // e) for s in SHAPE]
+    assert a.bricked and rep.values_from == f"bricks ({n:,} of {int(np.prod(grid)):,})"
 
 
 @pytest.mark.parametrize("share", [1.0, 0.0])
@@ -157,7 +164,14 @@ def test_random_volumes_render_alike_from_bricks(make_scene, tmp_path_factory, s
     rng = np.random.default_rng(seed)
     shape = tuple(int(n) for n in rng.integers(9, 26, 3))
     dens = _shell(shape, [rng.uniform(0, n) for n in shape], rng.uniform(2, 8), rng.uniform(1, 3), rng)
-    aug, old, idx = _pair(tmp_path_factory.mktemp("h"), dens, spacing, rng)
+    from isplat import augfile
+
+    edge = augfile.BRICK_EDGE
+    augfile.BRICK_EDGE = int(rng.choice([4, 8]))     # format 6 at either edge a file may have
+    try:
+        aug, old, idx = _pair(tmp_path_factory.mktemp("h"), dens, spacing, rng)
+    finally:
+        augfile.BRICK_EDGE = edge
     share = S.BRICK_SHARE
     S.BRICK_SHARE = 1.0                         # bricks however many are needed
     try:
@@ -176,10 +190,49 @@ def _copy(src, dst):
 
 
 def test_an_edited_brick_is_refused_not_rendered(make_scene, files, tmp_path):
-    from isplat.augfile import finish_augmented
+    """Format 6: one byte of a brick flipped in the file (a density inside the shell), or a brick's bytes copied
+    over its neighbour's: refused in one line naming file, channel and brick; the range table edited with its
+    hashes recomputed: refused by the density's range check."""
+    from isplat import chunkhash
+    from isplat.augfile import hashed_attributes, hashed_datasets
     from isplat.renderer import Renderer
 
     aug, _, idx = files["iso"]
+    a = open_augmented(aug)
+    e = a.edge
+    row = np.ravel_multi_index((15 // e, 17 // e, 31 // e), a.brick_range.shape[:3])
+    start = a.store["density"][0] + row * e ** 3                   # brick `row`; the one before it is copied over it
+    at = start + (15 % e) * e * e + (17 % e) * e + 31 % e
+    raw = bytearray(aug.read_bytes())
+    assert raw[at] == a.read("density")[15, 17, 31] and raw[at] > 0
+    corner = r"\(" + ", ".join(str(x // e * e) for x in (15, 17, 31)) + r"\)"
+    for what, edit in (("byte", lambda b: b.__setitem__(at, b[at] ^ 0x10)),
+                       ("moved", lambda b: b.__setitem__(slice(start, start + e ** 3), b[start - e ** 3:start]))):
+        bad = tmp_path / f"{what}.aug.h5"
+        b = bytearray(raw)
+        edit(b)
+        bad.write_bytes(b)
+        with pytest.raises(IsplatError, match=rf"{what}\.aug\.h5: dataset 'density', brick {row} at {corner}: its "
+                                              rf"content does not match its hash in /brick_hashes/density .*rebuild"):
+            Renderer(_scene(make_scene, bad, idx, *CAMS[0], True)).render_view(0)
+    ranged = _copy(aug, tmp_path / "ranged.aug.h5")    # the range table edited, hashes recomputed
+    with h5py.File(ranged, "a") as f:
+        f["brick_range"][15 // e, 17 // e, 31 // e, 0] = 1
+        del f["chunk_hashes"]
+        del f.attrs["chunk_hash_check"]
+        ds = hashed_datasets(False, 6)
+        chunkhash.write_tables(f, a.density_sha256, ds, chunkhash.attributes_of(f, hashed_attributes(6)),
+                               tables=["brick_range"])
+    with pytest.raises(IsplatError, match=rf"brick at {corner}: densities .* /brick_range says 1\.\."):
+        Renderer(_scene(make_scene, ranged, idx, *CAMS[0], True)).render_view(0)
+
+
+def test_an_edited_chunk_brick_is_refused_not_rendered(make_scene, files, tmp_path):
+    """Format 5: a density changed through HDF5 (Fletcher-32 valid), or the range table edited, refused."""
+    from isplat.augfile import finish_augmented
+    from isplat.renderer import Renderer
+
+    aug, _, idx = files["iso5"]
     bad = _copy(aug, tmp_path / "bad.aug.h5")
     with h5py.File(bad, "a") as f:                     # a density inside the shell changed: Fletcher-32 valid
         f["density"][15, 17, 31] = 0
@@ -198,25 +251,77 @@ def test_an_edited_brick_is_refused_not_rendered(make_scene, files, tmp_path):
 def test_a_bricked_file_refuses_other_chunks_and_a_bad_range_table(tmp_path):
     rng = np.random.default_rng(1)
     dens = rng.integers(0, 256, (10, 9, 17)).astype(np.uint8)
-    aug, _ = write_volume(tmp_path, dens, index=False)
+    for version, e, grid in ((5, 8, (2, 2, 3)), (6, 4, (3, 3, 5)), (6, 8, (2, 2, 3))):
+        aug = tmp_path / f"v{version}-{e}.aug.h5"
+        write_augmented(aug, dens, dens, np.zeros(dens.shape, np.uint16), (1, 1, 1), (0, 255), 1.0, version=version,
+                        edge=e)
+        a = open_augmented(aug)
+        assert a.bricks == (e, e, e) and a.brick_range.shape == grid + (2,)
+        assert a.brick_range[0, 0, 0].tolist() == [int(dens[:e, :e, :e].min()), int(dens[:e, :e, :e].max())]
+        assert a.brick_range[-1, -1, -1].tolist() == [int(dens[(grid[0] - 1) * e:, (grid[1] - 1) * e:,
+                                                                (grid[2] - 1) * e:].min()),
+                                                      int(dens[(grid[0] - 1) * e:, (grid[1] - 1) * e:,
+                                                               (grid[2] - 1) * e:].max())]
+        b = _copy(aug, tmp_path / "b.aug.h5")
+        with h5py.File(b, "a") as f:
+            del f["brick_range"]
+            f.create_dataset("brick_range", data=np.zeros((2, 2, 2, 2), np.uint8), chunks=(1, 2, 2, 2),
+                             fletcher32=True)
+        with pytest.raises(IsplatError, match=rf"'brick_range' is uint8 \(2, 2, 2, 2\), expected uint8 "
+                                              rf"\({grid[0]}, {grid[1]}, {grid[2]}, 2\)"):
+            open_augmented(b)
+
+
+def test_format_6_refuses_a_store_it_cannot_read_safely(tmp_path):
+    """Every size and place of the store is checked at open, before compiled code reads through it: a channel or
+    hash table of the wrong shape, a channel stored chunked, a file cut short."""
+    dens = np.random.default_rng(2).integers(0, 256, (10, 9, 17)).astype(np.uint8)
+    aug = tmp_path / "v.aug.h5"
+    write_augmented(aug, dens, dens, np.zeros(dens.shape, np.uint16), (1, 1, 1), (0, 255), 1.0, edge=4)
+    cases = {"table": lambda f: (f["brick_hashes"].__delitem__("normal"),
+                                 f["brick_hashes"].create_dataset("normal", data=np.zeros(44, "<u8"))),
+             "chunked": lambda f: (f.__delitem__("gradient_magnitude"),
+                                   f.create_dataset("gradient_magnitude", (45, 4, 4, 4), "|u1", chunks=(1, 4, 4, 4)))}
+    msgs = {"table": r"dataset 'brick_hashes/normal' is uint64 \(44,\), expected uint64 \(45,\)",
+            "chunked": r"dataset 'gradient_magnitude' is not stored contiguous, whole, inside the file"}
+    for name, edit in cases.items():
+        b = _copy(aug, tmp_path / f"{name}.aug.h5")
+        with h5py.File(b, "a") as f:
+            edit(f)
+        with pytest.raises(IsplatError, match=msgs[name]):
+            open_augmented(b)
     a = open_augmented(aug)
-    assert a.brick_range.shape == (2, 2, 3, 2) and a.brick_range[0, 0, 0].tolist() == \
-        [int(dens[:8, :8, :8].min()), int(dens[:8, :8, :8].max())]
-    b = _copy(aug, tmp_path / "b.aug.h5")
-    with h5py.File(b, "a") as f:
-        del f["brick_range"]
-        f.create_dataset("brick_range", data=np.zeros((2, 2, 2, 2), np.uint8), chunks=(1, 2, 2, 2),
-                         fletcher32=True)
-    with pytest.raises(IsplatError, match="'brick_range' is uint8 \\(2, 2, 2, 2\\), expected uint8 \\(2, 2, 3, 2\\)"):
-        open_augmented(b)
+    cut = tmp_path / "cut.aug.h5"
+    cut.write_bytes(aug.read_bytes()[:a.store["normal"][0] + 100])
+    with pytest.raises(IsplatError, match=r"cut\.aug\.h5"):
+        open_augmented(cut).read("normal")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 64 - 1), st.integers(0, 10 ** 6), st.sampled_from([64, 128, 512, 1024]),
+       st.integers(0, 2 ** 31), st.data())
+def test_brick_hash_is_the_reference_and_sees_any_word_changed(seed, row, size, data_seed, data):
+    """The compiled brick hash is the plain one of formats/augmented.md §2.3; a brick with one 8-byte word changed,
+    or read at another row, hashes differently (each step is a bijection of the state)."""
+    from isplat.brickstore import hash_bricks, hash_reference
+
+    raw = np.random.default_rng(data_seed).integers(0, 256, size, dtype=np.uint8)
+    got = int(hash_bricks(raw.view("<u8").reshape(1, -1), np.array([row]), np.uint64(seed))[0])
+    assert got == hash_reference(raw.tobytes(), row, seed)
+    w = data.draw(st.integers(0, size // 8 - 1))
+    other = raw.copy()
+    other[w * 8 + data.draw(st.integers(0, 7))] ^= np.uint8(data.draw(st.integers(1, 255)))
+    assert hash_reference(other.tobytes(), row, seed) != got
+    assert hash_reference(raw.tobytes(), row + 1, seed) != got
 
 
 def test_old_files_are_read_whole(files):
     aug, old, _ = files["iso"]
-    a, o = open_augmented(aug), open_augmented(old)
-    assert o.format_version == 4 and not o.bricked and a.format_version == 5 and a.bricked
+    a, o, five = open_augmented(aug), open_augmented(old), open_augmented(files["iso5"][0])
+    assert o.format_version == 4 and not o.bricked and a.format_version == 6 and a.bricked
+    assert five.format_version == 5 and five.bricked and five.bricks == (8, 8, 8)
     for ch in ("density", "gradient_magnitude", "normal"):
-        assert np.array_equal(a.read(ch), o.read(ch))
+        assert np.array_equal(a.read(ch), o.read(ch)) and np.array_equal(five.read(ch), o.read(ch))
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -238,9 +343,10 @@ def test_read_bricks_holds_exactly_the_bricks_asked(tmp_path_factory, seed, shap
     assert np.array_equal(box, np.where(mask, dens, 0)[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]])
 
 
-def test_blocks_of_every_channel_read_from_bricks_equal_whole_channels(files):
-    """Version 5 reads blocks (slabs, a slab's rows, the whole) brick by brick, raw: the same values as version 4."""
-    aug, old, _ = files["iso"]
+@pytest.mark.parametrize("kind", ["iso", "iso5"])
+def test_blocks_of_every_channel_read_from_bricks_equal_whole_channels(files, kind):
+    """Versions 6 and 5 read blocks (slabs, a slab's rows, the whole) brick by brick: the same values as version 4."""
+    aug, old, _ = files[kind]
     a, o = open_augmented(aug), open_augmented(old)
     rng = np.random.default_rng(3)
     blocks = [(), (slice(8, 16),), (slice(3, 30), slice(5, 6)), (slice(36, 37), slice(0, 34), slice(33, 41))]
@@ -256,7 +362,7 @@ def test_blocks_of_every_channel_read_from_bricks_equal_whole_channels(files):
 def test_a_brick_stored_without_its_checksum_is_refused(files, tmp_path):
     """Bricks are read raw (formats/augmented.md §1): one whose Fletcher-32 was skipped (filter mask 1, 4 bytes
     short) cannot be read as the spec says and is refused with the dataset, the brick and the rebuild command."""
-    aug, _, _ = files["iso"]
+    aug, _, _ = files["iso5"]
     bad = _copy(aug, tmp_path / "mask.aug.h5")
     with h5py.File(bad, "a") as f:
         _, raw = f["normal"].id.read_direct_chunk((8, 16, 24))
@@ -270,11 +376,13 @@ def test_a_brick_stored_without_its_checksum_is_refused(files, tmp_path):
         a.verify_all()
 
 
-def test_the_index_of_a_bricked_file_is_the_index_of_its_whole_channels(files, tmp_path):
-    """isplat index reads version 5's bricks (raw, hashed, ranges checked) in k-slabs: the same index as from v4."""
+@pytest.mark.parametrize("kind", ["thick", "thick5"])
+def test_the_index_of_a_bricked_file_is_the_index_of_its_whole_channels(files, tmp_path, kind):
+    """isplat index reads version 6's (and 5's) bricks (hashed, ranges checked) in k-slabs: the same index as
+    from v4."""
     from isplat.index import build_index_file
 
-    aug, old, _ = files["thick"]
+    aug, old, _ = files[kind]
     built = {}
     for name, src in (("new", aug), ("old", old)):
         build_index_file(src, tmp_path / f"{name}.idx.h5", force=True, slab_voxels=5 * SHAPE[1] * SHAPE[2])
@@ -288,20 +396,21 @@ def test_the_index_of_a_bricked_file_is_the_index_of_its_whole_channels(files, t
 
 
 
-def test_augment_writes_bricks_only_when_asked(tmp_path):
-    """`isplat augment` keeps format 4 (whole rows) by default and writes format 5 (bricks) with --bricks; the
-    channels are the same either way."""
+def test_augment_writes_bricks_unless_asked_for_rows(tmp_path):
+    """`isplat augment` writes format 6 (isplat's brick store, 8^3) by default and format 4 (whole rows) with
+    --rows; the channels are the same either way."""
     from click.testing import CliRunner
 
     from isplat.cli.main import cli
 
     np.save(tmp_path / "v.npy", _shell(SHAPE, (15, 17, 22), 9, 2.5, np.random.default_rng(3)))
     files = {}
-    for flag, version in (([], 4), (["--bricks"], 5)):
-        out = tmp_path / f"v{version}.aug.h5"
+    for flag, version in (([], 6), (["--rows"], 4), (["--bricks"], 6)):
+        out = tmp_path / f"v{version}{''.join(flag)}.aug.h5"
         r = CliRunner().invoke(cli, ["augment", str(tmp_path / "v.npy"), "-o", str(out), "-q"] + flag)
         assert r.exit_code == 0, r.output
         files[version] = a = open_augmented(out)
-        assert a.format_version == version and a.bricked == (version == 5)
+        assert a.format_version == version and a.bricked == (version == 6)
+        assert version == 4 or a.bricks == (8, 8, 8)
     for ch in ("density", "gradient_magnitude", "normal"):
-        assert np.array_equal(files[4].read(ch, 0, SHAPE[0]), files[5].read(ch, 0, SHAPE[0])), ch
+        assert np.array_equal(files[4].read(ch, 0, SHAPE[0]), files[6].read(ch, 0, SHAPE[0])), ch

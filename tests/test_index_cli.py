@@ -89,7 +89,7 @@ def test_bad_augmented(tmp_path, aug, capsys, case):
     if case == "format":
         _set_attr(aug, "format", "isplat-something")
     elif case == "version":
-        _set_attr(aug, "format_version", np.int64(6))
+        _set_attr(aug, "format_version", np.int64(7))
     elif case == "truncated":
         data = aug.read_bytes()
         aug.write_bytes(data[: len(data) // 2])

@@ -56,8 +56,12 @@ def _expect_error(target, obj, op) -> bool:
     their hashes, every attribute the format specifies but ``created_by`` by the file key (``created_by`` is
     required), the tables by their shapes and keyed rows. So every corruption of the walk is refused, but one: a
     hash table rewritten with its rows unchanged in another layout (contiguous, compressed) reads the same rows,
-    which readers do not refuse (the images are then equal; stats gives another file size)."""
-    return not (obj.startswith("/chunk_hashes/") and op in ("contiguous", "gzip"))
+    which readers do not refuse (the images are then equal; stats gives another file size); and a dataset of the
+    brick store (augmented format 6: the channels, the labels, the brick hashes, all contiguous) rewritten
+    contiguous holds the same bytes elsewhere, which is the same file to a reader."""
+    store = obj.lstrip("/") in ("density", "gradient_magnitude", "normal", "labels") or obj.startswith("/brick_hashes/")
+    return not ((obj.startswith("/chunk_hashes/") and op in ("contiguous", "gzip")) or
+                (target == "aug" and store and op == "contiguous"))
 
 
 @pytest.mark.parametrize("target,obj,op", _walk_cases())
@@ -113,8 +117,8 @@ def test_message_names_file_and_dataset(examples, target, obj, method, name):
         path.write_bytes(original)
     assert code == 2 and err.count("\n") == 1
     assert str(path) in err and name in err
-    # the augmented file's bricks (version 5) are read raw and refused by their chunk hash (formats/augmented.md §1)
-    assert ("chunk at (0, 0, 0): its content does not match" if target == "aug" else "Fletcher-32") in err
+    # the augmented file's bricks (version 6) are refused by their brick hash (formats/augmented.md §2.3)
+    assert ("brick 0 at (0, 0, 0): its content does not match" if target == "aug" else "Fletcher-32") in err
 
 
 # ---------------------------------------------------------------------------------------------- stats
@@ -292,8 +296,9 @@ def test_mutant_classes_are_refused_with_one_line(head, cls, target, seed):
     out = R.check_mutant(head, target, data, what)
     assert out.result == "error" and str(head[target]) in out.message, out
     if cls in ("whole-chunk transplant", "Fletcher-blind word", "h5py value edit"):
-        name = what.split(": ")[1]
-        assert f"dataset '{name}', chunk at (" in out.message and "rebuild it: isplat " in out.message, (what, out)
+        name = what.split(": ")[1]       # (augmented format 6's channels: a brick, formats/augmented.md §2.3)
+        assert (f"dataset '{name}', chunk at (" in out.message or f"dataset '{name}', brick " in out.message) and \
+            "rebuild it: isplat " in out.message, (what, out)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -311,7 +316,7 @@ def test_a_dataset_and_its_hashes_from_another_file_are_refused(head, target, se
     out = R.check_mutant(head, target, data, what)
     assert out.result in ("error", "unchanged"), out
     if out.result == "error":
-        assert "chunk at (" in out.message and "rebuild it" in out.message, out
+        assert ("chunk at (" in out.message or "brick " in out.message) and "rebuild it" in out.message, out
 
 
 def test_an_edit_that_recomputes_the_hashes_is_not_caught(head):
@@ -321,7 +326,9 @@ def test_an_edit_that_recomputes_the_hashes_is_not_caught(head):
     original = path.read_bytes()
     try:
         with h5py.File(path, "r+") as f:
-            f["gradient_magnitude"][3, 4, 5] = (int(f["gradient_magnitude"][3, 4, 5]) + 7) % 256
+            ds = f["gradient_magnitude"]          # (format 6: brick 0's voxel (3, 4, 5); formats/augmented.md §2.3)
+            at = (3, 4, 5) if ds.ndim == 3 else (0, 3, 4, 5)
+            ds[at] = (int(ds[at]) + 7) % 256
         assert R.run_render(head["full"], head["folder"] / "edited")[0] == 2
         R.rehash(path)
         code, _, images = R.run_render(head["full"], head["folder"] / "edited")
@@ -359,7 +366,7 @@ def _spec_key(f, datasets, attributes) -> bytes:
     return h.digest()
 
 
-@pytest.mark.parametrize("rel", ["augmented/valid.aug.h5", "augmented/valid-v4.aug.h5", "augmented/valid-v3.aug.h5",
+@pytest.mark.parametrize("rel", ["augmented/valid.aug.h5", "augmented/valid-v5.aug.h5", "augmented/valid-v4.aug.h5", "augmented/valid-v3.aug.h5",
                                  "index/gaps.idx.h5", "index/gaps.values.idx.h5", "index/gaps.v4.idx.h5",
                                  "index/full.values.idx.h5", "augmented/valid.labels.idx.h5"])
 def test_chunk_hashes_follow_the_spec(rel):
@@ -374,6 +381,7 @@ def test_chunk_hashes_follow_the_spec(rel):
             datasets, attributes = ["density", "gradient_magnitude", "normal"], [("", n) for n in aug_attrs]
             datasets += ["brick_range"] if int(f.attrs["format_version"]) >= 5 else []     # version 5: §2.2
             datasets += ["labels", "label_voxels"] if "labels" in f else []
+            attributes += [("", "brick_edge")] if int(f.attrs["format_version"]) >= 6 else []  # version 6: §2.3
         else:
             datasets = [f"values/{n}" for n in ("density_voxel_ptr", "gradient_magnitude", "normal") if "values" in f]
             attributes = [("", n) for n in ("format", "format_version", "shape", "density_sha256", "density_ranges")]
@@ -390,6 +398,10 @@ def test_chunk_hashes_follow_the_spec(rel):
         key = _spec_key(f, datasets, attributes)
         assert bytes(f.attrs["chunk_hash_check"]).decode() == \
             hashlib.blake2b(b"isplat chunk hashes 1", digest_size=16, key=key).hexdigest()
+        if "brick_hashes" in f:                      # version 6: the channels' brick hashes (§2.3), from the text
+            _check_brick_hashes(f, key, [d for d in datasets if d in ("density", "gradient_magnitude", "normal",
+                                                                         "labels")])
+            datasets = [d for d in datasets if d in ("brick_range", "label_voxels")]
         for d in datasets:
             ds, table = f[d], f["chunk_hashes"][d.replace("/", ".")][()]
             grid = [-(-n // c) for n, c in zip(ds.shape, ds.chunks)]
@@ -401,6 +413,28 @@ def test_chunk_hashes_follow_the_spec(rel):
                 h.update(d.encode() + b"\0" + b"".join(o.to_bytes(8, "little") for o in off))
                 h.update(np.ascontiguousarray(data, dtype=data.dtype.newbyteorder("<")).tobytes())
                 assert h.digest() == table[row].tobytes(), (rel, d, off)
+
+
+def _check_brick_hashes(f, key: bytes, channels) -> None:
+    """Every brick hash of a version-6 file, recomputed as formats/augmented.md §2.3 writes it."""
+    import hashlib
+
+    mask = (1 << 64) - 1
+    for name in channels:
+        seed = int.from_bytes(hashlib.blake2b(b"isplat brick hashes 6\0" + name.encode() + b"\0", digest_size=8,
+                                              key=key).digest(), "little")
+        ds, table = f[name], f["brick_hashes"][name][()]
+        assert ds.chunks is None and table.dtype == np.dtype("<u8") and table.shape == (ds.shape[0],)
+        for b in range(ds.shape[0]):
+            raw = np.ascontiguousarray(ds[b], dtype=ds.dtype.newbyteorder("<")).tobytes()
+            h = seed ^ (((b + 1) * 0x9E3779B97F4A7C15) & mask)
+            for o in range(0, len(raw), 8):
+                h ^= int.from_bytes(raw[o:o + 8], "little")
+                h = (h * 0xFF51AFD7ED558CCD) & mask
+                h ^= h >> 32
+            h ^= h >> 33
+            h = (h * 0xC4CEB9FE1A85EC53) & mask
+            assert h ^ (h >> 33) == int(table[b]), (name, b)
 
 
 @pytest.mark.parametrize("target,dataset", [("aug", "normal"), ("aug", "gradient_magnitude"),
@@ -420,4 +454,5 @@ def test_stats_checks_every_chunk(head, tmp_path, target, dataset):
     finally:
         path.write_bytes(original)
     assert code == 2 and out == "" and err.count("\n") == 1, err
-    assert f"{path}: dataset '{dataset}', chunk at (" in err and "rebuild it: isplat " in err, err
+    assert (f"{path}: dataset '{dataset}', chunk at (" in err or f"{path}: dataset '{dataset}', brick " in err) and \
+        "rebuild it: isplat " in err, err

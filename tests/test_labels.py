@@ -87,7 +87,7 @@ def test_label_ids_beyond_the_counts_are_refused(tmp_path):
         from isplat.augfile import finish_augmented
 
         c = f["label_voxels"][()]
-        del f["label_voxels"], f["chunk_hashes"]
+        del f["label_voxels"], f["chunk_hashes"], f["brick_hashes"]     # (augmented format 6: + the brick hashes)
         del f.attrs["chunk_hash_check"]
         f.create_dataset("label_voxels", data=np.r_[c[:2], c[2:].sum()].astype("<i8"), chunks=(3,),
                          fletcher32=True)

@@ -48,6 +48,8 @@ def _rehash(f) -> None:
 
     del f["chunk_hashes"]
     del f.attrs["chunk_hash_check"]
+    if "brick_hashes" in f:
+        del f["brick_hashes"]
     finish_augmented(f)
 
 
@@ -62,7 +64,7 @@ def build(out_dir: Path) -> list[Path]:
     args = (aug["density"], aug["gradient_magnitude"], aug["normal"], aug["spacing_ijk"],
             aug["density_window"], aug["gradient_magnitude_scale"])
     valid = out_dir / "valid.aug.h5"
-    write_augmented(valid, *args, extra_attrs=extra, labels=example_labels())
+    write_augmented(valid, *args, extra_attrs=extra, labels=example_labels(), edge=8)
     # the tool version would make the file change with every release; pin it for the committed example
     with h5py.File(valid, "a") as f:
         set_string_attr(f, "created_by", "isplat 0.1.0")
@@ -70,7 +72,7 @@ def build(out_dir: Path) -> list[Path]:
     wrong_version = out_dir / "invalid-wrong-version.aug.h5"
     write_augmented(wrong_version, *args, extra_attrs=extra)
     with h5py.File(wrong_version, "a") as f:
-        f.attrs["format_version"] = np.int64(6)
+        f.attrs["format_version"] = np.int64(7)
         set_string_attr(f, "created_by", "isplat 0.1.0")
 
     from isplat.augfile import open_augmented
@@ -84,6 +86,11 @@ def build(out_dir: Path) -> list[Path]:
     v4 = out_dir / "valid-v4.aug.h5"                 # version 4 (labels, chunks of whole rows): still read
     write_augmented(v4, *args, extra_attrs=extra, labels=example_labels(), version=4)
     with h5py.File(v4, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+
+    v5 = out_dir / "valid-v5.aug.h5"                 # version 5 (labels, 8^3 bricks as HDF5 chunks): still read
+    write_augmented(v5, *args, extra_attrs=extra, labels=example_labels(), version=5)
+    with h5py.File(v5, "a") as f:
         set_string_attr(f, "created_by", "isplat 0.1.0")
 
     v3 = out_dir / "valid-v3.aug.h5"                 # version 3 (no labels): still read
@@ -102,7 +109,7 @@ def build(out_dir: Path) -> list[Path]:
     write_augmented(bad_label, *args, extra_attrs=extra, labels=example_labels())
     with h5py.File(bad_label, "a") as f:
         set_string_attr(f, "created_by", "isplat 0.1.0")
-        f["labels"][1, 2, 3] = 7
+        f["labels"][0, 1, 2, 3] = 7                  # brick 0, voxel (k, j, i) = (1, 2, 3)
         _rehash(f)
 
     wrong_name = out_dir / "invalid-wrong-format.aug.h5"
@@ -129,7 +136,7 @@ def build(out_dir: Path) -> list[Path]:
     write_augmented(flipped, *args, extra_attrs=extra)
     with h5py.File(flipped, "a") as f:
         set_string_attr(f, "created_by", "isplat 0.1.0")
-        at = f["normal"].id.get_chunk_info(0).byte_offset
+        at = f["normal"].id.get_offset()
     data = bytearray(flipped.read_bytes())
     data[at + 3] ^= 0x04
     flipped.write_bytes(bytes(data))
@@ -146,7 +153,14 @@ def build(out_dir: Path) -> list[Path]:
     write_augmented(edited, *args, extra_attrs=extra)
     with h5py.File(edited, "a") as f:
         set_string_attr(f, "created_by", "isplat 0.1.0")
-        f["density"][1, 2, 3] = 255 - int(f["density"][1, 2, 3])
+        f["density"][0, 1, 2, 3] = 255 - int(f["density"][0, 1, 2, 3])
+
+    short = out_dir / "invalid-brick-hashes.aug.h5"  # a hash table one row short (not covered by the file key)
+    write_augmented(short, *args, extra_attrs=extra)
+    with h5py.File(short, "a") as f:
+        set_string_attr(f, "created_by", "isplat 0.1.0")
+        del f["brick_hashes/density"]
+        f["brick_hashes"].create_dataset("density", data=np.zeros(0, "<u8"))
 
     bad_axes = out_dir / "invalid-axes-lps.aug.h5"    # an orientation whose rows are not orthonormal
     write_augmented(bad_axes, *args, extra_attrs=dict(extra, axes_lps=np.diag([1.0, 1.0, 2.0]).astype("<f8")))
@@ -169,23 +183,25 @@ def build(out_dir: Path) -> list[Path]:
         "labels": example_labels().tolist(),
         "label_voxels": np.bincount(example_labels().reshape(-1)).tolist(),
         "brick_range": [[[[int(aug["density"].min()), int(aug["density"].max())]]]],
-        "read": ["valid-v4.aug.h5", "valid-v3.aug.h5"],
+        "brick_edge": 8,
+        "read": ["valid-v5.aug.h5", "valid-v4.aug.h5", "valid-v3.aug.h5"],
         "refused": {
             "invalid-wrong-version.aug.h5": "format_version",
             "invalid-wrong-format.aug.h5": "format",
             "invalid-missing-normal.aug.h5": "normal",
             "invalid-version-1.aug.h5": "format_version",
-            "invalid-flipped-bit.aug.h5": "chunk at (0, 0, 0)",
+            "invalid-flipped-bit.aug.h5": "brick 0 at (0, 0, 0)",
             "invalid-axes-lps.aug.h5": "axes_lps",
             "invalid-version-2.aug.h5": "format_version",
-            "invalid-edited-value.aug.h5": "chunk at (0, 0, 0)",
+            "invalid-edited-value.aug.h5": "brick 0 at (0, 0, 0)",
+            "invalid-brick-hashes.aug.h5": "brick_hashes/density",
             "invalid-label-id.aug.h5": "labels",
             "invalid-brick-range.aug.h5": "brick_range",
         },
     }
     exp = out_dir / "valid.expected.json"
     exp.write_text(json.dumps(expected, indent=1) + "\n")
-    return [valid, label_index, v4, v3, bad_range, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes,
+    return [valid, label_index, v5, v4, v3, short, bad_range, wrong_version, wrong_name, missing, old, old2, edited, flipped, bad_axes,
             bad_label, exp]
 
 

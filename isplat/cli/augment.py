@@ -50,11 +50,11 @@ log = logging.getLogger(__name__)
                    "thick slices streak. The default, post-classified rendering already interpolates between "
                    "slices and gains nothing from it (docs/thick-slices.md); costs 2-4x the file and memory. "
                    "The window is the one given, or the one the scan gets without --thin-slices.")
-@click.option("--bricks", is_flag=True,
-              help="Store the channels in 8x8x8 bricks (augmented format 5): the default, post-classified render "
-                   "then reads only the bricks its scene needs (fewer bytes, less memory held); with a warm page "
-                   "cache it loads slower than the default layout (format 4, whole rows) on volumes of tens of "
-                   "millions of voxels, faster on larger ones (docs/selective-read.md).")
+@click.option("--bricks/--rows", default=True,
+              help="--bricks (the default): store the channels in 8x8x8 bricks (augmented format 6), so that the "
+                   "default, post-classified render reads only the bricks its scene needs (fewer bytes, less "
+                   "memory held) and loads no slower than from rows. --rows: chunks of whole rows (format 4), read "
+                   "whole (docs/selective-read.md).")
 @click.option("--labels", "labels", metavar="MASK", default=None,
               help="A segmentation on the scan's grid (any input format above, e.g. mask.nii.gz or labels.npy): "
                    "integer label ids 0..65535 stored as the label channel (formats/augmented.md), shown by a "

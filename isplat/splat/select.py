@@ -230,6 +230,13 @@ def cell_origins(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_v
 
 
 @jit
+def cell_origins_py(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count, n_a):
+    """:func:`cell_origins` for callers in Python (a stage is reached from compiled code only: isplat.jit)."""
+    return cell_origins(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
+                        n_a)
+
+
+@jit
 def expand_coordinates(slice_ptr, region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
                        offset, n_a):
     """Every voxel's ``(c, a, b)`` from the hierarchy (the inverse of :func:`select_voxels`' ordering)."""

@@ -58,7 +58,8 @@ class LoadReport:
     index_bytes_needed: int = 0       # the index blocks and table rows of the intervals (+ /values' table)
     footprint: object = field(default=None, repr=False, compare=False)   # post: () -> (axis, voxels), lazy
     _needed: tuple | None = field(default=None, repr=False, compare=False)
-    values_from: str = "none"         # "values file", "index", "augmented slabs", "whole channels" or "none"
+    values_from: str = "none"         # "values file", "index", "augmented bricks", "augmented slabs",
+    #                                   "whole channels" or "none"
     values_path: str = ""             # the values file read ("values file"), or the index ("index")
     channels: list = field(default_factory=list)
     axes: list = field(default_factory=list)
@@ -389,6 +390,46 @@ def gather_channels(read, loaded: dict, channels, shape) -> dict:
     return out
 
 
+def gather_bricks(aug, loaded: dict, channels, shape, box=None) -> dict:
+    """:func:`gather_channels` from a bricked augmented file: only the bricks that hold a loaded voxel are read
+    (each checked, :meth:`isplat.augfile.AugmentedFile.read_bricks`), GATHER_SLAB bricks' height of k at a time,
+    within ``box`` (``(lo, hi)``, element bounds (k, j, i): a slab's block; the whole volume if None)."""
+    from .splat.select import flat_indices
+
+    fis = {ax: flat_indices(la.slice_block_ptr, la.block_voxel_ptr, la.positions, la.n_a,
+                            grid.flat_strides(shape, ax)) for ax, la in loaded.items()}
+    out = {ax: {} for ax in loaded}
+    if not channels or not fis:
+        return out
+    lo, hi = box if box is not None else ((0, 0, 0), tuple(shape))
+    edge = np.asarray(aug.bricks, dtype=np.int64)
+    fi = np.concatenate(list(fis.values()))
+    kji = np.stack(np.unravel_index(fi, tuple(shape)), axis=1)
+    if kji.shape[0] and ((kji < np.asarray(lo)) | (kji >= np.asarray(hi))).any():
+        raise IsplatError(f"{aug.path}: the index places a voxel outside the slab's block {lo}..{hi}")
+    layer = GATHER_SLAB * int(edge[0])            # k-slices per read: whole layers of bricks
+    cut = np.searchsorted(kji[:, 0][order := np.argsort(fi, kind="stable")],
+                          np.arange(lo[0] - lo[0] % layer, hi[0] + layer, layer))
+    vals = {ch: np.empty(fi.shape[0], dtype=np.uint16 if ch == "normal" else np.uint8) for ch in channels}
+    for a, b in zip(cut[:-1], cut[1:]):
+        if b <= a:
+            continue
+        rows = order[a:b]
+        at = kji[rows]
+        k0 = max(int(lo[0]), int(at[0, 0]) - int(at[0, 0]) % layer)
+        sub = ((k0, *lo[1:]), (min(int(hi[0]), k0 + layer), *hi[1:]))
+        bricks = np.unique(at // edge, axis=0)
+        for ch in channels:                       # the block holds only these bricks (zero pages elsewhere)
+            block = aug.read_bricks(ch, bricks, sub)
+            vals[ch][rows] = block[tuple((at - np.asarray(sub[0])).T)]
+    start = 0
+    for ax, f in fis.items():
+        for ch in channels:
+            out[ax][ch] = vals[ch][start:start + f.shape[0]]
+        start += f.shape[0]
+    return out
+
+
 def value_order(la, shape) -> np.ndarray:
     """The permutation that puts the voxels of loaded axis ``la`` (in the order of its ``positions``) in the
     order of the index's ``/values``: by density, then by flat position ``i + n_i * (j + n_j * k)``.
@@ -518,13 +559,14 @@ def _select_indexed(sel: Selection, aug, idx, slices) -> None:
         source = idx.path if rep.values_from == "index" else idx.values_file.path
         rep.values_path = str(source)
         gather = lambda lo, ch, sh: gather_from_index(values, lo, ch, sh, source)    # noqa: E731
+    elif aug.bricked:            # no values file (or a slab): the bricks that hold a voxel of interest
+        box = None if slices is None else _slab_box(aug, axes, slices)
+        gather = lambda lo, ch, sh: gather_bricks(aug, lo, ch, sh, box)            # noqa: E731
     else:                        # no values file: the position-ordered channels, in k-slabs
-        gather = lambda lo, ch, sh: gather_channels(aug.read, lo, ch, sh)          # noqa: E731
-    if slices is not None:       # a slab: its blocks only (read so), its values from the augmented k-slabs
-        read = _slab_reader(aug, axes, slices)
+        read = aug.read if slices is None else _slab_reader(aug, axes, slices)
         gather = lambda lo, ch, sh: gather_channels(read, lo, ch, sh)              # noqa: E731
-        if not sel.post:
-            rep.values_from = "none" if not rep.channels else "augmented slabs"
+    if not from_values and not sel.post and rep.channels:
+        rep.values_from = "augmented bricks" if aug.bricked else "augmented slabs"
     _select(sel, loaded, gather, str(sel.request.index))
     rep.voxels_of_interest = next(iter(loaded.values())).n_voxels if loaded else 0
 
@@ -671,6 +713,19 @@ def pages_filled(bricks: np.ndarray, size, lo, shape, itemsize: int) -> int:
     return int(np.count_nonzero(pages)) * PAGE
 
 
+def _slab_box(aug, axes, slices) -> tuple:
+    """The element bounds ``(lo, hi)`` (k, j, i) of a slab's slices of its one axis, checked against the volume."""
+    s = np.asarray(list(slices), dtype=np.int64)
+    axis, = axes
+    d = 2 - grid.AXES.index(axis)
+    c0, c1 = (int(s.min()), int(s.max()) + 1) if s.size else (0, 0)
+    if c0 < 0 or c1 > aug.shape[d]:
+        raise IsplatError(f"{aug.path}: slices {c0}..{c1 - 1} of axis {axis}: the axis has {aug.shape[d]}")
+    lo, hi = [0, 0, 0], list(aug.shape)
+    lo[d], hi[d] = c0, c1
+    return tuple(lo), tuple(hi)
+
+
 def _slab_reader(aug, axes, slices):
     """``read(channel, k0, k1)`` for gathering a slab's values: ``aug.read``, or for a slab of j-slices (rows of
     every k-plane) the k-planes with only the slab's rows read and the others zero (never gathered), so HDF5
@@ -744,7 +799,8 @@ def _values_source(idx, aug, slices) -> str:
 
             _SAID_NO_VALUES.add(str(idx.path))
             log.info(f"isplat: {idx.path} has no values file ({values_path(idx.path).name}): pre-classification "
-                     f"gathers the channel values from {aug.path} in k-slabs; isplat index {aug.path} -o {idx.path} "
+                     f"gathers the channel values from {aug.path} "
+                     f"{'(the bricks that hold them)' if aug.bricked else 'in k-slabs'}; isplat index {aug.path} -o {idx.path} "
                      f"--force writes it")
         return "augmented slabs"
     _check_values_match(idx.values_meta, idx.path if source == "index" else idx.values_file.path, aug,

@@ -520,6 +520,9 @@ def format_table(s: dict) -> str:
                                     "values file": "the index's values file (only the voxels of interest)",
                                     "augmented slabs": "the augmented file, in slabs of 8 k-slices (no values "
                                                        "file; isplat index writes it, to read only theirs)",
+                                    "augmented bricks": "the augmented file, the bricks that hold a voxel of "
+                                                        "interest (a slab, or no values file; isplat index "
+                                                        "writes it, to read only theirs)",
                                     "whole channels": "the augmented file, whole channels (full method, or "
                                                       "post-classification: the neighbours of the voxels of "
                                                       "interest are sampled too)",

@@ -74,7 +74,7 @@ def test_verbose_report_says_where_pre_read_its_values(data):
     finally:
         shutil.move(data / "aside.h5", vals)
     err = res.stderr.decode()
-    assert res.returncode == 0 and "channel values from augmented slabs" in err, err
+    assert res.returncode == 0 and "channel values from augmented bricks" in err, err
     assert err.count("has no values file") == 1 and "--force writes it" in err, err
     assert np.array_equal(iio.imread(data / "p.png"), iio.imread(data / "q.png"))      # the same image
 

@@ -108,7 +108,7 @@ def test_a_slab_selected_from_files_is_the_restricted_whole(make_scene, volume, 
                         shading="enabled = true", render='classification = "pre"')     # values gathered
         whole = select_from_files(sc, axis)
         slab = select_from_files(sc, axis, slices=slices)
-        assert slab.report.values_from == "augmented slabs"
+        assert slab.report.values_from == "augmented bricks"
         want = restrict(whole, axis, slices).axes[axis]
         for got, exp in zip(slab.axes[axis].arrays(), want.arrays()):
             assert got.dtype == exp.dtype and np.array_equal(got, exp)

@@ -170,7 +170,7 @@ def test_selection_reads_only_the_values_and_they_are_right(tmp_path, make_scene
     old = select_from_files(make_scene(aug, v2, image="width = 12\nheight = 12",
                                        transfer="opacity = [[100, 0], [110, 1], [255, 1]]\n"
                                                 "gradient_opacity = [[0, 0.5], [255, 1]]"), "ijk")
-    assert old.report.values_from == "augmented slabs" and old.report.augmented_bytes > 0
+    assert old.report.values_from == "augmented bricks" and old.report.augmented_bytes > 0
     assert old.report.index_format_version == 6 and sel.report.index_format_version == 6
     assert old.report.values_bytes == 0 == old.report.values_file_bytes
     for ax in "ijk":
@@ -348,10 +348,10 @@ def test_stats_of_an_index_without_values_file_say_where_values_come_from(tmp_pa
     s = collect(aug, v2, scene=scene)
     assert s["index"]["format_version"] == 6 and s["index"]["values"] is None
     ld = s["scene"]["loaded"]
-    assert ld["values_from"] == "augmented slabs" and ld["augmented_bytes"] == 2 * dens.size
+    assert ld["values_from"] == "augmented bricks" and ld["augmented_bytes"] == 2 * dens.size
     assert ld["bytes_needed"] == 2 * int((dens >= 101).sum()) + ld["index_bytes"]
     table = format_table(s)
-    assert "no values file (isplat index --no-values)" in table and "in slabs of 8 k-slices" in table
+    assert "no values file (isplat index --no-values)" in table and "the bricks that hold a voxel of interest" in table
     assert "isplat index AUG.h5 -o IDX.h5 --force writes it" in table
 
 
@@ -372,7 +372,7 @@ def test_without_the_values_file_pre_gathers_from_the_augmented_file_and_says_so
     store.values_path(idx).unlink()
     with caplog.at_level(logging.INFO, logger="isplat"):
         without = select_from_files(_pre_scene(make_scene, aug, idx), "ijk")
-    assert with_values.report.values_from == "values file" and without.report.values_from == "augmented slabs"
+    assert with_values.report.values_from == "values file" and without.report.values_from == "augmented bricks"
     said = [m for m in caplog.messages if "has no values file" in m]
     assert len(said) == 1 and "v.values.idx.h5" in said[0] and f"isplat index {aug} -o {idx} --force" in said[0]
     for ax in "ijk":
@@ -464,3 +464,37 @@ def test_pre_images_from_the_values_file_equal_those_from_values_inside(tmp_path
     assert open_index(v4).version == 4
     assert np.array_equal(images["v6"][0], images["v4"][0]) and images["v6"][0].any()
     assert images["v6"][1].bytes_needed == images["v4"][1].bytes_needed
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**16), axis=st.sampled_from("ijk"), cut=st.tuples(st.integers(0, 69), st.integers(1, 70)))
+def test_values_gathered_from_bricks_are_the_channels_at_the_voxels(tmp_path_factory, seed, axis, cut):
+    """gather_bricks (a bricked file without a values file, or a slab): the normal and gradient magnitude of every
+    loaded voxel, as the channels hold them at its position, over several layers of bricks and for slabs whose
+    bounds are not on brick edges; only the bricks holding a voxel are read."""
+    from isplat.augfile import open_augmented
+    from isplat.index import open_index
+    from isplat.selection import _slab_box, gather_bricks
+    from isplat.splat.select import flat_indices
+    from isplat import grid
+
+    rng = np.random.default_rng(seed)
+    shape = (70, 11, 9)                                   # k spans two layers of 8^3 bricks (GATHER_SLAB x 8)
+    dens = np.where(rng.random(shape) < 0.05, rng.integers(150, 256, shape), 0).astype(np.uint8)
+    gm = rng.integers(0, 256, shape).astype(np.uint8)
+    nrm = rng.integers(0, 65536, shape).astype(np.uint16)
+    aug, idx = write_volume(tmp_path_factory.mktemp("b"), dens, gm=gm, normal=nrm)
+    a = open_augmented(aug)
+    assert a.bricked
+    n = shape[2 - "ijk".index(axis)]
+    c0, c1 = sorted((min(cut[0], n - 1), min(cut[1], n)))
+    slices = np.arange(c0, max(c1, c0 + 1))
+    ix = open_index(idx)
+    with ix.session():
+        la = ix.load_axis(axis, [(150, 255)], slices=slices)
+    box = _slab_box(a, axis, slices)
+    got = gather_bricks(a, {axis: la}, ["normal", "gradient_magnitude"], shape, box)[axis]
+    fi = flat_indices(la.slice_block_ptr, la.block_voxel_ptr, la.positions, la.n_a, grid.flat_strides(shape, axis))
+    assert fi.size == int((np.moveaxis(dens, 2 - "ijk".index(axis), 0)[slices] >= 150).sum())
+    assert np.array_equal(got["normal"], nrm.ravel()[fi]) and np.array_equal(got["gradient_magnitude"], gm.ravel()[fi])
+    assert a.bytes_read <= 3 * (np.unique(np.stack(np.unravel_index(fi, shape), 1) // 8, axis=0).shape[0] * 512)

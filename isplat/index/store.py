@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import chunkhash, progress
 from ..errors import IsplatError
-from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check_checked_dataset,
+from ..fileio import (ReadCounter, _CountingRaw, attr_array, attr_string, atomic_output, check_checked_dataset,
                       check_hashed_dataset, check_output, check_string_attrs, create_checked_dataset, create_group,
                       create_hashed_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
 from . import codec
@@ -525,7 +525,8 @@ class IndexFile:
     def _fetch(self, ds, lo: int, hi: int):
         """Rows ``lo:hi`` (from a chunk's first row) of a version-7 dataset in one read of the file, when HDF5
         stored their chunks back to back, whole and unfiltered (§1: allocated at creation); else None (HDF5 reads
-        them, a chunk at a time). Counted in :attr:`io` as HDF5's reads are; the caller checks each chunk's hash."""
+        them, a chunk at a time). Counted in :attr:`io` through the same file object as HDF5's reads; the caller
+        checks each chunk's hash."""
         c, item = int(ds.chunks[0]), ds.dtype.itemsize
         first = ds.id.get_chunk_info_by_coord((lo,))
         last = ds.id.get_chunk_info_by_coord(((hi - 1) // c * c,))
@@ -534,11 +535,9 @@ class IndexFile:
                 first.size != c * item or last.size != c * item or last.byte_offset != first.byte_offset + span:
             return None
         out = np.empty(hi - lo, dtype=ds.dtype)
-        with open(self.path, "rb", buffering=0) as fh:
+        with contextlib.closing(_CountingRaw(self.path, self.io)) as fh:     # counted as HDF5's reads are
             fh.seek(first.byte_offset)
             n = fh.readinto(memoryview(out).cast("B"))
-        self.io.bytes += n or 0
-        self.io.reads += 1
         return out if n == out.nbytes else None
 
     # -- channel values (in the file: version 4; beside it: version 6, formats/index.md §9)

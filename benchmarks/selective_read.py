@@ -163,7 +163,7 @@ def _index(aug: Path, out: Path, quick: bool) -> None:
 
 def index_figures(idx_path: Path) -> dict:
     """The index's size: its file in all and per indexed voxel per axis, its axes' tables and blocks, and the
-    values file beside it (format 6; ``/values`` inside, format 4)."""
+    values file beside it (formats 6 and 7; ``/values`` inside, format 4)."""
     from isplat.index import open_index
 
     idx = open_index(idx_path)
@@ -276,7 +276,8 @@ def _explanation(repeats: int) -> list[str]:
         "- **pre** (the paper's pre-classified splatting, `render.classification = \"pre\"`): the index blocks "
         "and table rows of the transfer function's intervals, and the voxels of interest's normals (and gradient "
         "magnitudes, when the transfer function uses them) from the index's values file (`NAME.values.idx.h5`, "
-        "index format 6), one row range per interval. Only the voxels of interest are read; *read* includes the "
+        "since index format 6), one row range per interval (format 7: chunks without a chunk index, sized by the "
+        "dataset, formats/index.md §1.1). Only the voxels of interest are read; *read* includes the "
         "values file's opening.",
         "- **post (format 6: bricks)** (the default technique, post-classification, from a file written by "
         "`isplat augment`): the same index blocks, and of the "
@@ -339,7 +340,7 @@ def _old_new(rows) -> list[str]:
 
 def _index_table(rows) -> list[str]:
     L = ["The index (`isplat index` of all densities): its file, bytes per indexed voxel per axis (issue 26's "
-         "target: 1.3), of which the axes' tables and blocks, and the values file beside it (format 6, "
+         "target: 1.3), of which the axes' tables and blocks, and the values file beside it (since format 6, "
          "`NAME.values.idx.h5`: 3 B per indexed voxel, read by pre only; `isplat index --no-values` leaves it "
          "out).", "",
          "| case | index format | index file (MB) | B per indexed voxel per axis | of which axes | values file (MB) |",

@@ -150,11 +150,16 @@ def _hash_layer(key, dataset, arr, base, chunks, grid) -> np.ndarray:
     return np.concatenate(rows), np.frombuffer(b"".join(hashes), dtype=np.uint8).reshape(-1, DIGEST)
 
 
-def write_tables(f, density_sha256: str, datasets, attributes, tables=None) -> None:
+def write_tables(f, density_sha256: str, datasets, attributes, tables=None, create=None) -> None:
     """Write ``/chunk_hashes`` and the root ``chunk_hash_check`` of open file ``f``, whose ``datasets`` (paths)
     are complete and whose attributes are set. Reads every dataset back, a layer of chunks at a time. ``tables``:
-    the datasets that get a table (default all; the key covers all ``datasets``)."""
+    the datasets that get a table (default all; the key covers all ``datasets``). ``create``:
+    ``(group, name, table)`` -> the table's dataset (default: chunked with Fletcher-32, 256 rows a chunk)."""
     from .fileio import create_checked_dataset, create_group, set_string_attr
+
+    if create is None:
+        def create(g, name, table):
+            return create_checked_dataset(g, name, table.shape, "|u1", table, target=TABLE_CHUNK_ROWS * DIGEST)
 
     key = file_key(density_sha256, datasets, attributes)
     g = create_group(f, GROUP)
@@ -169,7 +174,7 @@ def write_tables(f, density_sha256: str, datasets, attributes, tables=None) -> N
                 arr = ds[c0 * ds.chunks[0]:c1 * ds.chunks[0]]
                 rows, hs = _hash_layer(key, d, arr, (c0 * ds.chunks[0],) + (0,) * (ds.ndim - 1), ds.chunks, grid)
                 table[rows] = hs
-        create_checked_dataset(g, table_name(d), table.shape, "|u1", table, target=TABLE_CHUNK_ROWS * DIGEST)
+        create(g, table_name(d), table)
     set_string_attr(f, CHECK_ATTR, check_value(key))
 
 
@@ -186,6 +191,7 @@ class Verifier:
         self._rows = {}                      # (dataset, table chunk index) -> bytes of its rows
         self._tables_checked = set()         # datasets whose table's presence and shape were checked
         self._places = {}                    # dataset -> int64[chunks]: each stored chunk's file offset (bulk reads)
+        self._table_chunk_rows = {}          # dataset -> rows per chunk of its table (read in those units)
 
     def __getstate__(self):                  # picklable (a hashlib state is not): rebuilt from the key
         return {k: (v if k != "_places" else {}) for k, v in self.__dict__.items() if k != "_base"}
@@ -200,20 +206,36 @@ class Verifier:
                           f"{table_name(dataset)} (changed, moved or copied from elsewhere); rebuild it: "
                           f"{self.rebuild}")
 
+    def _rows_per_chunk(self, f, dataset: str) -> int:
+        """Rows per stored chunk of the dataset's table (256 as isplat writes them before index format 7)."""
+        n = self._table_chunk_rows.get(dataset)
+        if n is None:
+            chunks = f[f"{GROUP}/{table_name(dataset)}"].chunks
+            n = self._table_chunk_rows[dataset] = int(chunks[0]) if chunks else TABLE_CHUNK_ROWS
+        return n
+
     def _table_chunk(self, f, dataset: str, c: int) -> bytes:
-        """Table chunk ``c`` (rows ``c * 256`` on) of the dataset's table, as bytes, read once and kept."""
+        """Table chunk ``c`` (rows ``c * rows per chunk`` on) of the dataset's table, as bytes, read once and kept."""
         rows = self._rows.get((dataset, c))
         if rows is None:
+            n = self._rows_per_chunk(f, dataset)
             t = f[f"{GROUP}/{table_name(dataset)}"]     # (a lookup per 256 rows: about 1% of their bricks' read)
-            rows = np.ascontiguousarray(t[c * TABLE_CHUNK_ROWS:(c + 1) * TABLE_CHUNK_ROWS], dtype=np.uint8).tobytes()
+            rows = np.ascontiguousarray(t[c * n:(c + 1) * n], dtype=np.uint8).tobytes()
             self._rows[(dataset, c)] = rows
         return rows
 
     def _table_rows(self, f, dataset: str, r0: int, r1: int) -> bytes:
-        """Rows ``r0:r1`` of the dataset's table, as bytes (16 per row)."""
-        out = [self._table_chunk(f, dataset, c)
-               for c in range(r0 // TABLE_CHUNK_ROWS, (r1 - 1) // TABLE_CHUNK_ROWS + 1)]
-        base = (r0 // TABLE_CHUNK_ROWS) * TABLE_CHUNK_ROWS
+        """Rows ``r0:r1`` of the dataset's table, as bytes (16 per row): the table chunks not yet kept read in
+        one request (from the first to the last missing one), then kept."""
+        n = self._rows_per_chunk(f, dataset)
+        missing = [c for c in range(r0 // n, (r1 - 1) // n + 1) if (dataset, c) not in self._rows]
+        if len(missing) > 1:
+            a, b = missing[0], missing[-1] + 1
+            got = np.ascontiguousarray(f[f"{GROUP}/{table_name(dataset)}"][a * n:b * n], dtype=np.uint8)
+            for c in range(a, b):
+                self._rows.setdefault((dataset, c), got[(c - a) * n:(c - a + 1) * n].tobytes())
+        out = [self._table_chunk(f, dataset, c) for c in range(r0 // n, (r1 - 1) // n + 1)]
+        base = (r0 // n) * n
         got = b"".join(out)[(r0 - base) * DIGEST:(r1 - base) * DIGEST]
         return got
 
@@ -225,10 +247,11 @@ class Verifier:
         h.update(memoryview(np.ascontiguousarray(data)).cast("B"))
         return h.digest()
 
-    def read(self, f, dataset: str, sel=None, check=None) -> np.ndarray:
+    def read(self, f, dataset: str, sel=None, check=None, fetch=None) -> np.ndarray:
         """``f[dataset][sel]`` (``sel``: a tuple of slices with steps of 1, missing axes whole), after checking
         every chunk it touches: whole chunks are read (HDF5 reads them whole anyway) and hashed; the selection
-        is returned (a copy for 3-D datasets, a view of the chunk-aligned read for 1-D ones)."""
+        is returned (a copy for 3-D datasets, a view of the chunk-aligned read for 1-D ones). ``fetch(ds, lo,
+        hi)``: 1-D only, the chunk-aligned rows ``lo:hi`` read otherwise than through HDF5 (or None: HDF5 reads)."""
         ds = f[dataset]
         if dataset not in self._tables_checked:
             _check_table(self.path, f, dataset, ds, self.rebuild)
@@ -247,11 +270,18 @@ class Verifier:
         if len(shape) == 1:                       # the index's tables: one read, chunks back to back
             c = chunks[0]
             lo, hi = g_lo[0] * c, min(shape[0], (g_hi[0] + 1) * c)
-            arr = ds[lo:hi]
+            arr = fetch(ds, lo, hi) if fetch is not None else None
+            arr = ds[lo:hi] if arr is None else arr
             want = self._table_rows(f, dataset, g_lo[0], g_hi[0] + 1)
-            for n, g in enumerate(range(g_lo[0], g_hi[0] + 1)):
-                if self._hash(prefix, (g * c,), arr[g * c - lo:(g + 1) * c - lo]) != want[n * DIGEST:(n + 1) * DIGEST]:
-                    self.fail(dataset, (g * c,))
+            m = (hi - lo) // c                    # whole chunks hashed in bulk, then a partial last one
+            offs = (np.arange(g_lo[0], g_lo[0] + m, dtype=np.int64) * c).reshape(-1, 1)
+            got = b"".join(hash_pieces(self._base, prefix, offs, arr[:m * c].reshape(m, c))) if m else b""
+            if m < g_hi[0] - g_lo[0] + 1:
+                got += self._hash(prefix, ((g_lo[0] + m) * c,), arr[m * c:])
+            if got != want:
+                n = next(n for n in range(len(want) // DIGEST)
+                         if got[n * DIGEST:(n + 1) * DIGEST] != want[n * DIGEST:(n + 1) * DIGEST])
+                self.fail(dataset, ((g_lo[0] + n) * c,))
             self.chunks_verified += g_hi[0] - g_lo[0] + 1
             return arr[bounds[0][0] - lo:bounds[0][1] - lo]
         out = np.empty(out_shape, dtype=ds.dtype)
@@ -289,15 +319,16 @@ class Verifier:
 
     def _rows_of(self, f, dataset: str, rows: np.ndarray) -> np.ndarray:
         """uint8[len(rows), 16]: the table's rows ``rows``, read a table chunk (256 rows) at a time and kept."""
-        chunks = np.unique(rows // TABLE_CHUNK_ROWS)
+        n = self._rows_per_chunk(f, dataset)
+        chunks = np.unique(rows // n)
         parts = []
         for c in chunks.tolist():
             got = self._table_chunk(f, dataset, c)
-            a = np.zeros((TABLE_CHUNK_ROWS, DIGEST), dtype=np.uint8)
+            a = np.zeros((n, DIGEST), dtype=np.uint8)
             a.reshape(-1)[:len(got)] = np.frombuffer(got, dtype=np.uint8)
             parts.append(a)
         table = np.stack(parts)
-        return table[np.searchsorted(chunks, rows // TABLE_CHUNK_ROWS), rows % TABLE_CHUNK_ROWS]
+        return table[np.searchsorted(chunks, rows // n), rows % n]
 
     def read_bricks_direct(self, f, dataset: str, bricks: np.ndarray, out: np.ndarray, origin=(0, 0, 0),
                            minmax: bool = False, bulk: bool = False):

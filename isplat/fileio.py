@@ -384,6 +384,40 @@ def create_checked_dataset(group, name: str, shape, dtype, data=None, target: in
                                 fletcher32=True, track_times=False, **kw)
 
 
+def create_hashed_dataset(group, name: str, shape, dtype, data=None, chunks=None):
+    """A chunked dataset without filters whose chunks are allocated when it is created (formats/index.md §1,
+    version 7): HDF5 then keeps no chunk index (a chunk's place in the file follows from its number), so a read
+    reads its chunks and nothing that locates them. Its chunks are checked by isplat's chunk hashes alone. An
+    empty dataset has one-element chunks and an unlimited maximum size, as HDF5 requires."""
+    import h5py
+
+    shape = tuple(int(n) for n in shape)
+    dt = np.dtype(dtype)
+    if 0 in shape:
+        return group.create_dataset(name, shape=shape, dtype=dt, chunks=(1,) * len(shape),
+                                    maxshape=(None,) * len(shape), track_times=False)
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    dcpl.set_fill_time(h5py.h5d.FILL_TIME_NEVER)
+    ds = group.create_dataset(name, shape=shape, dtype=dt, chunks=tuple(int(c) for c in chunks), dcpl=dcpl,
+                              track_times=False)
+    if data is not None:
+        ds[...] = data
+    return ds
+
+
+def check_hashed_dataset(where: str, ds) -> None:
+    """Refuse a dataset that is not chunked, has a filter, or has oversized chunks (:func:`create_hashed_dataset`)."""
+    plist = ds.id.get_create_plist()
+    if ds.chunks is None or plist.get_nfilters():
+        layout = "contiguous" if ds.chunks is None else \
+            f"chunked with filters {[plist.get_filter(n)[0] for n in range(plist.get_nfilters())]}"
+        raise IsplatError(f"{where}: dataset is {layout}; this format version requires chunks without filters "
+                          f"(each chunk is checked by its chunk hash)")
+    if int(np.prod(ds.chunks)) * ds.dtype.itemsize > READ_CHUNK_LIMIT:
+        raise IsplatError(f"{where}: chunks of {ds.chunks} exceed {READ_CHUNK_LIMIT} bytes")
+
+
 def check_checked_dataset(where: str, ds) -> None:
     """Refuse a dataset that is not chunked with Fletcher-32 as its only filter, or has oversized chunks."""
     plist = ds.id.get_create_plist()

@@ -824,7 +824,7 @@ def _open_matching_index(request, aug, idx=None):
 
     if request.index is None:
         raise IsplatError("scene: data.index is required for render.method = 'indexed'")
-    idx = idx or open_index(request.index)
+    idx = idx or open_index(request.index, keep_open=True)      # its first session (the load) uses the opening
     index = request.index
     if getattr(idx, "channel", "density") != "density":
         raise IsplatError(f"{index}: an index of the {idx.channel}, not of the density; data.index names the "

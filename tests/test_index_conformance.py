@@ -74,8 +74,8 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
     assert np.array_equal(np.load(EXAMPLES / f"{name}.npy"), vol)
     path = EXAMPLES / f"{name}.idx.h5"
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(6)
-        assert "values" not in f                                     # version 6: in the values file (§9)
+        assert f.attrs["format"] == b"isplat-index" and f.attrs["format_version"] == np.int64(7)
+        assert "values" not in f                                     # since version 6: in the values file (§9)
         assert f.attrs["format_version"].dtype == np.dtype("<i8")
         assert f.attrs["density_sha256"].decode() == density_sha256(vol)
         assert f.id.get_create_plist().get_version()[0] >= 2       # superblock with checksums
@@ -85,7 +85,7 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
             assert g.attrs["escape_width"] == spec["escape_width"]
             for key, want in expected_tables(spec).items():
                 ds = g[key]
-                assert ds.chunks is not None and ds.fletcher32 and ds.compression is None
+                assert_sized_chunks(ds, whole=key == "density_entry_ptr")
                 assert ds.dtype.str in ("<i8", "<u4", "|u1") and np.array_equal(ds[()], want), (axis, key)
     idx = open_index(path)
     for axis, spec in ex["axes"].items():
@@ -108,6 +108,62 @@ def test_committed_file_matches_and_decodes(name, tmp_path):
         for axis in ex["axes"]:
             for key in expected_tables(ex["axes"][axis]):
                 assert np.array_equal(a["axes"][axis][key][()], b["axes"][axis][key][()])
+
+
+def assert_sized_chunks(ds, whole=False):
+    """A version-7 dataset (formats/index.md §1): chunked without filters, its chunks of the size §1 gives (the
+    pointer tables whole), allocated when written (HDF5's chunk index not needed: chunk n at the first chunk's
+    address + n chunks)."""
+    from isplat.index.store import chunk_rows
+
+    assert ds.chunks is not None and not ds.fletcher32 and ds.compression is None
+    assert ds.id.get_create_plist().get_nfilters() == 0
+    n = ds.shape[0]
+    assert ds.chunks[0] == (n if whole else chunk_rows(n, ds.dtype.itemsize))
+    nc = ds.id.get_num_chunks()
+    assert nc == -(-n // ds.chunks[0])
+    first = ds.id.get_chunk_info(0).byte_offset
+    step = ds.chunks[0] * ds.dtype.itemsize
+    assert all(ds.id.get_chunk_info(c).byte_offset == first + c * step for c in range(nc))
+
+
+def test_chunk_rows_follow_the_dataset_size():
+    """§1: the power of two nearest below sqrt(bytes) / 2, within 256 B .. 64 KiB, at most the rows."""
+    from isplat.index.store import chunk_rows
+
+    assert chunk_rows(10, 4) == 10                 # fewer rows than a 256-byte chunk holds
+    assert chunk_rows(20931, 4) == 64              # 83,724 B: sqrt / 2 = 144 -> 256 B (the minimum)
+    assert chunk_rows(1858, 16) == 16              # a hash table of 29,728 B: sqrt / 2 = 86 -> 256 B
+    assert chunk_rows(7_608_714, 1) == 1024        # sqrt / 2 = 1,379 -> 1 KiB
+    assert chunk_rows(3_520 * 2048, 2) == 512      # 14.4 MB: sqrt / 2 = 1,898 -> 1 KiB: 512 normals
+    assert chunk_rows(1 << 40, 1) == 1 << 16       # the maximum
+
+
+@pytest.mark.parametrize("name", ["gaps", "full"])
+def test_version_6_pair_is_read(name):
+    """NAME.v6.idx.h5 with NAME.v6.values.idx.h5 (format version 6, as isplat wrote them before version 7:
+    Fletcher-32 chunks of fixed sizes): still read, with the same blocks and values as the version-7 pair."""
+    ex, vol = load(name)
+    old, new = open_index(EXAMPLES / f"{name}.v6.idx.h5"), open_index(EXAMPLES / f"{name}.idx.h5")
+    assert old.version == 6 and old.values_source == "values file" and old.values_file.version == 6
+    for axis in ex["axes"]:
+        a, b = old.load_axis(axis, ex["density_ranges"]), new.load_axis(axis, ex["density_ranges"])
+        assert np.array_equal(a.positions, b.positions) and np.array_equal(a.block_density, b.block_density)
+    x, y = (i.read_values(["normal", "gradient_magnitude"], ex["density_ranges"]) for i in (old, new))
+    assert np.array_equal(x[0], y[0]) and all(np.array_equal(x[1][c], y[1][c]) for c in x[1])
+    check_values(ex, vol, EXAMPLES / f"{name}.v6.values.idx.h5", EXAMPLES / f"{name}.v6.idx.h5")
+
+
+def test_values_file_of_another_version_is_refused(tmp_path):
+    """A version-6 values file beside a version-7 index is refused (it belongs to another build)."""
+    import shutil
+
+    from isplat.errors import IsplatError
+
+    shutil.copy(EXAMPLES / "gaps.idx.h5", tmp_path / "gaps.idx.h5")
+    shutil.copy(EXAMPLES / "gaps.v6.values.idx.h5", tmp_path / "gaps.values.idx.h5")
+    with pytest.raises(IsplatError, match=r"format version 6 beside an index of version 7; rebuild both"):
+        open_index(tmp_path / "gaps.idx.h5").read_values(["normal"], [(1, 255)])
 
 
 def augmented_channels(vol):
@@ -134,7 +190,10 @@ def check_values(ex, vol, path, index_path=None):
         g = f["values"]
         for name in ("density_voxel_ptr", "gradient_magnitude", "normal"):
             ds = g[name]
-            assert ds.chunks is not None and ds.fletcher32 and ds.compression is None
+            if index_path is not None and f.attrs["format_version"] == 7:
+                assert_sized_chunks(ds, whole=name == "density_voxel_ptr")
+            else:
+                assert ds.chunks is not None and ds.fletcher32 and ds.compression is None
         assert g["density_voxel_ptr"].dtype.str == "<i8" and np.array_equal(g["density_voxel_ptr"][()], want_ptr)
         assert g["normal"].dtype.str == "<u2" and g["gradient_magnitude"].dtype.str == "|u1"
         assert np.array_equal(g["normal"][()], aug["normal"].ravel()[reference])
@@ -143,13 +202,14 @@ def check_values(ex, vol, path, index_path=None):
         assert g.attrs["gradient_magnitude_scale"] == aug["gradient_magnitude_scale"]
         if index_path is not None:          # the values file: its root attributes and its index's identity
             with h5py.File(index_path, "r") as fi:
-                assert f.attrs["format"] == b"isplat-index-values" and f.attrs["format_version"] == np.int64(6)
+                assert f.attrs["format"] == b"isplat-index-values"
+                assert f.attrs["format_version"] == fi.attrs["format_version"]
                 assert f.attrs["format_version"].dtype == np.dtype("<i8") and "axes" not in f
                 assert f.attrs["index_chunk_hash_check"] == fi.attrs["chunk_hash_check"]
                 for a in ("shape", "density_sha256", "density_ranges"):
                     assert np.array_equal(f.attrs[a], fi.attrs[a]), a
     idx = open_index(index_path or path)
-    assert idx.version == (6 if index_path else 4) and idx.has_values
+    assert idx.version in ((6, 7) if index_path else (4,)) and idx.has_values
     assert idx.values_source == ("values file" if index_path else "index")
     assert idx.values_meta.n_voxels == reference.size
     ptr, vals = idx.read_values(["normal", "gradient_magnitude"], ex["density_ranges"])
@@ -163,7 +223,7 @@ def test_version_4_with_values_inside_is_read(name):
     ex, vol = load(name)
     old, new = open_index(EXAMPLES / f"{name}.v4.idx.h5"), open_index(EXAMPLES / f"{name}.idx.h5")
     assert old.version == 4 and old.values_source == "index" and old.values_file is None
-    assert new.version == 6 and new.values_source == "values file"
+    assert new.version == 7 and new.values_source == "values file"
     for axis in ex["axes"]:
         a, b = old.load_axis(axis, ex["density_ranges"]), new.load_axis(axis, ex["density_ranges"])
         assert np.array_equal(a.positions, b.positions) and np.array_equal(a.block_density, b.block_density)
@@ -197,6 +257,6 @@ def test_old_versions_are_refused_with_the_rebuild_command(name, version):
     """Files of versions 2 and 3 (no chunk hashes) are refused, naming the command that rebuilds them."""
     from isplat.errors import IsplatError
 
-    with pytest.raises(IsplatError, match=rf"'format_version' is {version}, this isplat reads version 6; files of "
+    with pytest.raises(IsplatError, match=rf"'format_version' is {version}, this isplat reads version 7; files of "
                                           rf"version {version} lack this version's checksums, rebuild it: isplat index"):
         open_index(EXAMPLES / name)

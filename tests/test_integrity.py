@@ -104,7 +104,7 @@ def _target(fx, target):
 
 
 @pytest.mark.parametrize("target,obj,method,name", [("aug", "/normal", "full", "'normal'"),
-                                                    ("values", "/values/normal", "indexed", "/values/normal")])
+                                                    ("values", "/values/normal", "indexed", "'values/normal'")])
 def test_message_names_file_and_dataset(examples, target, obj, method, name):
     """The full method reads the augmented file's normals; the indexed one (pre) the index's values file."""
     fx = examples["aug"]
@@ -117,8 +117,10 @@ def test_message_names_file_and_dataset(examples, target, obj, method, name):
         path.write_bytes(original)
     assert code == 2 and err.count("\n") == 1
     assert str(path) in err and name in err
-    # the augmented file's bricks (version 6) are refused by their brick hash (formats/augmented.md §2.3)
-    assert ("brick 0 at (0, 0, 0): its content does not match" if target == "aug" else "Fletcher-32") in err
+    # the augmented file's bricks (version 6) are refused by their brick hash (formats/augmented.md §2.3);
+    # the values file's chunks (index format 7: no Fletcher-32) by their chunk hash (formats/index.md §1.1)
+    assert ("brick 0 at (0, 0, 0): its content does not match" if target == "aug"
+            else "chunk at (0): its content does not match") in err
 
 
 # ---------------------------------------------------------------------------------------------- stats

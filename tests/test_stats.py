@@ -163,7 +163,7 @@ def test_json_keys(vol, capsys):
     assert {"path", "file_bytes", "file_bytes_per_voxel", "axes", "density_ranges", "voxels_indexed", "bytes",
             "bytes_per_voxel", "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range",
             "format_version", "values"} == set(s["index"])
-    assert s["index"]["format_version"] == 6
+    assert s["index"]["format_version"] == 7
     vpath = Path(str(idx).replace(".idx.h5", ".values.idx.h5"))
     assert s["index"]["file_bytes_per_voxel"] == pytest.approx(os.path.getsize(idx) / (3 * d.size))
     assert s["index"]["values"] == {"in": "values file", "path": str(vpath), "voxels": d.size,

@@ -80,7 +80,7 @@ def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget, slab_vox
         from isplat.augfile import open_augmented
         a = open_augmented(aug)
         with fileio.create_hdf5(idx_path) as f:
-            store._write_root(f, dens.shape, a.density_sha256, ranges, version=4 if inside else 6)
+            store._write_root(f, dens.shape, a.density_sha256, ranges, version=4 if inside else 7)
             if inside:
                 store.copy_values(f, a, dens, ranges, budget=budget, slab_voxels=slab_voxels)
             for ax, ai in build_index(dens, "ijk", ranges).items():
@@ -93,7 +93,7 @@ def test_values_read_equal_the_channels_at_the_loaded_voxels(v, budget, slab_vox
                 store.copy_values(f, a, dens, ranges, budget=budget, slab_voxels=slab_voxels)
                 store.finish_index(f)
         idx = open_index(idx_path)
-        assert idx.version == (4 if inside else 6) and idx.values_source == ("index" if inside else "values file")
+        assert idx.version == (4 if inside else 7) and idx.values_source == ("index" if inside else "values file")
         ref = reference_order(dens, ranges)
         ptr, vals = idx.read_values(["normal", "gradient_magnitude"], ranges)
         assert np.array_equal(vals["normal"], nrm.ravel()[ref])
@@ -171,7 +171,7 @@ def test_selection_reads_only_the_values_and_they_are_right(tmp_path, make_scene
                                        transfer="opacity = [[100, 0], [110, 1], [255, 1]]\n"
                                                 "gradient_opacity = [[0, 0.5], [255, 1]]"), "ijk")
     assert old.report.values_from == "augmented bricks" and old.report.augmented_bytes > 0
-    assert old.report.index_format_version == 6 and sel.report.index_format_version == 6
+    assert old.report.index_format_version == 7 and sel.report.index_format_version == 7
     assert old.report.values_bytes == 0 == old.report.values_file_bytes
     for ax in "ijk":
         for a, b in zip(old.axes[ax].arrays(), sel.axes[ax].arrays()):
@@ -201,17 +201,17 @@ def _chunks(path, name):
                               for n in range(ds.id.get_num_chunks())]
 
 
-META_BOUND = 16 << 10      # a range read's HDF5 metadata: the dataset's object header and one chunk-index page
+META_BOUND = 8 << 10       # a range read's HDF5 metadata: the dataset's and its hash table's object headers
 
 
 @SETTINGS
 @given(st.integers(0, 255), st.integers(0, 255), st.sampled_from(["normal", "gradient_magnitude"]))
 def test_bytes_read_for_an_interval_are_its_chunks_and_little_metadata(big_index, lo, hi, channel):
-    """Read counts from the HDF5 layer: an interval's values cost exactly the chunks that hold its rows (each
-    with its 4-byte checksum: at most one partial chunk at each end), plus at most META_BOUND of metadata."""
+    """Read counts from the HDF5 layer: an interval's values cost exactly the chunks that hold its rows (at most
+    one partial chunk at each end), plus at most META_BOUND of metadata and hash-table rows."""
     path, trace = big_index
     lo, hi = min(lo, hi), max(lo, hi)
-    idx = open_index(path).values_file          # the values file (format version 6)
+    idx = open_index(path).values_file          # the values file (format version 7)
     with idx.session():
         ptr = idx.value_ptr()
         trace.reads.clear()
@@ -226,8 +226,10 @@ def test_bytes_read_for_an_interval_are_its_chunks_and_little_metadata(big_index
     data = sum(n for pos, n in trace.reads if pos in inside)
     item = 2 if channel == "normal" else 1
     assert data == chunk_bytes                            # whole chunks, each read once
-    assert chunk_bytes <= (r1 - r0) * item + 2 * store.VALUE_CHUNK + 4 * len(touched)
-    assert read - data <= META_BOUND                       # the rest is metadata
+    assert chunk_bytes <= (r1 - r0) * item + 2 * rows_per_chunk * item     # no checksums (format 7)
+    with h5py.File(store.values_path(path), "r") as f:     # the rest: metadata and the chunks' hash rows
+        per = f[f"chunk_hashes/values.{channel}"].chunks[0]
+    assert read - data <= META_BOUND + 16 * (len(touched) + 2 * per)
     assert vals[channel].size == r1 - r0
 
 
@@ -301,7 +303,7 @@ def test_corrupt_values_are_refused_with_one_line(tmp_path, make_scene, case, ms
         elif case == "length":
             data = g["gradient_magnitude"][:-1]
             del g["gradient_magnitude"]
-            fileio.create_checked_dataset(g, "gradient_magnitude", data.shape, "|u1", data)
+            fileio.create_hashed_dataset(g, "gradient_magnitude", data.shape, "|u1", data, chunks=data.shape)
         elif case == "attr":
             g.attrs["gradient_magnitude_scale"] = np.int64(1)
     if case != "missing":   # an editor who recomputes the chunk hashes: the structural checks behind them
@@ -329,7 +331,7 @@ def test_index_cli_on_a_sample_volume(tmp_path, capsys):
     idx = open_index(tmp_path / "e.idx.h5")
     _, vals = idx.read_values(["normal"], [(0, 255)])
     assert np.array_equal(vals["normal"], nrm.ravel()[reference_order(dens, [(0, 255)])])
-    assert idx.axes == "ijk" and idx.version == 6 and idx.values_source == "values file"
+    assert idx.axes == "ijk" and idx.version == 7 and idx.values_source == "values file"
     assert (tmp_path / "e.values.idx.h5").is_file()
 
 
@@ -346,7 +348,7 @@ def test_stats_of_an_index_without_values_file_say_where_values_come_from(tmp_pa
     scene.write_text(f'version = 1\n[data]\naugmented = "{aug}"\nindex = "{v2}"\n[image]\nwidth = 8\nheight = 8\n'
                      '[transfer]\nopacity = [[100, 0], [110, 1], [255, 1]]\n')
     s = collect(aug, v2, scene=scene)
-    assert s["index"]["format_version"] == 6 and s["index"]["values"] is None
+    assert s["index"]["format_version"] == 7 and s["index"]["values"] is None
     ld = s["scene"]["loaded"]
     assert ld["values_from"] == "augmented bricks" and ld["augmented_bytes"] == 2 * dens.size
     assert ld["bytes_needed"] == 2 * int((dens >= 101).sum()) + ld["index_bytes"]
@@ -395,9 +397,9 @@ def test_values_file_of_another_index_is_refused_naming_both_files(tmp_path, mak
         text = str(exc.value)
         assert f"{store.values_path(idx)}: the channel values of another index than {idx}" in text, text
         assert f"isplat index AUG.h5 -o {idx} --force" in text and "\n" not in text
-    with h5py.File(idx, "r+") as f:                                             # version 6 with /values inside
+    with h5py.File(idx, "r+") as f:                                             # version 7 with /values inside
         f.create_group("values")
-    with pytest.raises(IsplatError, match=r"a version-6 index has no '/values' \(its channel values are in "
+    with pytest.raises(IsplatError, match=r"a version-7 index has no '/values' \(its channel values are in "
                                           r"v.values.idx.h5, beside it\); rebuild it: isplat index"):
         open_index(idx)
 
@@ -428,7 +430,7 @@ def test_index_cli_values_file_no_values_and_force(tmp_path, capsys):
     assert s["index"]["file_bytes_per_voxel"] == pytest.approx(out.stat().st_size / (3 * dens.size))
     table = format_table(s)
     assert str(vals) in table
-    assert "read by pre-classification only" in table and "B per indexed voxel per axis (format 6)" in table
+    assert "read by pre-classification only" in table and "B per indexed voxel per axis (format 7)" in table
     assert run("index", aug, "-o", out, "-q", "--force", "--no-values")[0] == 0
     assert out.is_file() and not vals.exists() and open_index(out).values_source == "none"
     assert run("index", aug, "-o", tmp_path / "y.idx.h5", "-q", "--no-values")[0] == 0
@@ -448,9 +450,13 @@ def test_pre_images_from_the_values_file_equal_those_from_values_inside(tmp_path
     with fileio.create_hdf5(v4) as f, h5py.File(idx, "r") as i, h5py.File(store.values_path(idx), "r") as v:
         store._write_root(f, tuple(i.attrs["shape"]), i.attrs["density_sha256"].decode(),
                           [tuple(x) for x in i.attrs["density_ranges"]], version=4)
-        v.copy(v["values"], f, "values")
-        for a in "ijk":
-            i.copy(i["axes"][a], f["axes"], a)
+        g = v["values"]                         # version 4's layout (Fletcher-32 chunks), the same content
+        _, dsets = store._values_group(f, g["density_voxel_ptr"][()], g.attrs["spacing_ijk"],
+                                       g.attrs["gradient_magnitude_scale"])
+        for ds, ch in zip(dsets, store.VALUE_CHANNELS):
+            ds[...] = g[ch][()]
+        for a, ai in build_index(dens).items():
+            store._write_axis(f, ai)
         store.finish_index(f)
     images = {}
     for name, path in (("v6", idx), ("v4", v4)):

@@ -16,21 +16,23 @@ import numpy as np
 
 from .. import chunkhash, progress
 from ..errors import IsplatError
-from ..fileio import (ReadCounter, attr_array, attr_string, atomic_output, check_checked_dataset, check_output,
-                      check_string_attrs, create_checked_dataset, create_group, create_hdf5, hdf5_errors,
-                      open_counted, open_hdf5, set_string_attr)
+from ..fileio import (ReadCounter, _CountingRaw, attr_array, attr_string, atomic_output, check_checked_dataset,
+                      check_hashed_dataset, check_output, check_string_attrs, create_checked_dataset, create_group,
+                      create_hashed_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry, encode_windows, escape_width,
                     k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)
 
 FORMAT_NAME = "isplat-index"
-FORMAT_VERSION = 6              # version 6: no /values; the channel values in a file of their own (§9)
+FORMAT_VERSION = 7              # version 7: chunks without filters, allocated at creation (no chunk index), sized
+                                # by their dataset (§1); version 6: no /values, the channel values beside (§9)
+FORMAT_VERSION_VALUES_FILE = 6  # the first version with a values file (still read, with Fletcher-32 chunks)
 FORMAT_VERSION_WITH_VALUES = 4  # version 4: + /chunk_hashes (a keyed hash per chunk); /values OPTIONAL (still read)
-OLDER_VERSIONS = (4, 5)         # versions 2 and 3 (no chunk hashes) are refused with the command that rebuilds them
+OLDER_VERSIONS = (4, 5, 6)      # versions 2 and 3 (no chunk hashes) are refused with the command that rebuilds them
 FORMAT_VERSION_LABELS = 5       # version 5: an index of the labels (@channel = "labels", @labels_sha256; §10),
                                 # read beside the density index
 VALUES_FORMAT_NAME = "isplat-index-values"   # the values file beside a version-6 index (§9)
-VALUES_FORMAT_VERSION = 6
+VALUES_FORMAT_VERSION = 7       # the values file's version: its index's (6 is read beside a version-6 index)
 DATASET_DTYPES = {
     "density_entry_ptr": "<i8",
     "entry_slice": "<u4",
@@ -45,13 +47,17 @@ VALUE_DTYPES = {
 }
 VALUE_CHANNELS = ("gradient_magnitude", "normal")
 # Chunk sizes (bytes). HDF5 reads whole chunks, so each range a load reads costs at most two partial chunks
-# beyond its own bytes (a single-row read: one chunk); docs/design.md weighs them against the chunk indexes.
-# The two 257-row pointer tables are one chunk each; a chunk index of more than 1,024 chunks is read in pages
-# of about 14 KiB, a cost per range that does not shrink with the chunks.
-TABLE_CHUNK = 1 << 11           # entry_slice, entry_voxel_count, entry_byte_offset
-BYTES_CHUNK = 1 << 12           # bytes (the encoded blocks)
-VALUE_CHUNK = 1 << 12           # gradient_magnitude, normal under /values
+# beyond its own bytes (a single-row read: one chunk), and the hash-table rows of its chunks. Version 7 (§1):
+# chunks without filters, allocated at creation, so HDF5 reads no chunk index (with Fletcher-32, versions 4-6,
+# a chunk index of more than 1,024 chunks is read in pages of about 14 KiB per range); their size follows the
+# dataset's: the power of two nearest below sqrt(dataset bytes) / 2, between CHUNK_MIN and CHUNK_MAX (a range
+# of about a 64th of the dataset then reads about as much in partial chunks as in hash-table rows), the hash
+# tables' likewise. The two 257-row pointer tables are one chunk each.
+CHUNK_MIN, CHUNK_MAX = 1 << 8, 1 << 16
 PTR_CHUNK = 257 * 8             # density_entry_ptr, density_voxel_ptr: whole
+TABLE_CHUNK = 1 << 11           # versions 4-6 (tests of old files): entry_slice, entry_voxel_count, entry_byte_offset
+BYTES_CHUNK = 1 << 12           # versions 4-6: bytes (the encoded blocks)
+VALUE_CHUNK = 1 << 12           # versions 4-6: gradient_magnitude, normal under /values
 VALUE_SLAB_VOXELS = 1 << 20     # voxels per k-slab when copying values from the augmented file
 BUILD_BUDGET = 1 << 29          # bytes of working arrays for isplat index: one window of an axis's bytes or values
 
@@ -67,11 +73,13 @@ def values_path(index_path) -> Path:
 
 def _write_root(f: h5py.File, shape, sha: str, ranges, version: int = FORMAT_VERSION,
                 format_name: str = FORMAT_NAME) -> None:
-    """The root attributes (§2). ``version`` 4 only for tests of the old layout (``/values`` inside)."""
+    """The root attributes (§2). ``version`` 4 or 6 only for tests of the old layouts (4: ``/values`` inside;
+    both: Fletcher-32 chunks)."""
     from .. import __version__
 
     set_string_attr(f, "format", format_name)
-    f.attrs["format_version"] = np.int64(version if version == FORMAT_VERSION_WITH_VALUES else FORMAT_VERSION)
+    old = (FORMAT_VERSION_WITH_VALUES, FORMAT_VERSION_VALUES_FILE)
+    f.attrs["format_version"] = np.int64(version if version in old else FORMAT_VERSION)
     f.attrs["shape"] = np.asarray(shape, dtype="<i8")
     set_string_attr(f, "density_sha256", str(sha))
     f.attrs["density_ranges"] = np.asarray(normalize_ranges(ranges), dtype="<i8").reshape(-1, 2)
@@ -80,11 +88,42 @@ def _write_root(f: h5py.File, shape, sha: str, ranges, version: int = FORMAT_VER
         create_group(f, "axes")
 
 
-def _write_values_root(f: h5py.File, shape, sha: str, ranges, index_check: str) -> None:
+def _write_values_root(f: h5py.File, shape, sha: str, ranges, index_check: str,
+                       version: int = VALUES_FORMAT_VERSION) -> None:
     """The root of a values file (§9): the index's root attributes, its ``chunk_hash_check`` as
     ``index_chunk_hash_check`` (which enters the file key: the values of another index do not verify)."""
-    _write_root(f, shape, sha, ranges, VALUES_FORMAT_VERSION, VALUES_FORMAT_NAME)
+    _write_root(f, shape, sha, ranges, version, VALUES_FORMAT_NAME)
     set_string_attr(f, "index_chunk_hash_check", index_check)
+
+
+def chunk_rows(n: int, itemsize: int) -> int:
+    """Rows per chunk of a version-7 dataset of ``n`` rows of ``itemsize`` bytes (§1): the power of two nearest
+    below sqrt(its bytes) / 2, between CHUNK_MIN and CHUNK_MAX bytes, at most its rows (at least 1)."""
+    nbytes = max(1, int(n) * int(itemsize))
+    target = min(CHUNK_MAX, max(CHUNK_MIN, int(nbytes ** 0.5) // 2))
+    target = 1 << (target.bit_length() - 1)
+    return max(1, min(int(n), target // int(itemsize)))
+
+
+def _sized(f) -> bool:
+    """True when open file ``f`` is written as version 7 (chunks sized by their dataset, no filters, §1)."""
+    return int(f.file.attrs["format_version"]) >= FORMAT_VERSION
+
+
+def _dataset(g, name: str, shape, dt, data=None, old_target: int = BYTES_CHUNK):
+    """A dataset of the index or values file: version 7 (:func:`chunk_rows`, no filters, no chunk index); an
+    older version (tests): Fletcher-32 chunks of about ``old_target`` bytes."""
+    if not _sized(g):
+        return create_checked_dataset(g, name, shape, dt, data, target=old_target)
+    n = int(shape[0])
+    rows = n if old_target == PTR_CHUNK else chunk_rows(n, np.dtype(dt).itemsize)
+    return create_hashed_dataset(g, name, shape, dt, data, chunks=(max(1, rows),) + tuple(shape[1:]))
+
+
+def _hash_table(g, name: str, table: np.ndarray):
+    """A chunk-hash table (§1.1) of a version-7 file: sized as its datasets are."""
+    return create_hashed_dataset(g, name, table.shape, "|u1", table,
+                                 chunks=(chunk_rows(table.shape[0], chunkhash.DIGEST), chunkhash.DIGEST))
 
 
 def _write_axis(f: h5py.File, ax: AxisIndex, n_bytes: int | None = None):
@@ -99,12 +138,12 @@ def _write_axis(f: h5py.File, ax: AxisIndex, n_bytes: int | None = None):
     g.attrs["escape_width"] = np.int64(ax.escape_width)
     filled_later = None
     for name, dt in DATASET_DTYPES.items():
-        # chunked with the Fletcher-32 checksum filter, little-endian (formats/index.md §1)
+        # chunked (version 7: sized by the dataset, no filters; older: Fletcher-32), little-endian (§1)
         data = np.ascontiguousarray(getattr(ax, name), dtype=dt)
         shape = (int(n_bytes),) if name == "bytes" and n_bytes is not None else data.shape
         # small chunks: a load reads single rows of entry_byte_offset and row ranges, each rounded out to chunks
-        ds = create_checked_dataset(g, name, shape, dt, target=BYTES_CHUNK if name == "bytes" else
-                                    PTR_CHUNK if name == "density_entry_ptr" else TABLE_CHUNK)
+        ds = _dataset(g, name, shape, dt, old_target=BYTES_CHUNK if name == "bytes" else
+                      PTR_CHUNK if name == "density_entry_ptr" else TABLE_CHUNK)
         if name == "bytes" and n_bytes is not None:
             filled_later = ds
         else:
@@ -127,9 +166,9 @@ def _values_group(f: h5py.File, ptr, spacing_ijk, gradient_magnitude_scale):
     g = create_group(f, "values")
     g.attrs["spacing_ijk"] = np.asarray(spacing_ijk, dtype="<f8")
     g.attrs["gradient_magnitude_scale"] = np.float64(gradient_magnitude_scale)
-    create_checked_dataset(g, "density_voxel_ptr", (257,), "<i8", np.asarray(ptr, dtype="<i8"), target=PTR_CHUNK)
+    _dataset(g, "density_voxel_ptr", (257,), "<i8", np.asarray(ptr, dtype="<i8"), old_target=PTR_CHUNK)
     n = int(ptr[256])
-    return g, [create_checked_dataset(g, ch, (n,), VALUE_DTYPES[ch], target=VALUE_CHUNK) for ch in VALUE_CHANNELS]
+    return g, [_dataset(g, ch, (n,), VALUE_DTYPES[ch], old_target=VALUE_CHUNK) for ch in VALUE_CHANNELS]
 
 
 def _write_values(f: h5py.File, v: ChannelValues) -> None:
@@ -191,7 +230,8 @@ def hashed_layout(f: h5py.File):
 def finish_index(f: h5py.File) -> None:
     """Write the chunk hashes of open index ``f`` once everything else is written."""
     datasets, attrs = hashed_layout(f)
-    chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), datasets, chunkhash.attributes_of(f, attrs))
+    chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), datasets, chunkhash.attributes_of(f, attrs),
+                           create=_hash_table if _sized(f) else None)
 
 
 def _slabs_of(shape, voxels: int = VALUE_SLAB_VOXELS):
@@ -396,6 +436,8 @@ class IndexFile:
         self.verifier = verifier       # isplat.chunkhash.Verifier: checks each chunk read
         self.bytes_read = 0
         self._handle = None
+        self._kept = None              # the opening's h5py file, left open for the first session (keep_open)
+        self.keep_open = False         # open the values file so too
         self._indexed = np.zeros(256, dtype=np.bool_)
         for lo, hi in ranges:
             self._indexed[lo:hi + 1] = True
@@ -403,15 +445,27 @@ class IndexFile:
     def __repr__(self):
         return f"IndexFile({str(self.path)!r}, shape={self.shape}, axes={self.axes!r})"
 
+    def __getstate__(self):
+        """Pickled (a Dask worker's copy) without open files."""
+        state = dict(self.__dict__)
+        state["_handle"] = state["_kept"] = None
+        return state
+
     @property
     def axes(self) -> str:
         """The indexed axes, in i, j, k order."""
         return "".join(a for a in AXES if a in self._meta)
 
     def _axis(self, axis: str) -> _AxisMeta:
+        """The axis's attributes and table sizes; its datasets are checked on its first use (a load of one axis
+        does not read the others' dataset headers)."""
         if axis not in self._meta:
             raise IsplatError(f"{self.path}: axis {axis!r} is not in this index (it has {self.axes!r})")
-        return self._meta[axis]
+        m = self._meta[axis]
+        if m.n_entries < 0:
+            with self._open(axis) as g:
+                m = self._meta[axis] = _check_axis_datasets(self.path, g, m, self.version)
+        return m
 
     def n_slices(self, axis: str) -> int:
         return self._axis(axis).n_slices
@@ -437,9 +491,14 @@ class IndexFile:
         if self._handle is not None:
             yield self
             return
-        with hdf5_errors(self.path, "open"):
-            opened = open_counted(self.path, self.io)
-            self._handle = opened.__enter__()
+        kept, self._kept = self._kept, None
+        if kept is not None:           # the opening's file (keep_open): its objects are not read again
+            opened = contextlib.closing(kept)
+            self._handle = kept
+        else:
+            with hdf5_errors(self.path, "open"):
+                opened = open_counted(self.path, self.io)
+                self._handle = opened.__enter__()
         try:
             yield self
         finally:
@@ -455,12 +514,31 @@ class IndexFile:
             yield f["values"] if group == "values" else f["axes"][group]
 
     def _read(self, g, name, lo, hi):
+        fetch = self._fetch if self.version >= FORMAT_VERSION else None
         with hdf5_errors(self.path, f"dataset {g.name}/{name} [{lo}:{hi}]"):
-            arr = self.verifier.read(g.file, f"{g.name.strip('/')}/{name}", (slice(lo, hi),))
+            arr = self.verifier.read(g.file, f"{g.name.strip('/')}/{name}", (slice(lo, hi),), fetch=fetch)
         dt = DATASET_DTYPES.get(name) or VALUE_DTYPES[name]
         arr = np.ascontiguousarray(arr, dtype=np.dtype(dt).newbyteorder("="))
         self.bytes_read += int(arr.nbytes)
         return arr
+
+    def _fetch(self, ds, lo: int, hi: int):
+        """Rows ``lo:hi`` (from a chunk's first row) of a version-7 dataset in one read of the file, when HDF5
+        stored their chunks back to back, whole and unfiltered (§1: allocated at creation); else None (HDF5 reads
+        them, a chunk at a time). Counted in :attr:`io` through the same file object as HDF5's reads; the caller
+        checks each chunk's hash."""
+        c, item = int(ds.chunks[0]), ds.dtype.itemsize
+        first = ds.id.get_chunk_info_by_coord((lo,))
+        last = ds.id.get_chunk_info_by_coord(((hi - 1) // c * c,))
+        span = ((hi - 1) // c - lo // c) * c * item
+        if first.byte_offset is None or last.byte_offset is None or first.filter_mask or last.filter_mask or \
+                first.size != c * item or last.size != c * item or last.byte_offset != first.byte_offset + span:
+            return None
+        out = np.empty(hi - lo, dtype=ds.dtype)
+        with contextlib.closing(_CountingRaw(self.path, self.io)) as fh:     # counted as HDF5's reads are
+            fh.seek(first.byte_offset)
+            n = fh.readinto(memoryview(out).cast("B"))
+        return out if n == out.nbytes else None
 
     # -- channel values (in the file: version 4; beside it: version 6, formats/index.md §9)
     @property
@@ -470,8 +548,9 @@ class IndexFile:
         if not self._values_looked:
             self._values_looked = True
             p = values_path(self.path)
-            if self.version == FORMAT_VERSION and self.channel == "density" and (p.exists() or p.is_symlink()):
-                self._values_file = open_values(p, self)
+            if self.version >= FORMAT_VERSION_VALUES_FILE and self.channel == "density" and \
+                    (p.exists() or p.is_symlink()):
+                self._values_file = open_values(p, self, self.keep_open)
         return self._values_file
 
     def _values_holder(self):
@@ -520,7 +599,7 @@ class IndexFile:
             return None
         vf = self.values_file
         if vf is None:
-            where = f"no values file {values_path(self.path)}" if self.version == FORMAT_VERSION else \
+            where = f"no values file {values_path(self.path)}" if self.version >= FORMAT_VERSION_VALUES_FILE else \
                 "no channel values (/values, built without them)"
             raise IsplatError(f"{self.path}: this index has {where}; rebuild it: {_rebuild_hint(self.path, None)}")
         return vf
@@ -562,7 +641,7 @@ class IndexFile:
         return ptr, out
 
     def _read_ptr(self, g, axis) -> np.ndarray:
-        m = self._meta[axis]
+        m = self._axis(axis)
         ptr = self._read(g, "density_entry_ptr", 0, 257)
         if ptr[0] != 0 or np.any(np.diff(ptr) < 0) or ptr[256] != m.n_entries:
             self._fail(axis, f"density_entry_ptr is not non-decreasing from 0 to {m.n_entries} entries")
@@ -783,12 +862,27 @@ def _stored_ranges(p, a) -> list[tuple[int, int]]:
     return ranges
 
 
-def open_index(path) -> IndexFile:
-    """Open and validate an index file's attributes and dataset shapes; raise :class:`IsplatError` on any problem."""
+@contextlib.contextmanager
+def _validating(f, keep: bool):
+    """``f`` for the checks of an opening: closed after them, or (``keep``, when they pass) left open for the
+    first :meth:`IndexFile.session` to use (HDF5 then does not read again the objects the checks read)."""
+    try:
+        yield f
+    except BaseException:
+        f.close()
+        raise
+    if not keep:
+        f.close()
+
+
+def open_index(path, keep_open: bool = False) -> IndexFile:
+    """Open and validate an index file's attributes and dataset shapes; raise :class:`IsplatError` on any problem.
+    ``keep_open``: the file stays open for the first :meth:`~IndexFile.session` (a load that follows at once; its
+    values file likewise), which closes it."""
     counter = ReadCounter()
     p, f = open_hdf5(path, "index", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint, older=OLDER_VERSIONS,
                      counter=counter)
-    with f, hdf5_errors(p, "attributes and tables"):
+    with _validating(f, keep_open), hdf5_errors(p, "attributes and tables"):
         version = int(f.attrs["format_version"])
         a = f.attrs
         shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
@@ -809,7 +903,7 @@ def open_index(path) -> IndexFile:
         for name in names:
             if name not in AXES:
                 raise IsplatError(f"{p}: unknown axis group '/axes/{name}'; expected i, j or k")
-            meta[name] = _check_axis_group(p, f["axes"][name], name, shape)
+            meta[name] = _check_axis_group(p, f["axes"][name], name, shape, version)
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
         channel = _check_channel(p, a, version, values)
         datasets, hashed = hashed_layout(f)
@@ -817,10 +911,11 @@ def open_index(path) -> IndexFile:
                                            _rebuild_hint(p, f))
     idx = IndexFile(p, shape, sha, ranges, meta, attrs, version, values, counter, verifier)
     idx.channel = channel
+    idx._kept, idx.keep_open = (f if keep_open else None), keep_open
     return idx
 
 
-def open_values(path, idx: IndexFile) -> IndexFile:
+def open_values(path, idx: IndexFile, keep_open: bool = False) -> IndexFile:
     """Open and validate the values file ``path`` of version-6 index ``idx`` (formats/index.md §9): its format,
     its ``/values``, its chunk hashes' key, and that it belongs to ``idx`` (the same ``shape``, ``density_sha256``
     and ``density_ranges``, and ``index_chunk_hash_check`` equal to the index's ``chunk_hash_check``). Returns an
@@ -828,9 +923,13 @@ def open_values(path, idx: IndexFile) -> IndexFile:
     counter = ReadCounter()
     hint = _rebuild_hint(idx.path, None)
     p, f = open_hdf5(path, "values file", VALUES_FORMAT_NAME, VALUES_FORMAT_VERSION, rebuild=lambda p, f: hint,
-                     counter=counter)
-    with f, hdf5_errors(p, "attributes"):
+                     older=(FORMAT_VERSION_VALUES_FILE,), counter=counter)
+    with _validating(f, keep_open), hdf5_errors(p, "attributes"):
         a = f.attrs
+        version = int(a["format_version"])
+        if version != idx.version:
+            raise IsplatError(f"{p}: format version {version} beside an index of version {idx.version}; rebuild "
+                              f"both: {hint}")
         shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
         check_string_attrs(p, a, ("density_sha256", "created_by", "index_chunk_hash_check"))
         sha, own = attr_string(a, "density_sha256"), attr_string(a, "index_chunk_hash_check")
@@ -841,11 +940,13 @@ def open_values(path, idx: IndexFile) -> IndexFile:
                               f"ranges or build); rebuild both: {hint}")
         if "values" not in f:
             raise IsplatError(f"{p}: group '/values' is missing; rebuild it: {hint}")
-        values = _check_values_group(p, f, ranges, VALUES_FORMAT_VERSION, shape)
+        values = _check_values_group(p, f, ranges, version, shape)
         datasets, hashed = hashed_layout(f)
         verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed), hint)
         attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
-    return IndexFile(p, shape, sha, ranges, {}, attrs, VALUES_FORMAT_VERSION, values, counter, verifier)
+    vf = IndexFile(p, shape, sha, ranges, {}, attrs, version, values, counter, verifier)
+    vf._kept = f if keep_open else None
+    return vf
 
 
 def _check_channel(p, a, version: int, values) -> str:
@@ -869,8 +970,8 @@ def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
     augmented file; its absence is covered by the chunk hashes' key, so it cannot be deleted silently)."""
     if "values" not in f:
         return None
-    if version == FORMAT_VERSION and attr_string(f.attrs, "format", ascii_ok=True) == FORMAT_NAME:
-        raise IsplatError(f"{p}: a version-{FORMAT_VERSION} index has no '/values' (its channel values are in "
+    if version >= FORMAT_VERSION_VALUES_FILE and attr_string(f.attrs, "format", ascii_ok=True) == FORMAT_NAME:
+        raise IsplatError(f"{p}: a version-{version} index has no '/values' (its channel values are in "
                           f"{values_path(p).name}, beside it); rebuild it: {_rebuild_hint(p, f)}")
     if not isinstance(f["values"], h5py.Group):
         raise IsplatError(f"{p}: '/values' is not a group")
@@ -881,7 +982,7 @@ def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
     if min(spacing) <= 0 or gscale < 0:
         raise IsplatError(f"{where}: attributes 'spacing_ijk' {spacing} and 'gradient_magnitude_scale' {gscale}: "
                           f"expected positive spacings and a scale >= 0")
-    _check_datasets(where, g, VALUE_DTYPES)
+    _check_datasets(where, g, VALUE_DTYPES, version)
     if g["density_voxel_ptr"].shape[0] != 257:
         raise IsplatError(f"{where}/density_voxel_ptr: length {g['density_voxel_ptr'].shape[0]}, expected 257")
     n = int(g["normal"].shape[0])
@@ -894,8 +995,10 @@ def _check_values_group(p, f, ranges, version, shape) -> _ValuesMeta | None:
     return _ValuesMeta(n, spacing, gscale)
 
 
-def _check_datasets(where: str, g, dtypes: dict) -> None:
-    """Every dataset of ``dtypes`` is in group ``g``: 1-D, of its dtype, chunked with checksums."""
+def _check_datasets(where: str, g, dtypes: dict, version: int) -> None:
+    """Every dataset of ``dtypes`` is in group ``g``: 1-D, of its dtype, chunked (version 7: without filters;
+    older: with Fletcher-32 checksums, §1)."""
+    check = check_hashed_dataset if version >= FORMAT_VERSION else check_checked_dataset
     for name, dt in dtypes.items():
         if name not in g or not isinstance(g[name], h5py.Dataset):
             raise IsplatError(f"{where}: dataset {name!r} is missing")
@@ -904,10 +1007,10 @@ def _check_datasets(where: str, g, dtypes: dict) -> None:
             raise IsplatError(f"{where}/{name}: expected 1-D, has shape {ds.shape}")
         if ds.dtype != np.dtype(dt):
             raise IsplatError(f"{where}/{name}: dtype {ds.dtype}, expected {np.dtype(dt)} ({dt})")
-        check_checked_dataset(f"{where}/{name}", ds)
+        check(f"{where}/{name}", ds)
 
 
-def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
+def _check_axis_group(p, g, axis, shape, version: int) -> _AxisMeta:
     where = f"{p}: /axes/{axis}"
     if not isinstance(g, h5py.Group):
         raise IsplatError(f"{where} is not a group")
@@ -930,7 +1033,14 @@ def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
             ok = got == want
         if not ok:
             raise IsplatError(f"{where}: attribute {key!r} is {got!r}, expected {want!r} for shape {shape}")
-    _check_datasets(where, g, DATASET_DTYPES)
+    return _AxisMeta(axis, n_slices, n_a, n_b, ew_expected, -1, -1)
+
+
+def _check_axis_datasets(p, g, m: _AxisMeta, version: int) -> _AxisMeta:
+    """The datasets of axis group ``g`` (§4): present, typed, chunked as ``version`` says, of consistent lengths;
+    ``m`` with the table sizes."""
+    where = f"{p}: /axes/{m.axis}"
+    _check_datasets(where, g, DATASET_DTYPES, version)
     n_e = g["entry_slice"].shape[0]
     if g["density_entry_ptr"].shape[0] != 257:
         raise IsplatError(f"{where}/density_entry_ptr: length {g['density_entry_ptr'].shape[0]}, expected 257")
@@ -938,4 +1048,4 @@ def _check_axis_group(p, g, axis, shape) -> _AxisMeta:
         raise IsplatError(f"{where}/entry_voxel_count: length {g['entry_voxel_count'].shape[0]}, expected {n_e}")
     if g["entry_byte_offset"].shape[0] != n_e + 1:
         raise IsplatError(f"{where}/entry_byte_offset: length {g['entry_byte_offset'].shape[0]}, expected {n_e + 1}")
-    return _AxisMeta(axis, n_slices, n_a, n_b, ew_expected, int(n_e), int(g["bytes"].shape[0]))
+    return _AxisMeta(m.axis, m.n_slices, m.n_a, m.n_b, m.escape_width, int(n_e), int(g["bytes"].shape[0]))

@@ -45,7 +45,7 @@ from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
 from .select import BLOCK, CELL, cell_origins
 from .traverse import X0, XA, XB, XC, Y0, YA, YB, YC, cut_away, register, slice_bases
-from .post import _cell_pixels, _density_at, _ortho_inverse, _pixel_box, _pixel_quad, _row_pixels, _taps
+from .post import _between, _cell_pixels, _density_at, _ortho_inverse, _pixel_box, _pixel_quad, _row_pixels, _taps
 
 Units = namedtuple("Units", "c a0 b0 owned ext count hi lo")
 Units.__doc__ = """The units of one axis of a selection (one row per cell holding a voxel of interest): slice
@@ -60,9 +60,10 @@ channels (:data:`isplat.splat.traverse.WholeVolume`), ``geo`` :data:`isplat.spla
 ``sign`` 1.0 (MIP) or -1.0 (MinIP; a pixel holds ``sign * density``), ``window`` (lo, hi) the codes mapped to
 black and white, ``color`` float64[256, 6] the transfer function's colour with its steps to the next code
 (:func:`isplat.splat.post.lerp_tables`) and ``use_color``; ``held`` (:data:`Held`), shared by the threads (each
-writes its bands' rows, whole tiles); ``between`` the reconstruction between thick slices
-(:func:`isplat.splat.post.between_slices`: (0, 0, 0) bilinear; else the cubic along the thick in-slice axis, as the
-post-classified technique's :func:`isplat.splat.post._density_at`)."""
+writes its bands' rows, whole tiles); ``between`` the reconstruction between thick slices, as the post-classified
+technique's ``PostClassify.between``: None, bilinear (numba then compiles the frame without the cubic, by type:
+:func:`isplat.splat.post._taps`); else :func:`isplat.splat.post.between_slices`' cubic along the thick in-slice
+axis (:func:`isplat.splat.post._density_at`)."""
 Held = namedtuple("Held", "px tile_done")
 Held.__doc__ = """What the pixels hold: ``px`` float64 (H, W) each pixel's ``sign *`` extreme so far (-inf: no
 sample); per TILE x TILE tile ``tile_done`` how many of its pixels, in row order, are known to hold the bound of
@@ -258,7 +259,7 @@ def plan(tables):
     H, W = view.frame.height, view.frame.width
     held = Held(np.empty((H, W), np.float64), np.empty((-(-H // TILE), -(-W // TILE)), np.int32))
     p = MipPlan(units, in_frame, sel.whole_volume(tables.axis), tables.geo, sign, window,
-                color, ro.intensity_color == "transfer", held, between)
+                color, ro.intensity_color == "transfer", held, between if between[0] else None)   # None: bilinear
     return p, [np.empty(0, np.int64) for _ in range(tables.threads)], np.zeros(1, np.int64)
 
 
@@ -363,7 +364,7 @@ def _look_ahead(plan, mine, t, nm, cs, held, img_w, y0b, y1b):
     if x0 > x1 or y0 > y1 or _tiles_finished(held, x0, x1, y0, y1):
         mine[t] = -1 - u
     else:
-        _prefetch_unit(units.c[u], units.a0[u], units.b0[u], w, plan.between[0])
+        _prefetch_unit(units.c[u], units.a0[u], units.b0[u], w, _between(plan.between)[0])
     return t + 1
 
 

@@ -57,7 +57,7 @@ import numpy as np
 from ..jit import jit, leaf, stage
 from .composite import composite_sheet
 from .pre import Classify, FootprintTable, _shade, _splat, add_to_sheet, footprint_at, sheet_buffers
-from .select import BLOCK, CELL, REGION
+from .select import CELL, cell_origins
 from .traverse import (CY, EX, EY, NEAR, QA, QB, QC, R2, TSCALE, WPE, X0, XA, XB, XC, Y0, YA, YB, YC, build_sat,
                        covered, register)
 # a kernel reaching more slabs than this gets thicker slabs (a spacing far below the others)
@@ -138,34 +138,28 @@ def _place(first, n_slabs, src_a, src_b, src_c, src_row, src_d, nkeep):
 def bucket_indexed(vox, alpha, use_gm, geo, n_slabs):
     """Bucket the voxels of one axis of a selection (traverse.IndexedVoxels: slices, regions, blocks, cells,
     voxels) by first slab; returns (slab_ptr, a, b, c, row, d, culled) with ``row`` the voxel's row in the
-    selection. The hierarchy is walked as :func:`isplat.splat.select.expand_coordinates` walks it (copied here:
-    that one allocates three int64 arrays per voxel)."""
+    selection. The hierarchy is walked by :func:`isplat.splat.select.cell_origins` (per cell, not per voxel;
+    it also checks the cell table)."""
     n = vox.offset.shape[0]
     first = np.full(n, -1, dtype=np.int32)
     ca = np.empty(n, dtype=np.uint16)
     cb = np.empty(n, dtype=np.uint16)
     cc = np.empty(n, dtype=np.int32)
-    nra = (vox.n_a + REGION - 1) // REGION
+    c_of, a_of, b_of, v_of = cell_origins(vox.slice_ptr, vox.region_id, vox.region_ptr, vox.block_pos, vox.block_ptr,
+                                          vox.block_voxel, vox.cell_pos, vox.cell_count, vox.n_a)
     nkeep = 0
-    for c in range(vox.slice_ptr.shape[0] - 1):
-        for g in range(vox.slice_ptr[c], vox.slice_ptr[c + 1]):
-            ra0 = (vox.region_id[g] % nra) * REGION
-            rb0 = (vox.region_id[g] // nra) * REGION
-            for r in range(vox.region_ptr[g], vox.region_ptr[g + 1]):
-                v = vox.block_voxel[r]
-                for q in range(vox.block_ptr[r], vox.block_ptr[r + 1]):
-                    a0 = ra0 + (vox.block_pos[r] % 4) * BLOCK + (vox.cell_pos[q] % 4) * CELL
-                    b0 = rb0 + (vox.block_pos[r] // 4) * BLOCK + (vox.cell_pos[q] // 4) * CELL
-                    for _ in range(vox.cell_count[q]):
-                        a = np.int64(a0 + vox.offset[v] % CELL)
-                        b = np.int64(b0 + vox.offset[v] // CELL)
-                        ca[v], cb[v], cc[v] = a, b, c
-                        d = vox.density[v]
-                        z = _keep(a, b, c, alpha[d, vox.gm[v] if use_gm else 0], geo)
-                        if z > -math.inf:
-                            first[v] = _first_slab(z, geo, n_slabs)
-                            nkeep += 1
-                        v += 1
+    for q in range(c_of.shape[0]):
+        v, c = v_of[q], c_of[q]
+        for _ in range(vox.cell_count[q]):
+            a = a_of[q] + vox.offset[v] % CELL
+            b = b_of[q] + vox.offset[v] // CELL
+            ca[v], cb[v], cc[v] = a, b, c
+            d = vox.density[v]
+            z = _keep(a, b, c, alpha[d, vox.gm[v] if use_gm else 0], geo)
+            if z > -math.inf:
+                first[v] = _first_slab(z, geo, n_slabs)
+                nkeep += 1
+            v += 1
     ptr, sa, sb, sc, srow, sd = _place(first, n_slabs, ca, cb, cc, np.arange(n), vox.density, nkeep)
     return ptr, sa, sb, sc, srow, sd, n - nkeep
 

@@ -4,10 +4,11 @@
 
 The JSON files are the specification (their block bytes and the order of their channel values were derived by
 hand from formats/index.md); this script only writes the binary companions, with the isplat writer under test:
-NAME.idx.h5 (format version 6) and its values file NAME.values.idx.h5 (the channel values of the volume augmented
+NAME.idx.h5 (format version 7) and its values file NAME.values.idx.h5 (the channel values of the volume augmented
 as ``augment_array(volume, spacing (1, 1, 1), window (0, 255))`` does, so density codes equal the volume's values).
-Kept as isplat wrote them before: gaps.v4.idx.h5 and full.v4.idx.h5 (format version 4, the channel values inside,
-in ``/values``), which readers still read, and gaps.v2.idx.h5 (format version 2: no channel values, no chunk
+Kept as isplat wrote them before: gaps.v6.idx.h5 and full.v6.idx.h5 with their values files gaps.v6.values.idx.h5
+and full.v6.values.idx.h5 (format version 6, Fletcher-32 chunks), gaps.v4.idx.h5 and full.v4.idx.h5 (format
+version 4, the channel values inside, in ``/values``), which readers still read, and gaps.v2.idx.h5 (format version 2: no channel values, no chunk
 hashes), which readers refuse with the command that rebuilds it.
 tests/test_index_conformance.py checks that the writer reproduces the JSON bytes and that the committed .idx.h5
 files decode back.

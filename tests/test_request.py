@@ -178,7 +178,7 @@ def test_a_render_opens_each_file_once(files, tmp_path, monkeypatch, slabs, unit
     opened = {"aug": 0, "idx": 0}
     real_aug, real_idx = augfile.open_augmented, index.open_index
     def counted(name, real):
-        return lambda p: opened.__setitem__(name, opened[name] + 1) or real(p)
+        return lambda p, **kw: opened.__setitem__(name, opened[name] + 1) or real(p, **kw)
     monkeypatch.setattr(augfile, "open_augmented", counted("aug", real_aug))
     monkeypatch.setattr(index, "open_index", counted("idx", real_idx))
     (tmp_path / "s.toml").write_text(scene_text(files / "v.aug.h5", files / "v.idx.h5", image="width = 16\nheight = 16",

@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 5
+STATS_VERSION = 6
 
 
 def density_histogram(aug) -> np.ndarray:

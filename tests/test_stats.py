@@ -179,7 +179,7 @@ def test_json_keys(vol, capsys):
             "values_bytes", "values_file_bytes_read",
             "held_bytes_per_voxel_of_interest", "technique", "needed_voxels", "needed_axis",
             "channel_bytes_per_voxel", "channel_bytes_needed", "index_bytes_needed"} == set(s["scene"]["loaded"])
-    assert s["stats_version"] == 5
+    assert s["stats_version"] == 6
     # the table carries the same figures
     code, table, _ = run(capsys, aug, idx, "--scene", scene, "-q")
     assert code == 0 and f"{s['scene']['voxels_of_interest']:,}" in table and "spatial ratio" in table

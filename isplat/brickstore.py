@@ -52,19 +52,6 @@ def hash_bricks(words: np.ndarray, rows: np.ndarray, seed: np.uint64) -> np.ndar
     return out
 
 
-def hash_reference(data: bytes, row: int, seed: int) -> int:
-    """The brick hash in plain Python (tests: the compiled one must agree)."""
-    mask = (1 << 64) - 1
-    h = seed ^ (((row + 1) * 0x9E3779B97F4A7C15) & mask)
-    for o in range(0, len(data), 8):
-        h ^= int.from_bytes(data[o:o + 8], "little")
-        h = (h * 0xFF51AFD7ED558CCD) & mask
-        h ^= h >> 32
-    h ^= h >> 33
-    h = (h * 0xC4CEB9FE1A85EC53) & mask
-    return h ^ (h >> 33)
-
-
 @numba.njit(cache=True, nogil=True)
 def brick_minmax(data: np.ndarray, ext: np.ndarray) -> np.ndarray:
     """uint8[n, 2]: the smallest and largest of each brick ``data[n]`` (uint8, [n, e, e, e]) within its part

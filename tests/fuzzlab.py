@@ -562,3 +562,17 @@ def fuzz_classes(fx: dict, per_class: int, seed: int = 0, scenes=None) -> dict:
             data, what = class_mutant(fx, target, cls, rng)
             out[cls].append(check_mutant(fx, target, data, what, scenes=scenes))
     return out
+
+
+def brick_hash(data: bytes, row: int, seed: int) -> int:
+    """The brick hash of formats/augmented.md §2.3 in plain Python, from the text (the compiled one,
+    isplat.brickstore.hash_bricks, must agree): ``data`` the brick's bytes (little-endian), ``row`` its row."""
+    mask = (1 << 64) - 1
+    h = seed ^ (((row + 1) * 0x9E3779B97F4A7C15) & mask)
+    for o in range(0, len(data), 8):
+        h ^= int.from_bytes(data[o:o + 8], "little")
+        h = (h * 0xFF51AFD7ED558CCD) & mask
+        h ^= h >> 32
+    h ^= h >> 33
+    h = (h * 0xC4CEB9FE1A85EC53) & mask
+    return h ^ (h >> 33)

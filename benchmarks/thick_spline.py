@@ -6,8 +6,9 @@ rendered by the post sampler with ``isplat.splat.post.BETWEEN_SLICES`` "linear",
 ``_spline_at``), the default's shading between slices for both cubics: RMSE against the object (the same sample
 at slices of the in-plane spacing) and the streak (tests/streak_measure.py), as benchmarks/thick.py measures them;
 then the frame time per sample of the oblique view, interleaved rounds (the order reversed every other round),
-median. Cases below THICK_RATIO (the 2.5 mm ones: 3.6:1) take the cubics only with the ratio lowered to 3, which
-this does for those rows (marked "forced"). Prints a Markdown table.
+medians, and the median of the per-round ratios spline / Catmull-Rom. Cases below THICK_RATIO (the 2.5 mm ones:
+3.6:1) take the cubics only with the ratio lowered to 3, which this does for those rows (marked "forced").
+Prints a Markdown table.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
+import tempfile
+from pathlib import Path
 
 from benchmarks import thick as T
 
@@ -48,13 +51,15 @@ def _frame_ns(sc, c, forced: bool, rounds: int) -> dict:
                 T._sampler(old)
             t[k].append(st.seconds)
             n[k] = st.samples
-    return {k: statistics.median(v) * 1e9 / max(1, n[k]) for k, v in t.items()}
+    out = {k: statistics.median(v) * 1e9 / max(1, n[k]) for k, v in t.items()}
+    # the cost ratio: the median of the per-round ratios of ns per sample (spline over Catmull-Rom)
+    out["ratio"] = statistics.median(b * n["catmull-rom"] / (a * max(1, n["b-spline"]))
+                                     for a, b in zip(t["catmull-rom"], t["b-spline"]))
+    return out
 
 
 def case_rows(case, size: int, rounds: int) -> list:
     from isplat.samples import make_sample
-    import tempfile
-    from pathlib import Path
 
     tag, name, shape, sp, preset, nk_obj = case
     forced = max(sp) < 4.0 * min(sp)
@@ -93,7 +98,7 @@ def table(rows) -> str:
            "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         ns = r.get("ns")
-        cost = f"{ns['catmull-rom']:.1f} | {ns['b-spline']:.1f} ({ns['b-spline'] / ns['catmull-rom']:.2f})" \
+        cost = f"{ns['catmull-rom']:.1f} | {ns['b-spline']:.1f} ({ns['ratio']:.2f})" \
             if ns else "| "
         out.append(f"| {r['case']}{' (forced)' if r['forced'] else ''} | {r['view']} | "
                    f"{r['linear'][0]:.4f} | {r['catmull-rom'][0]:.4f} | {r['b-spline'][0]:.4f} | "

@@ -15,7 +15,8 @@ from benchmarks import _doc
 # `python -m benchmarks.contour_shift` (a prototype between thick slices, measured against the cubic; prints a table);
 # `python -m benchmarks.whole_read` (whole reads, stats and index of format 5 against 4; prints a table);
 # `python -m benchmarks.simd_span` (a prototype of the SIMD row span, benchmarks/_simd.py, against the scalar sample)
-STANDALONE = ("commits", "threadload", "contour_shift", "whole_read", "simd_span")
+# `python -m benchmarks.thick_spline` (the interpolating spline between thick slices against Catmull-Rom; a table)
+STANDALONE = ("commits", "threadload", "contour_shift", "whole_read", "simd_span", "thick_spline")
 # run by name only, not in `all` (so not in CI's bench-check): compiles an older commit's kernels (~4 min)
 BY_NAME_ONLY = ("sampler",)
 

@@ -601,7 +601,9 @@ def _slab_channels(sel: Selection, aug, axis: str, slices) -> tuple[WholeChannel
 # read as fast as the whole channels at about 20% of them, row-contiguous ones beyond 80%; post's bricks (shells
 # with their apron) lie between; 0.5 keeps the bytes read low where the time is about even.
 BRICK_SHARE = 0.5
-QUAD_REACH = (2, 5)  # a 4 x 4 cell at a0 has quads reading a0 - 1 .. a0 + 4, and the cubic between slices one more
+# a 4 x 4 cell at a0 has quads reading a0 - 1 .. a0 + 4, the cubics between slices one more, the interpolating
+# spline (isplat.splat.post.SPLINE_REACH = 3) one more again: its taps q - 2 .. q + 3 of quad q
+QUAD_REACH = (3, 6)
 
 
 def _reads_bricks(sel: Selection, aug) -> bool:

@@ -9,7 +9,10 @@ bilinear weights alone when the four codes are 0; ``weighted=False``: the biline
 'over' front to back. On an anisotropic grid (the thicker in-slice axis at least isplat.splat.post.THICK_RATIO
 times the finest spacing, isplat.splat.post.BETWEEN_SLICES not "linear") the density along that axis is a cubic
 Hermite through the four voxels around the point (indices clamped to the volume) in each of the two rows, then
-linear across them: monotone (Fritsch-Butland slopes) or Catmull-Rom clamped to 0..255; and the shading mixes
+linear across them: monotone (Fritsch-Butland slopes) or Catmull-Rom clamped to 0..255; or ("b-spline") the
+interpolating cubic spline (sum of the cubic B-spline at the voxels' prefiltered coefficients, the prefilter's
+impulse response sqrt(3) (sqrt(3) - 2)^|m|) through the 2 SPLINE_REACH voxels around the point, its weights
+renormalised to sum to 1, clamped to 0..255; and the shading mixes
 the Phong factors of those eight voxels, weighted by the cubic B-spline's weights along the thick axis times the
 linear weights across (times the gradient magnitude codes, normalised, as the four corners' otherwise). A quad (the square between
 four voxels) is sampled only when one of its voxels has a density of non-zero opacity. With
@@ -34,7 +37,8 @@ ALPHA_MAX = 1 - 2.0 ** -40
 
 
 def post_reference(scene, view=0, et=1.0, weighted=True, between=None, stride=None):
-    """Straight RGBA (H, W, 4) over the scene's background. ``between``: "linear", "monotone" or "catmull-rom"
+    """Straight RGBA (H, W, 4) over the scene's background. ``between``: "linear", "monotone", "catmull-rom" or
+    "b-spline"
     (None: isplat.splat.post.BETWEEN_SLICES); ``stride``: every n-th slice (None: render.slice_stride)."""
     stride = scene.render.slice_stride if stride is None else stride
     aug = open_augmented(scene.data.augmented)
@@ -150,6 +154,30 @@ def _hermite(p, t, kind):
     return float(np.clip(h[0] * p[1] + h[1] * m[0] + h[2] * p[2] + h[3] * m[1], 0, 255))
 
 
+def _spline_taps():
+    """The voxels' offsets along the thick axis the spline reads from a quad's first corner."""
+    from isplat.splat.post import SPLINE_REACH
+
+    return range(1 - SPLINE_REACH, SPLINE_REACH + 1)
+
+
+def _bspline(x):
+    """The centred cubic B-spline."""
+    x = abs(x)
+    if x < 1:
+        return 2 / 3 - x * x + x**3 / 2
+    return (2 - x) ** 3 / 6 if x < 2 else 0.0
+
+
+def _cardinal(p, f):
+    """The interpolating cubic spline through the voxels ``p`` (at :func:`_spline_taps`) at ``f`` past offset 0:
+    each voxel weighted by the spline's kernel eta(f - k) = sum_m h(m) beta3(f - k - m) (h the prefilter, summed to
+    |m| <= 40), the weights renormalised, the value clamped to the codes."""
+    z = np.sqrt(3) - 2
+    w = [sum(np.sqrt(3) * z ** abs(m) * _bspline(f - k - m) for m in range(-40, 41)) for k in _spline_taps()]
+    return float(np.clip(sum(wi * pi for wi, pi in zip(w, p)) / sum(w), 0, 255))
+
+
 def _density(dens, qa, qb, fu, fv, c, axes, n_ijk, thick):
     """The density at (qa + fu, qb + fv) of slice c: bilinear, or cubic along the thick axis (``thick``)."""
     ia, ib, ic = axes
@@ -162,6 +190,13 @@ def _density(dens, qa, qb, fu, fv, c, axes, n_ijk, thick):
     if thick is None:
         return sum(w * at(qa + da, qb + db) for da, db, w in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)),
                                                                 ((0, 1, (1 - fu) * fv)), (1, 1, fu * fv)))
+    if thick[1] == "b-spline":
+        f, g = (fu, fv) if thick[0] == 0 else (fv, fu)
+        lines = []
+        for across in (0, 1):
+            p = [at(qa + k, qb + across) if thick[0] == 0 else at(qa + across, qb + k) for k in _spline_taps()]
+            lines.append(_cardinal(p, f))
+        return (1 - g) * lines[0] + g * lines[1]
     if thick[0] == 0:
         rows = [_hermite([at(qa + k, qb + db) for k in (-1, 0, 1, 2)], fu, thick[1]) for db in (0, 1)]
         return (1 - fv) * rows[0] + fv * rows[1]

@@ -187,6 +187,17 @@ def test_thick_slices_take_the_cubic_as_the_reference(thick_data, cam, proj, mod
         assert np.abs(rgba - lin).max() > 1e-3
 
 
+@pytest.mark.parametrize("cam", CAMERAS)
+@pytest.mark.parametrize("mode", ["mip", "minip"])
+def test_thick_slices_take_the_spline_as_the_reference(thick_data, cam, mode):
+    """BETWEEN_SLICES "b-spline": the image is the reference's with the interpolating spline between the slices
+    (its wider taps, MIP's bounds widened for its overshoot), indexed and full."""
+    tmp, aug, idx, dens = thick_data
+    with _between("b-spline"):
+        check(scene_for(aug, idx, tmp, mode, cam), dens)
+        check(scene_for(aug, idx, tmp, mode, cam, render='method = "full"'), dens)
+
+
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10 ** 6), az=st.floats(-180, 180), el=st.floats(-89, 89), persp=st.booleans(),
        minip=st.booleans(), lo=st.integers(1, 200), shape=st.tuples(*[st.integers(2, 7)] * 3),
@@ -201,26 +212,31 @@ def test_random_thick_volumes_and_views(seed, az, el, persp, minip, lo, shape, t
     _random_frame_within(dens, az, el, persp, minip, lo, tuple(spacing))
 
 
-@settings(max_examples=300, deadline=None)
-@given(taps=st.lists(st.integers(0, 255), min_size=8, max_size=8), t=st.floats(0.0, 1.0), g=st.floats(0.0, 1.0),
-       kind=st.sampled_from([0, 1]), along=st.sampled_from([1, 2]))
-def test_cubic_bounds_hold_every_sample_of_the_quad(taps, t, g, kind, along):
-    """isplat.splat.mip._cubic_bounds: every density the post technique's cubic makes in a quad (both kinds, any
-    point) lies within the unit's bound, which is what lets a unit be skipped."""
+@settings(max_examples=500, deadline=None)
+@given(taps=st.lists(st.integers(0, 255), min_size=20, max_size=20), t=st.floats(0.0, 1.0), g=st.floats(0.0, 1.0),
+       kind=st.sampled_from([0, 1, 2]), along=st.sampled_from([1, 2]), q=st.integers(0, 9),
+       extreme=st.booleans())
+def test_cubic_bounds_hold_every_sample_of_the_quad(taps, t, g, kind, along, q, extreme):
+    """isplat.splat.mip._cubic_bounds: every density the post technique's cubic (any kind: the spline's wider
+    taps too, clamped at the slice's ends) makes in a quad (any point) lies within the unit's bound, which is what
+    lets a unit be skipped. ``extreme``: codes 0 and 255 only (the largest overshoots)."""
     from isplat.splat.mip import _cubic_bounds
     from isplat.splat.post import _density_at, _taps
 
-    # a 4 x 2 slice (along a) or 2 x 4 (along b); the quad (1, 0) or (0, 1): its neighbours inside the slice
-    n_a, n_b = (4, 2) if along == 1 else (2, 4)
-    grid = np.asarray(taps, np.uint8).reshape(2, 4)          # [row across, position along]
+    # a 10 x 2 slice (along a) or 2 x 10 (along b); the quad q along the thick axis
+    n = 10
+    n_a, n_b = (n, 2) if along == 1 else (2, n)
+    vals = [255 * (x >= 128) for x in taps] if extreme else taps
+    grid = np.asarray(vals, np.uint8).reshape(2, n)          # [row across, position along]
     density = np.ascontiguousarray(grid if along == 1 else grid.T).ravel()
     strides = np.array([1, n_a, n_a * n_b, 0], np.int64)
-    qa, qb = (1, 0) if along == 1 else (0, 1)
+    qa, qb = (q, 0) if along == 1 else (0, q)
     voxel = (density, density, density, strides, n_a, n_b, 0, (along, kind, 0))
     fu, fv = (t, g) if along == 1 else (g, t)
-    d = _density_at(density, qa * strides[0] + qb * strides[1], strides[0], strides[1], fu, fv,
-                    _taps(qa, qb, voxel))
-    hi, lo = _cubic_bounds(density, 0, strides[0], strides[1], qa, qb, n_a, n_b, along)
+    sa = strides[0] if qa + 1 < n_a else 0
+    sb = strides[1] if qb + 1 < n_b else 0
+    d = _density_at(density, qa * strides[0] + qb * strides[1], sa, sb, fu, fv, _taps(qa, qb, voxel))
+    hi, lo = _cubic_bounds(density, 0, strides[0], strides[1], qa, qb, n_a, n_b, along, kind)
     assert lo - 1e-9 <= d <= hi + 1e-9, (d, lo, hi)
 
 

@@ -348,7 +348,7 @@ def _between(kind):
     return post_setting("BETWEEN_SLICES", kind)
 
 
-@pytest.mark.parametrize("kind", ["monotone", "catmull-rom"])
+@pytest.mark.parametrize("kind", ["monotone", "catmull-rom", "b-spline"])
 @pytest.mark.parametrize("cam", CAMERAS)
 @pytest.mark.parametrize("proj", ["orthographic", "perspective"])
 def test_cubic_between_thick_slices_agrees_with_the_reference(tmp_path, make_scene, cam, proj, kind):
@@ -372,7 +372,7 @@ def test_cubic_between_thick_slices_agrees_with_the_reference(tmp_path, make_sce
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10 ** 6), az=st.floats(0, 360), el=st.floats(-80, 80), zoom=st.floats(0.5, 3.0),
        proj=st.sampled_from(["orthographic", "perspective"]), thick=st.integers(0, 2),
-       ratio=st.floats(4.0, 10.0), kind=st.sampled_from(["monotone", "catmull-rom"]))
+       ratio=st.floats(4.0, 10.0), kind=st.sampled_from(["monotone", "catmull-rom", "b-spline"]))
 def test_cubic_property_random_anisotropic_volumes_and_views(tmp_path_factory, seed, az, el, zoom, proj, thick, ratio,
                                                               kind):
     from conftest import scene_text
@@ -399,7 +399,7 @@ def test_below_the_ratio_images_are_the_linear_ones_bit_for_bit(tmp_path, make_s
     aug, idx = write_volume(tmp_path, rng_volume(4, shape), spacing=spacing, normal=random_normals(4, shape))
     sc = post_scene(make_scene, aug, idx, CAMERAS[4])
     images = []
-    for kind in ("linear", "monotone", "catmull-rom"):
+    for kind in ("linear", "monotone", "catmull-rom", "b-spline"):
         with _between(kind):
             images.append(render(sc)[0])
     assert images[0][..., 3].max() > 0.2
@@ -446,6 +446,58 @@ def test_the_kernel_density_is_the_voxels_at_voxel_positions():
             assert d == pytest.approx(post.cubic(*q, f, kind), abs=1e-12)
 
 
+def test_the_spline_interpolates_the_voxels_and_matches_the_reference_kernel():
+    """isplat.splat.post._density_at with the interpolating spline on a row of voxels along a thick axis: the
+    voxel itself at f = 0 (exactly up to rounding), between voxels the reference's spline (tests/post_reference.py:
+    the kernel summed from the B-spline and the prefilter), within the codes; constant data stay constant."""
+    from post_reference import _cardinal, _spline_taps
+
+    from isplat.splat import post
+
+    vals = np.array([10, 200, 30, 90, 250, 0, 120, 7, 60, 255, 255], np.uint8)
+    n = vals.size
+    density = np.concatenate([vals, vals[::-1]])             # two rows along a (b = 0, 1)
+    strides = np.array([1, n, 2 * n, 0], np.int64)
+    voxel = (density, density, density, strides, n, 2, 0, (1, 2, 1))
+    for qa in range(n):
+        taps = post._taps(qa, 0, voxel)
+        sa = 1 if qa + 1 < n else 0
+        assert post._density_at(density, qa, sa, n, 0.0, 0.0, taps) == pytest.approx(vals[qa], abs=1e-9)
+        for f in (0.13, 0.5, 0.91):
+            d = post._density_at(density, qa, sa, n, f, 0.0, taps)
+            p = [vals[min(max(qa + k, 0), n - 1)] for k in _spline_taps()]
+            assert d == pytest.approx(_cardinal(p, f), abs=1e-9)
+            assert 0.0 <= d <= 255.0
+    flat = np.full(2 * n, 77, np.uint8)
+    taps = post._taps(4, 0, (flat, flat, flat, strides, n, 2, 0, (1, 2, 1)))
+    assert post._density_at(flat, 4, 1, n, 0.37, 0.6, taps) == pytest.approx(77.0, abs=1e-9)
+
+
+def test_the_spline_kernel_truncation_is_small():
+    """isplat.splat.post.spline_kernel: the weights sum to 1 within the truncation's share (1.5% at reach 3, 0.4%
+    at 4), and the renormalised negative weights add up to less than SPLINE_OVERSHOOT at every f (which MIP's
+    bounds take), at the reach used and the one next to it."""
+    from isplat.splat import post
+
+    f = np.linspace(0.0, 1.0, 4001)
+    for reach, tol in ((3, 0.015), (4, 0.004)):
+        w = post.spline_kernel(reach) @ np.vstack([f ** 0, f, f ** 2, f ** 3])
+        assert np.abs(w.sum(0) - 1).max() < tol
+        assert (-np.minimum(w / w.sum(0), 0)).sum(0).max() < post.SPLINE_OVERSHOOT - 0.02
+    w = post.SPLINE_KERNEL @ np.vstack([f ** 0, f, f ** 2, f ** 3])
+    assert np.abs(w.sum(0) - 1).max() < 0.015
+    assert (-np.minimum(w / w.sum(0), 0)).sum(0).max() < post.SPLINE_OVERSHOOT - 0.02
+
+
+def test_the_bricks_read_reach_the_spline_taps():
+    """isplat.selection.QUAD_REACH: a cell at a0 owns quads a0 - 1 .. a0 + 3, whose spline taps reach
+    SPLINE_REACH - 1 before and SPLINE_REACH after the quad."""
+    from isplat.selection import QUAD_REACH
+    from isplat.splat.post import SPLINE_REACH
+
+    assert QUAD_REACH[0] >= 1 + SPLINE_REACH - 1 and QUAD_REACH[1] >= 3 + SPLINE_REACH
+
+
 def test_between_slices_picks_the_thick_in_slice_axis():
     from isplat.splat.post import between_slices
 
@@ -455,6 +507,7 @@ def test_between_slices_picks_the_thick_in_slice_axis():
     assert between_slices((1.0, 1.0, 7.0), "k", "monotone") == (0, 0, 0)      # along the view: on the slices
     assert between_slices((1.0, 1.0, 1.9), "i", "monotone") == (0, 0, 0)
     assert between_slices((1.0, 1.0, 7.0), "i", "linear") == (0, 0, 0)
+    assert between_slices((1.0, 1.0, 7.0), "i", "b-spline") == (2, 2, 1)
 
 
 def test_thick_shading_weighted_by_gradient_magnitudes_agrees_with_the_reference(tmp_path, make_scene):
@@ -502,7 +555,7 @@ def test_density_at_is_the_bilinear_density(seed, fu, fv, edge_a, edge_b):
     a1, b1 = a + (sa != 0), b + (sb != 0)
     want = ((1 - fu) * (1 - fv) * float(plane[b, a]) + fu * (1 - fv) * float(plane[b, a1])
             + (1 - fu) * fv * float(plane[b1, a]) + fu * fv * float(plane[b1, a1]))
-    got = post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, (0, 0, 0, 0, 0))
+    got = post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, (0, 0, 0, 0, 0, 0, 1, 0))
     assert got == want
     # taps None: the variant a frame without a thick axis compiles (the cubic pruned out), the same value
     assert post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, None) == want
@@ -538,4 +591,4 @@ def test_the_linear_and_the_cubic_sampler_are_two_compiled_kernels(tmp_path, mak
     assert {types["linear"], types["cubic"]} <= {sig[2] for sig in T.render.signatures}
     voxel = (None,) * 7
     assert post._taps(3, 4, voxel + (None,)) is None
-    assert post._taps(3, 4, (None, None, None, np.array([1, 8, 64, 0]), 8, 8, 0, (1, 1, 1))) == (1, 1, 1, 2, 1)
+    assert post._taps(3, 4, (None, None, None, np.array([1, 8, 64, 0]), 8, 8, 0, (1, 1, 1))) == (1, 1, 1, 2, 1, 3, 8, 1)

@@ -45,7 +45,8 @@ from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
 from .select import BLOCK, CELL, cell_origins
 from .traverse import X0, XA, XB, XC, Y0, YA, YB, YC, cut_away, register, slice_bases
-from .post import _between, _cell_pixels, _density_at, _ortho_inverse, _pixel_box, _pixel_quad, _row_pixels, _taps
+from .post import (SPLINE_OVERSHOOT, SPLINE_REACH, _between, _cell_pixels, _density_at, _ortho_inverse, _pixel_box,
+                   _pixel_quad, _row_pixels, _taps)
 
 Units = namedtuple("Units", "c a0 b0 owned ext count hi lo")
 Units.__doc__ = """The units of one axis of a selection (one row per cell holding a voxel of interest): slice
@@ -78,32 +79,34 @@ _UNITS = {}             # (id(selection), axis, sign) -> Units, dropped with the
 AHEAD = 4               # units prefetched ahead of the one sampled
 
 
-def units_of(sel, axis: str, sign: float, thick: int = 0) -> Units:
+def units_of(sel, axis: str, sign: float, thick: int = 0, kind: int = 1) -> Units:
     """The :data:`Units` of ``axis`` of the selection ``sel`` (the index's voxels of interest; with the full method
     every voxel of a density of interest) in the frame's order for ``sign`` 1 (MIP) or -1 (MinIP)
     (:func:`sorted_units`), so that a frame reads them in sequence, their bounds those of the cubic along the
-    in-slice axis ``thick`` (1 a, 2 b; 0 bilinear); made once and kept while the selection lives."""
-    key = (id(sel), axis, sign, thick)
+    in-slice axis ``thick`` (1 a, 2 b; 0 bilinear) of kind ``kind`` (:data:`isplat.splat.post.CUBIC_KINDS`); made
+    once and kept while the selection lives."""
+    key = (id(sel), axis, sign, thick, kind)
     got = _UNITS.get(key)
     if got is None:
-        units = make_units(sel, axis, thick)
+        units = make_units(sel, axis, thick, kind)
         got = Units(*(np.ascontiguousarray(x[sorted_units(units, sign)]) for x in units))
         _UNITS[key] = got
         weakref.finalize(sel, _UNITS.pop, key, None)
     return got
 
 
-def make_units(sel, axis: str, thick: int = 0) -> Units:
+def make_units(sel, axis: str, thick: int = 0, kind: int = 1) -> Units:
     """The :data:`Units` of ``axis`` of ``sel`` in the selection's order (slice, region, block, cell); ``thick``
-    as :func:`units_of`."""
+    and ``kind`` as :func:`units_of`."""
     w = sel.whole_volume(axis)
     interest = interest_table(sel.luts.intervals)
     if sel.method == "full":
-        return Units(*_full_units(w.density, interest, w.strides, w.n_a, w.n_b, _n_slices(sel, axis), thick))
+        return Units(*_full_units(w.density, interest, w.strides, w.n_a, w.n_b, _n_slices(sel, axis), thick,
+                                   kind))
     v = sel.voxels(axis)
     return Units(*_indexed_units(v.slice_ptr, v.region_ptr, v.region_id, v.block_pos, v.block_ptr, v.block_voxel,
                                  v.cell_pos, v.cell_count, v.offset, w.density, interest, w.strides, w.n_a, w.n_b,
-                                 thick))
+                                 thick, kind))
 
 
 def interest_table(intervals) -> np.ndarray:
@@ -122,7 +125,7 @@ def _n_slices(sel, axis: str) -> int:
 
 @jit
 def _indexed_units(slice_ptr, region_ptr, region_id, block_pos, block_ptr, block_voxel, cell_pos, cell_count,
-                   offset, density, interest, strides, n_a, n_b, thick):
+                   offset, density, interest, strides, n_a, n_b, thick, kind):
     """:data:`Units` from the index's hierarchy of one axis (slices, regions, blocks, cells, voxels: the cells in
     order, :func:`isplat.splat.select.cell_origins`); ``thick`` the axis of the cubic between slices
     (:func:`_put`)."""
@@ -133,13 +136,13 @@ def _indexed_units(slice_ptr, region_ptr, region_id, block_pos, block_ptr, block
         m = 0
         for t in range(cv[q], cv[q] + cell_count[q]):
             m |= 1 << offset[t]
-        _put(q, cc[q], ca[q], cb[q], m, density, interest, strides, n_a, n_b, thick, c_of, a_of, b_of, owned, ext,
-             count, hi, lo)
+        _put(q, cc[q], ca[q], cb[q], m, density, interest, strides, n_a, n_b, thick, kind, c_of, a_of, b_of, owned,
+             ext, count, hi, lo)
     return c_of, a_of, b_of, owned, ext, count, hi, lo
 
 
 @jit
-def _full_units(density, interest, strides, n_a, n_b, n_slices, thick):
+def _full_units(density, interest, strides, n_a, n_b, n_slices, thick, kind):
     """:data:`Units` of every voxel whose density is of interest (``interest`` uint8[256]), for the full method;
     ``thick`` the axis of the cubic between slices (:func:`_put`)."""
     nca = (n_a + CELL - 1) // CELL
@@ -156,8 +159,8 @@ def _full_units(density, interest, strides, n_a, n_b, n_slices, thick):
                         if interest[density[cbase + a * strides[0] + b * strides[1]]]:
                             m |= 1 << ((b - cb * CELL) * CELL + a - ca * CELL)
                 if m:
-                    _put(nu, c, ca * CELL, cb * CELL, m, density, interest, strides, n_a, n_b, thick, c_of, a_of,
-                         b_of, owned, ext, count, hi, lo)
+                    _put(nu, c, ca * CELL, cb * CELL, m, density, interest, strides, n_a, n_b, thick, kind, c_of,
+                         a_of, b_of, owned, ext, count, hi, lo)
                     nu += 1
     return c_of[:nu], a_of[:nu], b_of[:nu], owned[:nu], ext[:nu], count[:nu], hi[:nu], lo[:nu]
 
@@ -169,7 +172,7 @@ def _unit_arrays(n):
 
 
 @leaf
-def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, thick, c_of, a_of, b_of, owned, ext, count, hi,
+def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, thick, kind, c_of, a_of, b_of, owned, ext, count, hi,
          lo):
     """Unit ``u``: the cell from (a0, b0) of slice ``c`` with voxels of interest ``m``. Its quads are those whose
     first corner of interest (in the order (qa, qb), (qa + 1, qb), (qa, qb + 1), (qa + 1, qb + 1), clamped at
@@ -198,7 +201,7 @@ def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, thick, c_of, a_o
                     mine = a0 <= ca < a0 + CELL and b0 <= cb < b0 + CELL
             if first >= 0 and mine:
                 if thick != 0:
-                    dq_max, dq_min = _cubic_bounds(density, cbase, sa, sb, qa, qb, n_a, n_b, thick)
+                    dq_max, dq_min = _cubic_bounds(density, cbase, sa, sb, qa, qb, n_a, n_b, thick, kind)
                 bits |= 1 << ((qb - b0 + 1) * 5 + qa - a0 + 1)
                 dmax = max(dmax, dq_max)
                 dmin = min(dmin, dq_min)
@@ -211,15 +214,18 @@ def _put(u, c, a0, b0, m, density, interest, strides, n_a, n_b, thick, c_of, a_o
 
 
 @leaf
-def _cubic_bounds(density, cbase, sa, sb, qa, qb, n_a, n_b, thick):
+def _cubic_bounds(density, cbase, sa, sb, qa, qb, n_a, n_b, thick, kind=1):
     """The highest and lowest density the cubic along the thick axis (``thick`` 1 a, 2 b) can make in quad (qa, qb)
     (:func:`isplat.splat.post._density_at`): each of its two rows is a cubic through four voxels (clamped at the
     slice's edges) whose weights sum to 1 and whose negative ones (Catmull-Rom's, the monotone kind has none) sum
     to at least -1/8, so it lies within the eight voxels' extremes P, Q widened by (P - Q) / 8 (and the codes);
-    the linear mix of the two rows too."""
+    the linear mix of the two rows too. ``kind`` 2, the interpolating spline
+    (:func:`isplat.splat.post._spline_at`): its 2 SPLINE_REACH voxels in each row, widened by SPLINE_OVERSHOOT
+    times P - Q."""
     dmax = 0
     dmin = 255
-    for k in range(-1, 3):
+    k0, k1 = (1 - SPLINE_REACH, SPLINE_REACH + 1) if kind == 2 else (-1, 3)
+    for k in range(k0, k1):
         for j in range(2):
             a, b = (qa + k, qb + j) if thick == 1 else (qa + j, qb + k)
             a = min(max(a, 0), n_a - 1)
@@ -228,6 +234,8 @@ def _cubic_bounds(density, cbase, sa, sb, qa, qb, n_a, n_b, thick):
             dmax = max(dmax, d)
             dmin = min(dmin, d)
     over = (dmax - dmin + 7) // 8
+    if kind == 2:
+        over = int(math.ceil((dmax - dmin) * SPLINE_OVERSHOOT))
     return min(dmax + over, 255), max(dmin - over, 0)
 
 
@@ -251,7 +259,7 @@ def plan(tables):
         raise IsplatError(f"render.mode = {ro.mode!r} needs a selection made for it (the whole density channel)")
     sign = 1.0 if ro.mode == "mip" else -1.0
     between = between_slices(view.geom.spacing, tables.axis)
-    units = units_of(sel, tables.axis, sign, between[0])
+    units = units_of(sel, tables.axis, sign, between[0], between[1])
     in_frame = np.zeros(_n_slices(sel, tables.axis), np.uint8)
     in_frame[view.order] = 1
     _, color = lerp_tables(tables.atab, sel.luts.color)

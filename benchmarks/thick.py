@@ -8,8 +8,8 @@ against: the samples are painted in normalised coordinates, so both are the same
 default technique (post-classified), shaded, orthographic, from the side (the thick axis vertical in the image,
 the view along i) and obliquely, with the post-classified sampler's reconstruction between slices *before*
 (linear: the quad's bilinear density and Phong factors, ``isplat.splat.post.BETWEEN_SLICES = "linear"``) and
-*after* (the default: a Catmull-Rom cubic of the density along the thick axis, the Phong factors with the cubic
-B-spline's weights along it), the *monotone* cubic and *corners* (the cubic density, the quad's corners' shading,
+*after* (the default: the interpolating cubic spline of the density along the thick axis, the Phong factors with
+the cubic B-spline's weights along it), the *monotone* cubic and *corners* (the cubic density, the quad's corners' shading,
 ``SHADE_BETWEEN = False``), measured, not the default, and *thin* (``isplat augment --thin-slices``). The shading's corners are weighted by their gradient magnitudes in all
 (``isplat.splat.post.WEIGHTED_SHADING``, an earlier run of this page).
 
@@ -63,6 +63,17 @@ VIEWS = {"side": (90.0, 0.0), "oblique": (45.0, 25.0)}
 # the sampler's settings compared (isplat.splat.post's module attributes): before, after (the defaults), monotone
 SETTINGS = {"before": {"BETWEEN_SLICES": "linear"}, "after": {}, "monotone": {"BETWEEN_SLICES": "monotone"},
             "corners": {"SHADE_BETWEEN": False}}
+
+
+def _kind_text() -> str:
+    """The default's density between thick slices, in words (``isplat.splat.post.BETWEEN_SLICES``)."""
+    from isplat.splat import post
+
+    return {"b-spline": "the interpolating cubic spline (the cubic B-spline through prefiltered coefficients, its "
+                        f"kernel cut to {post.SPLINE_REACH} slices each way, `BETWEEN_SLICES = \"b-spline\"`)",
+            "catmull-rom": "a Catmull-Rom cubic through four slices (`BETWEEN_SLICES = \"catmull-rom\"`)",
+            "monotone": "the monotone cubic (`BETWEEN_SLICES = \"monotone\"`)"}.get(post.BETWEEN_SLICES,
+                                                                                  post.BETWEEN_SLICES)
 # the mr-head sample at these slice spacings (1 x 1 x R mm, 224 / R slices), linear and cubic between slices, the
 # cubic forced at every ratio: what the cubic gains against the anisotropy (isplat.splat.post.THICK_RATIO)
 RATIO_CASES = (1.5, 2.0, 3.0, 5.0, 7.0)
@@ -406,10 +417,11 @@ def mip_section(rows) -> list:
     L = ["", "## MIP between thick slices", "",
          "The maximum-intensity projection (`render.mode = \"mip\"`, isplat/splat/mip.py) samples the density as "
          "the post-classified technique does, so on the same grids it takes the same reconstruction between slices: "
-         "the Catmull-Rom cubic along the thick in-slice axis at and above `THICK_RATIO` (clamped to the codes; "
+         f"{_kind_text()} along the thick in-slice axis at and above `THICK_RATIO` (clamped to the codes; "
          "`isplat.splat.post._density_at`, imported), bilinear below it, bit for bit as before (tests/test_mip.py). "
          "A unit's bound (the most a sample of its quads can reach, which lets the index skip it) is widened by "
-         "what the cubic can overshoot its eight voxels (1/8 of their range). "
+         "what the reconstruction can overshoot its voxels (Catmull-Rom: 1/8 of its eight voxels' range; the "
+         "spline: 0.3 of its taps' range, `SPLINE_OVERSHOOT`). "
          f"The {tag} sample, {rows[0]['size']} x {rows[0]['size']}, orthographic, the mri-t1-head preset's opacity deciding the "
          "quads of interest, the default window (codes 0..255 as grey): *before* linear between slices "
          "(`BETWEEN_SLICES = \"linear\"`), *after* the cubic (the default), the *object* (1 mm slices). The streak "
@@ -635,7 +647,7 @@ def render_doc(rows, costs, size, quick, seconds, ratios=(), mip=(), labels=()) 
          "normalised coordinates: the same object). Columns of each picture: *before* (the sampler linear between "
          "slices, as isplat had it: the quad's bilinear density and Phong factors, "
          "`isplat.splat.post.BETWEEN_SLICES = \"linear\"`), *after* (the default now: along the thick in-slice "
-         "axis the density a Catmull-Rom cubic through four slices and the Phong factors of those four weighted by "
+         f"axis the density {_kind_text()} and the Phong factors of four slices weighted by "
          "the cubic B-spline, isplat/splat/post.py `_density_at`, `_shade_between`), *thin* (`isplat augment "
          "--thin-slices`, rendered by the default), the *object* (by the default). Rows: the side view (azimuth 90, "
          "elevation 0: the slices are horizontal), then the oblique view (azimuth 45, elevation 25). All use the "
@@ -658,7 +670,7 @@ def render_doc(rows, costs, size, quick, seconds, ratios=(), mip=(), labels=()) 
           "shading and the object's fine detail are not, and average out: the object's own value (rendered with "
           "the same phases) is the floor. *monotone*: the density's cubic with Fritsch-Butland slopes instead of "
           "Catmull-Rom's (`BETWEEN_SLICES = \"monotone\"`: no overshoot, flat at every slice that is a local "
-          "extremum). *corners*: the Catmull-Rom density with the quad's four corners' Phong factors, as between thin "
+          "extremum). *corners*: the default's density with the quad's four corners' Phong factors, as between thin "
           "slices (`SHADE_BETWEEN = False`). *RMSE*: over RGB against the object. *band* (side views): RMS over the image's rows of the "
           "row's mean luminance minus its running mean over one slice period (the object's own is the floor).", "",
           "| case | preset | spacing (mm) | view | streak before | after | monotone | corners | thin | object | "
@@ -751,8 +763,8 @@ def best_section(rows) -> list:
          "by the best standard interpolators, using the thick data only (benchmarks/_thick_resample.py, each a "
          "matrix from thick to thin slices): interpolating B-splines of degree 3 and 5 (what "
          "`scipy.ndimage.zoom(order=3|5, mode=\"mirror\")` computes along that axis), the windowed sinc Lanczos-3, "
-         "and the renderer's own Catmull-Rom cubic as a copy (the same density as *after*, but its normals "
-         "differenced on the thin grid); values clipped to the thick data's range, augmented in the thick file's "
+         "and the renderer's Catmull-Rom cubic as a copy (the density *after* had while Catmull-Rom was the "
+         "default, with its normals differenced on the thin grid); values clipped to the thick data's range, augmented in the thick file's "
          "window (as `--thin-slices` is) and rendered by the default at the same camera, size and preset. "
          "*default's shading*: a copy's density (B-spline 3, or the Catmull-Rom cubic as a control) with the "
          "thick file's own normals and gradient magnitudes instead of its own, their gradients mixed along the "
@@ -822,7 +834,8 @@ def best_reading(best) -> str:
                 why.append(f"the density between slices (unshaded streak {BEST_NAMES[mu]} {vu:.4f} against the "
                            f"default's {u['default']['streak']:.4f}, the object's {u['object']['streak']:.4f})")
             cr = r["best"].get("catmull-rom")
-            if (cr and cr["streak"] < CLEAR * r["streak"]["after"]
+            from isplat.splat import post
+            if (cr and post.BETWEEN_SLICES == "catmull-rom" and cr["streak"] < CLEAR * r["streak"]["after"]
                     and u["catmull-rom"]["streak"] <= TIE * u["default"]["streak"]):
                 why.append(f"the shading (the Catmull-Rom copy, the default's own density with normals differenced "
                            f"on the thin grid, streaks {cr['streak']:.4f} shaded against the default's "
@@ -894,7 +907,8 @@ def reading(rows, costs, ratios=()) -> str:
            "overshoot between them, clamped to the codes 0..255), and the Phong factors of those four slices' "
            "voxels are mixed with the cubic B-spline's weights (positive, C2, so no kink in the shading; a little "
            "smoothing of the normals across the thick slices, whose differences are coarse there anyway), times "
-           "the gradient magnitudes as before. Measured and not chosen: the monotone cubic (its slope is 0 at "
+           "the gradient magnitudes as before (the density is now the interpolating cubic spline instead: "
+           "docs/design.md, \"The interpolating cubic spline between thick slices\"). Measured and not chosen: the monotone cubic (its slope is 0 at "
            "every slice that is a local extremum along the thick axis, which draws a flat at every slice of a "
            "thin shell: the *monotone* columns), and the Catmull-Rom weights for the Phong factors too (negative "
            "weights: more streak than the linear ones when tried).", "",

@@ -101,6 +101,7 @@ def checksum_cost(folder: Path, shape_ijk=(256, 256, 160), repeats: int = 7) -> 
     _rewrite_unchecked(idx, idx0)
     _rewrite_unchecked(values_path(idx), values_path(idx0))     # pre's values, beside the index (index format 6)
     no_check = [mock.patch.object(m, "check_checked_dataset", lambda *a: None) for m in (augfile, store)]
+    no_check.append(mock.patch.object(store, "check_hashed_dataset", lambda *a: None))   # index format 7
     no_check.append(no_chunk_hashes())      # the unchecked copies have no chunks, so no chunk hashes to check
 
     def load_scene_data(aug_path, idx_path):
@@ -151,11 +152,13 @@ def checksum_cost(folder: Path, shape_ijk=(256, 256, 160), repeats: int = 7) -> 
 
 
 class _PlainReads:
-    """A stand-in for :class:`isplat.chunkhash.Verifier` that reads without checking (Fletcher-32 only)."""
+    """A stand-in for :class:`isplat.chunkhash.Verifier` that reads through HDF5 without checking the chunk hashes
+    (only what HDF5 checks itself: Fletcher-32 where a dataset has it; index format 7 has none). The brick hashes
+    of an augmented file of format 6 are not the verifier's (isplat.brickstore) and are still checked."""
 
     chunks_verified = 0
 
-    def read(self, f, dataset, sel=None, check=None):
+    def read(self, f, dataset, sel=None, check=None, fetch=None):
         ds = f[dataset]
         return ds[tuple(sel)] if sel else ds[()]
 

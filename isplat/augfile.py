@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -161,16 +162,14 @@ class AugmentedVolume:
         d_off, h_off, dt, seed = self.store[channel]
         nb, size = int(np.prod(grid)), e ** 3 * np.dtype(dt).itemsize
         rows = np.ravel_multi_index(tuple(bricks.T), grid)
-        mm = np.memmap(self.path, dtype=np.uint8, mode="r")
-        if mm.size < max(d_off + nb * size, h_off + nb * 8):          # (checked at open; the file may have changed)
-            raise IsplatError(f"{self.path}: dataset '{channel}': the file is {mm.size} bytes, shorter than its "
+        have = os.path.getsize(self.path)
+        if have < max(d_off + nb * size, h_off + nb * 8):          # (checked at open; the file may have changed)
+            raise IsplatError(f"{self.path}: dataset '{channel}': the file is {have} bytes, shorter than its "
                               f"bricks and hashes (changed since it was opened?); rebuild it: {self.verifier.rebuild}")
-        table = mm[d_off:d_off + nb * size].reshape(nb, size)
         layer = grid[1] * grid[2]
         whole = bool(rows[0] % layer == 0 and n % layer == 0 and rows[-1] - rows[0] == n - 1 and
                      np.all(np.diff(rows) == 1))
-        data = np.array(table[rows[0]:rows[-1] + 1]) if whole else table[rows]
-        want = mm[h_off:h_off + nb * 8].view("<u8")[rows]
+        data, want = _gather_store(self.path, d_off, h_off, size, rows)
         got = brickstore.hash_bricks(data.view("<u8"), rows, np.uint64(seed))
         bad = np.flatnonzero(got != want)
         if bad.size:
@@ -314,6 +313,30 @@ class AugmentedVolume:
             for ch in hashed_datasets(self.has_labels, self.format_version):
                 if not (self.bricked and ch in (*CHANNELS, LABELS)):
                     self.verifier.verify_all(f, ch)
+
+
+STORE_WINDOW = 1 << 26      # bytes of a brick store mapped at a time: a read's address space stays small (a 1024^3
+#                             volume's channels are 1-2 GiB; docs/scale.md runs each stage in 2 GiB of address space)
+
+
+def _gather_store(path, d_off: int, h_off: int, size: int, rows: np.ndarray):
+    """The bricks ``rows`` (rows of ``size`` bytes from file offset ``d_off``) and their stored hashes (uint64 from
+    ``h_off``), copied from memory maps of at most STORE_WINDOW bytes of the file each (offsets checked by the
+    caller against the file's size)."""
+    order = np.argsort(rows, kind="stable")
+    srt = rows[order]
+    data, want = np.empty((rows.size, size), np.uint8), np.empty(rows.size, np.uint64)
+    per, i = max(1, STORE_WINDOW // size), 0
+    while i < srt.size:
+        j = int(np.searchsorted(srt, srt[i] + per))
+        r0, r1 = int(srt[i]), int(srt[j - 1]) + 1
+        m = np.memmap(path, dtype=np.uint8, mode="r", offset=d_off + r0 * size, shape=((r1 - r0) * size,))
+        data[order[i:j]] = m.reshape(r1 - r0, size)[srt[i:j] - r0]
+        h = np.memmap(path, dtype="<u8", mode="r", offset=h_off + r0 * 8, shape=(r1 - r0,))
+        want[order[i:j]] = h[srt[i:j] - r0]
+        del m, h
+        i = j
+    return data, want
 
 
 def lazy_zeros(shape, dtype) -> np.ndarray:

@@ -327,12 +327,25 @@ def test_old_files_are_read_whole(files):
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.integers(0, 2 ** 31), st.tuples(st.integers(1, 20), st.integers(1, 20), st.integers(1, 27)),
-       st.floats(0.05, 1.0))
-def test_read_bricks_holds_exactly_the_bricks_asked(tmp_path_factory, seed, shape, share):
+       st.floats(0.05, 1.0), st.sampled_from([1, 700, 3000, None]))
+def test_read_bricks_holds_exactly_the_bricks_asked(tmp_path_factory, seed, shape, share, window):
+    """read_bricks: the bricks asked, zeros elsewhere, whatever part of the store is mapped at a time
+    (``window``: augfile.STORE_WINDOW, from one brick a map to the default)."""
+    import isplat.augfile as augfile
+
     rng = np.random.default_rng(seed)
     dens = rng.integers(0, 256, shape).astype(np.uint8)
     aug, _ = write_volume(tmp_path_factory.mktemp("rb"), dens, index=False)
     a = open_augmented(aug)
+    old_window = augfile.STORE_WINDOW
+    augfile.STORE_WINDOW = window or old_window
+    try:
+        _check_read_bricks(a, dens, shape, rng, share)
+    finally:
+        augfile.STORE_WINDOW = old_window
+
+
+def _check_read_bricks(a, dens, shape, rng, share):
     grid = a.brick_range.shape[:3]
     want = rng.random(grid) < share
     got = a.read_bricks("density", np.argwhere(want))
@@ -415,3 +428,25 @@ def test_augment_writes_bricks_unless_asked_for_rows(tmp_path):
         assert version == 4 or a.bricks == (8, 8, 8)
     for ch in ("density", "gradient_magnitude", "normal"):
         assert np.array_equal(files[4].read(ch, 0, SHAPE[0]), files[6].read(ch, 0, SHAPE[0])), ch
+
+
+@pytest.mark.parametrize("window", [600, 1600, 5000])
+def test_the_store_is_read_through_windows_of_any_size(tmp_path, window, monkeypatch):
+    """augfile.STORE_WINDOW (the part of the file mapped at a time, so that a 1024^3 channel is read within a 2 GiB
+    address space): windows of 1, 3 and 9 density bricks, subsets of 36 bricks: each read equals the volume's
+    bricks, on every channel (normal bricks: 1024 B)."""
+    import isplat.augfile as augfile
+
+    rng = np.random.default_rng(window)
+    shape = (20, 20, 27)                                      # 3 x 3 x 4 bricks of 8^3
+    dens = rng.integers(0, 256, shape).astype(np.uint8)
+    nrm = rng.integers(0, 65536, shape).astype(np.uint16)
+    aug, _ = write_volume(tmp_path, dens, normal=nrm, index=False)
+    monkeypatch.setattr(augfile, "STORE_WINDOW", window)
+    a = open_augmented(aug)
+    for share in (0.2, 0.5, 1.0):
+        want = rng.random(a.brick_range.shape[:3]) < share
+        mask = np.kron(want, np.ones(a.bricks, bool))[:shape[0], :shape[1], :shape[2]]
+        for ch, vol in (("density", dens), ("normal", nrm)):
+            got = a.read_bricks(ch, np.argwhere(want)[::-1])           # in any order
+            assert np.array_equal(got, np.where(mask, vol, 0)), (ch, share)

@@ -392,8 +392,9 @@ def gather_channels(read, loaded: dict, channels, shape) -> dict:
 
 def gather_bricks(aug, loaded: dict, channels, shape, box=None) -> dict:
     """:func:`gather_channels` from a bricked augmented file: only the bricks that hold a loaded voxel are read
-    (each checked, :meth:`isplat.augfile.AugmentedFile.read_bricks`), GATHER_SLAB bricks' height of k at a time,
-    within ``box`` (``(lo, hi)``, element bounds (k, j, i): a slab's block; the whole volume if None)."""
+    (each checked, :meth:`isplat.augfile.AugmentedFile.read_bricks`), a layer of bricks (their height of k) at a
+    time, within ``box`` (``(lo, hi)``, element bounds (k, j, i): a slab's block; the whole volume if None). Held
+    besides the values: 24 bytes per voxel (its flat index, sorted, and their order), as gather_channels."""
     from .splat.select import flat_indices
 
     fis = {ax: flat_indices(la.slice_block_ptr, la.block_voxel_ptr, la.positions, la.n_a,
@@ -404,24 +405,25 @@ def gather_bricks(aug, loaded: dict, channels, shape, box=None) -> dict:
     lo, hi = box if box is not None else ((0, 0, 0), tuple(shape))
     edge = np.asarray(aug.bricks, dtype=np.int64)
     fi = np.concatenate(list(fis.values()))
-    kji = np.stack(np.unravel_index(fi, tuple(shape)), axis=1)
-    if kji.shape[0] and ((kji < np.asarray(lo)) | (kji >= np.asarray(hi))).any():
-        raise IsplatError(f"{aug.path}: the index places a voxel outside the slab's block {lo}..{hi}")
-    layer = GATHER_SLAB * int(edge[0])            # k-slices per read: whole layers of bricks
-    cut = np.searchsorted(kji[:, 0][order := np.argsort(fi, kind="stable")],
-                          np.arange(lo[0] - lo[0] % layer, hi[0] + layer, layer))
+    order = np.argsort(fi, kind="stable")
+    srt = fi[order]
+    plane, layer = int(shape[1]) * int(shape[2]), int(edge[0])           # k-slices per read: one layer of bricks
+    cuts = np.searchsorted(srt, np.arange(lo[0] - lo[0] % layer, hi[0] + layer, layer) * plane)
     vals = {ch: np.empty(fi.shape[0], dtype=np.uint16 if ch == "normal" else np.uint8) for ch in channels}
-    for a, b in zip(cut[:-1], cut[1:]):
+    bgrid = -(-np.asarray(shape, dtype=np.int64) // edge)
+    for a, b in zip(cuts[:-1], cuts[1:]):
         if b <= a:
             continue
-        rows = order[a:b]
-        at = kji[rows]
+        at = np.stack(np.unravel_index(srt[a:b], tuple(shape)), axis=1)       # this layer's voxels only
+        if ((at < np.asarray(lo)) | (at >= np.asarray(hi))).any():
+            raise IsplatError(f"{aug.path}: the index places a voxel outside the slab's block {lo}..{hi}")
         k0 = max(int(lo[0]), int(at[0, 0]) - int(at[0, 0]) % layer)
         sub = ((k0, *lo[1:]), (min(int(hi[0]), k0 + layer), *hi[1:]))
-        bricks = np.unique(at // edge, axis=0)
+        ids = np.unique(np.ravel_multi_index(tuple((at // edge).T), tuple(bgrid)))
+        bricks = np.stack(np.unravel_index(ids, tuple(bgrid)), axis=1)
+        at -= np.asarray(sub[0])
         for ch in channels:                       # the block holds only these bricks (zero pages elsewhere)
-            block = aug.read_bricks(ch, bricks, sub)
-            vals[ch][rows] = block[tuple((at - np.asarray(sub[0])).T)]
+            vals[ch][order[a:b]] = aug.read_bricks(ch, bricks, sub)[tuple(at.T)]
     start = 0
     for ax, f in fis.items():
         for ch in channels:

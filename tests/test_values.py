@@ -485,7 +485,7 @@ def test_values_gathered_from_bricks_are_the_channels_at_the_voxels(tmp_path_fac
     from isplat import grid
 
     rng = np.random.default_rng(seed)
-    shape = (70, 11, 9)                                   # k spans two layers of 8^3 bricks (GATHER_SLAB x 8)
+    shape = (70, 11, 9)                                   # k spans nine layers of 8^3 bricks
     dens = np.where(rng.random(shape) < 0.05, rng.integers(150, 256, shape), 0).astype(np.uint8)
     gm = rng.integers(0, 256, shape).astype(np.uint8)
     nrm = rng.integers(0, 65536, shape).astype(np.uint16)

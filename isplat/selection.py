@@ -383,11 +383,16 @@ def gather_channels(read, loaded: dict, channels, shape) -> dict:
             if hi > lo:
                 slab = read(ch, k0, min(n_k, k0 + GATHER_SLAB)).ravel()
                 vals[order[lo:hi]] = slab[sorted_fi[lo:hi] - k0 * plane]
-        start = 0
-        for ax, fi in fis.items():
-            out[ax][ch] = vals[start:start + fi.shape[0]]
-            start += fi.shape[0]
+        _split(out, ch, vals, fis)
     return out
+
+
+def _split(out: dict, ch: str, vals: np.ndarray, fis: dict) -> None:
+    """``out[axis][ch]``: each axis's part of ``vals``, the values of the axes' voxels concatenated in ``fis``' order."""
+    start = 0
+    for ax, fi in fis.items():
+        out[ax][ch] = vals[start:start + fi.shape[0]]
+        start += fi.shape[0]
 
 
 def gather_bricks(aug, loaded: dict, channels, shape, box=None) -> dict:
@@ -424,11 +429,8 @@ def gather_bricks(aug, loaded: dict, channels, shape, box=None) -> dict:
         at -= np.asarray(sub[0])
         for ch in channels:                       # the block holds only these bricks (zero pages elsewhere)
             vals[ch][order[a:b]] = aug.read_bricks(ch, bricks, sub)[tuple(at.T)]
-    start = 0
-    for ax, f in fis.items():
-        for ch in channels:
-            out[ax][ch] = vals[ch][start:start + f.shape[0]]
-        start += f.shape[0]
+    for ch in channels:
+        _split(out, ch, vals[ch], fis)
     return out
 
 

@@ -115,6 +115,21 @@ def received() -> int | None:
     return _state["received"]
 
 
+def signal_behind(exc: BaseException) -> int | None:
+    """The signal whose :class:`Terminated` caused ``exc`` (its ``__cause__`` or ``__context__`` chain), else None.
+
+    Compiled code that calls back into Python (h5py iterating attributes, say) may turn an exception raised by
+    :func:`on_signal` inside the callback into another one: h5py's lock reports ``SystemError: ... returned a
+    result with an exception set``, with the :class:`Terminated` as its cause."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, Terminated):
+            return exc.signum
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 def check() -> None:
     """Raise :class:`Terminated` if a signal arrived under :func:`on_signal` (even one whose exception was
     swallowed): nothing is committed after it."""

@@ -427,6 +427,41 @@ def test_sigterm_swallowed_on_the_way_still_ends_the_run(data, tmp_path):
     assert out.read_bytes() == b"old" and sorted(x.name for x in tmp_path.iterdir()) == ["o.gif"]
 
 
+def test_signal_turned_into_another_error_by_compiled_code_is_the_signal(data, tmp_path, monkeypatch, capsys):
+    """h5py's lock turns a Terminated raised inside its attribute-iteration callback into ``SystemError: ...
+    returned a result with an exception set`` (seen in CI): the signal behind it still ends the run in one line
+    with 130, not a traceback."""
+    from isplat import chunkhash, interrupts
+    from isplat.cli.main import main
+
+    def interrupted(*args, **kwargs):
+        try:
+            raise interrupts.Terminated(signal.SIGINT)
+        except interrupts.Terminated as exc:
+            raise SystemError("<cyfunction FastRLock.__exit__> returned a result with an exception set") from exc
+
+    monkeypatch.setattr(chunkhash, "attributes_of", interrupted)
+    with pytest.raises(SystemExit) as code:
+        main(["render", str(data / "scene.toml"), "-o", str(tmp_path / "o.png")])
+    err = capsys.readouterr().err
+    assert code.value.code == 130 and err.startswith("isplat: interrupted (SIGINT)") and err.count("\n") == 1, err
+    assert list(tmp_path.iterdir()) == []
+    interrupts.reset()
+
+
+def test_other_errors_are_not_taken_for_signals():
+    from isplat import interrupts
+
+    try:
+        try:
+            raise ValueError("a")
+        except ValueError as inner:
+            raise SystemError("b") from inner
+    except SystemError as exc:
+        assert interrupts.signal_behind(exc) is None
+        assert interrupts.signal_behind(exc.__cause__) is None
+
+
 def test_deferred_signal_is_raised_when_the_block_ends():
     from isplat import interrupts
 

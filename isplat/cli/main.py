@@ -101,7 +101,7 @@ def main(argv=None):
 def _run(argv):
     try:
         interrupts.release_start()
-        cli.main(args=argv, prog_name="isplat", standalone_mode=False)
+        _invoke(argv)
         interrupts.check()                        # a signal whose exception was swallowed on the way still counts
     except Terminated as exc:
         _interrupted(exc.signum)
@@ -128,6 +128,17 @@ def _run(argv):
         click.echo(f"isplat: error: {os_error_line(exc)}", err=True)
         sys.exit(1)
     sys.exit(0)
+
+
+def _invoke(argv) -> None:
+    """The command; an exception that a signal caused inside compiled code (an h5py callback) is the signal."""
+    try:
+        cli.main(args=argv, prog_name="isplat", standalone_mode=False)
+    except Exception as exc:
+        signum = interrupts.signal_behind(exc)
+        if signum is None:
+            raise
+        raise Terminated(signum) from exc
 
 
 def _interrupted(signum) -> None:

@@ -146,7 +146,7 @@ class Setup:
     plan: tuple | None
     lists: list                 # per thread, the technique's scratch (its touched-pixel and visible-cell lists)
     rows: np.ndarray            # int64[bands, 2]: each image band's rows [y0, y1)
-    mine: list                  # per thread, the bands it would render at equal speed (t, t + threads, ...)
+    mine: list                  # per thread, the bands it would render at equal speed (queue[t::threads])
     tile_npix: np.ndarray
     dtype: type                 # the image's float type (render.precision)
     et: float
@@ -154,10 +154,13 @@ class Setup:
     empty: bool
     order: np.ndarray | None = None    # the frame's sheets front to back, when not the view's slices
     band_seconds: np.ndarray | None = None  # float64[bands]: each band's CPU time so far (render_slab)
+    queue: np.ndarray | None = None     # int64[bands]: the bands in the order the threads take them (band_queue)
 
     def __post_init__(self):
         if self.band_seconds is None:
             self.band_seconds = np.zeros(len(self.rows))
+        if self.queue is None:
+            self.queue = np.arange(len(self.rows), dtype=np.int64)
 
     @property
     def sheets(self) -> np.ndarray:
@@ -217,13 +220,14 @@ def prepare(sel, view: View, et: float | None = None, bands: "BandLearning | Non
     threads = ro.threads or default_threads()
     et_val = float(ro.early_termination if et is None else et)
     rows = band_rows(bands, view, threads)
-    mine = [np.arange(t, len(rows), threads, dtype=np.int64) for t in range(min(threads, len(rows)))]
+    queue = band_queue(bands, view, threads, len(rows))
+    mine = [queue[t::threads] for t in range(min(threads, len(rows)))]
     tile_npix = _tile_pixels(frame.height, frame.width)
     if sel.empty:
-        return Setup(view, None, [], rows, mine, tile_npix, dtype, et_val, threads, True)
+        return Setup(view, None, [], rows, mine, tile_npix, dtype, et_val, threads, True, queue=queue)
     tables = frame_tables(sel, view, dtype, threads, rows, len(mine))
     plan, lists, order = importlib.import_module(TECHNIQUES[technique_of(ro)], __package__).plan(tables)
-    return Setup(view, plan, lists, rows, mine, tile_npix, dtype, et_val, threads, False, order)
+    return Setup(view, plan, lists, rows, mine, tile_npix, dtype, et_val, threads, False, order, queue=queue)
 
 
 def frame_tables(sel, view: View, dtype, threads: int, rows: np.ndarray, n_lists: int) -> FrameTables:
@@ -305,14 +309,15 @@ def render_slab(setup: Setup, start: int = 0, stop: int | None = None, state: Pa
     et = part.img.dtype.type(setup.et)
     bg = np.asarray(setup.view.background, dtype=np.float64)
 
-    queue = itertools.count()           # the bands in order, each taken by the first thread free (next() is atomic)
+    queue = itertools.count()   # setup.queue's bands in turn, each taken by the first thread free (next() is atomic)
     n_bands = len(setup.rows)
     each = np.arange(n_bands, dtype=np.int64)
 
     def run(t):
         buf = T.Buffers(part.img, part.sat, part.tile_sat, setup.tile_npix, part.band_stats)
         ok = True
-        while (bi := next(queue)) < n_bands:     # band by band, each timed (band_rows balances by the times)
+        while (qi := next(queue)) < n_bands:     # band by band, each timed (band_rows balances by the times)
+            bi = int(setup.queue[qi])
             c0 = time.thread_time()
             y0, y1 = setup.rows[bi]
             if state is None:
@@ -380,7 +385,7 @@ def render_frame(sel, view: View, et: float | None = None, bands: "BandLearning 
         # what the frames before this one found of their bands is learned while this one's threads render
         part = render_slab(setup, start, stop, part, out if i == len(slabs) - 1 else None,
                            meanwhile=(lambda: learn_pending(bands)) if i == 0 else None)
-    bands.pending.append(BandTimes(setup.rows, setup.band_seconds, view, setup.threads, setup.empty))
+    bands.pending.append(BandTimes(setup.rows, setup.band_seconds, view, setup.threads, setup.empty, setup.queue))
     if out is None:
         out = finish_image(part.img, view.background, view.render.supersample, setup.threads)
     return out, frame_stats(view, part, time.perf_counter() - t0)
@@ -425,7 +430,7 @@ def cut_coefficients(cuts, geom, axis, dtype=np.float64) -> np.ndarray:
 
 
 BANDS_PER_THREAD = 2    # even image bands per thread (see image_bands)
-LEARNED_PER_THREAD = 2  # learned bands per thread (_next_bands, band_shares): 1 repeats less work on a quiet
+LEARNED_PER_THREAD = 2  # learned bands per thread (_next_bands, band_layout): 1 repeats less work on a quiet
                         # machine, 2 lets a free thread take over from one slowed by another process
 MIN_BAND_TILES = 4
 
@@ -467,6 +472,15 @@ def band_rows(bands: "BandLearning | None", view: View, threads: int) -> np.ndar
     return image_bands(view.frame.height, threads) if learned is None else learned.rows
 
 
+def band_queue(bands: "BandLearning | None", view: View, threads: int, n_bands: int) -> np.ndarray:
+    """The order in which the threads take the frame's ``n_bands`` bands (:func:`band_rows`'s), ``int64[bands]``:
+    the image's order for even bands, :func:`band_layout`'s for learned ones (the large bands first)."""
+    learned = None if bands is None else bands.costs.get(_balance_key(view, threads))
+    if learned is None or learned.queue is None or len(learned.queue) != n_bands:
+        return np.arange(n_bands, dtype=np.int64)
+    return learned.queue
+
+
 def _balance_key(view: View, threads: int) -> tuple:
     ro = view.render
     return view.axis_sign, view.frame.height, view.frame.width, threads, ro.classification, ro.sheets, ro.mode
@@ -475,19 +489,20 @@ def _balance_key(view: View, threads: int) -> tuple:
 @dataclass
 class Learned:
     """What the frames of one kind learned of their bands (:func:`learn_bands`): the work per tile row, the
-    next frame's bands, and for the last few bands used (by their first rows) the busiest thread's work over
-    the mean."""
+    next frame's bands and the order the threads take them in (None: the image's), and for the last few bands
+    used (by their first rows and their order) the busiest thread's work over the mean."""
 
     est: np.ndarray | None      # None after the first frame
     rows: np.ndarray
     tried: dict
+    queue: np.ndarray | None = None
 
 
 BALANCE_SLACK = 0.03    # bands are kept while the busiest thread's work is at most this much above the mean
 TRIED = 4               # bands remembered with what they gave
 
 
-BandTimes = namedtuple("BandTimes", "rows band_seconds view threads empty")
+BandTimes = namedtuple("BandTimes", "rows band_seconds view threads empty queue")
 BandTimes.__doc__ = """What :func:`learn_bands` takes of a frame's :class:`Setup` (and keeps, unlike the set-up's
 buffers, until the next frame learns from it)."""
 
@@ -531,17 +546,18 @@ def learn_bands(costs: dict, setup: Setup) -> None:
     if old is None:
         costs[key] = Learned(None, setup.rows, {})
         return
-    measured = _thread_sums(setup.band_seconds, threads)
+    queue = setup.queue
+    measured = _thread_sums(setup.band_seconds, threads, queue)
     if old.est is not None and measured.max() <= (1.0 + BALANCE_SLACK) * measured.mean():
         return
     est = _profile(old.est, setup.rows, setup.band_seconds, setup.view.frame.height)
-    costs[key] = Learned(est, setup.rows, {}) if old.est is None else \
-        _next_bands(est, setup.rows, old.tried, threads, setup.view.frame.height)
+    costs[key] = Learned(est, setup.rows, {}, queue) if old.est is None else \
+        _next_bands(est, setup.rows, queue, old.tried, threads, setup.view.frame.height)
 
 
-def _thread_sums(per_band: np.ndarray, threads: int) -> np.ndarray:
-    """Each thread's share of ``per_band`` at equal speed (thread t takes bands t, t + threads, ...)."""
-    return np.bincount(np.arange(len(per_band)) % threads, per_band)
+def _thread_sums(per_band: np.ndarray, threads: int, queue: np.ndarray) -> np.ndarray:
+    """Each thread's share of ``per_band`` at equal speed (thread t takes the bands ``queue[t::threads]``)."""
+    return np.bincount(np.arange(len(per_band)) % threads, np.asarray(per_band)[queue])
 
 
 def _profile(est: np.ndarray | None, rows: np.ndarray, seconds: np.ndarray, height: int) -> np.ndarray:
@@ -557,8 +573,9 @@ def _profile(est: np.ndarray | None, rows: np.ndarray, seconds: np.ndarray, heig
     return new if est is None else 0.5 * (new + est)
 
 
-def _next_bands(est: np.ndarray, rows: np.ndarray, tried: dict, threads: int, height: int) -> Learned:
-    """The bands after ``rows``: kept while the busiest thread's work (by the profile ``est``) is at most
+def _next_bands(est: np.ndarray, rows: np.ndarray, queue: np.ndarray, tried: dict, threads: int,
+                height: int) -> Learned:
+    """The bands after ``rows`` (taken in the order ``queue``): kept while the busiest thread's work (by the profile ``est``) is at most
     BALANCE_SLACK or half a tile row's work (as close as bands of whole tiles may come) above the mean; else one
     band per thread cut where the profile says the work is equal (:func:`balanced_bands`; fewer cuts through
     the busy rows than even bands make, each repeating work) when that is predicted better than the best of the
@@ -566,52 +583,68 @@ def _next_bands(est: np.ndarray, rows: np.ndarray, tried: dict, threads: int, he
     balanced at whole tiles does not swing between two)."""
     cum = np.concatenate([[0.0], np.cumsum(est)])
 
-    def per_thread(r):
-        return _thread_sums(cum[-(-r[:, 1] // TILE)] - cum[r[:, 0] // TILE], threads)
+    def per_thread(r, q):
+        return _thread_sums(cum[-(-r[:, 1] // TILE)] - cum[r[:, 0] // TILE], threads, q)
 
-    now = per_thread(rows)
+    now = per_thread(rows, queue)
     busiest, mean = float(now.max()), float(now.mean())
     tried = dict(tried)
-    tried.pop(starts := tuple(rows[:, 0].tolist()), None)
-    tried[starts] = busiest / mean
+    tried.pop(key := (tuple(rows[:, 0].tolist()), tuple(queue.tolist())), None)
+    tried[key] = busiest / mean
     while len(tried) > TRIED:
         del tried[next(iter(tried))]
     if busiest > mean + max(BALANCE_SLACK * mean, 0.5 * float(est.max())):
-        cut = balanced_bands(est, min(LEARNED_PER_THREAD * threads, len(est)), threads, height)
-        if tuple(cut[:, 0].tolist()) not in tried and \
-                per_thread(cut).max() < (min(tried.values()) - BALANCE_SLACK) * mean:
-            return Learned(est, cut, tried)
-        best = np.array(min(tried, key=tried.get), np.int64)
-        rows = np.stack([best, np.append(best[1:], height)], axis=1)
-    return Learned(est, rows, tried)
+        n_bands = min(LEARNED_PER_THREAD * threads, len(est))
+        cut, order = balanced_bands(est, n_bands, threads, height), band_layout(n_bands, threads)[1]
+        if (tuple(cut[:, 0].tolist()), tuple(order.tolist())) not in tried and \
+                per_thread(cut, order).max() < (min(tried.values()) - BALANCE_SLACK) * mean:
+            return Learned(est, cut, tried, order)
+        starts, order = (np.array(x, np.int64) for x in min(tried, key=tried.get))
+        rows = np.stack([starts, np.append(starts[1:], height)], axis=1)
+        queue = order
+    return Learned(est, rows, tried, queue)
 
 
-def band_shares(n_bands: int, threads: int) -> np.ndarray:
-    """Where ``n_bands`` bands for ``threads`` threads end, as shares of the frame's work: with two bands per
-    thread, each thread's first band twice its second (the first ``threads`` bands 2/3 of the work, the rest
-    1/3), so that threads taking the next band when free (:func:`render_slab`) even out a thread slowed by
-    another process: at equal speed thread t takes bands t and t + threads (half the work each); with one
-    thread at half speed it does one large band while the other does the rest, and both end at 2/3 of the
-    one-speed time, as the two threads' summed speed allows. Otherwise equal shares.
+def band_layout(n_bands: int, threads: int) -> tuple[np.ndarray, np.ndarray]:
+    """Learned bands: where ``n_bands`` bands for ``threads`` threads end in the image's order, as shares of the
+    frame's work, and the order in which the threads take them (``int64[bands]`` of band indices). With two
+    bands per thread each thread's first band is twice its second (the n large bands 2/3 of the work, the n
+    small ones 1/3), so that threads taking the next band when free (:func:`render_slab`) even out a thread
+    slowed by another process: at equal speed thread t takes the t-th large band and the t-th small one (half
+    the work each); with one thread at half speed it does one large band while the other does the rest, and
+    both end at 2/3 of the one-speed time, as the two threads' summed speed allows. The large bands are the
+    middle of the image and are taken first; the small ones are its top and bottom (half of them each), taken
+    after, so that two of the cuts fall where the work thins out: a cut repeats the work of the cells that
+    cross it, which is least where there is least work (docs/worksplit.md counts it). Otherwise equal shares
+    in the image's order.
 
-    >>> band_shares(4, 2).round(4).tolist(), band_shares(3, 2).round(4).tolist()
-    ([0.3333, 0.6667, 0.8333, 1.0], [0.3333, 0.6667, 1.0])
+    >>> ends, order = band_layout(4, 2)
+    >>> ends.round(4).tolist(), order.tolist()
+    ([0.1667, 0.5, 0.8333, 1.0], [1, 2, 0, 3])
+    >>> band_layout(3, 2)[0].round(4).tolist(), band_layout(3, 2)[1].tolist()
+    ([0.3333, 0.6667, 1.0], [0, 1, 2])
     """
     if threads < 2 or n_bands != 2 * threads:
-        return np.arange(1, n_bands + 1) / n_bands
-    per = np.r_[np.full(threads, 2.0), np.ones(threads)]
-    return np.cumsum(per) / per.sum()
+        return np.arange(1, n_bands + 1) / n_bands, np.arange(n_bands, dtype=np.int64)
+    top = threads // 2
+    per = np.r_[np.ones(top), np.full(threads, 2.0), np.ones(threads - top)]
+    order = np.r_[np.arange(top, top + threads), np.arange(top), np.arange(top + threads, n_bands)]
+    return np.cumsum(per) / per.sum(), order.astype(np.int64)
 
 
 def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, tile: int = TILE) -> np.ndarray:
     """``n_bands`` bands of whole tiles of an image ``height`` rows high (``int64[bands, 2]`` of ``[y0, y1)``)
-    for a cost ``est`` per tile row, thread ``t`` taking bands ``t, t + threads, ...`` (at equal speed): cut
-    where the cumulated cost reaches :func:`band_shares` of the whole, then cuts moved a tile at a time while that lowers the
-    busiest thread's cost (or, as much, the sum of squares of the threads' costs). In plain Python: a few
-    bands, and numpy's calls cost more than the sums."""
+    for a cost ``est`` per tile row, thread ``t`` taking the bands ``order[t::threads]`` of :func:`band_layout`
+    (at equal speed): cut where the cumulated cost reaches the layout's shares of the whole, then cuts moved a
+    tile at a time while that lowers the busiest thread's cost (or, as much, the sum of squares of the threads'
+    costs). In plain Python: a few bands, and numpy's calls cost more than the sums."""
     n_tiles = len(est)
     cum = np.concatenate([[0.0], np.cumsum(est)])
-    q = np.rint(np.interp(cum[-1] * band_shares(n_bands, threads)[:-1], cum, np.arange(n_tiles + 1)))
+    ends, order = band_layout(n_bands, threads)
+    thread_of = [0] * n_bands
+    for pos, b in enumerate(order.tolist()):
+        thread_of[b] = pos % threads
+    q = np.rint(np.interp(cum[-1] * ends[:-1], cum, np.arange(n_tiles + 1)))
     edges = [0, *np.clip(q, 1, n_tiles - 1).astype(int).tolist(), n_tiles]
     for i in range(1, n_bands):                       # every band at least one tile, from the top ...
         edges[i] = max(edges[i], edges[i - 1] + 1)
@@ -622,7 +655,7 @@ def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, til
     def score(e):
         per = [0.0] * threads
         for b in range(n_bands):
-            per[b % threads] += cum[e[b + 1]] - cum[e[b]]
+            per[thread_of[b]] += cum[e[b + 1]] - cum[e[b]]
         return max(per), sum(p * p for p in per)
 
     best = score(edges)

@@ -371,12 +371,41 @@ def _check_bins(view, vox, coef, ex, ey, rows, bins):
     return listed
 
 
+@pytest.mark.parametrize("threads", [1, 2, 3, 4, 5, 8])
+@pytest.mark.parametrize("per_thread", [1, 2, 3])
+def test_band_layout_puts_the_large_bands_in_the_middle_and_first(threads, per_thread):
+    """band_layout: the learned bands' ends rise to the whole work and their order takes every band once; with
+    two bands per thread the ``threads`` large bands (twice the small ones) are the middle of the image and taken
+    first, the small ones its top and bottom, so that at equal speed every thread takes one large and one small
+    band (an equal share), and with one of two threads at half speed both end at 2/3 of the one-speed time
+    (threads taking the next band when free). Otherwise equal shares in the image's order."""
+    n = per_thread * threads
+    ends, order = F.band_layout(n, threads)
+    shares = np.diff(np.r_[0.0, ends])
+    assert np.isclose(ends[-1], 1.0) and (shares > 0).all() and sorted(order.tolist()) == list(range(n))
+    if threads < 2 or per_thread != 2:
+        assert np.allclose(shares, 1.0 / n) and order.tolist() == list(range(n))
+        return
+    large = np.sort(order[:threads])
+    assert np.allclose(shares[large], 2 * shares[order[threads:]].max())
+    assert (np.diff(large) == 1).all() and large[0] == threads // 2       # contiguous, half the small ones above
+    per = np.bincount(np.arange(n) % threads, shares[order])
+    assert np.allclose(per, 1.0 / threads)
+    if threads == 2:                    # list scheduling: thread 1 at half speed
+        free, done = [0.0, 0.0], 0.0
+        for b in order:
+            t = int(np.argmin(free))
+            free[t] += shares[b] * (1 if t == 0 else 2)
+            done = max(done, free[t])
+        assert np.isclose(done, 2 / 3)
+
+
 @settings(max_examples=200, deadline=None)
 @given(est=st.lists(st.floats(0, 1e3), min_size=2, max_size=14), threads=st.integers(2, 3), short=st.integers(0, 7))
 def test_balanced_bands_tile_the_image_and_come_within_a_tile_row_of_the_best_cut(est, threads, short):
     """balanced_bands: bands of whole tiles (the last ending at the image's last row), each at least one tile,
-    and the busiest thread (thread t takes bands t, t + threads, ...) within the costliest tile row of the best
-    cut, found by trying every cut."""
+    and the busiest thread (thread t takes the bands ``order[t::threads]`` of band_layout) within the costliest
+    tile row of the best cut, found by trying every cut."""
     import itertools
     from isplat.splat.composite import TILE
 
@@ -388,9 +417,12 @@ def test_balanced_bands_tile_the_image_and_come_within_a_tile_row_of_the_best_cu
     assert (rows[1:, 0] == rows[:-1, 1]).all() and (rows[:, 0] % TILE == 0).all() and (rows[:, 1] > rows[:, 0]).all()
     cum = np.concatenate([[0.0], np.cumsum(est)])
 
+    order = F.band_layout(nb, threads)[1]
+
     def busiest(edges):
         edges = np.asarray(edges)
-        return np.bincount(np.arange(nb) % threads, cum[edges[1:]] - cum[edges[:-1]], minlength=threads).max()
+        per_band = (cum[edges[1:]] - cum[edges[:-1]])[order]
+        return np.bincount(np.arange(nb) % threads, per_band, minlength=threads).max()
 
     best = min(busiest((0, *c, n)) for c in itertools.combinations(range(1, n), nb - 1))
     assert busiest(np.r_[rows[:, 0] // TILE, n]) <= best + est.max() + 1e-9 * cum[-1]
@@ -409,12 +441,13 @@ def _frames_on(true_cost, threads, height, frames):
     out = []
     for _ in range(frames):
         rows = F.band_rows(learning, view, threads)
+        queue = F.band_queue(learning, view, threads, len(rows))
         spent = cum[-(-rows[:, 1] // 8)] - cum[rows[:, 0] // 8]
-        per = np.bincount(np.arange(len(rows)) % threads, spent, minlength=threads)
+        per = np.bincount(np.arange(len(rows)) % threads, spent[queue], minlength=threads)
         first = key not in learning.costs
         before = None if first else learning.costs[key].est
         F.learn_bands(learning.costs, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads,
-                                                      empty=False))
+                                                      empty=False, queue=queue))
         est = learning.costs[key].est
         assert (est is None) == first              # the first frame (cold caches) only marks the kind seen
         kept = est is before                            # a balanced frame changes nothing (BALANCE_SLACK)
@@ -469,9 +502,10 @@ def test_frames_on_learned_or_any_bands_give_the_one_thread_image(make_scene, vo
     learned = bands.costs[key]
     assert learned.est.shape == (8,) and (learned.est > 0).all()       # (frame 2's, learned during frame 3)
     skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])
-    bands.costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {})
-    rows = F.prepare(sel, views[0], None, bands).rows
-    assert rows.tolist() == bands.costs[key].rows.tolist() != F.image_bands(62, 2).tolist()
+    bands.costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {}, F.band_layout(4, 2)[1])
+    setup = F.prepare(sel, views[0], None, bands)
+    assert setup.rows.tolist() == bands.costs[key].rows.tolist() != F.image_bands(62, 2).tolist()
+    assert setup.queue.tolist() == [1, 2, 0, 3]         # the large middle bands first
     assert np.array_equal(F.render_frame(sel, views[0], None, bands)[0], one)
 
 

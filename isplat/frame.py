@@ -555,9 +555,20 @@ def learn_bands(costs: dict, setup: Setup) -> None:
         _next_bands(est, setup.rows, queue, old.tried, threads, setup.view.frame.height)
 
 
-def _thread_sums(per_band: np.ndarray, threads: int, queue: np.ndarray) -> np.ndarray:
-    """Each thread's share of ``per_band`` at equal speed (thread t takes the bands ``queue[t::threads]``)."""
-    return np.bincount(np.arange(len(per_band)) % threads, np.asarray(per_band)[queue])
+def _thread_sums(per_band, threads: int, queue) -> np.ndarray:
+    """Each thread's share of ``per_band`` at equal speed, as :func:`render_slab`'s threads take the bands: in
+    the order ``queue``, each by the thread free first (the first ``threads`` bands one each; then the thread
+    whose bands so far cost least, the lowest on a tie)."""
+    return np.array(_list_schedule(list(per_band), threads, list(queue)))
+
+
+def _list_schedule(per_band: list, threads: int, queue: list) -> list:
+    """:func:`_thread_sums` on plain lists (balanced_bands calls it for every cut it tries)."""
+    per = [0.0] * threads
+    for b in queue:
+        t = per.index(min(per))
+        per[t] += per_band[b]
+    return per
 
 
 def _profile(est: np.ndarray | None, rows: np.ndarray, seconds: np.ndarray, height: int) -> np.ndarray:
@@ -634,16 +645,14 @@ def band_layout(n_bands: int, threads: int) -> tuple[np.ndarray, np.ndarray]:
 
 def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, tile: int = TILE) -> np.ndarray:
     """``n_bands`` bands of whole tiles of an image ``height`` rows high (``int64[bands, 2]`` of ``[y0, y1)``)
-    for a cost ``est`` per tile row, thread ``t`` taking the bands ``order[t::threads]`` of :func:`band_layout`
-    (at equal speed): cut where the cumulated cost reaches the layout's shares of the whole, then cuts moved a
-    tile at a time while that lowers the busiest thread's cost (or, as much, the sum of squares of the threads'
-    costs). In plain Python: a few bands, and numpy's calls cost more than the sums."""
+    for a cost ``est`` per tile row, the threads taking the bands in :func:`band_layout`'s order, each by the
+    thread free first (:func:`_thread_sums`, at equal speed): cut where the cumulated cost reaches the layout's
+    shares of the whole, then cuts moved a tile at a time while that lowers the busiest thread's cost (or, as
+    much, the sum of squares of the threads' costs). In plain Python: a few bands, and numpy's calls cost more than the sums."""
     n_tiles = len(est)
     cum = np.concatenate([[0.0], np.cumsum(est)])
     ends, order = band_layout(n_bands, threads)
-    thread_of = [0] * n_bands
-    for pos, b in enumerate(order.tolist()):
-        thread_of[b] = pos % threads
+    order = order.tolist()
     q = np.rint(np.interp(cum[-1] * ends[:-1], cum, np.arange(n_tiles + 1)))
     edges = [0, *np.clip(q, 1, n_tiles - 1).astype(int).tolist(), n_tiles]
     for i in range(1, n_bands):                       # every band at least one tile, from the top ...
@@ -653,9 +662,7 @@ def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, til
     cum = cum.tolist()
 
     def score(e):
-        per = [0.0] * threads
-        for b in range(n_bands):
-            per[thread_of[b]] += cum[e[b + 1]] - cum[e[b]]
+        per = _list_schedule([cum[e[b + 1]] - cum[e[b]] for b in range(n_bands)], threads, order)
         return max(per), sum(p * p for p in per)
 
     best = score(edges)

@@ -404,8 +404,8 @@ def test_band_layout_puts_the_large_bands_in_the_middle_and_first(threads, per_t
 @given(est=st.lists(st.floats(0, 1e3), min_size=2, max_size=14), threads=st.integers(2, 3), short=st.integers(0, 7))
 def test_balanced_bands_tile_the_image_and_come_within_a_tile_row_of_the_best_cut(est, threads, short):
     """balanced_bands: bands of whole tiles (the last ending at the image's last row), each at least one tile,
-    and the busiest thread (thread t takes the bands ``order[t::threads]`` of band_layout) within the costliest
-    tile row of the best cut, found by trying every cut."""
+    and the busiest thread (the threads taking the bands in band_layout's order, each by the thread free first)
+    within the costliest tile row of the best cut, found by trying every cut."""
     import itertools
     from isplat.splat.composite import TILE
 
@@ -421,11 +421,36 @@ def test_balanced_bands_tile_the_image_and_come_within_a_tile_row_of_the_best_cu
 
     def busiest(edges):
         edges = np.asarray(edges)
-        per_band = (cum[edges[1:]] - cum[edges[:-1]])[order]
-        return np.bincount(np.arange(nb) % threads, per_band, minlength=threads).max()
+        return max(_threads_take(cum[edges[1:]] - cum[edges[:-1]], order, threads))
 
     best = min(busiest((0, *c, n)) for c in itertools.combinations(range(1, n), nb - 1))
     assert busiest(np.r_[rows[:, 0] // TILE, n]) <= best + est.max() + 1e-9 * cum[-1]
+
+
+def _threads_take(cost, queue, threads):
+    """Each thread's work when ``threads`` threads of equal speed take the bands (of cost ``cost``) in the order
+    ``queue``, each band by the thread that comes free first (the first on a tie), as render_slab's threads do:
+    an event loop over the time at which each thread comes free."""
+    free_at = {t: 0.0 for t in range(threads)}
+    work = [0.0] * threads
+    for b in queue:
+        t = min(free_at, key=lambda u: (free_at[u], u))
+        free_at[t] += cost[b]
+        work[t] += cost[b]
+    return work
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_thread_sums_follow_threads_that_take_the_next_band_when_free(threads):
+    """_thread_sums: each thread's work when the threads take the bands in the queue's order, each by the thread
+    free first, against the event loop of _threads_take on random costs and orders (not thread t taking the
+    bands t, t + threads, ...: the thread whose large band ends first takes the next band)."""
+    rng = np.random.default_rng(threads)
+    for _ in range(200):
+        n = int(rng.integers(1, 9))
+        cost, queue = rng.random(n), rng.permutation(n)
+        assert np.allclose(F._thread_sums(cost, threads, queue), _threads_take(cost, queue, threads))
+    assert F._thread_sums(np.array([1.0, 5.0, 4.0, 3.0]), 2, np.array([1, 2, 0, 3])).tolist() == [8.0, 5.0]
 
 
 def _frames_on(true_cost, threads, height, frames):
@@ -443,7 +468,7 @@ def _frames_on(true_cost, threads, height, frames):
         rows = F.band_rows(learning, view, threads)
         queue = F.band_queue(learning, view, threads, len(rows))
         spent = cum[-(-rows[:, 1] // 8)] - cum[rows[:, 0] // 8]
-        per = np.bincount(np.arange(len(rows)) % threads, spent[queue], minlength=threads)
+        per = np.array(_threads_take(spent, queue, threads))
         first = key not in learning.costs
         before = None if first else learning.costs[key].est
         F.learn_bands(learning.costs, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads,
@@ -471,9 +496,10 @@ def test_bands_learned_from_the_frames_times_balance_the_threads(threads, profil
             "two bumps": np.exp(-((x - 10) / 3) ** 2) + np.exp(-((x - 50) / 3) ** 2) + 0.001}[profile]
     ratios = _frames_on(true, threads, 512, 16)
     bound = 1.0 + true.max() * threads / true.sum()         # one tile row's work above the mean
-    assert ratios[0] > 1.1                                  # the first frame: even bands
+    # the first frame: even bands (two bumps on 2 threads: the bumps' bands taken first, one by each thread)
+    assert ratios[0] > 1.1 or (profile, threads) == ("two bumps", 2)
     last = ratios[-6:]
-    assert np.median(last) <= max(1.0 + F.BALANCE_SLACK, bound) and max(last) < ratios[0]
+    assert np.median(last) <= max(1.0 + F.BALANCE_SLACK, bound) and max(last) <= ratios[0]
     assert sum(abs(a - b) > 1e-3 for a, b in zip(last, last[1:])) <= 2     # settled (a cut tried at most once)
 
 

@@ -314,6 +314,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "4 tiles (32 rows) high, so a 256-row image keeps at most 8 threads busy and a 1024-row one 32. "
           "Not counted in the prediction: memory bandwidth, which all cores share, and load imbalance "
           "between threads (measured above for 2 threads, with even and with learned bands; learned bands "
-          "are two per thread, each thread's first twice its second (``isplat.frame.band_shares``), as many "
-          "cuts as the even bands counted here)."]
+          "are two per thread, each thread's first twice its second, the large ones the image's middle and "
+          "the small ones its top and bottom (``isplat.frame.band_layout``), as many cuts as the even bands "
+          "counted here)."]
     return "\n".join(L)

@@ -87,7 +87,7 @@ def test_volume_and_index_figures_equal_direct_counts(vol):
 
 def test_pre_reads_no_brick_range_table(tmp_path):
     """Pre with a values file reads nothing from the augmented file but its opening, and the opening no longer
-    reads ``/brick_range`` (issue 26: 33 KB of the engine's pre reads): ``augmented_file_bytes_read`` is the opening's
+    reads ``/brick_range`` (issue 26: 29 KB of the engine's pre reads): ``augmented_file_bytes_read`` is the opening's
     bytes, fewer by the table's stored bytes than an opening that reads it; post reads it (its density bricks)."""
     import h5py
 

@@ -100,14 +100,26 @@ class AugmentedVolume:
     verifier: object = None                      # isplat.chunkhash.Verifier: checks each chunk read
     label_voxels: np.ndarray | None = None       # int64[L + 1]: voxels per label id; None: the file has no labels
     format_version: int = FORMAT_VERSION
-    brick_range: np.ndarray | None = None         # version 5, 6: uint8[gk, gj, gi, 2]; None: channels read whole
+    brick_grid: tuple | None = None               # version 5, 6: (gk, gj, gi) bricks; None: channels read whole
     store: dict | None = None                     # version 6: channel -> (data offset, hash offset, dtype, seed)
     edge: int = 0                                 # version 6: the brick edge
+    _brick_range: np.ndarray | None = field(default=None, repr=False)   # /brick_range once read
 
     @property
     def bricked(self) -> bool:
         """True when the channels are stored in bricks (version 5 or 6) and can be read brick by brick."""
-        return self.brick_range is not None
+        return self.brick_grid is not None
+
+    @property
+    def brick_range(self) -> np.ndarray | None:
+        """uint8[gk, gj, gi, 2] (version 5, 6; None otherwise): each brick's smallest and largest density code,
+        read from ``/brick_range`` on first use (a density brick read checks against it; pre reads no density
+        brick, so never reads it), its chunks checked against their hashes and every row checked (min <= max);
+        counted in :attr:`io`. Its presence, type and shape were checked at open."""
+        if self._brick_range is None and self.bricked:
+            with hdf5_errors(self.path, f"dataset {BRICK_RANGE!r}"), open_counted(self.path, self.io) as f:
+                self._brick_range = _read_brick_range(self.path, f, self.verifier)
+        return self._brick_range
 
     @property
     def bricks(self) -> tuple:
@@ -198,7 +210,7 @@ class AugmentedVolume:
         """Read ``n`` bricks of ``channel`` through HDF5's chunk index walked once (about 1.6 us a brick of the
         channel) rather than each raw through HDF5 (about 5 us a brick read): for more than a quarter of the bricks,
         or once walked. (k-slabs of whole planes too: a sweep, as ``isplat index`` or pre with ``--slabs`` read.)"""
-        return self.store is None and (4 * n > self.brick_range[..., 0].size or channel in self.verifier._places)
+        return self.store is None and (4 * n > int(np.prod(self.brick_grid)) or channel in self.verifier._places)
 
     def _read_bricked_block(self, f, channel: str, block) -> np.ndarray:
         """``channel[block]`` of a version-5 file: the bricks the block touches, read raw a layer of bricks
@@ -437,10 +449,10 @@ def open_augmented(path) -> AugmentedVolume:
         verifier = chunkhash.open_verifier(p, f, sha, hashed_datasets(has_labels, version),
                                            chunkhash.attributes_of(f, hashed_attributes(version)), _rebuild_hint(p, f))
         store, edge = _check_store(p, f, shape, verifier.key, has_labels) if version >= 6 else (None, 0)
-        ranges = _check_bricks(p, f, shape, verifier, has_labels, edge) if version >= 5 else None
+        grid = _check_bricks(p, f, shape, has_labels, edge) if version >= 5 else None
         counts = _check_labels(p, f, shape, verifier, version) if has_labels else None
     return AugmentedVolume(p, shape, spacing, window, gscale, sha, attrs, io=counter, axes_lps=axes,
-                           verifier=verifier, label_voxels=counts, format_version=version, brick_range=ranges,
+                           verifier=verifier, label_voxels=counts, format_version=version, brick_grid=grid,
                            store=store, edge=edge)
 
 
@@ -491,10 +503,11 @@ def _check_store(p, f, shape, key: bytes, has_labels: bool):
     return store, e
 
 
-def _check_bricks(p, f, shape, verifier, has_labels, edge: int = 0) -> np.ndarray:
+def _check_bricks(p, f, shape, has_labels, edge: int = 0) -> tuple:
     """Version 5 (formats/augmented.md §2.2): the channels (and labels) chunked in the file's bricks, and
-    ``/brick_range`` uint8[gk, gj, gi, 2] read (its chunks checked against their hashes) with min <= max.
-    Version 6 (``edge``): the range table of its bricks (the store itself is checked by :func:`_check_store`)."""
+    ``/brick_range`` present as uint8[gk, gj, gi, 2], chunked with checksums (its values are read and checked on
+    first use: :func:`_read_brick_range`). Version 6 (``edge``): the range table of its bricks (the store itself
+    is checked by :func:`_check_store`). Returns the brick grid (gk, gj, gi)."""
     chunks = (edge,) * 3 if edge else brick_chunks(shape)
     for name in [] if edge else list(CHANNELS) + ([LABELS] if has_labels and LABELS in f else []):
         if tuple(f[name].chunks) != chunks:
@@ -508,6 +521,12 @@ def _check_bricks(p, f, shape, verifier, has_labels, edge: int = 0) -> np.ndarra
         raise IsplatError(f"{p}: dataset {BRICK_RANGE!r} is {ds.dtype} {tuple(ds.shape)}, expected uint8 {want} "
                           f"(the smallest and largest density of each brick)")
     check_checked_dataset(f"{p}: dataset {BRICK_RANGE!r}", ds)
+    return want[:3]
+
+
+def _read_brick_range(p, f, verifier) -> np.ndarray:
+    """``/brick_range`` of open file ``f`` (its type and shape checked at open), its chunks checked against their
+    hashes, every brick's smallest density at most its largest."""
     ranges = np.asarray(verifier.read(f, BRICK_RANGE), dtype=np.uint8)
     if ranges.size and not np.all(ranges[..., 0] <= ranges[..., 1]):
         raise IsplatError(f"{p}: dataset {BRICK_RANGE!r} holds a brick whose smallest density exceeds its largest")

@@ -227,6 +227,36 @@ def test_an_edited_brick_is_refused_not_rendered(make_scene, files, tmp_path):
         Renderer(_scene(make_scene, ranged, idx, *CAMS[0], True)).render_view(0)
 
 
+def test_the_range_table_is_read_and_checked_on_first_use(files, tmp_path):
+    """``/brick_range`` is read when a density brick is (post), not at open (pre does not need it): its bytes
+    counted then, and a table whose smallest density exceeds its largest refused then, before any brick is
+    checked against it (hashes recomputed, so only the rows' check can find it)."""
+    from isplat import chunkhash
+    from isplat.augfile import hashed_attributes, hashed_datasets
+
+    aug = files["iso"][0]
+    a = open_augmented(aug)
+    opening = a.io.bytes
+    assert a.bricked and a._brick_range is None
+    with h5py.File(aug, "r") as f:
+        stored = f["brick_range"].id.get_storage_size()
+    a.read("density", 0, 8)
+    assert a._brick_range is not None and a.io.bytes - opening >= stored + a.edge ** 3 * a.brick_grid[1] * \
+        a.brick_grid[2]                                 # the table and a layer of bricks
+    bad = _copy(aug, tmp_path / "minmax.aug.h5")
+    with h5py.File(bad, "a") as f:
+        f["brick_range"][0, 0, 0] = [9, 3]
+        del f["chunk_hashes"]
+        del f.attrs["chunk_hash_check"]
+        chunkhash.write_tables(f, a.density_sha256, hashed_datasets(False, 6),
+                               chunkhash.attributes_of(f, hashed_attributes(6)), tables=["brick_range"])
+    b = open_augmented(bad)                             # the table's type and shape checked, its rows not yet
+    assert b.read("gradient_magnitude", 0, 8).shape == (8,) + SHAPE[1:]
+    with pytest.raises(IsplatError, match=r"minmax\.aug\.h5: dataset 'brick_range' holds a brick whose smallest "
+                                          r"density exceeds its largest"):
+        b.read("density", 0, 8)
+
+
 def test_an_edited_chunk_brick_is_refused_not_rendered(make_scene, files, tmp_path):
     """Format 5: a density changed through HDF5 (Fletcher-32 valid), or the range table edited, refused."""
     from isplat.augfile import finish_augmented

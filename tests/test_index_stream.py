@@ -8,11 +8,12 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import fuzzlab
-from isplat.augfile import density_sha256, write_augmented
+from isplat.augfile import density_sha256, open_augmented, write_augmented
 from isplat.index import build_index, build_index_file, write_index
 from isplat.index import codec, store
 from isplat.index.build import order_values
@@ -88,15 +89,20 @@ def test_streamed_file_equals_the_in_memory_build(vol, ranges, axes, budget, sla
         assert "values/normal" in contents(t / "streamed.h5.values.idx.h5")
 
 
-def test_working_arrays_stay_within_the_budget(tmp_path, monkeypatch):
-    """Spy on the kernels: every slab handed over is a few k-planes, every window of bytes at most the budget,
-    every window of values at most a third of it (3 bytes a row), and many windows are needed."""
+@pytest.mark.parametrize("version", [4, 6])
+def test_working_arrays_stay_within_the_budget(tmp_path, monkeypatch, version):
+    """Spy on the kernels: every slab handed over is a few k-planes (from a bricked file, format 6, whole layers of
+    bricks, which it reads whole), every window of bytes at most the budget, every window of values at most a third
+    of it (3 bytes a row), and many windows are needed."""
     r = np.random.default_rng(7)
     shape = (24, 20, 18)
     dens = r.choice(np.array([0, 40, 41, 200, 255], np.uint8), size=shape)
     gm = r.integers(0, 256, shape, dtype=np.uint8)
     nrm = r.integers(0, 65536, shape, dtype=np.uint16)
-    write_augmented(tmp_path / "a.h5", dens, gm, nrm, SPACING, (0.0, 255.0), GSCALE)
+    write_augmented(tmp_path / "a.h5", dens, gm, nrm, SPACING, (0.0, 255.0), GSCALE, version=version)
+    aug = open_augmented(tmp_path / "a.h5")
+    slab = 3 if version == 4 else 8                    # 3 planes asked for; a layer of 8^3 bricks in format 6
+    assert aug.bricked == (version == 6)
     seen = {"planes": [], "window": [], "values": []}
     enc, scat = codec.encode_slab, codec.scatter_values
 
@@ -114,9 +120,10 @@ def test_working_arrays_stay_within_the_budget(tmp_path, monkeypatch):
     monkeypatch.setattr(codec, "scatter_values", scatter_spy)
     budget, plane = 999, shape[1] * shape[2]
     build_index_file(tmp_path / "a.h5", tmp_path / "s.h5", budget=budget, slab_voxels=3 * plane)
-    assert max(seen["planes"]) == 3 and max(seen["window"]) <= budget and max(seen["values"]) <= budget
+    assert max(seen["planes"]) == slab and max(seen["window"]) <= budget and max(seen["values"]) <= budget
     assert len(set(seen["window"])) > 1                                         # several windows of bytes
-    assert len(seen["values"]) > len(store._slabs_of(shape, 3 * plane))         # and of values: passes over slabs
+    slabs = store._slabs_of(aug, 3 * plane)
+    assert len(slabs) == -(-shape[0] // slab) and len(seen["values"]) > len(slabs)   # values: passes over slabs
     in_memory_file(tmp_path / "m.h5", dens, gm, nrm, "ijk", None)
     assert contents(tmp_path / "s.h5") == contents(tmp_path / "m.h5")
 

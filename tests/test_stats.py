@@ -85,6 +85,31 @@ def test_volume_and_index_figures_equal_direct_counts(vol):
     assert ix["per_density_range"][0]["densities"] == [0, 255] and ix["per_density_range"][0]["voxels"] == n
 
 
+def test_pre_reads_no_brick_range_table(tmp_path):
+    """Pre with a values file reads nothing from the augmented file but its opening, and the opening no longer
+    reads ``/brick_range`` (issue 26: 29 KB of the engine's pre reads): ``augmented_file_bytes_read`` is the opening's
+    bytes, fewer by the table's stored bytes than an opening that reads it; post reads it (its density bricks)."""
+    import h5py
+
+    from isplat.augfile import open_augmented
+
+    _, aug, idx = make_volume(tmp_path, shape=(48, 56, 64))
+    a = open_augmented(aug)
+    opening = a.io.bytes
+    with h5py.File(aug, "r") as f:
+        stored = f["brick_range"].id.get_storage_size()
+    assert a.brick_range.shape == (6, 7, 8, 2) and a.io.bytes - opening >= stored      # read when asked for
+    ld = collect(aug, idx, scene=write_scene(tmp_path))["scene"]["loaded"]
+    assert ld["values_from"] == "values file" and ld["augmented_bytes"] == 0
+    assert ld["augmented_file_bytes_read"] == opening
+    scene = write_scene(tmp_path, name="p.toml", extra='classification = "post"')
+    scene.write_text(scene.read_text().replace("version = 1", "version = 4", 1))
+    post = collect(aug, idx, scene=scene)
+    assert post["scene"]["classification"] == "post"
+    assert post["scene"]["loaded"]["augmented_file_bytes_read"] >= opening + stored + post["scene"]["loaded"][
+        "augmented_bytes"]
+
+
 def _slices(d, ax):
     n = {"k": d.shape[0], "j": d.shape[1], "i": d.shape[2]}[ax]
     take = {"k": lambda s: d[s], "j": lambda s: d[:, s], "i": lambda s: d[:, :, s]}[ax]

@@ -151,9 +151,12 @@ def ranges_mask(ranges) -> np.ndarray:
     return m
 
 
-def k_slabs(n_k: int, plane: int, voxels: int = SLAB_VOXELS) -> list[tuple[int, int]]:
-    """Runs ``(k0, k1)`` of whole k-planes of about ``voxels`` voxels (at least one plane) covering ``0 .. n_k``."""
+def k_slabs(n_k: int, plane: int, voxels: int = SLAB_VOXELS, align: int = 1) -> list[tuple[int, int]]:
+    """Runs ``(k0, k1)`` of whole k-planes of about ``voxels`` voxels (at least one plane) covering ``0 .. n_k``;
+    ``align``: each run a whole number of layers of that many planes (a bricked file's brick layers, which it
+    reads whole: a slab inside a layer would read and check the layer again for each slab)."""
     step = max(1, int(voxels) // max(1, int(plane)))
+    step = -(-step // max(1, int(align))) * max(1, int(align))
     return [(k0, min(n_k, k0 + step)) for k0 in range(0, n_k, step)]
 
 

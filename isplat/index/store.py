@@ -21,7 +21,7 @@ from ..fileio import (ReadCounter, _CountingRaw, attr_array, attr_string, atomic
                       create_hashed_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry, encode_windows, escape_width,
-                    k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)
+                    SLAB_VOXELS, k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)
 
 FORMAT_NAME = "isplat-index"
 FORMAT_VERSION = 7              # version 7: chunks without filters, allocated at creation (no chunk index), sized
@@ -234,8 +234,11 @@ def finish_index(f: h5py.File) -> None:
                            create=_hash_table if _sized(f) else None)
 
 
-def _slabs_of(shape, voxels: int = VALUE_SLAB_VOXELS):
-    return k_slabs(int(shape[0]), int(shape[1]) * int(shape[2]), voxels)
+def _slabs_of(aug, voxels: int = VALUE_SLAB_VOXELS):
+    """The k-slabs of about ``voxels`` voxels in which the builder reads augmented volume ``aug``: whole brick
+    layers when it is bricked (format 5, 6 read a brick layer whole; docs/design.md, "isplat index streams")."""
+    shape = aug.shape
+    return k_slabs(int(shape[0]), int(shape[1]) * int(shape[2]), voxels, aug.bricks[0] if aug.bricked else 1)
 
 
 @contextlib.contextmanager
@@ -269,7 +272,7 @@ def copy_values(f: h5py.File, aug, density: np.ndarray | None, ranges, budget: i
     of its rows, reading their channel slabs; a compiled counting scatter puts each slab's values in place.
     Written in pieces of WRITE_CHUNKS chunks. Memory: one window and one slab of each channel."""
     indexed = ranges_mask(ranges)
-    slabs = _slabs_of(aug.shape, slab_voxels)
+    slabs = _slabs_of(aug, slab_voxels)
     per_slab = np.zeros((len(slabs), 256), dtype=np.int64)
     with _channel_reader(aug, density) as read:
         for n, (k0, k1) in enumerate(slabs):
@@ -329,8 +332,7 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
         check_output(label_index_path(out_path), force)
     for a in axes:
         escape_width(*axis_geometry(aug.shape, a)[1:])     # refuse impossible sizes before any work
-    slabs = k_slabs(aug.shape[0], aug.shape[1] * aug.shape[2], **({} if slab_voxels is None else
-                                                                   {"voxels": slab_voxels}))
+    slabs = _slabs_of(aug, SLAB_VOXELS if slab_voxels is None else slab_voxels)
     with contextlib.ExitStack() as stack:
         vtmp = stack.enter_context(atomic_output(vpath, force)) if values else None
         tmp = stack.enter_context(atomic_output(out_path, force))     # committed first, then the values file

@@ -119,10 +119,12 @@ def test_nifti_without_orientation_codes_has_none(tmp_path):
     assert "axes_lps" not in read_volume(tmp_path / "a.nii").meta
 
 
-def test_nrrd_space_directions(tmp_path):
+NRRD_DIRS = np.array([[0, 0, 1.5], [-2.0, 0, 0], [0, 1.0, 0]])     # RAS: i superior, j left, k anterior
+
+
+def _nrrd(tmp_path, shape=(21, 19, 19)):
     nrrd = pytest.importorskip("nrrd")
-    shape = (21, 19, 19)
-    dirs = np.array([[0, 0, 1.5], [-2.0, 0, 0], [0, 1.0, 0]])     # RAS: i superior, j left, k anterior
+    dirs = NRRD_DIRS
     ctr = (np.asarray(shape) - 1) / 2.0
 
     def to_lps(i, j, k):
@@ -133,6 +135,13 @@ def test_nrrd_space_directions(tmp_path):
     p = tmp_path / "ph.nrrd"
     nrrd.write(str(p), vol, {"space": "right-anterior-superior", "space directions": dirs,
                              "space origin": np.zeros(3)}, index_order="C")
+    return p, vol
+
+
+def test_nrrd_space_directions(tmp_path):
+    nrrd = pytest.importorskip("nrrd")
+    p, vol = _nrrd(tmp_path)
+    dirs = NRRD_DIRS
     v = read_volume(p)
     assert code_of(v.meta["axes_lps"]) == "SLA"
     assert v.spacing_ijk == pytest.approx((1.5, 2.0, 1.0))
@@ -163,9 +172,9 @@ def _dicom_slice(path, pixels, iop, ipp):
     ds.save_as(str(path), enforce_file_format=True)
 
 
-def test_dicom_sagittal_series(tmp_path):
+def _dicom_series(tmp_path, shape=(21, 19, 19)):
+    """A sagittal series: rows along P, columns down (I), slices towards the patient's right; files out of order."""
     pytest.importorskip("pydicom")
-    shape = (21, 19, 19)                                            # rows along P, columns down (I), slices R
     row, col = np.array([0, 1.0, 0]), np.array([0, 0, -1.0])
     normal = np.cross(row, col)                                     # (-1, 0, 0): towards the patient's right
     ctr = (np.asarray(shape) - 1) / 2.0
@@ -175,9 +184,14 @@ def test_dicom_sagittal_series(tmp_path):
 
     vol = _phantom(shape, to_lps).astype(np.uint16)
     d = tmp_path / "sag"
-    d.mkdir()
+    d.mkdir(exist_ok=True)
     for k in range(shape[2]):
         _dicom_slice(d / f"{(7 * k) % shape[2]:03d}.dcm", vol[k], (*row, *col), tuple(normal * k + [3, 4, 5]))
+    return d, vol
+
+
+def test_dicom_sagittal_series(tmp_path):
+    d, vol = _dicom_series(tmp_path)
     v = read_volume(d)
     assert np.array_equal(v.array, vol)
     assert code_of(v.meta["axes_lps"]) == "PIR"
@@ -278,9 +292,11 @@ def _flat(centres):
 
 
 def _render_phantom(tmp_path, monkeypatch, cols, *extra, out="a.png"):
+    """The phantom written by ``cols`` (NIfTI affine columns, or a writer of tmp_path), augmented once, rendered
+    with the defaults and ``extra``: the markers' pixel centres."""
     from isplat.cli.main import main
 
-    p, _ = _nifti(tmp_path, cols)
+    p, _ = cols(tmp_path) if callable(cols) else _nifti(tmp_path, cols)
     monkeypatch.chdir(tmp_path)
     if not (tmp_path / "ph.aug.h5").exists():
         augment_file(p, tmp_path / "ph.aug.h5", window=(0.0, 3.0))
@@ -295,10 +311,13 @@ def _render_phantom(tmp_path, monkeypatch, cols, *extra, out="a.png"):
     return _marker_centres(tmp_path / out)
 
 
-@pytest.mark.parametrize("cols", [ROTATED, MIRRORED], ids=["rotated", "mirrored"])
+@pytest.mark.parametrize("cols", [ROTATED, MIRRORED, _nrrd, _dicom_series],
+                         ids=["nifti-rotated", "nifti-mirrored", "nrrd", "dicom-sagittal"])
 def test_default_render_is_anterior_superior_up(tmp_path, monkeypatch, cols):
-    """A NIfTI with a non-identity affine (a rotation; a mirror), rendered with the defaults: the anterior marker
-    in the middle (nearest), superior above it, the patient's left on the image's right."""
+    """A scan whose axes are not the patient's (a NIfTI with a rotated and with a mirrored affine, an NRRD with
+    non-identity space directions, a sagittal DICOM series whose files are out of order), read by its own reader
+    and rendered with the defaults: the anterior marker in the middle (nearest), superior above it, the patient's
+    left on the image's right."""
     c = _render_phantom(tmp_path, monkeypatch, cols)
     mid = 47.5
     assert abs(c["A"][0] - mid) < 3 and abs(c["A"][1] - mid) < 3, c

@@ -49,7 +49,8 @@ class LoadReport:
     values_bytes: int = 0             # bytes requested from the index's values file (version 6; pre only)
     values_file_bytes: int = 0        # bytes HDF5 read from the values file (its opening included)
     index_decoded_bytes: int = 0      # the decoded blocks (LoadedAxis arrays), before selection
-    index_block_bytes: int = 0        # requested index blocks and table rows of the intervals, all axes
+    index_block_bytes: int = 0        # requested index blocks and table rows of the intervals, all axes (a slab
+    #                                   of a streamed frame: its own rows, the tables the slabs share counted once)
     index_format_version: int = 0     # 0: no index read
     voxels_of_interest: int = 0       # voxels whose density lies in the intervals
     technique: str = ""               # render.classification: "pre", "post", "mip", "minip"
@@ -558,7 +559,8 @@ def _select_indexed(sel: Selection, aug, idx, slices) -> None:
         loaded = {ax: idx.load_axis(ax, ivs, slices=slices) for ax in sorted(axes)}
         if from_values:
             values = idx.read_values(rep.channels, ivs)
-    rep.index_block_bytes = int(sum(la.bytes_read for la in loaded.values()))
+    rep.index_block_bytes = int(sum(la.bytes_read if la.bytes_needed is None else la.bytes_needed
+                                    for la in loaded.values()))
     if from_values:
         source = idx.path if rep.values_from == "index" else idx.values_file.path
         rep.values_path = str(source)

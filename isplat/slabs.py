@@ -20,6 +20,7 @@ one for those slices: bit for bit the same partial image.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 
 import numpy as np
@@ -185,9 +186,7 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
     import time
 
     from .augfile import open_augmented
-    from .frame import blank, finish_image, frame_stats, prepare, render_slab, slab_bounds
-    from .index.build import slice_runs
-    from .selection import select
+    from .frame import finish_image, frame_stats
     from .threads import default_threads
 
     t0 = time.perf_counter()
@@ -197,7 +196,20 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
         from .index import open_index
 
         idx = open_index(request.index)
-    opened = idx.io.bytes if idx is not None else 0        # (each slab counts its own reads of the index)
+    with idx.shared_tables() if idx is not None else contextlib.nullcontext():   # tables read once, shared
+        opened = idx.io.bytes if idx is not None else 0        # (each slab counts its own reads of the index)
+        part, report = _slabs(request, view, n_slabs, aug, idx, opened, et)
+    threads = view.render.threads or default_threads()
+    return (finish_image(part.img, view.background, view.render.supersample, threads),
+            frame_stats(view, part, time.perf_counter() - t0), report)
+
+
+def _slabs(request, view, n_slabs, aug, idx, opened, et):
+    """The loop of :func:`render_streamed`: each slab selected, rendered over the slabs in front, dropped."""
+    from .frame import blank, prepare, render_slab, slab_bounds
+    from .index.build import slice_runs
+    from .selection import select
+
     axis = view.axis_sign[0]
     part = report = whole = None
     for a, b in slab_bounds(len(view.order), n_slabs):
@@ -219,6 +231,4 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
         part = blank(setup) if part is None else part
         render_slab(setup, a, b, part)
         del sel, setup
-    threads = view.render.threads or default_threads()
-    return (finish_image(part.img, view.background, view.render.supersample, threads),
-            frame_stats(view, part, time.perf_counter() - t0), report)
+    return part, report

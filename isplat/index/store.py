@@ -378,6 +378,8 @@ class LoadedAxis:
     positions: np.ndarray          # int32[n_voxels], ind = a + b * n_a, increasing within a block
     bytes_read: int = 0
     intervals: list = field(default_factory=list)
+    bytes_needed: int | None = None    # the blocks and table rows this load needs (None: ``bytes_read``; a slab of
+    #                                    IndexFile.shared_tables: its own rows, the shared tables counted once)
 
     @property
     def n_blocks(self) -> int:
@@ -440,6 +442,8 @@ class IndexFile:
         self._handle = None
         self._kept = None              # the opening's h5py file, left open for the first session (keep_open)
         self.keep_open = False         # open the values file so too
+        self._shared = None            # shared_tables(): tables and boundary chunks kept across slab loads
+        self._gen = 0
         self._indexed = np.zeros(256, dtype=np.bool_)
         for lo, hi in ranges:
             self._indexed[lo:hi + 1] = True
@@ -450,8 +454,24 @@ class IndexFile:
     def __getstate__(self):
         """Pickled (a Dask worker's copy) without open files."""
         state = dict(self.__dict__)
-        state["_handle"] = state["_kept"] = None
+        state["_handle"] = state["_kept"] = state["_shared"] = None
         return state
+
+    @contextlib.contextmanager
+    def shared_tables(self):
+        """Inside the block, loads of slices (a frame's slabs, one after the other) share what they all read:
+        each interval's table rows (``density_entry_ptr``, ``entry_slice``, ``entry_voxel_count``, every row of
+        ``entry_byte_offset``) are read and checked once, and the chunk of ``bytes`` where one slab's blocks end
+        and the next one's begin is kept for the next load, so K slabs read the index about as one load does."""
+        if self._shared is not None:
+            yield self
+            return
+        self._shared = {}
+        try:
+            with self.session():
+                yield self
+        finally:
+            self._shared = None
 
     @property
     def axes(self) -> str:
@@ -721,17 +741,18 @@ class IndexFile:
         before = self.bytes_read
         dens_l, sl_l, cnt_l, st_l, en_l, buf_l = [], [], [], [], [], []
         base = 0
+        shared = self._shared is not None and runs is not None
+        self._gen += 1
+        first, need = (self._shared.get("need", 0) if shared else 0), 0
         with self._open(axis) as g:
-            ptr = self._read_ptr(g, axis)
-            for r0, r1, dens, sl in self._pieces(g, axis, m, ptr, ivs, runs):
-                cnt = self._read(g, "entry_voxel_count", r0, r1).astype(np.int64)
-                if verify_offsets:
-                    off = self._read(g, "entry_byte_offset", r0, r1 + 1)
-                else:
-                    off = np.array([self._read(g, "entry_byte_offset", r0, r0 + 1)[0],
-                                    self._read(g, "entry_byte_offset", r1, r1 + 1)[0]], dtype=np.int64)
+            ptr = self._shared_ptr(g, axis) if shared else self._read_ptr(g, axis)
+            rows = self._shared_rows(g, axis, m, ptr, ivs, runs, verify_offsets) if shared else \
+                self._rows(g, axis, m, ptr, ivs, runs, verify_offsets)
+            for dens, sl, cnt, off in rows:
                 self._check_entries(axis, m, dens, sl, cnt, off)
-                buf = self._read(g, "bytes", int(off[0]), int(off[-1]))
+                buf = self._shared_bytes(g, axis, m, int(off[0]), int(off[-1])) if shared else \
+                    self._read(g, "bytes", int(off[0]), int(off[-1]))
+                need += cnt.size * 4 + off.size * 8 + buf.size     # its counts, offsets and blocks
                 if buf.size != off[-1] - off[0]:
                     self._fail(axis, "bytes dataset is shorter than entry_byte_offset says", dens[-1], sl[-1])
                 if verify_offsets:
@@ -742,6 +763,11 @@ class IndexFile:
                 sl_l.append(sl)
                 cnt_l.append(cnt)
                 buf_l.append(buf)
+        if shared:                     # boundary chunks the next slab did not take: dropped
+            kept = self._shared.setdefault((axis, "chunks"), {})
+            for ci in [ci for ci, (gen, _) in kept.items() if gen < self._gen]:
+                del kept[ci]
+            need += self._shared.get("need", 0) - first     # and the tables this load read first
 
         def cat(parts, dt):
             return np.concatenate(parts).astype(dt, copy=False) if parts else np.zeros(0, dtype=dt)
@@ -762,7 +788,65 @@ class IndexFile:
         else:
             self._decode(axis, m, buf_l, cnt_l, dest, positions, dens, sl)
         return LoadedAxis(axis, m.n_slices, m.n_a, m.n_b, slice_block_ptr, dens[order].astype(np.uint8),
-                          block_voxel_ptr, positions, self.bytes_read - before, ivs)
+                          block_voxel_ptr, positions, self.bytes_read - before, ivs, need if shared else None)
+
+    def _rows(self, g, axis, m, ptr, ivs, runs, verify_offsets):
+        """``(densities, slices, counts, offsets)`` of each run of entry rows to load (:meth:`_pieces`), read from
+        the file: the counts, and every offset (``verify_offsets``) or the run's two end ones."""
+        for r0, r1, dens, sl in self._pieces(g, axis, m, ptr, ivs, runs):
+            cnt = self._read(g, "entry_voxel_count", r0, r1).astype(np.int64)
+            if verify_offsets:
+                off = self._read(g, "entry_byte_offset", r0, r1 + 1)
+            else:
+                off = np.array([self._read(g, "entry_byte_offset", r0, r0 + 1)[0],
+                                self._read(g, "entry_byte_offset", r1, r1 + 1)[0]], dtype=np.int64)
+            yield dens, sl, cnt, off
+
+    def _shared_ptr(self, g, axis):
+        key = (axis, "ptr")
+        if key not in self._shared:
+            self._shared[key] = self._read_ptr(g, axis)
+            self._shared["need"] = self._shared.get("need", 0) + 257 * 8
+        return self._shared[key]
+
+    def _shared_rows(self, g, axis, m, ptr, ivs, runs, verify_offsets):
+        """:meth:`_rows` from each interval's whole table rows, read and checked on the first load (shared)."""
+        for lo, hi in ivs:
+            key = (axis, lo, hi)
+            if key not in self._shared:
+                r0, r1 = int(ptr[lo]), int(ptr[hi + 1])
+                dens = np.repeat(np.arange(lo, hi + 1, dtype=np.int64), np.diff(ptr[lo:hi + 2]))
+                sl = self._read(g, "entry_slice", r0, r1).astype(np.int64)
+                cnt = self._read(g, "entry_voxel_count", r0, r1).astype(np.int64)
+                off = self._read(g, "entry_byte_offset", r0, r1 + 1).astype(np.int64)
+                if r1 > r0:
+                    self._check_entries(axis, m, dens, sl, cnt, off)
+                self._shared[key] = (dens, sl, cnt, off)
+                self._shared["need"] = self._shared.get("need", 0) + sl.size * 4     # its slices, needed once
+            dens, sl, cnt, off = self._shared[key]
+            for a, b in _kept_runs(sl, runs):
+                yield dens[a:b], sl[a:b], cnt[a:b], (off[a:b + 1] if verify_offsets else off[[a, b]])
+
+    def _shared_bytes(self, g, axis, m, o0: int, o1: int):
+        """``bytes[o0:o1]``, in whole chunks: a chunk the previous load read at the edge of its range is taken
+        from it (the slab before ends, or begins, within it) and this load's edge chunks are kept for the next."""
+        if o1 <= o0:
+            return np.zeros(0, dtype=np.uint8)
+        c = int(g["bytes"].chunks[0])
+        kept = self._shared.setdefault((axis, "chunks"), {})
+        c0, c1 = o0 // c, (o1 - 1) // c
+        head, tail = kept.pop(c0, (0, None))[1], kept.pop(c1, (0, None))[1]
+        lo = (c0 + (head is not None)) * c
+        hi = min(m.n_bytes, (c1 + 1) * c) if tail is None or c1 == c0 else c1 * c
+        parts = [head] if head is not None else []
+        if hi > lo:
+            parts.append(self._read(g, "bytes", lo, hi))
+        if tail is not None and c1 != c0:
+            parts.append(tail)
+        whole = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        kept[c0] = (self._gen, whole[:c])
+        kept[c1] = (self._gen, whole[(c1 - c0) * c:])
+        return whole[o0 - c0 * c:o1 - c0 * c]
 
     def _decode(self, axis, m: _AxisMeta, bufs, counts, dest, positions, dens, sl, bounds=None) -> None:
         """Decode the blocks of ``bufs`` (one contiguous run of blocks each, their voxel ``counts``) into
@@ -795,12 +879,8 @@ class IndexFile:
                 yield r0, r1, dens, sl
                 continue
             self._check_slices(axis, m, dens, sl)
-            keep = np.zeros(sl.size + 2, dtype=np.int8)
-            for s0, s1 in runs:
-                keep[1:-1] |= (sl >= s0) & (sl < s1)
-            edges = np.flatnonzero(np.diff(keep))            # starts and ends of the runs of kept rows
-            for a, b in zip(edges[0::2], edges[1::2]):
-                yield r0 + int(a), r0 + int(b), dens[a:b], sl[a:b]
+            for a, b in _kept_runs(sl, runs):
+                yield r0 + a, r0 + b, dens[a:b], sl[a:b]
 
     def _check_slices(self, axis, m: _AxisMeta, dens, sl):
         """``entry_slice`` rows below ``n_slices`` and strictly increasing within each density."""
@@ -838,6 +918,15 @@ class IndexFile:
         per_density = np.bincount(dens - dens.min(), weights=cnt) if dens.size else np.zeros(0)
         if per_density.size and per_density.max() > m.n_slices * m.n_a * m.n_b:
             self._fail(axis, "voxel counts exceed the slices' size", dens.min() + int(np.argmax(per_density)))
+
+
+def _kept_runs(sl, runs):
+    """``(a, b)``: each run of consecutive rows of ``sl`` (entry slices) whose slices fall in ``runs``."""
+    keep = np.zeros(sl.size + 2, dtype=np.int8)
+    for s0, s1 in runs:
+        keep[1:-1] |= (sl >= s0) & (sl < s1)
+    edges = np.flatnonzero(np.diff(keep))            # starts and ends of the runs of kept rows
+    return [(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2])]
 
 
 def _fmt_ranges(ranges) -> str:

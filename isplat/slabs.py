@@ -179,7 +179,8 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
     Returns (straight RGBA (H, W, 4), FrameStats, LoadReport of all the slabs: bytes read, requested and needed
     added up, :meth:`isplat.selection.LoadReport.plus`).
 
-    Each slab reads and decodes only its slices' index blocks. What is still whole: the full method's channels
+    Each slab reads and decodes only its slices' index blocks; the index's tables (each interval's rows) are read
+    once for all the slabs (:meth:`isplat.index.store.IndexFile.shared_tables`). What is still whole: the full method's channels
     (read once, kept for every slab); for the i and j axes each slab's channel values are gathered from every
     k-plane (along j only the slab's rows of each plane), so the channels are read once per slab (docs/scale.md).
     """

@@ -180,9 +180,10 @@ def render_streamed(request, view, n_slabs: int, aug=None, et: float | None = No
     added up, :meth:`isplat.selection.LoadReport.plus`).
 
     Each slab reads and decodes only its slices' index blocks; the index's tables (each interval's rows) are read
-    once for all the slabs (:meth:`isplat.index.store.IndexFile.shared_tables`). What is still whole: the full method's channels
-    (read once, kept for every slab); for the i and j axes each slab's channel values are gathered from every
-    k-plane (along j only the slab's rows of each plane), so the channels are read once per slab (docs/scale.md).
+    once for all the slabs (:meth:`isplat.index.store.IndexFile.shared_tables`). What is still whole: the full
+    method's channels (read once, kept for every slab); for the i and j axes each slab's channel values are
+    gathered from every k-plane (along j only the slab's rows of each plane), so the channels are read once per
+    slab (docs/scale.md).
     """
     import time
 

@@ -1,7 +1,7 @@
 """Error against the truth, against run time: every speed knob of ``[render]``, VTK's ray steps, the Pareto front.
 
-``python -m benchmarks accuracy [--out docs] [--quick]`` writes ``accuracy.md``, ``accuracy.csv`` and
-``img/accuracy_pareto.png`` (and ``img/popping_head.png``). For each case (the head, the engine and the
+``python -m benchmarks accuracy [--out docs] [--quick]`` writes ``accuracy.md``, ``accuracy.csv``,
+``accuracy_rounds.csv`` (every frame time) and ``img/accuracy_pareto.png`` (and ``img/popping_head.png``). For each case (the head, the engine and the
 Marschner-Lobb sample, see :mod:`benchmarks.reference`) and each setting (the format defaults, then one knob
 changed at a time: early termination, footprint radius, table and sigma, precision, thread count, method, the slice
 stride (``render.slice_stride``: 1 is the defaults' point) and ``render.sheets`` when this isplat has it), the median
@@ -63,7 +63,7 @@ PRE_KNOBS = [                # the footprint's knobs, which act on pre-classifie
 PRE = {"classification": "pre"}
 VTK_STEPS = [2.0, 1.0, 0.5, 0.25]
 CASES = list(REF.CASES)
-ROUNDS = 21                  # rounds per setting (each renders every setting once); see tests/paired_times.py
+ROUNDS = 31                  # rounds per setting (each renders every setting once); see tests/paired_times.py
 POP_OFFSETS = [-0.9, -0.7, -0.5, -0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9]   # degrees from the switch
 
 
@@ -258,6 +258,16 @@ def write_csv(rows, path: Path):
                                 f"{e['psnr']:.3f}", f"{e['px8']:.6f}"])
 
 
+def write_rounds_csv(rows, path: Path):
+    """Every frame time (ms), one row per case and setting, one column per round (round order): the data the
+    page's "faster" verdicts come from (tests/paired_times.py reruns them)."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["case", "renderer", "setting"] + [f"round_{n}" for n in range(len(rows[0]["times"]))])
+        for r in rows:
+            w.writerow([r["case"], r["renderer"], _label(r)] + [f"{t:.4f}" for t in r["times"]])
+
+
 # ---- popping -----------------------------------------------------------------------------------------------------
 def switch_azimuth(scene, lo=0.0, hi=90.0) -> tuple[float, str, str]:
     """The azimuth in (lo, hi) where the principal axis of ``scene``'s camera changes (bisection)."""
@@ -437,8 +447,8 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
     cmd = "python -m benchmarks accuracy" + (" --quick" if quick else "")
     L = [f"```\n{cmd}\n```\n", "# Accuracy against run time: error against the truth\n",
          f"Machine: {_doc.machine_line()}; git {_doc.git_rev()}; load average {load0:.2f} at the start; the bench "
-         f"took {seconds:.0f} s. The numbers below and `accuracy.csv` come from this run; rerun the command after "
-         f"changing the renderer.\n",
+         f"took {seconds:.0f} s. The numbers below, `accuracy.csv` and `accuracy_rounds.csv` (every frame time) "
+         f"come from this run; rerun the command after changing the renderer.\n",
          "Error is measured against references that are not splatting (docs/reference.md, "
          "`benchmarks/reference.py`): **(a)** the converged float64 emission-absorption ray integral of the same "
          "8-bit densities with trilinear reconstruction and the transfer function applied after it, step 0.05 "
@@ -488,13 +498,15 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
              + (f"at least {need} of them" if need else "more rounds than there are (too few rounds: nothing is "
                 "called faster)")
              + ". The sign test assumes nothing about the noise and counts a frame hit by a burst of load as one lost "
-             "round, whatever its size. Otherwise neither is faster: a tie. RMSE differences smaller than the "
-             "reference's own (what halving its step changes, see the convergence table below) count as ties. "
-             "A **dominates** B when A is not slower (B is not faster), A's RMSE is at most B's plus the tie "
-             "margin, and A is faster or closer by more than the margin; the front is the settings no other "
-             "dominates. Each sentence lists the settings that dominate the defaults, and the settings as close as "
-             "the defaults that the test calls neither faster nor slower (ties), with their frames against the "
-             "defaults'.\n")
+             "round, whatever its size. Otherwise neither is faster: a tie. A is **not slower** than B when, by the "
+             f"same sign test, A's frame is below {1 + PT.MARGIN:g} times B's in that many rounds. RMSE differences "
+             "smaller than the reference's own (what halving its step changes, see the convergence table below) "
+             "count as ties. A **dominates** B when A's RMSE is at most B's plus that tie margin and A is faster, or "
+             "closer by more than the margin and not slower; the front is the settings no other dominates. Every "
+             "claim needs its evidence: a closer setting whose frames do not show that it is not slower leaves the "
+             "others on the front. Each sentence lists the settings that dominate the defaults, and the settings as "
+             "close as the defaults that the test calls neither faster nor slower (ties), with their frames against "
+             "the defaults'.\n")
     L += front_sentences(rows_by_case, conv)
     L += ["", "### Every n-th slice (`render.slice_stride`)\n"] + stride_sentences(rows_by_case, conv)
     L.append("")
@@ -571,6 +583,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     gain = popping_strip(pops[0], out_dir / "img" / "popping_head.png")
     all_rows = [r for rows in rows_by_case.values() for r in rows]
     write_csv(all_rows, out_dir / "accuracy.csv")
+    write_rounds_csv(all_rows, out_dir / "accuracy_rounds.csv")
     plot(rows_by_case, out_dir / "img" / "accuracy_pareto.png", conv)
     p = out_dir / "accuracy.md"
     p.write_text(render_doc(rows_by_case, conv, pops, quick, size, frames, time.time() - t0, load0, sheets, vtk_cls,

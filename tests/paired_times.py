@@ -16,10 +16,16 @@ round by round: the ratio of A's frame time to B's in the same round. **A is fas
   noise's distribution and ignores the size of outliers, so one slow frame from a burst of load counts as one
   lost round, not as a large time.
 
-Otherwise neither is faster: a tie in time. A point (times, error) **dominates** another when it is not slower
-(the other is not faster), its error is at most the other's plus ``tol`` (errors within ``tol`` are equal), and
-it is better in one of the two: faster, or an error smaller by more than ``tol``. The **front** is the points no
-other point dominates. Both relations are irreflexive and antisymmetric (tests/test_paired_times.py).
+Otherwise neither is faster: a tie in time. **A is not slower than B** when the sign test shows that A's frame is
+below ``1 + margin`` times B's in more rounds than chance would give (one-sided, level ``alpha``): evidence that A
+is at most ``margin`` slower, not merely the absence of evidence that it is slower.
+
+A point (times, error) **dominates** another when its error is at most the other's plus ``tol`` (errors within
+``tol`` are equal) and either it is faster, or its error is smaller by more than ``tol`` and it is not slower.
+Each claim needs its evidence, so that "the defaults are not on the front" is said only when the rounds show it:
+a closer setting whose frames are too noisy to show it is not slower does not push another off the front. The
+**front** is the points no other point dominates. Both relations are irreflexive and antisymmetric
+(tests/test_paired_times.py).
 """
 
 from __future__ import annotations
@@ -100,10 +106,24 @@ def faster(a, b, margin: float = MARGIN, alpha: float = ALPHA) -> bool:
     return compare(a, b, margin, alpha).faster
 
 
+def not_slower(a, b, margin: float = MARGIN, alpha: float = ALPHA) -> bool:
+    """A's frame is below ``1 + margin`` times B's in so many rounds that the one-sided sign test rejects "A is
+    slower by more than the margin" at level ``alpha``.
+
+    >>> not_slower([1.0] * 9, [1.0] * 9), not_slower([1.0] * 9, [0.9] * 9)
+    (True, False)
+    >>> not_slower([1.02] * 9, [1.0] * 9), not_slower([1.0, 1.0, 1.0], [1.0, 1.0, 1.0])
+    (True, False)
+    """
+    a, b = _times(a, b)
+    logs = np.log(a) - np.log(b) - math.log1p(margin)
+    return sign_test_p(int(np.count_nonzero(logs < 0)), int(np.count_nonzero(logs != 0))) < alpha
+
+
 def dominates(ta, ea: float, tb, eb: float, tol: float = 0.0, margin: float = MARGIN,
               alpha: float = ALPHA) -> bool:
-    """Point A (per-round times ``ta``, error ``ea``) dominates point B: not slower, as close within ``tol``, and
-    faster or closer by more than ``tol``.
+    """Point A (per-round times ``ta``, error ``ea``) dominates point B: as close within ``tol``, and faster, or
+    closer by more than ``tol`` and not slower.
 
     >>> dominates([1.0] * 9, 0.5, [2.0] * 9, 0.5)
     True
@@ -111,12 +131,16 @@ def dominates(ta, ea: float, tb, eb: float, tol: float = 0.0, margin: float = MA
     False
     >>> dominates([1.0] * 9, 0.5, [1.0] * 9, 0.6)          # as fast, closer
     True
+    >>> dominates([1.0] * 3, 0.5, [1.0] * 3, 0.6)          # closer, but 3 rounds cannot show "not slower"
+    False
     """
     if tol < 0 or not (math.isfinite(ea) and math.isfinite(eb)):
         raise ValueError(f"need finite errors and tol >= 0, got {ea}, {eb}, tol={tol}")
-    if faster(tb, ta, margin, alpha) or ea > eb + tol:
+    if ea > eb + tol:
         return False
-    return ea < eb - tol or faster(ta, tb, margin, alpha)
+    if faster(ta, tb, margin, alpha):
+        return True
+    return ea < eb - tol and not_slower(ta, tb, margin, alpha)
 
 
 def front(times, errors, tol: float = 0.0, margin: float = MARGIN, alpha: float = ALPHA) -> list[int]:

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from paired_times import ALPHA, MARGIN, compare, dominates, faster, front, min_wins, sign_test_p
+from paired_times import ALPHA, MARGIN, compare, dominates, faster, front, min_wins, not_slower, sign_test_p
 
-ROUNDS = 21      # benchmarks/accuracy.py's rounds per setting
+ROUNDS = 31      # benchmarks/accuracy.py's rounds per setting
 
 
 def load(rng, rounds=ROUNDS):
@@ -77,10 +77,26 @@ def test_one_huge_outlier_does_not_decide():
     assert faster(b, a)
 
 
+def test_not_slower_needs_evidence():
+    """A 25% slower setting under noise is shown "not slower" in at most alpha of the draws; the same work with
+    1% jitter is shown not slower in most; 2% slower without noise is within the margin, 4% is not."""
+    rng = np.random.default_rng(4)
+    wrong = right = 0
+    for _ in range(1000):
+        shared = load(rng)
+        wrong += not_slower(noisy(rng, 12.5, shared), noisy(rng, 10.0, shared))
+        right += not_slower(noisy(rng, 10.0, shared, cv=0.01, bursts=0.0), noisy(rng, 10.0, shared, cv=0.01,
+                                                                                   bursts=0.0))
+    assert wrong <= ALPHA * 1000, wrong
+    assert right >= 900, right
+    b = np.linspace(5.0, 9.0, ROUNDS)
+    assert not_slower(1.02 * b, b) and not not_slower(1.04 * b, b)
+
+
 def test_too_few_rounds_never_call():
     assert min_wins(6) is None and min_wins(7) == 7
-    assert not faster([1.0] * 6, [10.0] * 6)
-    assert faster([1.0] * 7, [10.0] * 7)
+    assert not faster([1.0] * 6, [10.0] * 6) and not not_slower([1.0] * 6, [10.0] * 6)
+    assert faster([1.0] * 7, [10.0] * 7) and not_slower([1.0] * 7, [10.0] * 7)
 
 
 def test_bad_input_is_refused():
@@ -124,6 +140,8 @@ def two_points(draw):
 def test_relations_are_irreflexive_and_antisymmetric(pts):
     ta, ea, tb, eb, tol, margin = pts
     assert not faster(ta, ta, margin)
+    if margin > 0:      # every round of A against itself is within the margin: shown when the rounds can show it
+        assert not_slower(ta, ta, margin) == (min_wins(len(ta)) is not None)
     assert not dominates(ta, ea, ta, ea, tol, margin)
     assert not (faster(ta, tb, margin) and faster(tb, ta, margin))
     assert not (dominates(ta, ea, tb, eb, tol, margin) and dominates(tb, eb, ta, ea, tol, margin))
@@ -134,13 +152,13 @@ def test_relations_are_irreflexive_and_antisymmetric(pts):
 
 
 def classic_front(scales, errors, tol, margin):
-    """The front of scalar times, written out: B is beaten when some A is not slower, as close within tol, and
-    faster by more than the margin or closer by more than tol."""
+    """The front of scalar times, written out: B is beaten when some A is as close within tol, and faster by more
+    than the margin, or closer by more than tol and slower by at most the margin."""
     def fast(x, y):
         return x < (1 - margin) * y
     return {i for i in range(len(scales))
-            if not any(not fast(scales[i], scales[j]) and errors[j] <= errors[i] + tol
-                       and (fast(scales[j], scales[i]) or errors[j] < errors[i] - tol)
+            if not any(errors[j] <= errors[i] + tol and (fast(scales[j], scales[i]) or (
+                       errors[j] < errors[i] - tol and scales[j] < (1 + margin) * scales[i]))
                        for j in range(len(scales)) if j != i)}
 
 

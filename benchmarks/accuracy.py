@@ -64,6 +64,7 @@ PRE = {"classification": "pre"}
 VTK_STEPS = [2.0, 1.0, 0.5, 0.25]
 CASES = list(REF.CASES)
 ROUNDS = 31                  # rounds per setting (each renders every setting once); see tests/paired_times.py
+MIN_MS = 20.0                # a setting's measurement in a round: back-to-back frames lasting this long at least
 POP_OFFSETS = [-0.9, -0.7, -0.5, -0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9]   # degrees from the switch
 
 
@@ -134,19 +135,27 @@ def measure_case(case, size, frames, shape, sheets, with_vtk):
             jobs.append(lambda v=v: (v.render(), v.image_float())[1])
     times = [[] for _ in jobs]
     imgs = [None] * len(jobs)
+    warm = [0.0] * len(jobs)
     for _ in range(2):                                   # warm-up: JIT, caches, VTK's gradients
         for i, job in enumerate(jobs):
+            t0 = time.perf_counter()
             imgs[i] = job()
+            warm[i] = time.perf_counter() - t0
+    # a setting's time in a round is the mean of k frames back to back, k such that they last MIN_MS at least: a
+    # frame of a few ms is often all inside one time slice of another process, k of them average that out
+    reps = [max(1, math.ceil(MIN_MS / (1000 * w))) for w in warm]
     # a fresh random order each round (seeded: the same orders every run), so that no setting always follows the
     # same one (a rotation would put the defaults, job 0, after VTK's last point in most rounds)
     rng = np.random.default_rng(CASES.index(case))
     for _ in range(frames):
         for i in rng.permutation(len(jobs)):
             t0 = time.perf_counter()
-            imgs[i] = jobs[i]()
-            times[i].append(time.perf_counter() - t0)
-    for row, img, t in zip(rows, imgs, times):
-        row["times"] = [1000 * x for x in t]             # ms per round, in round order (paired across settings)
+            for _ in range(reps[i]):
+                imgs[i] = jobs[i]()
+            times[i].append((time.perf_counter() - t0) / reps[i])
+    for row, img, t, k in zip(rows, imgs, times, reps):
+        row["times"] = [1000 * x for x in t]             # ms per frame per round, in round order (paired)
+        row["reps"] = k
         row["ms"] = statistics.median(row["times"])
         for kind, ref in refs.items():
             row[kind] = errors(img, ref)
@@ -263,9 +272,10 @@ def write_rounds_csv(rows, path: Path):
     page's "faster" verdicts come from (tests/paired_times.py reruns them)."""
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["case", "renderer", "setting"] + [f"round_{n}" for n in range(len(rows[0]["times"]))])
+        w.writerow(["case", "renderer", "setting", "frames_per_round"]
+                   + [f"round_{n}" for n in range(len(rows[0]["times"]))])
         for r in rows:
-            w.writerow([r["case"], r["renderer"], _label(r)] + [f"{t:.4f}" for t in r["times"]])
+            w.writerow([r["case"], r["renderer"], _label(r), r["reps"]] + [f"{t:.4f}" for t in r["times"]])
 
 
 # ---- popping -----------------------------------------------------------------------------------------------------
@@ -465,8 +475,11 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
          "pre-classified splatting only, so their rows change one of them with `classification = \"pre\"`. "
          f"Every setting of a case (and VTK's points) is rendered once per round, in a fresh random order each "
          f"round, for {frames} rounds after 2 warm-up rounds, so that load from other processes hits the settings of "
-         "a round alike; ms/frame is the median of a setting's frames, *x defaults* the median over the rounds of "
-         "its frame's time over the defaults' frame's time in the same round, *rounds faster* the rounds where its "
+         "a round alike; in a round a setting renders k frames back to back, k such that they last "
+         f"{MIN_MS:g} ms at least (by the warm-up), and its frame time there is their mean (a frame of a few ms "
+         "often falls inside one time slice of another process; `accuracy_rounds.csv` has k and every time). "
+         "ms/frame is the median over the rounds of a setting's frame time, *x defaults* the median over the "
+         "rounds of its frame time over the defaults' in the same round, *rounds faster* the rounds where its "
          "frame was faster than the defaults'. "
          "Errors over RGB in [0, 1] after compositing on the background: RMSE, PSNR = -20 log10(RMSE), max abs "
          "error, and the share of pixels where an 8-bit channel differs. A `·` after an RMSE marks a setting on "

@@ -1,13 +1,14 @@
 """Error against the truth, against run time: every speed knob of ``[render]``, VTK's ray steps, the Pareto front.
 
 ``python -m benchmarks accuracy [--out docs] [--quick]`` writes ``accuracy.md``, ``accuracy.csv``,
-``accuracy_rounds.csv`` (every frame time) and ``img/accuracy_pareto.png`` (and ``img/popping_head.png``). For each case (the head, the engine and the
-Marschner-Lobb sample, see :mod:`benchmarks.reference`) and each setting (the format defaults, then one knob
-changed at a time: early termination, footprint radius, table and sigma, precision, thread count, method, the slice
-stride (``render.slice_stride``: 1 is the defaults' point) and ``render.sheets`` when this isplat has it), the median
-frame time (every setting of a case rendered once per round, in a random order each round: interleaved) and the error of the image
-against reference (a), the converged ray integral of the same 8-bit densities, and for Marschner-Lobb also against
-(b), the analytic signal. When VTK is importable
+``accuracy_rounds.csv`` (every frame time) and ``img/accuracy_pareto.png`` (and ``img/popping_head.png``). For
+each case (the head, the engine and the Marschner-Lobb sample, see :mod:`benchmarks.reference`) and each setting
+(the format defaults, then one knob changed at a time: early termination, footprint radius, table and sigma,
+precision, thread count, method, the slice stride (``render.slice_stride``: 1 is the defaults' point) and
+``render.sheets`` when this isplat has it), the frame times (every setting of a case takes one turn per round, in
+a random order each round: interleaved; the front's "faster" is the paired sign test of tests/paired_times.py)
+and the error of the image against reference (a), the converged ray integral of the same 8-bit densities, and for
+Marschner-Lobb also against (b), the analytic signal. When VTK is importable
 and can open an offscreen context, ``vtkFixedPointVolumeRayCastMapper`` at sample distances 2, 1 (its default),
 0.5 and 0.25 voxel is timed in the same rounds and measured against the same references.
 
@@ -63,7 +64,7 @@ PRE_KNOBS = [                # the footprint's knobs, which act on pre-classifie
 PRE = {"classification": "pre"}
 VTK_STEPS = [2.0, 1.0, 0.5, 0.25]
 CASES = list(REF.CASES)
-ROUNDS = 31                  # rounds per setting (each renders every setting once); see tests/paired_times.py
+ROUNDS = 25                  # rounds per setting (each renders every setting once); see tests/paired_times.py
 MIN_MS = 20.0                # a setting's measurement in a round: back-to-back frames lasting this long at least
 POP_OFFSETS = [-0.9, -0.7, -0.5, -0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9]   # degrees from the switch
 
@@ -141,14 +142,16 @@ def measure_case(case, size, frames, shape, sheets, with_vtk):
             t0 = time.perf_counter()
             imgs[i] = job()
             warm[i] = time.perf_counter() - t0
-    # a setting's time in a round is the mean of k frames back to back, k such that they last MIN_MS at least: a
-    # frame of a few ms is often all inside one time slice of another process, k of them average that out
+    # a setting's turn in a round: one frame untimed (the first frame after another setting's is slower by up to
+    # a few ms, by how much depends on the setting), then k frames back to back, timed, k such that they last
+    # MIN_MS at least: a frame of a few ms often falls inside one time slice of another process, k average it out
     reps = [max(1, math.ceil(MIN_MS / (1000 * w))) for w in warm]
     # a fresh random order each round (seeded: the same orders every run), so that no setting always follows the
     # same one (a rotation would put the defaults, job 0, after VTK's last point in most rounds)
     rng = np.random.default_rng(CASES.index(case))
     for _ in range(frames):
         for i in rng.permutation(len(jobs)):
+            imgs[i] = jobs[i]()
             t0 = time.perf_counter()
             for _ in range(reps[i]):
                 imgs[i] = jobs[i]()
@@ -473,11 +476,13 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
          "`precision = \"float32\"`, `threads = 0` = all cores) with one knob changed; the footprint's knobs "
          "(`footprint_radius = 2.5`, `footprint_sigma = 0.7`, `footprint_table = 1024` by default) act on "
          "pre-classified splatting only, so their rows change one of them with `classification = \"pre\"`. "
-         f"Every setting of a case (and VTK's points) is rendered once per round, in a fresh random order each "
+         f"Every setting of a case (and VTK's points) takes one turn per round, in a fresh random order each "
          f"round, for {frames} rounds after 2 warm-up rounds, so that load from other processes hits the settings of "
-         "a round alike; in a round a setting renders k frames back to back, k such that they last "
-         f"{MIN_MS:g} ms at least (by the warm-up), and its frame time there is their mean (a frame of a few ms "
-         "often falls inside one time slice of another process; `accuracy_rounds.csv` has k and every time). "
+         "a round alike. In its turn a setting renders one frame untimed (the first frame after another "
+         "setting's was slower by up to a few ms, more for some settings than others), then k frames back to "
+         f"back, k such that they last {MIN_MS:g} ms at least (by the warm-up); its frame time in the round is "
+         "their mean (a frame of a few ms often falls inside one time slice of another process; "
+         "`accuracy_rounds.csv` has k and every time). "
          "ms/frame is the median over the rounds of a setting's frame time, *x defaults* the median over the "
          "rounds of its frame time over the defaults' in the same round, *rounds faster* the rounds where its "
          "frame was faster than the defaults'. "

@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 
 from paired_times import ALPHA, MARGIN, compare, dominates, faster, front, min_wins, not_slower, sign_test_p
 
-ROUNDS = 31      # benchmarks/accuracy.py's rounds per setting
+ROUNDS = 25      # benchmarks/accuracy.py's rounds per setting
 
 
 def load(rng, rounds=ROUNDS):

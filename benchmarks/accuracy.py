@@ -397,8 +397,8 @@ def front_sentences(rows_by_case, conv) -> list[str]:
                    f"({d['ms']:.1f} ms, RMSE {d[k]['rmse']:.4f}) are {'on' if on else '**not** on'} isplat's front")
             if not on:
                 txt += " (beaten by " + "; ".join(_point(r, d, k) for r in beat) + ")"
-            ties = [r for r in iso if r is not d and all(r is not b for b in beat) and abs(r[k]["rmse"] - d[k]["rmse"]) <= tol
-                    and not vs(d, r).faster]
+            ties = [r for r in iso if r is not d and all(r is not b for b in beat)
+                    and abs(r[k]["rmse"] - d[k]["rmse"]) <= tol and not vs(d, r).faster]
             if ties:
                 txt += ("; as close and not slower, but not faster by the test either (ties): "
                         + "; ".join(_point(r, d, k) for r in ties))

@@ -505,9 +505,9 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
              "on the faces, so part of VTK's error there is that convention, not its sampling.")
     L += ["", "![error against time](img/accuracy_pareto.png)\n",
           "`img/accuracy_pareto.png`: RMSE against the reference (log) over median frame time (log); blue: isplat "
-          "settings and their Pareto front (by the rule below: settings whose times the test cannot tell apart all stay "
-          "on it, so its line need not fall at every step), red star: the defaults, green: VTK at its sample "
-          "distances.\n",
+          "settings and their Pareto front (by the rule below: settings whose times the test cannot tell apart "
+          "all stay on it, so its line need not fall at every step), red star: the defaults, green: VTK at its "
+          "sample distances.\n",
           "## Which defaults sit on the front\n"]
     need = PT.min_wins(frames)
     L.append("The rule (tests/paired_times.py, with its tests in tests/test_paired_times.py). Setting A is "

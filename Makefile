@@ -70,8 +70,9 @@ paper-table: $(STAMP)
 reference: $(STAMP)
 	$(BIN)/python -m benchmarks reference --out docs
 
-# docs/accuracy.md, accuracy.csv, img/accuracy_pareto.png: error against the references (a) and (b) against
-# frame time for every speed knob, VTK's sample distances when VTK can render here, the Pareto front, popping.
+# docs/accuracy.md, accuracy.csv, accuracy_rounds.csv (every frame time), img/accuracy_pareto.png: error against
+# the references (a) and (b) against frame time for every speed knob, VTK's sample distances when VTK can render
+# here, the Pareto front (by a paired sign test over the rounds: tests/paired_times.py), popping.
 accuracy: $(STAMP)
 	$(BIN)/python -m benchmarks accuracy --out docs
 

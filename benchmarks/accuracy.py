@@ -1,13 +1,14 @@
 """Error against the truth, against run time: every speed knob of ``[render]``, VTK's ray steps, the Pareto front.
 
-``python -m benchmarks accuracy [--out docs] [--quick]`` writes ``accuracy.md``, ``accuracy.csv`` and
-``img/accuracy_pareto.png`` (and ``img/popping_head.png``). For each case (the head, the engine and the
-Marschner-Lobb sample, see :mod:`benchmarks.reference`) and each setting (the format defaults, then one knob
-changed at a time: early termination, footprint radius, table and sigma, precision, thread count, method, the slice
-stride (``render.slice_stride``: 1 is the defaults' point) and ``render.sheets`` when this isplat has it), the median
-frame time (every setting of a case rendered in turn, round after round: interleaved) and the error of the image
-against reference (a), the converged ray integral of the same 8-bit densities, and for Marschner-Lobb also against
-(b), the analytic signal. When VTK is importable
+``python -m benchmarks accuracy [--out docs] [--quick]`` writes ``accuracy.md``, ``accuracy.csv``,
+``accuracy_rounds.csv`` (every frame time) and ``img/accuracy_pareto.png`` (and ``img/popping_head.png``). For
+each case (the head, the engine and the Marschner-Lobb sample, see :mod:`benchmarks.reference`) and each setting
+(the format defaults, then one knob changed at a time: early termination, footprint radius, table and sigma,
+precision, thread count, method, the slice stride (``render.slice_stride``: 1 is the defaults' point) and
+``render.sheets`` when this isplat has it), the frame times (every setting of a case takes one turn per round, in
+a random order each round: interleaved; the front's "faster" is the paired sign test of tests/paired_times.py)
+and the error of the image against reference (a), the converged ray integral of the same 8-bit densities, and for
+Marschner-Lobb also against (b), the analytic signal. When VTK is importable
 and can open an offscreen context, ``vtkFixedPointVolumeRayCastMapper`` at sample distances 2, 1 (its default),
 0.5 and 0.25 voxel is timed in the same rounds and measured against the same references.
 
@@ -30,9 +31,14 @@ import numpy as np
 
 from . import _doc
 
+# the paired test of "faster" (shared with its tests, which must not import benchmarks; see its docstring)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import paired_times as PT  # noqa: E402
+
 TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
 SOURCES = _doc.sources(_doc.RENDER, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml",
-                       "tests/ray_reference.py", "benchmarks/reference.py", "benchmarks/accuracy.py"))
+                       "tests/ray_reference.py", "tests/paired_times.py", "benchmarks/reference.py",
+                       "benchmarks/accuracy.py"))
 from . import reference as REF
 from .reference import errors, make_scene
 
@@ -58,6 +64,8 @@ PRE_KNOBS = [                # the footprint's knobs, which act on pre-classifie
 PRE = {"classification": "pre"}
 VTK_STEPS = [2.0, 1.0, 0.5, 0.25]
 CASES = list(REF.CASES)
+ROUNDS = 25                  # rounds per setting (each renders every setting once); see tests/paired_times.py
+MIN_MS = 20.0                # a setting's measurement in a round: back-to-back frames lasting this long at least
 POP_OFFSETS = [-0.9, -0.7, -0.5, -0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9]   # degrees from the switch
 
 
@@ -128,18 +136,30 @@ def measure_case(case, size, frames, shape, sheets, with_vtk):
             jobs.append(lambda v=v: (v.render(), v.image_float())[1])
     times = [[] for _ in jobs]
     imgs = [None] * len(jobs)
+    warm = [0.0] * len(jobs)
     for _ in range(2):                                   # warm-up: JIT, caches, VTK's gradients
         for i, job in enumerate(jobs):
-            imgs[i] = job()
-    for rnd in range(frames):
-        order = list(range(len(jobs)))
-        order = order[rnd % len(order):] + order[:rnd % len(order)]
-        for i in order:
             t0 = time.perf_counter()
+            imgs[i] = job()
+            warm[i] = time.perf_counter() - t0
+    # a setting's turn in a round: one frame untimed (the first frame after another setting's is slower by up to
+    # a few ms, by how much depends on the setting), then k frames back to back, timed, k such that they last
+    # MIN_MS at least: a frame of a few ms often falls inside one time slice of another process, k average it out
+    reps = [max(1, math.ceil(MIN_MS / (1000 * w))) for w in warm]
+    # a fresh random order each round (seeded: the same orders every run), so that no setting always follows the
+    # same one (a rotation would put the defaults, job 0, after VTK's last point in most rounds)
+    rng = np.random.default_rng(CASES.index(case))
+    for _ in range(frames):
+        for i in rng.permutation(len(jobs)):
             imgs[i] = jobs[i]()
-            times[i].append(time.perf_counter() - t0)
-    for row, img, t in zip(rows, imgs, times):
-        row["ms"] = 1000 * statistics.median(t)
+            t0 = time.perf_counter()
+            for _ in range(reps[i]):
+                imgs[i] = jobs[i]()
+            times[i].append((time.perf_counter() - t0) / reps[i])
+    for row, img, t, k in zip(rows, imgs, times, reps):
+        row["times"] = [1000 * x for x in t]             # ms per frame per round, in round order (paired)
+        row["reps"] = k
+        row["ms"] = statistics.median(row["times"])
         for kind, ref in refs.items():
             row[kind] = errors(img, ref)
     return rows, refs
@@ -154,21 +174,21 @@ def pixels_per_voxel(scene) -> float:
 
 
 # ---- Pareto front and plot ---------------------------------------------------------------------------------------
-def pareto(points, tol: float = 0.0):
-    """Indices of the points (time, error) no other point beats in both (ties kept), fastest first. Errors within
-    ``tol`` of each other count as equal (the reference's own resolution).
+def front(rows, kind, tol):
+    """Indices into ``rows`` of the points on their Pareto front against reference ``kind``, fastest first: no
+    other row dominates them by tests/paired_times.py (paired sign test on the per-round times, errors within
+    ``tol`` equal)."""
+    return PT.front([r["times"] for r in rows], [r[kind]["rmse"] for r in rows], tol)
 
-    >>> pareto([(1, 3), (2, 2), (3, 3), (2, 1)])
-    [0, 3]
-    >>> pareto([(1, 3.0), (2, 2.95)], tol=0.1)
-    [0]
-    """
-    front = []
-    for i, (t, e) in enumerate(points):
-        if not any((t2 <= t and e2 <= e + tol) and (t2 < t or e2 < e - tol)
-                   for j, (t2, e2) in enumerate(points) if j != i):
-            front.append(i)
-    return sorted(front, key=lambda i: points[i][0])
+
+def dominates(a, b, kind, tol):
+    """Row ``a`` dominates row ``b`` against reference ``kind`` (tests/paired_times.py ``dominates``)."""
+    return PT.dominates(a["times"], a[kind]["rmse"], b["times"], b[kind]["rmse"], tol)
+
+
+def vs(a, b) -> PT.Comparison:
+    """Row ``a``'s frame times against row ``b``'s, round by round."""
+    return PT.compare(a["times"], b["times"])
 
 
 def _label(row):
@@ -204,8 +224,8 @@ def plot(rows_by_case, path: Path, conv=None):
         iso = [r for r in rows if r["renderer"] == "isplat"]
         vtk = [r for r in rows if r["renderer"] == "VTK"]
         pts = [(r["ms"], r[kind]["rmse"]) for r in iso]
-        front = pareto(pts, conv[(case, kind)]["rmse"] if conv else 0.0)
-        ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "-", color="tab:blue", lw=1, alpha=0.6,
+        on = front(iso, kind, conv[(case, kind)]["rmse"] if conv else 0.0)
+        ax.plot([pts[i][0] for i in on], [pts[i][1] for i in on], "-", color="tab:blue", lw=1, alpha=0.6,
                 label="isplat Pareto front")
         ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=18, color="tab:blue", label="isplat settings")
         for r, p in zip(iso, pts):
@@ -235,15 +255,30 @@ def plot(rows_by_case, path: Path, conv=None):
 def write_csv(rows, path: Path):
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["case", "renderer", "knob", "value", "default", "median_ms", "reference", "max_abs", "rmse",
-                    "psnr_db", "share_8bit_pixels_changed"])
+        w.writerow(["case", "renderer", "knob", "value", "default", "median_ms", "ratio_to_defaults",
+                    "rounds_faster_than_defaults", "rounds", "reference", "max_abs", "rmse", "psnr_db",
+                    "share_8bit_pixels_changed"])
         for r in rows:
+            d = next(x for x in rows if x["case"] == r["case"] and x["default"] and x["renderer"] == "isplat")
+            c = vs(r, d)
             for kind in ("grid", "analytic"):
                 if kind in r:
                     e = r[kind]
                     w.writerow([r["case"], r["renderer"], r["knob"], r["value"], int(r["default"]), f"{r['ms']:.3f}",
+                                f"{c.ratio:.4f}", c.wins, len(r["times"]),
                                 "a" if kind == "grid" else "b", f"{e['max']:.6g}", f"{e['rmse']:.6g}",
                                 f"{e['psnr']:.3f}", f"{e['px8']:.6f}"])
+
+
+def write_rounds_csv(rows, path: Path):
+    """Every frame time (ms), one row per case and setting, one column per round (round order): the data the
+    page's "faster" verdicts come from (tests/paired_times.py reruns them)."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["case", "renderer", "setting", "frames_per_round"]
+                   + [f"round_{n}" for n in range(len(rows[0]["times"]))])
+        for r in rows:
+            w.writerow([r["case"], r["renderer"], _label(r), r["reps"]] + [f"{t:.4f}" for t in r["times"]])
 
 
 # ---- popping -----------------------------------------------------------------------------------------------------
@@ -312,19 +347,22 @@ def _psnr(p):
 
 def case_table(rows, kinds, conv, case) -> list[str]:
     d = next(r for r in rows if r["default"] and r["renderer"] == "isplat")
-    head = "| renderer | setting | ms/frame | x defaults |"
-    sep = "|---|---|---:|---:|"
+    head = "| renderer | setting | ms/frame | x defaults | rounds faster |"
+    sep = "|---|---|---:|---:|---:|"
     for k in kinds:
         tag = "(a)" if k == "grid" else "(b)"
         head += f" RMSE {tag} | PSNR {tag} dB | max {tag} | 8-bit px {tag} |"
         sep += "---:|---:|---:|---:|"
     L = [head, sep]
     iso = [r for r in rows if r["renderer"] == "isplat"]
-    fronts = {k: set(pareto([(r["ms"], r[k]["rmse"]) for r in iso], conv[(case, k)]["rmse"])) for k in kinds}
+    fronts = {k: set(front(iso, k, conv[(case, k)]["rmse"])) for k in kinds}
     for r in rows:
         name = _label(r) + (" **(default)**" if r["default"] and r["renderer"] == "isplat" else
                             " (VTK's default)" if r["default"] else "")
-        line = f"| {r['renderer']} | {name} | {r['ms']:.1f} | {r['ms'] / d['ms']:.2f} |"
+        c = vs(r, d)
+        ratio = f"{c.ratio:.2f}" + (" (faster)" if c.faster else " (slower)" if vs(d, r).faster else "")
+        wins = "" if r is d else f"{c.wins}/{len(r['times'])}"
+        line = f"| {r['renderer']} | {name} | {r['ms']:.1f} | {ratio} | {wins} |"
         for k in kinds:
             e = r[k]
             on = r["renderer"] == "isplat" and iso.index(r) in fronts[k]
@@ -333,44 +371,53 @@ def case_table(rows, kinds, conv, case) -> list[str]:
     return L
 
 
+def _point(r, d, k) -> str:
+    """Row ``r``'s time and RMSE, and its frames against the defaults' ``d``: "post, ET 0.98: 5.1 ms, 0.0065,
+    0.97x the defaults, faster in 12/21 rounds"."""
+    c = vs(r, d)
+    return (f"{_label(r)}: {r['ms']:.1f} ms, {r[k]['rmse']:.4f}, {c.ratio:.2f}x the defaults, faster in "
+            f"{c.wins}/{len(r['times'])} rounds")
+
+
 def front_sentences(rows_by_case, conv) -> list[str]:
     """Which defaults sit on the front, per case and reference, from the measured points (RMSE differences
-    within the reference's step-halving RMSE count as ties)."""
+    within the reference's step-halving RMSE count as ties; "faster" is tests/paired_times.py's paired test)."""
     out = []
     for case, rows in rows_by_case.items():
         iso = [r for r in rows if r["renderer"] == "isplat"]
         vtk = [r for r in rows if r["renderer"] == "VTK"]
         for k in REF.kinds_for(case):
             tol = conv[(case, k)]["rmse"]
-            pts = [(r["ms"], r[k]["rmse"]) for r in iso]
-            front = pareto(pts, tol)
+            on_front = front(iso, k, tol)
             di = next(i for i, r in enumerate(iso) if r["default"])
             d = iso[di]
             beat = _beaters(iso, d, k, tol)
-            on = di in front
+            on = di in on_front
             txt = (f"- **{case}**, against {'(a)' if k == 'grid' else '(b)'}: the defaults "
                    f"({d['ms']:.1f} ms, RMSE {d[k]['rmse']:.4f}) are {'on' if on else '**not** on'} isplat's front")
             if not on:
-                txt += " (" + ", ".join(f"{_label(r)}: {r['ms']:.1f} ms, {r[k]['rmse']:.4f}" for r in beat[:3]) + \
-                       " beat them: at least as fast and as close, one of the two by more than the tie margin)"
-            txt += "; front: " + ", ".join(_label(iso[i]) for i in front) + "."
+                txt += " (beaten by " + "; ".join(_point(r, d, k) for r in beat) + ")"
+            ties = [r for r in iso if r is not d and all(r is not b for b in beat)
+                    and abs(r[k]["rmse"] - d[k]["rmse"]) <= tol and not vs(d, r).faster]
+            if ties:
+                txt += ("; as close and not slower, but not faster by the test either (ties): "
+                        + "; ".join(_point(r, d, k) for r in ties))
+            txt += "; front: " + ", ".join(_label(iso[i]) for i in on_front) + "."
             if vtk:
                 vd = next(r for r in vtk if r["default"])
-                faster_better = [r for r in vtk if r["ms"] <= d["ms"] and r[k]["rmse"] <= d[k]["rmse"]]
+                better = [r for r in vtk if dominates(r, d, k, tol)]
                 txt += (f" VTK at its default step 1: {vd['ms']:.1f} ms, RMSE {vd[k]['rmse']:.4f} "
                         f"({'closer to' if vd[k]['rmse'] < d[k]['rmse'] else 'farther from'} the reference than "
-                        f"isplat's defaults, {vd['ms'] / d['ms']:.2f}x their time)")
-                txt += ("; VTK points that beat isplat's defaults in both: "
-                        + (", ".join(f"step {r['value']:g}" for r in faster_better) or "none") + ".")
+                        f"isplat's defaults, {vs(vd, d).ratio:.2f}x their time)")
+                txt += ("; VTK points that beat isplat's defaults: "
+                        + (", ".join(f"step {r['value']:g}" for r in better) or "none") + ".")
             out.append(txt)
     return out
 
 
 def _beaters(iso, d, k, tol):
-    """The isplat rows that beat row ``d`` against reference ``k``: at least as fast and as close, one of the two
-    by more than the tie margin ``tol``."""
-    return [r for r in iso if r is not d and r["ms"] <= d["ms"] and r[k]["rmse"] <= d[k]["rmse"] + tol
-            and (r["ms"] < d["ms"] or r[k]["rmse"] < d[k]["rmse"] - tol)]
+    """The isplat rows that dominate row ``d`` against reference ``k`` (:func:`dominates`)."""
+    return [r for r in iso if r is not d and dominates(r, d, k, tol)]
 
 
 def stride_sentences(rows_by_case, conv) -> list[str]:
@@ -378,16 +425,20 @@ def stride_sentences(rows_by_case, conv) -> list[str]:
     whether the default stride, 1, stays on the front: beaten by no stride, and on isplat's whole front or not."""
     out = ["`render.slice_stride = n` samples the slices whose index is a multiple of n, each with the opacity "
            "1 - (1 - alpha)^n of n slices (isplat/splat/post.py, formats/scene.md); stride 1 is the defaults' point. "
-           "Per case and reference: each stride's time and RMSE (*front*: on isplat's front), and whether a stride "
-           "beats the default stride 1 (at least as fast and as close, one of the two by more than the tie margin).\n"]
+           "Per case and reference: each stride's time and RMSE (*front*: on isplat's front), its frames against "
+           "stride 1's (median per-round ratio, rounds faster, *faster* when the test calls it), and whether a "
+           "stride beats the default stride 1 (dominates it, as above).\n"]
     for case, rows in rows_by_case.items():
         iso = [r for r in rows if r["renderer"] == "isplat"]
         pts = [r for r in iso if r["knob"] in ("defaults", "slice_stride")]
         for k in REF.kinds_for(case):
             tol = conv[(case, k)]["rmse"]
-            front = set(pareto([(r["ms"], r[k]["rmse"]) for r in iso], tol))
+            on_front = set(front(iso, k, tol))
             parts = [f"{r['value'] or 1}: {r['ms']:.1f} ms, {r[k]['rmse']:.4f}"
-                     + (" (front)" if iso.index(r) in front else "") for r in pts]
+                     + ("" if r is pts[0] else
+                        f", {vs(r, pts[0]).ratio:.2f}x in {vs(r, pts[0]).wins}/{len(r['times'])} rounds"
+                        + (" faster" if vs(r, pts[0]).faster else " (not called faster)"))
+                     + (" (front)" if iso.index(r) in on_front else "") for r in pts]
             beat = _beaters(iso, pts[0], k, tol)
             strides = [f"stride {r['value']}" for r in beat if r["knob"] == "slice_stride"]
             others = [_label(r) for r in beat if r["knob"] != "slice_stride"]
@@ -409,8 +460,8 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
     cmd = "python -m benchmarks accuracy" + (" --quick" if quick else "")
     L = [f"```\n{cmd}\n```\n", "# Accuracy against run time: error against the truth\n",
          f"Machine: {_doc.machine_line()}; git {_doc.git_rev()}; load average {load0:.2f} at the start; the bench "
-         f"took {seconds:.0f} s. The numbers below and `accuracy.csv` come from this run; rerun the command after "
-         f"changing the renderer.\n",
+         f"took {seconds:.0f} s. The numbers below, `accuracy.csv` and `accuracy_rounds.csv` (every frame time) "
+         f"come from this run; rerun the command after changing the renderer.\n",
          "Error is measured against references that are not splatting (docs/reference.md, "
          "`benchmarks/reference.py`): **(a)** the converged float64 emission-absorption ray integral of the same "
          "8-bit densities with trilinear reconstruction and the transfer function applied after it, step 0.05 "
@@ -425,11 +476,19 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
          "`precision = \"float32\"`, `threads = 0` = all cores) with one knob changed; the footprint's knobs "
          "(`footprint_radius = 2.5`, `footprint_sigma = 0.7`, `footprint_table = 1024` by default) act on "
          "pre-classified splatting only, so their rows change one of them with `classification = \"pre\"`. "
-         f"Times are medians of {frames} frames per setting after 2 warm-up frames; the settings of a case (and "
-         "VTK's points) are rendered in turn, round after round, so load from other processes hits them alike. "
+         f"Every setting of a case (and VTK's points) takes one turn per round, in a fresh random order each "
+         f"round, for {frames} rounds after 2 warm-up rounds, so that load from other processes hits the settings of "
+         "a round alike. In its turn a setting renders one frame untimed (the first frame after another "
+         "setting's was slower by up to a few ms, more for some settings than others), then k frames back to "
+         f"back, k such that they last {MIN_MS:g} ms at least (by the warm-up); its frame time in the round is "
+         "their mean (a frame of a few ms often falls inside one time slice of another process; "
+         "`accuracy_rounds.csv` has k and every time). "
+         "ms/frame is the median over the rounds of a setting's frame time, *x defaults* the median over the "
+         "rounds of its frame time over the defaults' in the same round, *rounds faster* the rounds where its "
+         "frame was faster than the defaults'. "
          "Errors over RGB in [0, 1] after compositing on the background: RMSE, PSNR = -20 log10(RMSE), max abs "
          "error, and the share of pixels where an 8-bit channel differs. A `·` after an RMSE marks a setting on "
-         "isplat's Pareto front (no other isplat setting is both at least as fast and at least as close).\n",
+         "isplat's Pareto front (no other isplat setting dominates it; the rule is in the next section).\n",
          ("VTK: `vtkFixedPointVolumeRayCastMapper` offscreen through `" + vtk_cls + "`, set up as in "
           "docs/performance.md (benchmarks/peers.py: same densities, transfer function, camera, lights, threads), "
           "at sample distances " + ", ".join(f"{s:g}" for s in VTK_STEPS) + " voxel (1 is its default); its image "
@@ -446,12 +505,28 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
              "on the faces, so part of VTK's error there is that convention, not its sampling.")
     L += ["", "![error against time](img/accuracy_pareto.png)\n",
           "`img/accuracy_pareto.png`: RMSE against the reference (log) over median frame time (log); blue: isplat "
-          "settings and their Pareto front, red star: the defaults, green: VTK at its sample distances.\n",
+          "settings and their Pareto front (by the rule below: settings whose times the test cannot tell apart "
+          "all stay on it, so its line need not fall at every step), red star: the defaults, green: VTK at its "
+          "sample distances.\n",
           "## Which defaults sit on the front\n"]
-    L.append("RMSE differences smaller than the reference's own (what halving its step changes, see the "
-             "convergence table below) count as ties. Frame times on this shared machine are noisy (load average "
-             "at the start above); a setting that differs from the defaults only in a knob that does not change the "
-             "work (precision, table size) can land on either side of them by chance.\n")
+    need = PT.min_wins(frames)
+    L.append("The rule (tests/paired_times.py, with its tests in tests/test_paired_times.py). Setting A is "
+             "**faster** than B only when both hold: the median over the rounds of A's frame time over B's in the "
+             f"same round is below {1 - PT.MARGIN:g} (differences within {100 * PT.MARGIN:g}% are ties however "
+             "consistent), and a one-sided sign test over the rounds rejects \"A's frame is as likely slower as "
+             f"faster\" at level {PT.ALPHA:g}: with {frames} rounds, A's frame must be the faster in "
+             + (f"at least {need} of them" if need else "more rounds than there are (too few rounds: nothing is "
+                "called faster)")
+             + ". The sign test assumes nothing about the noise and counts a frame hit by a burst of load as one lost "
+             "round, whatever its size. Otherwise neither is faster: a tie. A is **not slower** than B when, by the "
+             f"same sign test, A's frame is below {1 + PT.MARGIN:g} times B's in that many rounds. RMSE differences "
+             "smaller than the reference's own (what halving its step changes, see the convergence table below) "
+             "count as ties. A **dominates** B when A's RMSE is at most B's plus that tie margin and A is faster, or "
+             "closer by more than the margin and not slower; the front is the settings no other dominates. Every "
+             "claim needs its evidence: a closer setting whose frames do not show that it is not slower leaves the "
+             "others on the front. Each sentence lists the settings that dominate the defaults, and the settings as "
+             "close as the defaults that the test calls neither faster nor slower (ties), with their frames against "
+             "the defaults'.\n")
     L += front_sentences(rows_by_case, conv)
     L += ["", "### Every n-th slice (`render.slice_stride`)\n"] + stride_sentences(rows_by_case, conv)
     L.append("")
@@ -503,7 +578,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     out_dir = Path(out_dir)
     size = 48 if quick else 256
-    frames = 3 if quick else 11
+    frames = 7 if quick else ROUNDS   # 7: the fewest rounds in which the sign test can call anything
     sheets = sheets_key()
     vtk_cls = vtk_window()
     rows_by_case, conv, ppv = {}, {}, {}
@@ -528,6 +603,7 @@ def run(out_dir: Path, quick: bool) -> Path:
     gain = popping_strip(pops[0], out_dir / "img" / "popping_head.png")
     all_rows = [r for rows in rows_by_case.values() for r in rows]
     write_csv(all_rows, out_dir / "accuracy.csv")
+    write_rounds_csv(all_rows, out_dir / "accuracy_rounds.csv")
     plot(rows_by_case, out_dir / "img" / "accuracy_pareto.png", conv)
     p = out_dir / "accuracy.md"
     p.write_text(render_doc(rows_by_case, conv, pops, quick, size, frames, time.time() - t0, load0, sheets, vtk_cls,

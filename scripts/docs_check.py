@@ -218,7 +218,7 @@ MINUTES = {
     "python -m benchmarks thick": 4.6,
     "python -m benchmarks sampler": 6,                             # compiles the older commit's kernels once more
     "python -m benchmarks worksplit": 4.8,
-    "python -m benchmarks accuracy": 5,
+    "python -m benchmarks accuracy": 6.5,                          # 25 paired rounds since the sign test
     "python -m benchmarks selective_read": 8,
     "python -m benchmarks bricks": 3,
     "python -m benchmarks.reliability --out docs": 15,           # its fuzz: 120 s per technique, and the catalogue

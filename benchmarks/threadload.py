@@ -186,7 +186,8 @@ def old_against_new(a, argv) -> int:
         for tag, (tree, label) in trees.items():
             js = REPO / "out" / "threadload" / f"{tag}-{k}.json"
             env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{REPO}")
-            subprocess.run([sys.executable, "-m", "benchmarks.threadload", *base, "--json", str(js), "--label",
+            # -P: not the working directory first on sys.path, where this checkout's isplat/ would hide REV's
+            subprocess.run([sys.executable, "-P", "-m", "benchmarks.threadload", *base, "--json", str(js), "--label",
                             f"{label}, run {k + 1}"], cwd=REPO, env=env, check=True)
             runs.append(js)
     if a.out:               # one page of every run's rows, stamped with the --old command

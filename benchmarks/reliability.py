@@ -388,9 +388,12 @@ def _pair_cases(fx: dict) -> list[tuple[str, str, str, str]]:
         ("index attribute bytes flipped (n_a)", "idx", "/axes/k@n_a", "flip_header"),
         ("index root attribute bytes flipped (shape)", "idx", "/@shape", "flip_header"),
     ]
-    for target, objs in (("aug", ["/normal", "/density"]), ("idx", ["/axes/k/bytes", "/axes/i/entry_slice"])):
+    # the layout op breaks the format's rule for the dataset: the index's datasets MUST be chunked, the augmented
+    # channels of format 6 (isplat augment's default) MUST be contiguous (formats/augmented.md §2.3)
+    for target, objs, layout in (("aug", ["/normal", "/density"], "chunked"),
+                                 ("idx", ["/axes/k/bytes", "/axes/i/entry_slice"], "contiguous")):
         for obj in objs:
-            for op in ("delete", "dtype", "shape", "contiguous", "gzip"):
+            for op in ("delete", "dtype", "shape", layout, "gzip"):
                 cases.append((f"dataset {obj}: {op}", target, obj, op))
     for target, obj in (("aug", "/@format_version"), ("aug", "/@spacing_ijk"), ("aug", "/@density_window"),
                         ("idx", "/@format_version"), ("idx", "/@density_ranges"), ("idx", "/axes/j@escape_width")):

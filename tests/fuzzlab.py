@@ -328,6 +328,8 @@ def corrupt(path: Path, obj: str, op: str) -> None:
                                       chunks=True, fletcher32=True)
             elif op == "contiguous":
                 parent.create_dataset(name, data=data)
+            elif op == "chunked":       # what a format-6 brick store (contiguous, formats/augmented.md §2.3) must not be
+                parent.create_dataset(name, data=data, chunks=True, fletcher32=True)
             elif op == "gzip" and data.size:
                 parent.create_dataset(name, data=data, chunks=True, compression="gzip", fletcher32=True)
             elif op == "gzip":

@@ -82,6 +82,22 @@ def test_every_corruption_of_the_examples(examples, tmp_path, target, obj, op):
         out.result in ("error", "equal", "FAIL (stats: other figures)"), out
 
 
+@pytest.mark.parametrize("obj", ["/density", "/gradient_magnitude", "/normal"])
+def test_a_brick_store_channel_rewritten_chunked_is_refused(examples, tmp_path, obj):
+    """Format 6's channels MUST be contiguous (formats/augmented.md §2.3): the same bricks in HDF5 chunks are
+    refused with one line (the catalogue's "chunked" row; the walk's "contiguous" leaves such a file valid)."""
+    fx = examples["aug"]
+    path = fx["aug"]
+    original = path.read_bytes()
+    try:
+        R.corrupt(path, obj, "chunked")
+        mutant = path.read_bytes()
+    finally:
+        path.write_bytes(original)
+    out = R.check_mutant(fx, "aug", mutant, f"chunked {obj}")
+    assert out.result == "error" and "contiguous" in out.message, out
+
+
 @pytest.mark.parametrize("case", CORPUS["cases"], ids=lambda c: f"{c['target']}:{c['object']}:{c['op']}")
 def test_corpus_of_bugs(examples, case):
     fx = examples["aug"]

@@ -253,6 +253,9 @@ def run(out_dir: Path, quick: bool) -> Path:
     return path
 
 
+FEW = 5     # fewer rounds with two cores than this say too little: one slow 1-thread frame makes a round's gain
+
+
 def _q(pair) -> str:
     return "{:.2f}-{:.2f}".format(*pair)
 
@@ -272,7 +275,9 @@ def ceiling_section(rows) -> list[str]:
          "the machine gave in that round). The table gives medians over the rounds of every pass (the first "
          "round of a pass, which learns the bands, left out), with of that's quartiles and range. A round whose "
          f"gain is below {fl} had less than two cores and says nothing about a speed-up of {fl} (issue 27 item "
-         f"5): the last columns take the rounds with gain >= {fl} alone.", "",
+         f"5): the last columns take the rounds with gain >= {fl} alone. A round's gain rests on one 1-thread frame "
+         "and one pair, so a burst of load on the 1-thread frame alone can make one round look like two cores: "
+         f"fewer than {FEW} such rounds say too little.", "",
          "| scene | rounds | wall speed-up, per round | two copies: gain | wall speed-up, of that | of that: quartiles | "
          f"of that: least-most | rounds with gain >= {fl} | there: wall speed-up | there: quartiles | "
          "there: of that |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -290,6 +295,8 @@ def ceiling_section(rows) -> list[str]:
         else:
             spread = ("one round" if c.two_cores == 1 else
                       f"median; quartiles {_q(c.speedup_two_cores_quartiles)}")
+            if c.two_cores < FEW:
+                spread += f"; fewer than {FEW} rounds, too few to say"
             L.append(f"- {name}: where the machine gave two cores (rounds with gain >= {fl}: {c.two_cores} of "
                      f"{c.rounds}), the 2-thread speed-up was {c.speedup_two_cores:.2f} ({spread}), "
                      f"{c.of_two_cores:.2f} of the gain.")

@@ -278,7 +278,8 @@ def ceiling_section(rows) -> list[str]:
          f"5): the last columns take the rounds with gain >= {fl} alone. A round's gain rests on one 1-thread frame "
          "and one pair, so a burst of load on the 1-thread frame alone can make one round look like two cores: "
          f"fewer than {FEW} such rounds say too little.", "",
-         "| scene | rounds | wall speed-up, per round | two copies: gain | wall speed-up, of that | of that: quartiles | "
+         "| scene | rounds | wall speed-up, per round | two copies: gain | wall speed-up, of that | "
+         "of that: quartiles | "
          f"of that: least-most | rounds with gain >= {fl} | there: wall speed-up | there: quartiles | "
          "there: of that |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, size, per, tm, n_vox, c in rows:

@@ -12,11 +12,13 @@
    (visited by both bands): counted for the bands that 1 to 64 threads use. The work that is serial is the
    calling thread's CPU time outside the kernels (set-up, finishing). From both, the speed-up on N cores is
    predicted (Amdahl's law with the repeated work added to the parallel part), and on this machine 2 threads
-   are timed against 1, in wall time and in each thread's CPU time.
+   are timed against 1, in wall time and in each thread's CPU time, and against the machine's own ceiling
+   measured in the same rounds (two one-thread copies at once; tests/ceiling_rounds.py).
 """
 
 from __future__ import annotations
 
+import itertools
 import statistics
 import sys
 import time
@@ -24,9 +26,13 @@ from pathlib import Path
 
 from . import _doc
 
+# the per-round ceiling statistics (shared with their tests, which must not import benchmarks; see its docstring)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import ceiling_rounds as CR  # noqa: E402
+
 TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
 SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml",
-                       "benchmarks/worksplit.py"))
+                       "tests/ceiling_rounds.py", "benchmarks/worksplit.py"))
 from .render import ROOT, SCENE, ensure_head, overrides
 
 SEMI = "transfer.opacity=[[0,0],[99,0],[130,0.1],[200,0.5],[255,0.7]]"
@@ -134,14 +140,29 @@ def pair_frame(copies, views) -> float:
     return time.perf_counter() - t
 
 
+ORDERS = list(itertools.permutations(("1", "2", "pair")))   # a round's order of the three it compares
+
+
+def round_order(i: int) -> list[str]:
+    """The kinds of frame of round ``i``, in the order they are timed: the three that the ceiling compares
+    (1 thread, 2 threads, two copies) back to back, in each of their 6 orders in turn, then "2e".
+
+    >>> round_order(0), round_order(7)
+    (['1', '2', 'pair', '2e'], ['1', 'pair', '2', '2e'])
+    """
+    return [*ORDERS[i % len(ORDERS)], "2e"]
+
+
 def timings(r, twin, frames: int) -> dict:
-    """Medians over interleaved frames on 1 and 2 threads: wall time, serial CPU time, the threads' CPU time in
-    the kernels (total and the busiest thread's); and the set-up alone (``prepare``). Frames "2" cut their
+    """Medians over rounds of frames on 1 and 2 threads: wall time, serial CPU time, the threads' CPU time in
+    the kernels (total and the busiest thread's); and the set-up alone (``prepare``); and under "rounds" each
+    round's wall times of "1", "2" and "pair" (for :func:`ceiling_rounds.ceiling`). Frames "2" cut their
     bands by the frames before them (``isplat.frame.band_rows``; the first round, not counted, learns); frames
     "2e" always take even bands, as a first frame does. Each timed frame follows an untimed one of its kind, as
     a run of frames does (a frame after one of another kind runs on caches that frame left: a 2-thread frame
-    after a 1-thread one took measurably longer), and the kinds take turns in both orders. "pair": two one-thread
-    frames at once, one of ``r`` and one of ``twin`` (a second renderer of the same scene, :func:`pair_frame`)."""
+    after a 1-thread one took measurably longer); the kinds' order turns from round to round
+    (:func:`round_order`). "pair": two one-thread frames at once, one of ``r`` and one of ``twin`` (a second
+    renderer of the same scene, :func:`pair_frame`)."""
     from isplat import frame as F
 
     views = {"1": on_threads(r.views[0], 1), "2": on_threads(r.views[0], 2), "2e": on_threads(r.views[0], 2)}
@@ -149,9 +170,8 @@ def timings(r, twin, frames: int) -> dict:
     learned = {key: {} for key in views}      # what each kind's frames learned of their bands ("2e": nothing)
     prep, pairs = [], []
     pair_views = (views["1"], on_threads(twin.views[0], 1))
-    kinds = [*views, "pair"]
     for i in range(frames + 1):
-        for key in (kinds if i % 2 else kinds[::-1]):
+        for key in round_order(i):
             for timed in (False, True):   # after a frame of the same kind: not paying for the caches another left
                 if key == "pair":
                     r.bands.costs = learned["1"]
@@ -171,7 +191,9 @@ def timings(r, twin, frames: int) -> dict:
         F.prepare(r.selection, views["2"], None, r.bands)
         prep.append(time.perf_counter() - t)
     med = statistics.median
-    out = {"prepare": med(prep[1:]), "pair": med(pairs[1:])}
+    out = {"prepare": med(prep[1:]), "pair": med(pairs[1:]),
+           "rounds": {"1": [x["wall"] for x in runs["1"][1:]], "2": [x["wall"] for x in runs["2"][1:]],
+                      "pair": pairs[1:]}}
     for key, rs in runs.items():
         rs = rs[1:]
         out[key] = med(x["wall"] for x in rs)
@@ -221,7 +243,9 @@ def run(out_dir: Path, quick: bool) -> Path:
         for (name, _, _, r, twin), got in zip(scenes, passes):
             _log(f"timings, pass {k + 1}: {name}")
             got.append(timings(r, twin, 3 if quick else 11))
-    rows = [(name, size, per, over_passes(got), r.selection.axes[per[1][1].axis].n_voxels)
+    rows = [(name, size, per, over_passes([{k: v for k, v in p.items() if k != "rounds"} for p in got]),
+             r.selection.axes[per[1][1].axis].n_voxels,
+             CR.ceiling(*([x for p in got for x in p["rounds"][k]] for k in ("1", "2", "pair"))))
             for (name, size, per, r, _), got in zip(scenes, passes)]
     body = doc(rows, quick, time.perf_counter() - t0)
     path = out_dir / "worksplit.md"
@@ -229,8 +253,59 @@ def run(out_dir: Path, quick: bool) -> Path:
     return path
 
 
+FEW = 5     # fewer rounds with two cores than this say too little: one slow 1-thread frame makes a round's gain
+
+
+def _q(pair) -> str:
+    return "{:.2f}-{:.2f}".format(*pair)
+
+
+def ceiling_section(rows) -> list[str]:
+    """The table of the machine's own ceiling, round by round (tests/ceiling_rounds.py), and issue 27 item 5's
+    sentence per scene."""
+    fl = CR.FLOOR
+    L = ["", "### Two cores: the machine's own ceiling, round by round", "",
+         "This machine's two vCPUs do not always give two cores' work: what they give two programs that share "
+         "nothing swings between runs and within one (from under 1 to over 2). So every round times, back to "
+         "back (each after an untimed frame of its kind, the three in each of their 6 orders in turn): the "
+         "1-thread frame, the 2-thread frame and *two copies*, two one-thread frames of the same view at once, "
+         "one per renderer of its own. Per round: the 2-thread *wall speed-up* (1 thread's wall time over 2 "
+         "threads'), the *two copies: gain* (twice the 1-thread frame's wall time over the pair's: the "
+         "machine's own ceiling in that round) and *of that*, speed-up over gain (what isplat makes of the cores "
+         "the machine gave in that round). The table gives medians over the rounds of every pass (the first "
+         "round of a pass, which learns the bands, left out), with of that's quartiles and range. A round whose "
+         f"gain is below {fl} had less than two cores and says nothing about a speed-up of {fl} (issue 27 item "
+         f"5): the last columns take the rounds with gain >= {fl} alone. A round's gain rests on one 1-thread frame "
+         "and one pair, so a burst of load on the 1-thread frame alone can make one round look like two cores: "
+         f"fewer than {FEW} such rounds say too little.", "",
+         "| scene | rounds | wall speed-up, per round | two copies: gain | wall speed-up, of that | "
+         "of that: quartiles | "
+         f"of that: least-most | rounds with gain >= {fl} | there: wall speed-up | there: quartiles | "
+         "there: of that |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for name, size, per, tm, n_vox, c in rows:
+        there = ("| - | - | - |" if c.speedup_two_cores is None else
+                 f"| {c.speedup_two_cores:.2f} | {_q(c.speedup_two_cores_quartiles)} | {c.of_two_cores:.2f} |")
+        L.append(f"| {name}, {per[1][1].classification} | {c.rounds} | {c.speedup:.2f} | {c.gain:.2f} | {c.of:.2f} | "
+                 f"{_q(c.of_quartiles)} | {_q(c.of_range)} | {c.two_cores} ({100 * c.share_two_cores:.0f}%) "
+                 + there)
+    L += ["", f"Issue 27 item 5 (2 threads at least {fl}x one thread):", ""]
+    for name, size, per, tm, n_vox, c in rows:
+        if c.speedup_two_cores is None:
+            L.append(f"- {name}: in none of the {c.rounds} rounds did the machine give two cores (gain >= {fl}); "
+                     "not shown either way.")
+        else:
+            spread = ("one round" if c.two_cores == 1 else
+                      f"median; quartiles {_q(c.speedup_two_cores_quartiles)}")
+            if c.two_cores < FEW:
+                spread += f"; fewer than {FEW} rounds, too few to say"
+            L.append(f"- {name}: where the machine gave two cores (rounds with gain >= {fl}: {c.two_cores} of "
+                     f"{c.rounds}), the 2-thread speed-up was {c.speedup_two_cores:.2f} ({spread}), "
+                     f"{c.of_two_cores:.2f} of the gain.")
+    return L
+
+
 def doc(rows, quick: bool, seconds: float) -> str:
-    TECHNIQUES[:] = sorted({per[1][1].classification for _, _, per, _, _ in rows})    # the stamp's techniques
+    TECHNIQUES[:] = sorted({per[1][1].classification for _, _, per, _, _, _ in rows})    # the stamp's techniques
     L = ["# Work per frame: hidden material and threads", "",
          f"Made by `python -m benchmarks worksplit{' --quick' if quick else ''}` (part of `make bench`) on "
          f"{_doc.machine_line()}, git {_doc.git_rev()}, in {seconds:.0f} s. Do not edit: rerun the command.", "",
@@ -241,7 +316,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
          "## Hidden material costs one test per region, block or cell", "",
          "| scene | classification | image | voxels of interest | in slices traversed | in cells left | "
          "splatted or sampled | left / splatted or sampled |", "|---|---|---:|---:|---:|---:|---:|---:|"]
-    for name, size, per, tm, n_vox in rows:
+    for name, size, per, tm, n_vox, _ in rows:
         st = per[1][1]
         L.append(f"| {name} | {st.classification} | {size} | {n_vox:,} | {st.voxels_examined:,} | {st.voxels_tested:,} | "
                  f"{st.drawn:,} | {st.voxels_tested / max(st.drawn, 1):.2f} |")
@@ -254,7 +329,7 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "", "## Threads: repeated and serial work", "",
           "| scene | threads | bands | voxels tested | repeated work | predicted speed-up |",
           "|---|---:|---:|---:|---:|---:|"]
-    for name, size, per, tm, n_vox in rows:
+    for name, size, per, tm, n_vox, _ in rows:
         base = per[1][1].voxels_tested
         serial = tm["serial1"] / (tm["serial1"] + tm["work1"] + tm["rest1"])
         for t in THREADS:
@@ -271,31 +346,27 @@ def doc(rows, quick: bool, seconds: float) -> str:
           "speed-up is what 2 free cores would give, memory bandwidth aside. But this machine's two vCPUs do not "
           "always give twice the work of one, even when no other job is seen and no steal time is reported: "
           "between runs of this benchmark the CPU speed-ups differ widely, the threads' CPU times inflated "
-          "when both run (the host's load, which the guest does not see). So each run also measures what the "
-          "machine gives two programs that share nothing: "
-          "*two copies*, two one-thread frames of the same view at once, one per renderer of its own (its gain: "
-          "twice the one-thread frame's wall time over the pair's), and *of that*: the 2-thread frame's wall "
-          "speed-up over that gain, which is what isplat makes of the cores the machine gives.", "",
+          "when both run (the host's load, which the guest does not see). What the machine gives two cores is "
+          "measured round by round below (*Two cores: the machine's own ceiling*).", "",
           "| scene | 1 thread (ms) | 2 threads (ms) | wall speed-up | threads' CPU, 1 thread (ms) | threads' CPU, "
           "2 threads: sum / busiest (ms) | imbalance | serial CPU, 2 threads (ms) | CPU speed-up | even bands: "
-          "2 threads (ms) | imbalance | CPU speed-up | two copies: gain | wall speed-up, of that | CPU speed-up, "
-          "passes: least-most |",
-          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for name, size, per, tm, n_vox in rows:
+          "2 threads (ms) | imbalance | CPU speed-up | CPU speed-up, passes: least-most |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for name, size, per, tm, n_vox, _ in rows:
         L.append(f"| {name}, {per[1][1].classification} | {1e3 * tm['1']:.1f} | {1e3 * tm['2']:.1f} | {tm['1'] / tm['2']:.2f} | "
                  f"{1e3 * (tm['work1'] + tm['rest1']):.1f} | {1e3 * (tm['work2'] + tm['rest2']):.1f} / "
                  f"{1e3 * (tm['busiest2'] + tm['rest_busiest2']):.1f} | {tm['imbalance2']:.2f} | "
                  f"{1e3 * tm['serial2']:.2f} | {tm['cpu_speedup2']:.2f} | {1e3 * tm['2e']:.1f} | "
-                 f"{tm['imbalance2e']:.2f} | {tm['cpu_speedup2e']:.2f} | {2 * tm['1'] / tm['pair']:.2f} | "
-                 f"{tm['1'] / tm['2'] / (2 * tm['1'] / tm['pair']):.2f} | "
+                 f"{tm['imbalance2e']:.2f} | {tm['cpu_speedup2e']:.2f} | "
                  "{:.2f}-{:.2f} |".format(*tm["cpu_speedup2_range"]))
     L += ["", "2 threads: each frame's bands cut where the frames before it found equal work "
           "(``isplat.frame.band_rows``: the CPU time of each band, spread over its rows; the first frame, "
           "not counted, cuts evenly). *Even bands*: frames that learn nothing, as the first frame of a process "
           "is (bands of one height, a free thread taking the next)."]
+    L += ceiling_section(rows)
     L += ["", "| scene | ns per voxel of interest | ns per voxel splatted or sample | set-up per frame (ms) | "
           "serial share |", "|---|---:|---:|---:|---:|"]
-    for name, size, per, tm, n_vox in rows:
+    for name, size, per, tm, n_vox, _ in rows:
         L.append(f"| {name}, {per[1][1].classification} | {1e9 * tm['1'] / max(n_vox, 1):.1f} | "
                  f"{1e9 * tm['1'] / max(per[1][1].drawn, 1):.0f} | {1e3 * tm['prepare']:.2f} | "
                  f"{100 * tm['serial1'] / (tm['serial1'] + tm['work1'] + tm['rest1']):.1f}% |")

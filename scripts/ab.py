@@ -77,8 +77,12 @@ def main(argv=None) -> None:
     from benchmarks import reference as REF
 
     sample, shape, _, ov, *_ = P.CASES[a.case]
+    if sample == "ct-chest":        # as benchmarks.peers.peer_scene: its own data, head.toml's scene
+        aug, idx = P.chest_data(shape)
+        sample = "head"
+    else:
+        aug, idx = REF.sample_data(sample, shape)
     path, ov0, _ = REF.CASES[sample]
-    aug, idx = REF.sample_data(sample, shape)
     sets = [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={a.size}", f"image.height={a.size}",
             *ov0, *P.UNSHADED, *ov, *REF.render_overrides({"threads": a.threads}), *a.set]
     names = [f"isplat_{i}" for i in range(len(a.revs))]

@@ -435,10 +435,10 @@ def stride_sentences(rows_by_case, conv) -> list[str]:
             tol = conv[(case, k)]["rmse"]
             on_front = set(front(iso, k, tol))
             parts = [f"{r['value'] or 1}: {r['ms']:.1f} ms, {r[k]['rmse']:.4f}"
-                     + ("" if r is pts[0] else
-                        f", {vs(r, pts[0]).ratio:.2f}x in {vs(r, pts[0]).wins}/{len(r['times'])} rounds"
-                        + (" faster" if vs(r, pts[0]).faster else " (not called faster)"))
-                     + (" (front)" if iso.index(r) in on_front else "") for r in pts]
+                     + ("" if c is None else f", {c.ratio:.2f}x in {c.wins}/{len(r['times'])} rounds"
+                        + (" faster" if c.faster else " (not called faster)"))
+                     + (" (front)" if iso.index(r) in on_front else "")
+                     for r, c in ((r, None if r is pts[0] else vs(r, pts[0])) for r in pts)]
             beat = _beaters(iso, pts[0], k, tol)
             strides = [f"stride {r['value']}" for r in beat if r["knob"] == "slice_stride"]
             others = [_label(r) for r in beat if r["knob"] != "slice_stride"]

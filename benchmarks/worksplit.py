@@ -32,7 +32,7 @@ import ceiling_rounds as CR  # noqa: E402
 
 TECHNIQUES = ["post"]     # render.classification of its rows (the page's stamp)
 SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("isplat/augment.py", "examples/*.toml",
-                       "tests/ceiling_rounds.py", "benchmarks/worksplit.py"))
+                       "tests/ceiling_rounds.py", "tests/paired_times.py", "benchmarks/worksplit.py"))
 from .render import ROOT, SCENE, ensure_head, overrides
 
 SEMI = "transfer.opacity=[[0,0],[99,0],[130,0.1],[200,0.5],[255,0.7]]"

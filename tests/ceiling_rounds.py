@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from paired_times import per_round      # the same per-round input check (both live in tests/, on sys.path)
 
 FLOOR = 1.85     # issue 27 item 5: 2 threads at least 1.85x one thread
 
@@ -56,15 +57,9 @@ def ceiling(one, two, pair, floor: float = FLOOR) -> Ceiling:
     >>> round(c.speedup, 3), c.gain, round(c.of, 3), c.two_cores, round(c.speedup_two_cores, 3)
     (1.818, 2.0, 0.909, 2, 1.742)
     """
-    t = [np.asarray(a, dtype=np.float64) for a in (one, two, pair)]
-    if any(a.ndim != 1 or a.shape != t[0].shape for a in t) or t[0].size == 0:
-        raise ValueError(f"need three 1-d arrays of the same non-zero length (one time per round), got shapes "
-                         f"{[a.shape for a in t]}")
-    if not all(np.all(np.isfinite(a)) and np.all(a > 0) for a in t):
-        raise ValueError("frame times must be finite and positive")
+    one, two, pair = per_round(one, two, pair)
     if not (np.isfinite(floor) and floor > 0):
         raise ValueError(f"floor must be finite and positive, got {floor}")
-    one, two, pair = t
     speedup, gain = one / two, 2.0 * one / pair
     of = speedup / gain
     full = gain >= floor

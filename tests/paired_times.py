@@ -74,14 +74,16 @@ class Comparison:
     faster: bool        # A is faster than B by the rule above
 
 
-def _times(a, b) -> tuple[np.ndarray, np.ndarray]:
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    if a.ndim != 1 or a.shape != b.shape or a.size == 0:
-        raise ValueError(f"need two 1-d arrays of the same non-zero length (one time per round), got shapes "
-                         f"{a.shape} and {b.shape}")
-    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(a > 0) and np.all(b > 0)):
+def per_round(*series) -> list[np.ndarray]:
+    """``series`` (one frame time per round each, the same rounds) as float64 arrays, checked: 1-d, of one
+    non-zero length, finite and positive (also tests/ceiling_rounds.py's input)."""
+    t = [np.asarray(a, dtype=np.float64) for a in series]
+    if any(a.ndim != 1 or a.shape != t[0].shape for a in t) or t[0].size == 0:
+        raise ValueError(f"need {len(t)} 1-d arrays of the same non-zero length (one time per round), got shapes "
+                         f"{[a.shape for a in t]}")
+    if not all(np.all(np.isfinite(a)) and np.all(a > 0) for a in t):
         raise ValueError("frame times must be finite and positive")
-    return a, b
+    return t
 
 
 def compare(a, b, margin: float = MARGIN, alpha: float = ALPHA) -> Comparison:
@@ -93,7 +95,7 @@ def compare(a, b, margin: float = MARGIN, alpha: float = ALPHA) -> Comparison:
     >>> compare([1.0, 1.0, 1.0], [2.0, 2.0, 2.0]).faster   # 3 rounds cannot show it at alpha = 0.01
     False
     """
-    a, b = _times(a, b)
+    a, b = per_round(a, b)
     logs = np.log(a) - np.log(b)
     ratio = float(np.exp(np.median(logs)))
     wins, n = int(np.count_nonzero(logs < 0)), int(np.count_nonzero(logs != 0))
@@ -115,7 +117,7 @@ def not_slower(a, b, margin: float = MARGIN, alpha: float = ALPHA) -> bool:
     >>> not_slower([1.02] * 9, [1.0] * 9), not_slower([1.0, 1.0, 1.0], [1.0, 1.0, 1.0])
     (True, False)
     """
-    a, b = _times(a, b)
+    a, b = per_round(a, b)
     logs = np.log(a) - np.log(b) - math.log1p(margin)
     return sign_test_p(int(np.count_nonzero(logs < 0)), int(np.count_nonzero(logs != 0))) < alpha
 

@@ -430,15 +430,24 @@ ISPLAT_POINTS = [("defaults", {}), ("ET 0.95", {"early_termination": 0.95}),
                  ("pre, radius 2", {"classification": "pre", "footprint_radius": 2.0})]
 
 
+def case_data(name: str, quick: bool = False, data=None) -> tuple[str, tuple]:
+    """The sample whose scene (:data:`benchmarks.reference.CASES`) case ``name`` renders, and its (aug, idx)
+    files (``data`` when given): the chest cases take examples/head.toml's camera, light and material on the
+    chest's own data."""
+    from . import reference as REF
+
+    sample, shape, qshape, *_ = CASES[name]
+    shape = qshape if quick else shape
+    if sample == "ct-chest":
+        return "head", data or chest_data(shape)
+    return sample, data or REF.sample_data(sample, shape)
+
+
 def peer_scene(name: str, size: int, quick: bool, render: dict | None = None, extra=(), data=None):
     from . import reference as REF
 
-    sample, shape, qshape, ov, *_ = CASES[name]
-    if sample == "ct-chest":            # examples/head.toml's camera, light and material on the chest
-        data = data or chest_data(qshape if quick else shape)
-        sample, shape = "head", None
-    return REF.make_scene(sample, size, render, [*UNSHADED, *ov, *extra], shape=qshape if quick else shape,
-                          data=data)
+    sample, data = case_data(name, quick, data)
+    return REF.make_scene(sample, size, render, [*UNSHADED, *CASES[name][3], *extra], data=data)
 
 
 # ---- the hidden-material case with its hidden voxels removed -------------------------------------------------

@@ -76,12 +76,8 @@ def main(argv=None) -> None:
     from benchmarks import peers as P
     from benchmarks import reference as REF
 
-    sample, shape, _, ov, *_ = P.CASES[a.case]
-    if sample == "ct-chest":        # as benchmarks.peers.peer_scene: its own data, head.toml's scene
-        aug, idx = P.chest_data(shape)
-        sample = "head"
-    else:
-        aug, idx = REF.sample_data(sample, shape)
+    ov = P.CASES[a.case][3]
+    sample, (aug, idx) = P.case_data(a.case)
     path, ov0, _ = REF.CASES[sample]
     sets = [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={a.size}", f"image.height={a.size}",
             *ov0, *P.UNSHADED, *ov, *REF.render_overrides({"threads": a.threads}), *a.set]

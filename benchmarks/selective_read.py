@@ -216,7 +216,7 @@ def measure(c: dict, work: Path, repeats: int, quick: bool) -> list[dict]:
                          needed_voxels=rep.needed_voxels, per_voxel=rep.channel_bytes_per_voxel,
                          channels=list(rep.channels), values_from=rep.values_from, read=rep.file_bytes,
                          aug_read=rep.augmented_file_bytes, idx_read=rep.index_file_bytes, needed=rep.bytes_needed,
-                         ratio=rep.read_ratio, held=held, load=statistics.median(times[t][0]),
+                         ratio=rep.read_ratio, pages=rep.file_pages, page_ratio=rep.page_ratio, held=held, load=statistics.median(times[t][0]),
                          frame=statistics.median(times[t][1]), index=ixf))
     idx.unlink()
     Path(str(idx).replace(".idx.h5", ".values.idx.h5")).unlink(missing_ok=True)
@@ -242,7 +242,7 @@ def run(out_dir: Path, quick: bool) -> Path:
             rows += measure(c, work, repeats, quick)
             for r in rows[-3:]:
                 _log(f"  {LABELS[r['variant']]}: read {_mb(r['read'])} MB for {_mb(r['needed'])} MB needed "
-                     f"({r['ratio']:.2f}x), held {r['held'] / max(1, r['voi']):.1f} B per voxel of interest, load "
+                     f"({r['ratio']:.2f}x; pages {_mb(r['pages'])} MB), held {r['held'] / max(1, r['voi']):.1f} B per voxel of interest, load "
                      f"{1000 * r['load']:.0f} ms, frame {1000 * r['frame']:.0f} ms")
             if c["aug"].parent == work:
                 c["aug"].unlink()
@@ -295,7 +295,10 @@ def _explanation(repeats: int) -> list[str]:
         "interest x the channel bytes it reads; post, the voxels its quads read on the view's axis (the voxels of "
         "interest and their in-slice neighbours; `axis`) x the channel bytes it reads; both + the index blocks and "
         "table rows of the intervals. *Read*: bytes HDF5 read from both files (whole chunks with their checksums, "
-        "metadata, opening included). Bar (issue 26): post <= 1.5 x needed, pre <= 1.3 x. *Held*: what the "
+        "metadata, opening included). *Pages*: the bytes of the distinct 4 KB pages of the files those reads lie "
+        "in (each once, however often read; the whole page, however little of it is read): what the operating "
+        "system brings in from the disk at the least, since it reads whole pages (`scene.loaded.file_pages_read` "
+        "of `isplat stats --json`). Bar (issue 26, on *read*): post <= 1.5 x needed, pre <= 1.3 x. *Held*: what the "
         f"renderer keeps for its frames, per voxel of interest. *Load*, *frame* (one thread): median of {repeats} "
         "rounds after a warm-up, the techniques interleaved, on a machine shared with other work (under load).",
     ]
@@ -303,9 +306,9 @@ def _explanation(repeats: int) -> list[str]:
 
 def _table(rows) -> list[str]:
     L = ["| case | technique | volume (i x j x k) | intervals | voxels of interest | needed voxels (axis) | "
-         "channels read | needed (MB) | read (MB) | read / needed | bar | held per voxel of interest (B) | "
-         "load (ms) | frame (ms) |",
-         "|---|---|---|---|---:|---:|---|---:|---:|---:|---|---:|---:|---:|"]
+         "channels read | needed (MB) | read (MB) | read / needed | bar | pages (MB) | pages / needed | "
+         "held per voxel of interest (B) | load (ms) | frame (ms) |",
+         "|---|---|---|---|---:|---:|---|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
     for r in rows:
         ivs = ", ".join(f"{lo}..{hi}" for lo, hi in r["intervals"])
         tech = LABELS[r["variant"]]
@@ -314,8 +317,13 @@ def _table(rows) -> list[str]:
         L.append(f"| {r['name']}: {r['what']} | {tech} | {r['shape']} | {ivs} | {r['voi']:,} | "
                  f"{r['needed_voxels']:,}{axis} | {', '.join(r['channels']) or '-'} ({r['per_voxel']} B) | "
                  f"{_mb(r['needed'])} | {_mb(r['read'])} | **{r['ratio']:.2f}** | <= {BAR[r['technique']]} {ok} | "
+                 f"{_pages(r)} | "
                  f"{r['held'] / max(1, r['voi']):.1f} | {1000 * r['load']:.0f} | {1000 * r['frame']:.0f} |")
     return L
+
+
+def _pages(r) -> str:
+    return "- | -" if r["pages"] < 0 else f"{_mb(r['pages'])} | {r['page_ratio']:.2f}"
 
 
 def _old_new(rows) -> list[str]:

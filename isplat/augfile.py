@@ -191,6 +191,8 @@ class AugmentedVolume:
                               f"elsewhere); rebuild it: {self.verifier.rebuild}")
         self.io.bytes += n * (size + 8)
         self.io.reads += 1
+        self.io.touch_rows(d_off, size, rows)
+        self.io.touch_rows(h_off, 8, rows)
         vals = data.view(np.dtype(dt)).reshape(n, e, e, e)
         offs = bricks * e
         ext = np.minimum(e, np.asarray(self.shape, dtype=np.int64) - offs)
@@ -261,6 +263,7 @@ class AugmentedVolume:
                 n = self.verifier.chunks_verified - n0
                 self.io.bytes += n * size
                 self.io.reads += n
+                self.io.pages_known = n == 0 and self.io.pages_known   # (where HDF5 put the chunks: not seen)
 
     @property
     def has_labels(self) -> bool:

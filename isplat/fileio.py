@@ -256,16 +256,45 @@ def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None, old
 
 # ------------------------------------------------------------------------------- counting what HDF5 reads
 
+PAGE = 4096        # the operating system's page: what a read from the file brings into memory at the least
+
+
 class ReadCounter:
     """What the HDF5 library read from one file: bytes (chunks with their 4-byte checksums, and the metadata
-    that finds them) and read calls. Counted below h5py, at the file object, so nothing is estimated."""
+    that finds them) and read calls, counted below h5py, at the file object, so nothing is estimated; and the
+    distinct PAGE-byte pages of the file those reads lie in (:meth:`page_bytes`: bytes counted once however
+    often they are read, and the rest of every page a small read touches)."""
 
     def __init__(self):
         self.bytes = 0
         self.reads = 0
+        self.pages_known = True        # False once a read's file offsets were not seen (format 5's bricks)
+        self._spans: list[np.ndarray] = []        # int64[n, 2]: first and last page of each read
 
     def __repr__(self):
         return f"ReadCounter(bytes={self.bytes}, reads={self.reads})"
+
+    def touch(self, offset: int, n: int) -> None:
+        """Note a read of ``n`` bytes from file offset ``offset``."""
+        if n > 0:
+            self._spans.append(np.array([[offset // PAGE, (offset + n - 1) // PAGE]], dtype=np.int64))
+
+    def touch_rows(self, offset: int, size: int, rows: np.ndarray) -> None:
+        """Note reads of rows ``rows`` of ``size`` bytes each of a table that starts at file offset ``offset``."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        if rows.size and size > 0:
+            start = offset + rows * size
+            self._spans.append(np.stack([start // PAGE, (start + size - 1) // PAGE], axis=1))
+
+    def mark(self) -> int:
+        """A mark for :meth:`page_bytes`: the reads noted so far."""
+        return len(self._spans)
+
+    def page_bytes(self, since: int = 0) -> int:
+        """Bytes of the distinct pages the reads noted after mark ``since`` lie in (-1: not known)."""
+        if not self.pages_known:
+            return -1
+        return distinct_pages(self._spans[since:]) * PAGE
 
 
 class _CountingRaw(io.RawIOBase):
@@ -289,15 +318,32 @@ class _CountingRaw(io.RawIOBase):
         return self._f.tell()
 
     def readinto(self, buf):
+        at = self._f.tell()
         n = self._f.readinto(buf)
         self._counter.bytes += n or 0
         self._counter.reads += 1
+        self._counter.touch(at, n or 0)
         return n
 
     def close(self):
         if not self.closed:
             self._f.close()
         super().close()
+
+
+def distinct_pages(spans: list) -> int:
+    """How many distinct pages the spans (int64[n, 2] arrays of first and last page, inclusive) cover.
+
+    >>> distinct_pages([np.array([[0, 2], [1, 1], [5, 5]]), np.array([[2, 3]])])
+    5
+    """
+    if not spans:
+        return 0
+    s = np.concatenate(spans)
+    s = s[np.argsort(s[:, 0], kind="stable")]
+    reach = np.maximum.accumulate(s[:, 1])        # the last page covered by the spans up to each one
+    before = np.concatenate(([np.int64(-1)], reach[:-1]))
+    return int(np.maximum(s[:, 1] - np.maximum(before, s[:, 0] - 1), 0).sum())
 
 
 @contextlib.contextmanager

@@ -88,6 +88,7 @@ def select_labels(request, aug):
     rep.voxels_of_interest = int(next(iter(loaded.values())).n_voxels) if loaded else 0
     rep.augmented_bytes = int(aug.bytes_read)
     rep.augmented_file_bytes = int(aug.io.bytes)
+    rep.augmented_file_pages = aug.io.page_bytes()
     _needed(sel)
     return sel
 
@@ -106,6 +107,7 @@ def _label_ids(request, aug, rep) -> tuple[np.ndarray, bool]:
         ids, _ = shown_ids_volume(idx, sorted(request.axes)[0], [st.id for st in request.labels], request.shape)
     rep.index_bytes = int(idx.bytes_read)
     rep.index_file_bytes = int(idx.io.bytes)
+    rep.index_file_pages = idx.io.page_bytes()
     rep.index_block_bytes = int(idx.bytes_read)
     rep.index_format_version = idx.version
     return ids, True

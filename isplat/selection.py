@@ -48,6 +48,9 @@ class LoadReport:
     index_file_bytes: int = 0         # bytes HDF5 read from the index file (opened for this selection)
     values_bytes: int = 0             # bytes requested from the index's values file (version 6; pre only)
     values_file_bytes: int = 0        # bytes HDF5 read from the values file (its opening included)
+    augmented_file_pages: int = 0     # bytes of the distinct 4 KB pages of each file those reads lie in
+    index_file_pages: int = 0         # (ReadCounter.page_bytes; -1: not known, format 5's bricks; a frame
+    values_file_pages: int = 0        # in slabs: each file's pages over all its slabs)
     index_decoded_bytes: int = 0      # the decoded blocks (LoadedAxis arrays), before selection
     index_block_bytes: int = 0        # requested index blocks and table rows of the intervals, all axes (a slab
     #                                   of a streamed frame: its own rows, the tables the slabs share counted once)
@@ -92,13 +95,19 @@ class LoadReport:
               "values_file_bytes", "index_decoded_bytes", "index_block_bytes", "voxels_of_interest",
               "index_bytes_needed")
 
+    PAGES = ("augmented_file_pages", "index_file_pages", "values_file_pages")
+
     def plus(self, other: "LoadReport") -> "LoadReport":
         """The report of two slabs of one frame (streamed, or on Dask workers): what each read, requested and
-        needed, added up; the rest (technique, channels, axes, intervals) is the same for every slab."""
+        needed, added up (pages too: a page two slabs share counted twice, unless the caller counts them over
+        the frame); the rest (technique, channels, axes, intervals) is the same for every slab."""
         (axis, n), (axis2, n2) = self._resolve(), other._resolve()
         out = replace(self, footprint=None, _needed=(axis or axis2, n + n2))
         for name in self.SUMMED:
             setattr(out, name, getattr(self, name) + getattr(other, name))
+        for name in self.PAGES:
+            a, b = getattr(self, name), getattr(other, name)
+            setattr(out, name, -1 if min(a, b) < 0 else a + b)
         return out
 
     @property
@@ -120,6 +129,19 @@ class LoadReport:
     def read_ratio(self) -> float:
         """Bytes read from the files over bytes needed (0 when nothing is needed)."""
         return self.file_bytes / self.bytes_needed if self.bytes_needed else 0.0
+
+    @property
+    def file_pages(self) -> int:
+        """Bytes of the distinct 4 KB pages of the files those reads lie in (-1: not known)."""
+        pages = [getattr(self, name) for name in self.PAGES]
+        return -1 if min(pages) < 0 else sum(pages)
+
+    @property
+    def page_ratio(self) -> float:
+        """:attr:`file_pages` over bytes needed (0 when nothing is needed, -1 when not known)."""
+        if self.file_pages < 0:
+            return -1.0
+        return self.file_pages / self.bytes_needed if self.bytes_needed else 0.0
 
 
 @dataclass(frozen=True)
@@ -530,9 +552,11 @@ def select(request, aug=None, idx=None) -> Selection:
         rep.values_from = "whole channels" if sel.report.channels else "none"
     if sel.method == "indexed":
         read0, io0 = (idx.bytes_read, idx.io.bytes) if idx is not None else (0, 0)  # (an index opened before:
-        idx = _open_matching_index(request, aug, idx)                                 # this selection's reads)
+        mark0 = idx.io.mark() if idx is not None else 0                              # this selection's reads)
+        idx = _open_matching_index(request, aug, idx)
         rep.index_format_version = idx.version
-        v0 = idx.values_counts()
+        v0, vio0 = idx.values_counts(), idx.values_io()
+        vmark0 = vio0.mark() if vio0 is not None else 0
         if not sel.post:
             rep.values_from = "none" if not rep.channels or sel.empty else _values_source(idx, aug, slices)
         if not sel.empty:
@@ -540,10 +564,14 @@ def select(request, aug=None, idx=None) -> Selection:
         rep.index_bytes = int(idx.bytes_read - read0)
         rep.index_file_bytes = int(idx.io.bytes - io0)
         rep.values_bytes, rep.values_file_bytes = (b - a for a, b in zip(v0, idx.values_counts()))
+        rep.index_file_pages = idx.io.page_bytes(mark0)
+        vio = idx.values_io()
+        rep.values_file_pages = 0 if vio is None else vio.page_bytes(vmark0 if vio is vio0 else 0)
     if bricked:
         sel = _read_post_bricks(sel, aug, axes, slices)
     rep.augmented_bytes = int(aug.bytes_read)
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
+    rep.augmented_file_pages = aug.io.page_bytes()
     _needed(sel)
     return sel
 

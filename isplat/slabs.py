@@ -233,4 +233,9 @@ def _slabs(request, view, n_slabs, aug, idx, opened, et):
         part = blank(setup) if part is None else part
         render_slab(setup, a, b, part)
         del sel, setup
+    if report is not None:             # each file's pages over the frame (a page two slabs read counted once)
+        report.augmented_file_pages = aug.io.page_bytes()
+        report.index_file_pages = idx.io.page_bytes() if idx is not None else 0
+        vio = idx.values_io() if idx is not None else None
+        report.values_file_pages = vio.page_bytes() if vio is not None else 0
     return part, report

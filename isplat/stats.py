@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 6
+STATS_VERSION = 7
 
 
 def density_histogram(aug) -> np.ndarray:
@@ -334,6 +334,8 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_ind
             "index_bytes_needed": int(rep.index_bytes_needed),
             "bytes_needed": int(rep.bytes_needed),
             "read_ratio": rep.read_ratio,
+            "file_pages_read": int(rep.file_pages),
+            "page_ratio": rep.page_ratio,
             "index_decoded_bytes": decoded,
             "held_bytes": int(held),
             "held_bytes_per_voxel_of_interest": _ratio(held, voi),
@@ -532,6 +534,9 @@ def format_table(s: dict) -> str:
                                          f"and metadata)")
         row(f"bytes needed ({ld['technique']})", f"{_b(ld['bytes_needed'])}: {needed_words(ld)}")
         row(f"read / needed ({ld['technique']})", f"{ld['read_ratio']:.3f}")
+        if ld.get("file_pages_read", -1) >= 0:
+            row("4 KB pages of the files read", f"{_b(ld['file_pages_read'])} (the pages those reads lie in, each "
+                                                f"once), {ld['page_ratio']:.3f} x the bytes needed")
         row("held for rendering", f"{_b(ld['held_bytes'])} (selected voxels and their channel values, or "
                                   f"whole channels for the full method and post-classification), "
                                   f"{ld['held_bytes_per_voxel_of_interest']:.2f} B per voxel of interest")

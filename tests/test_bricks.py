@@ -113,6 +113,20 @@ def test_the_bytes_read_are_the_bricks_read(make_scene, files):
     assert rep.augmented_file_bytes >= n * (e ** 3 * 4 + 24)                   # whole bricks + their hashes
     grid = [-(-s // e) for s in SHAPE]
     assert a.bricked and rep.values_from == f"bricks ({n:,} of {int(np.prod(grid)):,})"
+    # the pages: those of the bricks and their hashes, each once (the obvious count), + the opening's
+    rows = np.ravel_multi_index(tuple(bricks.T), grid)
+    want = set()
+    for ch in rep.channels:
+        d_off, h_off, dt, _ = a.store[ch]
+        size = e ** 3 * np.dtype(dt).itemsize
+        for r_ in rows:
+            for off, n_ in ((d_off + r_ * size, size), (h_off + r_ * 8, 8)):
+                want |= set(range(off // 4096, (off + n_ - 1) // 4096 + 1))
+    opening = open_augmented(aug)
+    opening.read_bricks("density", np.zeros((0, 3), np.int64))
+    got = rep.augmented_file_pages // 4096
+    assert len(want) <= got <= len(want) + opening.io.page_bytes() // 4096 and got * 4096 == rep.augmented_file_pages
+    assert rep.file_pages == rep.augmented_file_pages + rep.index_file_pages + rep.values_file_pages > 0
 
 
 @pytest.mark.parametrize("share", [1.0, 0.0])

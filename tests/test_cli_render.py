@@ -53,7 +53,7 @@ def test_png_file_and_verbose_report(data):
     import re
 
     m = re.search(r"(pre|post): \d+ bytes read from the files .* for \d+ needed \(\d+ voxels (its quads read "
-                  r"on axis [ijk]|of interest) x \d+ B \+ \d+ B of index; read/needed [0-9.]+x\)", err)
+                  r"on axis [ijk]|of interest) x \d+ B \+ \d+ B of index; read/needed [0-9.]+x; in \d+ bytes of 4 KB pages, [0-9.]+x\)", err)
     assert m, err
     assert (m.group(1) == "post") == m.group(2).startswith("its quads")
 

@@ -105,3 +105,28 @@ def test_worker_report_pickles_its_count_not_the_density():
     blob = pickle.dumps(sel.report)
     want = int(reference_footprint(d, [(151, 255)], "k").sum())
     assert len(blob) < d.size and pickle.loads(blob).needed_voxels == want
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.lists(st.tuples(st.integers(0, 40), st.integers(0, 9)), max_size=8), max_size=5))
+def test_distinct_pages_is_the_size_of_the_union(spans):
+    """ReadCounter's page count (sorted spans, a running maximum) against the set of every page of every span."""
+    from isplat.fileio import distinct_pages
+
+    arrays = [np.array([[a, a + n] for a, n in s], dtype=np.int64).reshape(-1, 2) for s in spans]
+    want = {p for s in spans for a, n in s for p in range(a, a + n + 1)}
+    assert distinct_pages(arrays) == len(want)
+
+
+def test_read_counter_pages_of_reads_and_rows():
+    """A read's pages, rows of a table, and the reads after a mark; unknown once a read was not seen."""
+    from isplat.fileio import PAGE, ReadCounter
+
+    c = ReadCounter()
+    c.touch(4000, 200)                   # pages 0 and 1
+    m = c.mark()
+    c.touch_rows(8192, 100, np.array([0, 1, 50]))     # rows 0, 1: page 2; row 50 (5000..5099 from 8192): page 3
+    c.touch(0, 0)
+    assert c.page_bytes() == 4 * PAGE and c.page_bytes(m) == 2 * PAGE
+    c.pages_known = False
+    assert c.page_bytes() == -1

@@ -185,7 +185,7 @@ def _report(scene_file, method, out, rep, per_view) -> dict:
             "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
             "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
             "values_bytes_read": rep.values_bytes,
-            "file_bytes_read": rep.file_bytes, "technique": rep.technique, "needed_voxels": rep.needed_voxels,
+            "file_bytes_read": rep.file_bytes, "file_pages_read": rep.file_pages, "technique": rep.technique, "needed_voxels": rep.needed_voxels,
             "needed_axis": rep.needed_axis, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
             "views": per_view}
 
@@ -198,7 +198,9 @@ def _log_report(report, rep, held) -> None:
               f"{rep.bytes_needed} needed ({rep.needed_voxels} voxels"
               + (f" its quads read on axis {rep.needed_axis}" if rep.needed_axis else " of interest")
               + f" x {rep.channel_bytes_per_voxel} B + {rep.index_bytes_needed} B of index; read/needed "
-              f"{rep.read_ratio:.2f}x); channel values from {rep.values_from}"
+              f"{rep.read_ratio:.2f}x"
+              + (f"; in {rep.file_pages} bytes of 4 KB pages, {rep.page_ratio:.2f}x" if rep.file_pages >= 0 else "")
+              + f"); channel values from {rep.values_from}"
               + (f" {rep.values_path} ({rep.values_bytes} bytes, {rep.values_file_bytes} read)"
                  if rep.values_file_bytes else "")
               + (

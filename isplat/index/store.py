@@ -597,6 +597,10 @@ class IndexFile:
         h = self._values_holder()
         return None if h is None else h.values
 
+    def values_io(self):
+        """The values file's :class:`isplat.fileio.ReadCounter` (None while it is not open)."""
+        return None if self._values_file is None else self._values_file.io
+
     def values_counts(self) -> tuple[int, int]:
         """``(bytes requested, bytes HDF5 read)`` from the values file so far (0, 0 without one)."""
         vf = self._values_file

@@ -29,6 +29,9 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import ceiling_rounds as CR  # noqa: E402
+
 KINDS = ("1", "2", "pair")
 
 
@@ -128,10 +131,9 @@ def summary(out: dict) -> dict:
     res = {}
     for name, busy in (("quiet", False), ("loaded", True)):
         m = {k: med(out[(k, busy)]) for k in KINDS}
-        per_round = [a / b for a, b in zip(out[("1", busy)], out[("2", busy)])]
-        gain = 2.0 * m["1"] / m["pair"]
+        c = CR.ceiling(*(out[(k, busy)] for k in KINDS))     # gain and "of that": per round, then the median
         res[name] = dict(ms={k: 1000.0 * x for k, x in m.items()}, speedup=m["1"] / m["2"],
-                         speedup_rounds=med(per_round), gain=gain, of_ceiling=(m["1"] / m["2"]) / gain)
+                         speedup_rounds=c.speedup, gain=c.gain, of_ceiling=c.of)
     res["loss_2"] = res["loaded"]["ms"]["2"] / res["quiet"]["ms"]["2"]
     return res
 
@@ -146,7 +148,8 @@ def table(s: dict, label: str) -> str:
 
 
 HEADER = ("| isplat | machine | 1 thread ms | 2 threads ms | speed-up | speed-up, per-round median | two copies ms | "
-          "two copies: gain | 2 threads, of that |\n|---|---|---:|---:|---:|---:|---:|---:|---:|")
+          "two copies: gain, per-round median | 2 threads, of that, per-round median |\n"
+          "|---|---|---:|---:|---:|---:|---:|---:|---:|")
 
 
 SECTION = "threads"
@@ -164,8 +167,10 @@ def page(rows: list[dict], command: str, machine: str) -> str:
              "\n", " ").strip(), "", "Rows from other runs (``--with``: their ``--json`` files; an older checkout "
          "run with ``PYTHONPATH=<its root>`` and the same command) come first, in the order given.", "", HEADER]
     L += [table(r["summary"], r["label"]) for r in rows]
-    L += ["", "*2 threads, of that*: the 2-thread wall speed-up over the two copies' gain, what isplat makes of the "
-          "cores the machine gives; *loaded*: with the busy process. The chest case is post-classified (isplat's "
+    L += ["", "*2 threads, of that*: the 2-thread wall speed-up over the two copies' gain of the same round, what "
+          "isplat makes of the cores the machine gives (the median over rounds, tests/ceiling_rounds.py; rows "
+          "made before this column was per round divided medians from different rounds); *loaded*: with the busy "
+          "process. The chest case is post-classified (isplat's "
           "default)."]
     return "\n".join(L)
 
@@ -209,7 +214,7 @@ def _write_page(out: Path, rows, cmd: str, machine: str | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     doc = out / "performance.md"
     _doc.update_section(doc, SECTION, page(rows, cmd, machine or _doc.machine_line()), title="Performance")
-    _doc.put_stamp(doc, _doc.stamp(SECTION, cmd, ["post"], [*SOURCES, "benchmarks/threadload.py"]), SECTION)
+    _doc.put_stamp(doc, _doc.stamp(SECTION, cmd, ["post"], [*SOURCES, "benchmarks/threadload.py", "tests/ceiling_rounds.py"]), SECTION)
     print(f"[threadload] wrote {doc}", file=sys.stderr)
 
 

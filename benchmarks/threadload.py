@@ -214,7 +214,8 @@ def _write_page(out: Path, rows, cmd: str, machine: str | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     doc = out / "performance.md"
     _doc.update_section(doc, SECTION, page(rows, cmd, machine or _doc.machine_line()), title="Performance")
-    _doc.put_stamp(doc, _doc.stamp(SECTION, cmd, ["post"], [*SOURCES, "benchmarks/threadload.py", "tests/ceiling_rounds.py"]), SECTION)
+    src = [*SOURCES, "benchmarks/threadload.py", "tests/ceiling_rounds.py"]
+    _doc.put_stamp(doc, _doc.stamp(SECTION, cmd, ["post"], src), SECTION)
     print(f"[threadload] wrote {doc}", file=sys.stderr)
 
 

@@ -80,8 +80,8 @@ def _augment(name, shape, out: Path, quick: bool, **kw) -> None:
                     f"**{kw!r})"], check=True, cwd=ROOT)
 
 
-def cases(work: Path, quick: bool) -> list[dict]:
-    """The five cases: name, what, augmented file, transfer function, view, source."""
+def cases(work: Path, quick: bool, only=None) -> list[dict]:
+    """The five cases (``only``: those named): name, what, augmented file, transfer function, view, source."""
     from .paper import TF_BOLTS, TF_BONE, TF_MRI
 
     f = 4 if quick else 1
@@ -94,6 +94,8 @@ def cases(work: Path, quick: bool) -> list[dict]:
               TF_CHEST, dict(azimuth=0, elevation=10), CHEST)]
     real = Path(os.environ.get("ISPLAT_DATA", ROOT / "data")) / "mri-head.aug.h5"
     for name, what, sample, shape, tf, view, kw in specs:
+        if only is not None and name not in only:
+            continue
         if name == "B1" and real.exists() and not quick:
             out.append(dict(name=name, what="MRI head (real, `make data`), skin and brain", aug=real, tf=tf, **view,
                             source="data/mri-head.aug.h5 (pydeface 2.1.0 mean T1, `make data`)"))

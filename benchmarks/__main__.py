@@ -17,7 +17,9 @@ from benchmarks import _doc
 # `python -m benchmarks.simd_span` (a prototype of the SIMD row span, benchmarks/_simd.py, against the scalar sample)
 # `python -m benchmarks.thick_spline` (the interpolating spline between thick slices against Catmull-Rom; a table)
 # `python -m benchmarks.brick_edge` (format 6 at 4^3 and 8^3 bricks against format 4: reads, loads, held; a table)
-STANDALONE = ("commits", "threadload", "contour_shift", "whole_read", "simd_span", "thick_spline", "brick_edge")
+# `python -m benchmarks.sampler_trees` (sampler variants as patches, benchmarks/table_layouts, against a commit)
+STANDALONE = ("commits", "threadload", "contour_shift", "whole_read", "simd_span", "thick_spline", "brick_edge",
+              "sampler_trees")
 # run by name only, not in `all` (so not in CI's bench-check): compiles an older commit's kernels (~4 min)
 BY_NAME_ONLY = ("sampler",)
 

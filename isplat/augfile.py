@@ -160,9 +160,10 @@ class AugmentedVolume:
 
     def _read_store(self, channel: str, bricks: np.ndarray, out: np.ndarray, lo):
         """Version 6: bricks ``bricks`` (grid indices) of ``channel`` from the brick store into ``out`` (the block
-        from element ``lo``): gathered from a memory map of the file (offsets checked at open), their hashes
-        checked in one compiled call, placed (whole layers by one transpose); returns the elements read and, for
-        the density, each brick's (min, max) within the volume."""
+        from element ``lo``), read from memory maps of the file (offsets checked at open) by one compiled pass per
+        window of the store (:func:`isplat.brickstore.check_place`: each brick hashed and compared with its stored
+        hash, then ranged and placed straight into ``out``, no copy between); returns the elements read and, for the
+        density, each brick's (min, max) within the volume."""
         from . import brickstore
 
         e, n = self.edge, bricks.shape[0]
@@ -178,35 +179,26 @@ class AugmentedVolume:
         if have < max(d_off + nb * size, h_off + nb * 8):          # (checked at open; the file may have changed)
             raise IsplatError(f"{self.path}: dataset '{channel}': the file is {have} bytes, shorter than its "
                               f"bricks and hashes (changed since it was opened?); rebuild it: {self.verifier.rebuild}")
-        layer = grid[1] * grid[2]
-        whole = bool(rows[0] % layer == 0 and n % layer == 0 and rows[-1] - rows[0] == n - 1 and
-                     np.all(np.diff(rows) == 1))
-        data, want = _gather_store(self.path, d_off, h_off, size, rows)
-        got = brickstore.hash_bricks(data.view("<u8"), rows, np.uint64(seed))
-        bad = np.flatnonzero(got != want)
-        if bad.size:
-            off = ", ".join(str(int(x) * e) for x in bricks[bad[0]])
-            raise IsplatError(f"{self.path}: dataset '{channel}', brick {int(rows[bad[0]])} at ({off}): its content "
+        offs = bricks * e
+        ext = np.minimum(e, np.asarray(self.shape, dtype=np.int64) - offs)
+        mm_ = np.zeros((n if channel == "density" else 0, 2), np.uint8)
+        bad, lo = -1, np.asarray(lo, dtype=np.int64)
+        for r0, pick, data, stored in _store_windows(self.path, d_off, h_off, size, rows):
+            got = brickstore.check_place(data.view(np.dtype(dt)).reshape(-1, e, e, e), data.view("<u8").reshape(
+                -1, size // 8), stored, r0, rows, pick, np.uint64(seed), offs, ext, lo, out, mm_)
+            if got == -2:
+                raise AssertionError("a brick outside its window of the store")    # (windows are made from rows)
+            bad = got if bad < 0 or 0 <= got < bad else bad
+        if bad >= 0:
+            at = ", ".join(str(int(x) * e) for x in bricks[bad])
+            raise IsplatError(f"{self.path}: dataset '{channel}', brick {int(rows[bad])} at ({at}): its content "
                               f"does not match its hash in /{BRICK_HASHES}/{channel} (changed, moved or copied from "
                               f"elsewhere); rebuild it: {self.verifier.rebuild}")
         self.io.bytes += n * (size + 8)
         self.io.reads += 1
         self.io.touch_rows(d_off, size, rows)
         self.io.touch_rows(h_off, 8, rows)
-        vals = data.view(np.dtype(dt)).reshape(n, e, e, e)
-        offs = bricks * e
-        ext = np.minimum(e, np.asarray(self.shape, dtype=np.int64) - offs)
-        mm_ = brickstore.brick_minmax(vals, ext) if channel == "density" else None
-        if whole and tuple(lo[1:]) == (0, 0) and tuple(out.shape[1:]) == tuple(self.shape[1:]):
-            k0 = int(offs[0, 0])
-            block = brickstore.from_bricks(vals, (n // layer,) + grid[1:],
-                                           (min(n // layer * e, self.shape[0] - k0),) + tuple(self.shape[1:]))
-            a, b = max(k0, lo[0]), min(k0 + block.shape[0], lo[0] + out.shape[0])
-            if b > a:
-                out[a - lo[0]:b - lo[0]] = block[a - k0:b - k0]
-        else:
-            brickstore.place_bricks(out, vals, offs, ext, np.asarray(lo, dtype=np.int64))
-        return int(np.prod(ext, axis=1).sum()), mm_
+        return int(np.prod(ext, axis=1).sum()), (mm_ if channel == "density" else None)
 
     def _bulk(self, channel: str, n: int) -> bool:
         """Read ``n`` bricks of ``channel`` through HDF5's chunk index walked once (about 1.6 us a brick of the
@@ -334,24 +326,25 @@ STORE_WINDOW = 1 << 26      # bytes of a brick store mapped at a time: a read's 
 #                             volume's channels are 1-2 GiB; docs/scale.md runs each stage in 2 GiB of address space)
 
 
-def _gather_store(path, d_off: int, h_off: int, size: int, rows: np.ndarray):
-    """The bricks ``rows`` (rows of ``size`` bytes from file offset ``d_off``) and their stored hashes (uint64 from
-    ``h_off``), copied from memory maps of at most STORE_WINDOW bytes of the file each (offsets checked by the
-    caller against the file's size)."""
+def _store_windows(path, d_off: int, h_off: int, size: int, rows: np.ndarray):
+    """The bricks ``rows`` (rows of ``size`` bytes from file offset ``d_off``, their stored hashes uint64 from
+    ``h_off``) by windows of the file of at most STORE_WINDOW bytes, in increasing rows: yields ``(r0, pick, data,
+    stored)``, ``pick`` the indices into ``rows`` of the bricks in the window, ``data`` the window's bytes (rows
+    ``r0`` on, uint8 [rows, size]) and ``stored`` its rows' hashes, both memory maps (copied when not 8-byte
+    aligned in memory, which a file whose datasets lie at odd offsets would give). Offsets checked by the caller
+    against the file's size."""
     order = np.argsort(rows, kind="stable")
     srt = rows[order]
-    data, want = np.empty((rows.size, size), np.uint8), np.empty(rows.size, np.uint64)
     per, i = max(1, STORE_WINDOW // size), 0
     while i < srt.size:
         j = int(np.searchsorted(srt, srt[i] + per))
         r0, r1 = int(srt[i]), int(srt[j - 1]) + 1
         m = np.memmap(path, dtype=np.uint8, mode="r", offset=d_off + r0 * size, shape=((r1 - r0) * size,))
-        data[order[i:j]] = m.reshape(r1 - r0, size)[srt[i:j] - r0]
         h = np.memmap(path, dtype="<u8", mode="r", offset=h_off + r0 * 8, shape=(r1 - r0,))
-        want[order[i:j]] = h[srt[i:j] - r0]
-        del m, h
+        data, stored = (x.view(np.ndarray) if x.ctypes.data % 8 == 0 else np.array(x) for x in (m, h))
+        yield r0, order[i:j], data.reshape(r1 - r0, size), stored
+        del m, h, data, stored
         i = j
-    return data, want
 
 
 def lazy_zeros(shape, dtype) -> np.ndarray:

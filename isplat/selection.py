@@ -661,21 +661,25 @@ def post_bricks(sel: Selection, bricks) -> np.ndarray:
     """bool[gk, gj, gi]: the bricks (of ``bricks`` voxels (k, j, i)) post's sampler may read for the selected
     cells of every axis: each cell's quads and their in-slice neighbours, the cubic's extra taps included
     (QUAD_REACH), in the cell's slice (isplat.splat.post reads no other slice)."""
+    from .brickstore import mark_reach
+
     shape = sel.shape
     grid_n = tuple(-(-int(n) // int(b)) for n, b in zip(shape, bricks))
     out = np.zeros(grid_n, dtype=bool)
+    flat = out.reshape(-1)
+    strides = np.asarray(out.strides, dtype=np.int64)       # bool: bytes are elements
     back, ahead = QUAD_REACH
     for ax, s in sel.axes.items():
         c, a0, b0 = cell_origins(s)
-        lo_a, hi_a = np.maximum(a0 - back, 0), np.minimum(a0 + ahead, s.n_a - 1)
-        lo_b, hi_b = np.maximum(b0 - back, 0), np.minimum(b0 + ahead, s.n_b - 1)
-        ka, kb, kc = {"k": (2, 1, 0), "j": (2, 0, 1), "i": (1, 0, 2)}[ax]   # (k, j, i) dims of a, b, c
-        ea, eb = int(bricks[ka]), int(bricks[kb])   # every brick the reach crosses: 3 of 4^3 bricks, 2 of 8^3
-        for a in [np.minimum(lo_a + m * ea, hi_a) for m in range(-(-(back + ahead) // ea) + 1)]:
-            for b in [np.minimum(lo_b + m * eb, hi_b) for m in range(-(-(back + ahead) // eb) + 1)]:
-                idx = [None, None, None]
-                idx[ka], idx[kb], idx[kc] = a // bricks[ka], b // bricks[kb], c // bricks[kc]
-                out[tuple(idx)] = True
+        kc, ka, kb = {"k": (0, 2, 1), "j": (1, 2, 0), "i": (2, 1, 0)}[ax]   # (k, j, i) dims of c, a, b
+        dims = [kc, ka, kb]
+        n = np.asarray([shape[d] for d in dims], dtype=np.int64)
+        bad = mark_reach(flat, c, a0, b0, n, back, ahead, np.asarray([bricks[d] for d in dims], dtype=np.int64),
+                         strides[dims])
+        if bad >= 0:
+            where = sel.request.index if sel.request is not None else "index"
+            raise IsplatError(f"{where}: axis {ax}: the index places a cell at slice {int(c[bad])}, ({int(a0[bad])}, "
+                              f"{int(b0[bad])}), outside the volume's {n[0]} slices of {n[1]} x {n[2]}")
     return out
 
 
@@ -732,21 +736,10 @@ def pages_filled(bricks: np.ndarray, size, lo, shape, itemsize: int) -> int:
     """Bytes of the memory pages that bricks (grid indices, bricks of ``size`` (k, j, i)) written into a zeroed
     C-order array of ``shape`` holding the block from element ``lo`` touch: what the operating system holds of
     an ``np.zeros`` array once they are written (pages never written are not allocated)."""
-    if bricks.shape[0] == 0:
-        return 0
-    b0 = bricks * np.asarray(size) - np.asarray(lo)
-    pages = np.zeros(-(-int(np.prod(shape)) * itemsize // PAGE), dtype=bool)   # a bitmap, not np.unique: 10x faster
-    for dk in range(size[0]):
-        k = b0[:, 0] + dk
-        for dj in range(size[1]):
-            j = b0[:, 1] + dj
-            i0, i1 = np.maximum(b0[:, 2], 0), np.minimum(b0[:, 2] + size[2], shape[2])
-            ok = (k >= 0) & (k < shape[0]) & (j >= 0) & (j < shape[1]) & (i1 > i0)
-            start = ((k * shape[1] + j) * shape[2] + i0)[ok] * itemsize
-            end = ((k * shape[1] + j) * shape[2] + i1)[ok] * itemsize - 1
-            pages[start // PAGE] = True
-            pages[end // PAGE] = True
-    return int(np.count_nonzero(pages)) * PAGE
+    from .brickstore import pages_touched
+
+    i64 = lambda x: np.asarray(x, dtype=np.int64)      # noqa: E731
+    return pages_touched(i64(bricks).reshape(-1, 3), i64(size), i64(lo), i64(shape), itemsize, PAGE) * PAGE
 
 
 def _slab_box(aug, axes, slices) -> tuple:

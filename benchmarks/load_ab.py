@@ -1,0 +1,155 @@
+"""Post's load from a bricked augmented file (format 6), an older commit against the working tree, interleaved:
+
+    python -m benchmarks.load_ab [--old main] [--rounds 9] [--cases H1,C1,H1-512,whole-H1] [--work out/load_ab]
+
+Cases (benchmarks/selective_read.py makes the same volumes): H1, the head sample at 256 x 256 x 225 with the bone
+scene; C1, the ``ct-chest`` sample at 512 x 512 x 133 (spacing 0.703125, 0.703125, 2.5; window -1000..2000) with
+its fat/skin veil and bone; H1-512, the head at 512^3, bone. Each is augmented (format 6, 8^3 bricks) and indexed
+once into ``--work`` (kept for later runs). *Load*: constructing ``isplat.renderer.Renderer`` for the scene's first
+view (open both files, read the index blocks, select, read the bricks post needs), as ``isplat render`` does before
+its first frame; then one frame is rendered and its image compared between the versions, bit for bit. *whole-X*:
+``open_augmented`` and ``read`` of the three whole channels of case X's file (the arrays compared).
+
+Each version runs in a worker process of its own (the old one from ``git archive`` of its ``isplat/`` under
+``--work``/trees, its kernels compiled there once); per round the versions go in turn (the order alternating), so
+the shared machine's load falls on both alike. Printed per case: the median times and the median of the per-round
+ratios new / old, after one warm-up round (compiles, page cache).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = {"H1": ("head", (256, 256, 225), "bone", {}),
+         "C1": ("ct-chest", (512, 512, 133), "chest", dict(spacing=(0.703125, 0.703125, 2.5), window=(-1000.0, 2000.0))),
+         "H1-512": ("head", (512, 512, 512), "bone", {})}
+
+WORKER = r"""
+import hashlib, json, sys, time
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from isplat.augfile import open_augmented
+from isplat.renderer import Renderer
+from isplat.scene import load_scene
+
+for line in sys.stdin:
+    kind, arg = json.loads(line)
+    if kind == "load":
+        scene = load_scene(arg)
+        t = time.perf_counter()
+        r = Renderer(scene, (scene.views[0],), slabs=1)
+        dt = time.perf_counter() - t
+        img, _ = r.render_view(0)
+        digest = hashlib.sha256(np.ascontiguousarray(img).tobytes()).hexdigest()
+        del r
+    else:
+        t = time.perf_counter()
+        a = open_augmented(arg)
+        chans = [a.read(ch) for ch in ("density", "gradient_magnitude", "normal")]
+        dt = time.perf_counter() - t
+        h = hashlib.sha256()
+        for c in chans:
+            h.update(c.tobytes())
+        digest = h.hexdigest()
+        del chans
+    print(json.dumps([dt, digest]), flush=True)
+"""
+
+
+def make_case(name: str, work: Path) -> tuple[Path, Path, Path]:
+    """Case ``name``'s augmented file, index and post scene in ``work`` (made once, in subprocesses)."""
+    from .paper import _COMMON, TF_BONE
+    from .selective_read import TF_CHEST
+
+    sample, shape, tf, kw = CASES[name]
+    aug, idx, scene = work / f"{name}.aug.h5", work / f"{name}.idx.h5", work / f"{name}-post.toml"
+    if not aug.exists():
+        subprocess.run([sys.executable, "-c", "from benchmarks.selective_read import augment_sample; from pathlib "
+                        f"import Path; augment_sample({sample!r}, {shape!r}, Path({str(aug)!r}), **{kw!r})"],
+                       check=True, cwd=ROOT)
+    if not idx.exists():
+        subprocess.run([sys.executable, "-m", "isplat", "index", str(aug), "-o", str(idx), "-q", "--force"],
+                       check=True, cwd=ROOT)
+    view = dict(azimuth=0, elevation=10)
+    scene.write_text(f'version = 4\n\n[data]\naugmented = "{aug}"\nindex = "{idx}"\n'
+                     + _COMMON.format(size=256, threads=1, technique="post", **view) + "\n"
+                     + (TF_BONE if tf == "bone" else TF_CHEST))
+    return aug, idx, scene
+
+
+def tree(rev: str, work: Path) -> Path:
+    """``isplat/`` at ``rev`` under ``work``/trees/<sha> (kept, with its compiled kernels)."""
+    sha = subprocess.run(["git", "rev-parse", "--short=12", rev], cwd=ROOT, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    home = work / "trees" / sha
+    if not (home / "isplat").exists():
+        home.mkdir(parents=True, exist_ok=True)
+        tar = subprocess.run(["git", "archive", sha, "isplat"], cwd=ROOT, capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(home)], input=tar, check=True)
+    return home
+
+
+class Worker:
+    def __init__(self, root: Path):
+        self.p = subprocess.Popen([sys.executable, "-c", WORKER, str(root)], stdin=subprocess.PIPE,
+                                  stdout=subprocess.PIPE, text=True, cwd=str(root))
+
+    def run(self, job) -> tuple[float, str]:
+        self.p.stdin.write(json.dumps(job) + "\n")
+        self.p.stdin.flush()
+        line = self.p.stdout.readline()
+        if not line:
+            raise RuntimeError(f"worker failed on {job}")
+        return tuple(json.loads(line))
+
+    def close(self):
+        self.p.stdin.close()
+        self.p.wait()
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--old", default="main")
+    ap.add_argument("--rounds", type=int, default=9)
+    ap.add_argument("--cases", default="H1,C1,H1-512,whole-H1")
+    ap.add_argument("--work", type=Path, default=ROOT / "out" / "load_ab")
+    a = ap.parse_args(argv)
+    a.work.mkdir(parents=True, exist_ok=True)
+    jobs = {}
+    for c in a.cases.split(","):
+        base = c.removeprefix("whole-")
+        aug, _, scene = make_case(base, a.work)
+        jobs[c] = ["whole", str(aug)] if c.startswith("whole-") else ["load", str(scene)]
+    workers = {"old": Worker(tree(a.old, a.work)), "new": Worker(ROOT)}
+    times = {(c, v): [] for c in jobs for v in workers}
+    same = {c: True for c in jobs}
+    try:
+        for n in range(a.rounds + 1):                   # round 0 warms up (compiles, page cache)
+            for c, job in jobs.items():
+                got = {}
+                for v in (("old", "new") if n % 2 else ("new", "old")):
+                    got[v] = workers[v].run(job)
+                    if n:
+                        times[(c, v)].append(got[v][0])
+                same[c] &= got["old"][1] == got["new"][1]
+            print(f"round {n} done", file=sys.stderr, flush=True)
+    finally:
+        for w in workers.values():
+            w.close()
+    print(f"old {a.old} against the working tree, {a.rounds} rounds (median; ratio: median of per-round new / old):")
+    for c in jobs:
+        old, new = times[(c, "old")], times[(c, "new")]
+        ratio = statistics.median(x / y for x, y in zip(new, old))
+        print(f"  {c:>9}: old {1000 * statistics.median(old):7.1f} ms  new {1000 * statistics.median(new):7.1f} ms  "
+              f"new / old x{ratio:.3f}  {'same ' + ('image' if jobs[c][0] == 'load' else 'arrays') if same[c] else 'DIFFERENT'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -160,12 +160,12 @@ def mark_reach(out: np.ndarray, c: np.ndarray, a0: np.ndarray, b0: np.ndarray, n
 
 @numba.njit(cache=True, nogil=True)
 def pages_touched(bricks: np.ndarray, size: np.ndarray, lo: np.ndarray, shape: np.ndarray, itemsize: int,
-                  page: int) -> int:
-    """The memory pages (of ``page`` bytes) of a C-order array of ``shape`` (the block from element ``lo``, of
+                  shift: int) -> int:
+    """The memory pages (of ``2 ** shift`` bytes) of a C-order array of ``shape`` (the block from element ``lo``, of
     ``itemsize``-byte elements) that bricks ``bricks`` (grid indices; bricks of ``size`` (k, j, i) elements)
     written into it, each clipped to the block, touch."""
     n = shape[0] * shape[1] * shape[2] * itemsize
-    marks = np.zeros((n + page - 1) // page, dtype=np.bool_)
+    marks = np.zeros((n + (1 << shift) - 1) >> shift, dtype=np.bool_)
     for r in range(bricks.shape[0]):
         k0, j0, i0 = bricks[r, 0] * size[0] - lo[0], bricks[r, 1] * size[1] - lo[1], bricks[r, 2] * size[2] - lo[2]
         x0, x1 = max(i0, 0), min(i0 + size[2], shape[2])
@@ -174,6 +174,6 @@ def pages_touched(bricks: np.ndarray, size: np.ndarray, lo: np.ndarray, shape: n
         for k in range(max(k0, 0), min(k0 + size[0], shape[0])):
             for j in range(max(j0, 0), min(j0 + size[1], shape[1])):
                 row = (k * shape[1] + j) * shape[2]
-                marks[(row + x0) * itemsize // page] = True          # a row of a brick: at most two pages
-                marks[((row + x1) * itemsize - 1) // page] = True
+                marks[(row + x0) * itemsize >> shift] = True         # a row of a brick: at most two pages
+                marks[((row + x1) * itemsize - 1) >> shift] = True
     return int(np.count_nonzero(marks))

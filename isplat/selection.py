@@ -729,7 +729,8 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
     return replace(sel, whole=whole, slab=slab)
 
 
-PAGE = 4096
+PAGE_SHIFT = 12
+PAGE = 1 << PAGE_SHIFT
 
 
 def pages_filled(bricks: np.ndarray, size, lo, shape, itemsize: int) -> int:
@@ -739,7 +740,7 @@ def pages_filled(bricks: np.ndarray, size, lo, shape, itemsize: int) -> int:
     from .brickstore import pages_touched
 
     i64 = lambda x: np.asarray(x, dtype=np.int64)      # noqa: E731
-    return pages_touched(i64(bricks).reshape(-1, 3), i64(size), i64(lo), i64(shape), itemsize, PAGE) * PAGE
+    return pages_touched(i64(bricks).reshape(-1, 3), i64(size), i64(lo), i64(shape), itemsize, PAGE_SHIFT) * PAGE
 
 
 def _slab_box(aug, axes, slices) -> tuple:

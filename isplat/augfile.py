@@ -29,7 +29,7 @@ import numpy as np
 
 from . import chunkhash
 from .errors import IsplatError
-from .fileio import (ReadCounter, attr_array, attr_string, check_checked_dataset, check_string_attrs,
+from .fileio import (ReadCounter, attr_array, attr_string, attr_values, check_checked_dataset, check_string_attrs,
                      create_checked_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
 from .orientation import check_axes_lps
 
@@ -440,7 +440,7 @@ def open_augmented(path) -> AugmentedVolume:
                 raise IsplatError(f"{p}: dataset {name!r} has dtype {ds.dtype}, expected {np.dtype(dt)}")
             check_checked_dataset(f"{p}: dataset {name!r}", ds)
         axes = check_axes_lps(p, attr_array(p, a, "axes_lps", "f", (3, 3))) if "axes_lps" in a else None
-        attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
+        attrs = attr_values(a)
         has_labels = version >= 4 and (LABELS in f or LABEL_VOXELS in f)
         verifier = chunkhash.open_verifier(p, f, sha, hashed_datasets(has_labels, version),
                                            chunkhash.attributes_of(f, hashed_attributes(version)), _rebuild_hint(p, f))

@@ -527,6 +527,16 @@ def attr_string(attrs, name: str, ascii_ok: bool = False):
         return None
 
 
+def attr_values(attrs) -> dict:
+    """Every attribute: a UTF-8 string one as ``str`` (:func:`attr_string`, asked once per attribute), any other
+    as h5py reads it."""
+    out = {}
+    for k, v in attrs.items():
+        text = attr_string(attrs, k)
+        out[k] = v if text is None else text
+    return out
+
+
 def attr_array(path, attrs, name: str, kind: str, shape: tuple | None = None):
     """A numeric attribute, checked: ``kind`` 'i' (int64) or 'f' (float64), exact ``shape`` (None = scalar)."""
     if name not in attrs:

@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import chunkhash, progress
 from ..errors import IsplatError
-from ..fileio import (ReadCounter, _CountingRaw, attr_array, attr_string, atomic_output, check_checked_dataset,
+from ..fileio import (ReadCounter, _CountingRaw, attr_array, attr_string, attr_values, atomic_output, check_checked_dataset,
                       check_hashed_dataset, check_output, check_string_attrs, create_checked_dataset, create_group,
                       create_hashed_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
 from . import codec
@@ -999,7 +999,7 @@ def open_index(path, keep_open: bool = False) -> IndexFile:
             if name not in AXES:
                 raise IsplatError(f"{p}: unknown axis group '/axes/{name}'; expected i, j or k")
             meta[name] = _check_axis_group(p, f["axes"][name], name, shape, version)
-        attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
+        attrs = attr_values(a)
         channel = _check_channel(p, a, version, values)
         datasets, hashed = hashed_layout(f)
         verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed),
@@ -1038,7 +1038,7 @@ def open_values(path, idx: IndexFile, keep_open: bool = False) -> IndexFile:
         values = _check_values_group(p, f, ranges, version, shape)
         datasets, hashed = hashed_layout(f)
         verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed), hint)
-        attrs = {k: (attr_string(a, k) if attr_string(a, k) is not None else v) for k, v in a.items()}
+        attrs = attr_values(a)
     vf = IndexFile(p, shape, sha, ranges, {}, attrs, version, values, counter, verifier)
     vf._kept = f if keep_open else None
     return vf

@@ -164,3 +164,29 @@ def test_pages_touched_is_the_reference(seed, shape, e, itemsize, share, shift):
     got = brickstore.pages_touched(np.argwhere(want).astype(np.int64), np.full(3, e, np.int64),
                                    np.asarray(lo, np.int64), block, itemsize, shift)
     assert got == ref
+
+
+def test_store_windows_give_the_rows_aligned_wherever_the_store_lies(tmp_path, monkeypatch):
+    """augfile._store_windows: every row asked, in windows of at most STORE_WINDOW bytes, with its stored hash, as
+    8-byte-aligned arrays even when the store and its table lie at odd offsets of the file (copied then)."""
+    import isplat.augfile as augfile
+
+    rng = np.random.default_rng(5)
+    size, nb = 64, 40
+    for d_off, h_off in ((8, 8 + size * nb), (3, 5 + size * nb)):
+        raw = rng.integers(0, 256, (nb, size)).astype(np.uint8)
+        table = rng.integers(0, 2 ** 63, nb).astype("<u8")
+        path = tmp_path / f"store-{d_off}.bin"
+        blob = bytearray(h_off + 8 * nb)
+        blob[d_off:d_off + raw.nbytes] = raw.tobytes()
+        blob[h_off:h_off + table.nbytes] = table.tobytes()
+        path.write_bytes(bytes(blob))
+        rows = rng.permutation(nb)[:25]
+        monkeypatch.setattr(augfile, "STORE_WINDOW", 3 * size)
+        seen = []
+        for r0, pick, data, stored in augfile._store_windows(path, d_off, h_off, size, rows):
+            assert data.ctypes.data % 8 == 0 and stored.ctypes.data % 8 == 0 and data.shape[0] <= 3
+            for b in pick:
+                assert np.array_equal(data[rows[b] - r0], raw[rows[b]]) and stored[rows[b] - r0] == table[rows[b]]
+                seen.append(int(b))
+        assert sorted(seen) == list(range(rows.size))

@@ -171,8 +171,18 @@ def pages_touched(bricks: np.ndarray, size: np.ndarray, lo: np.ndarray, shape: n
         x0, x1 = max(i0, 0), min(i0 + size[2], shape[2])
         if x1 <= x0:
             continue
+        y0, y1 = max(j0, 0), min(j0 + size[1], shape[1])
         for k in range(max(k0, 0), min(k0 + size[0], shape[0])):
-            for j in range(max(j0, 0), min(j0 + size[1], shape[1])):
+            if y1 <= y0:
+                break
+            if shape[2] * itemsize <= 1 << shift:
+                # rows at most a page apart: every page from the first row's first byte to the last row's last
+                # byte holds a byte of some row (a page wholly between them holds a row's start)
+                first = ((k * shape[1] + y0) * shape[2] + x0) * itemsize >> shift
+                last = (((k * shape[1] + y1 - 1) * shape[2] + x1) * itemsize - 1) >> shift
+                marks[first:last + 1] = True
+                continue
+            for j in range(y0, y1):
                 row = (k * shape[1] + j) * shape[2]
                 marks[(row + x0) * itemsize >> shift] = True         # a row of a brick: at most two pages
                 marks[((row + x1) * itemsize - 1) >> shift] = True

@@ -7,7 +7,8 @@ scene; C1, the ``ct-chest`` sample at 512 x 512 x 133 (spacing 0.703125, 0.70312
 its fat/skin veil and bone; H1-512, the head at 512^3, bone. Each is augmented (format 6, 8^3 bricks) and indexed
 once into ``--work`` (kept for later runs). *Load*: constructing ``isplat.renderer.Renderer`` for the scene's first
 view (open both files, read the index blocks, select, read the bricks post needs), as ``isplat render`` does before
-its first frame; then one frame is rendered and its image compared between the versions, bit for bit. *whole-X*:
+its first frame; then one frame is rendered (its thread CPU time measured too: the frame code is the same, so its
+ratio shows the noise) and its image compared between the versions, bit for bit. *whole-X*:
 ``open_augmented`` and ``read`` of the three whole channels of case X's file (the arrays compared).
 
 Each version runs in a worker process of its own (the old one from ``git archive`` of its ``isplat/`` under
@@ -19,7 +20,6 @@ ratios new / old, after one warm-up round (compiles, page cache).
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import statistics
 import subprocess
@@ -28,7 +28,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = {"H1": ("head", (256, 256, 225), "bone", {}),
-         "C1": ("ct-chest", (512, 512, 133), "chest", dict(spacing=(0.703125, 0.703125, 2.5), window=(-1000.0, 2000.0))),
+         "C1": ("ct-chest", (512, 512, 133), "chest",
+                dict(spacing=(0.703125, 0.703125, 2.5), window=(-1000.0, 2000.0))),
          "H1-512": ("head", (512, 512, 512), "bone", {})}
 
 WORKER = r"""
@@ -46,7 +47,9 @@ for line in sys.stdin:
         t = time.perf_counter()
         r = Renderer(scene, (scene.views[0],), slabs=1)
         dt = time.perf_counter() - t
+        t = time.thread_time()
         img, _ = r.render_view(0)
+        frame = time.thread_time() - t
         digest = hashlib.sha256(np.ascontiguousarray(img).tobytes()).hexdigest()
         del r
     else:
@@ -57,9 +60,9 @@ for line in sys.stdin:
         h = hashlib.sha256()
         for c in chans:
             h.update(c.tobytes())
-        digest = h.hexdigest()
+        digest, frame = h.hexdigest(), 0.0
         del chans
-    print(json.dumps([dt, digest]), flush=True)
+    print(json.dumps([dt, digest, frame]), flush=True)
 """
 
 
@@ -101,7 +104,7 @@ class Worker:
         self.p = subprocess.Popen([sys.executable, "-c", WORKER, str(root)], stdin=subprocess.PIPE,
                                   stdout=subprocess.PIPE, text=True, cwd=str(root))
 
-    def run(self, job) -> tuple[float, str]:
+    def run(self, job) -> tuple[float, str, float]:
         self.p.stdin.write(json.dumps(job) + "\n")
         self.p.stdin.flush()
         line = self.p.stdout.readline()
@@ -129,6 +132,7 @@ def main(argv=None) -> None:
         jobs[c] = ["whole", str(aug)] if c.startswith("whole-") else ["load", str(scene)]
     workers = {"old": Worker(tree(a.old, a.work)), "new": Worker(ROOT)}
     times = {(c, v): [] for c in jobs for v in workers}
+    frames = {(c, v): [] for c in jobs for v in workers}
     same = {c: True for c in jobs}
     try:
         for n in range(a.rounds + 1):                   # round 0 warms up (compiles, page cache)
@@ -138,6 +142,7 @@ def main(argv=None) -> None:
                     got[v] = workers[v].run(job)
                     if n:
                         times[(c, v)].append(got[v][0])
+                        frames[(c, v)].append(got[v][2])
                 same[c] &= got["old"][1] == got["new"][1]
             print(f"round {n} done", file=sys.stderr, flush=True)
     finally:
@@ -147,8 +152,14 @@ def main(argv=None) -> None:
     for c in jobs:
         old, new = times[(c, "old")], times[(c, "new")]
         ratio = statistics.median(x / y for x, y in zip(new, old))
-        print(f"  {c:>9}: old {1000 * statistics.median(old):7.1f} ms  new {1000 * statistics.median(new):7.1f} ms  "
-              f"new / old x{ratio:.3f}  {'same ' + ('image' if jobs[c][0] == 'load' else 'arrays') if same[c] else 'DIFFERENT'}")
+        frame = ""
+        if jobs[c][0] == "load":
+            fo, fn = frames[(c, "old")], frames[(c, "new")]
+            frame = (f"  frame old {1000 * statistics.median(fo):.1f} ms new {1000 * statistics.median(fn):.1f} ms "
+                     f"x{statistics.median(x / y for x, y in zip(fn, fo)):.3f}")
+        same_text = ("same " + ("image" if jobs[c][0] == "load" else "arrays")) if same[c] else "DIFFERENT"
+        print(f"  {c:>9}: load old {1000 * statistics.median(old):7.1f} ms  new {1000 * statistics.median(new):7.1f} "
+              f"ms  new / old x{ratio:.3f}  {same_text}{frame}")
 
 
 if __name__ == "__main__":

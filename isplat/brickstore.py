@@ -59,9 +59,10 @@ def hash_bricks(words: np.ndarray, rows: np.ndarray, seed: np.uint64) -> np.ndar
 
 @numba.njit(cache=True, nogil=True)
 def _minmax(flat: np.ndarray, w: int, e: int, e0: int, e1: int, e2: int):
-    """The smallest and largest element of brick ``w`` of ``flat`` (bricks of ``e``^3 elements, one after
-    another, each in C order) within its first ``e0`` x ``e1`` x ``e2`` elements; a whole brick as one run."""
-    lo, hi = flat[0] | np.uint8(255), flat[0] & np.uint8(0)
+    """The smallest and largest element of brick ``w`` of ``flat`` (uint8: density codes; bricks of ``e``^3
+    elements, one after another, each in C order) within its first ``e0`` x ``e1`` x ``e2`` elements; a whole brick
+    as one run."""
+    lo, hi = np.uint8(255), np.uint8(0)
     if e0 == e and e1 == e and e2 == e:
         s = np.uint64(w * e * e * e)
         for x in range(e * e * e):                        # (unsigned indices: no wraparound, so it vectorizes)

@@ -16,9 +16,10 @@ import numpy as np
 
 from .. import chunkhash, progress
 from ..errors import IsplatError
-from ..fileio import (ReadCounter, _CountingRaw, attr_array, attr_string, attr_values, atomic_output, check_checked_dataset,
-                      check_hashed_dataset, check_output, check_string_attrs, create_checked_dataset, create_group,
-                      create_hashed_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
+from ..fileio import (ReadCounter, _CountingRaw, attr_array, attr_string, attr_values, atomic_output,
+                      check_checked_dataset, check_hashed_dataset, check_output, check_string_attrs,
+                      create_checked_dataset, create_group, create_hashed_dataset, create_hdf5, hdf5_errors,
+                      open_counted, open_hdf5, set_string_attr)
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry, encode_windows, escape_width,
                     SLAB_VOXELS, k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)

@@ -1,6 +1,7 @@
 """Post's load from a bricked augmented file (format 6), an older commit against the working tree, interleaved:
 
     python -m benchmarks.load_ab [--old main] [--rounds 9] [--cases H1,C1,H1-512,whole-H1] [--work out/load_ab]
+    python -m benchmarks.load_ab --cli [--old main] [--rounds 7] [--cases H1,C1]
 
 Cases (benchmarks/selective_read.py makes the same volumes): H1, the head sample at 256 x 256 x 225 with the bone
 scene; C1, the ``ct-chest`` sample at 512 x 512 x 133 (spacing 0.703125, 0.703125, 2.5; window -1000..2000) with
@@ -10,6 +11,10 @@ view (open both files, read the index blocks, select, read the bricks post needs
 its first frame; then one frame is rendered (its thread CPU time measured too: the frame code is the same, so its
 ratio shows the noise) and its image compared between the versions, bit for bit. *whole-X*:
 ``open_augmented`` and ``read`` of the three whole channels of case X's file (the arrays compared).
+
+``--cli``: instead, ``python -m isplat render SCENE -o PNG`` of each case's scene, one process per picture as users
+run it (start, imports, kernels loaded from their caches, load, frame, PNG written), its wall time, the versions
+alternating per round; the PNGs compared byte for byte.
 
 Each version runs in a worker process of its own (the old one from ``git archive`` of its ``isplat/`` under
 ``--work``/trees, its kernels compiled there once); per round the versions go in turn (the order alternating), so
@@ -117,14 +122,45 @@ class Worker:
         self.p.wait()
 
 
+def cli_rounds(cases, trees: dict, rounds: int, work: Path) -> None:
+    """``--cli``: one ``isplat render`` process per picture, per version, alternating; prints medians and ratios."""
+    import time
+
+    times = {(c, v): [] for c in cases for v in trees}
+    same = {c: True for c in cases}
+    for n in range(rounds + 1):                         # round 0 warms up (compiles into each tree's caches)
+        for c, scene in cases.items():
+            png = {}
+            for v in (("old", "new") if n % 2 else ("new", "old")):
+                png[v] = work / f"cli-{c}-{v}.png"
+                t = time.perf_counter()
+                subprocess.run([sys.executable, "-m", "isplat", "render", str(scene), "-o", str(png[v]), "-q",
+                                "--force"], check=True, cwd=str(trees[v]))
+                if n:
+                    times[(c, v)].append(time.perf_counter() - t)
+            same[c] &= png["old"].read_bytes() == png["new"].read_bytes()
+        print(f"round {n} done", file=sys.stderr, flush=True)
+    print(f"isplat render, one process per picture, {rounds} rounds (median; ratio: median of per-round new / old):")
+    for c in cases:
+        old, new = times[(c, "old")], times[(c, "new")]
+        ratio = statistics.median(x / y for x, y in zip(new, old))
+        print(f"  {c:>9}: old {1000 * statistics.median(old):7.1f} ms  new {1000 * statistics.median(new):7.1f} ms  "
+              f"new / old x{ratio:.3f}  {'same PNG' if same[c] else 'DIFFERENT'}")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--old", default="main")
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--cases", default="H1,C1,H1-512,whole-H1")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "load_ab")
+    ap.add_argument("--cli", action="store_true", help="time `isplat render` processes, one per picture")
     a = ap.parse_args(argv)
     a.work.mkdir(parents=True, exist_ok=True)
+    if a.cli:
+        cases = {c: make_case(c, a.work)[2] for c in a.cases.split(",") if not c.startswith("whole-")}
+        cli_rounds(cases, {"old": tree(a.old, a.work), "new": ROOT}, a.rounds, a.work)
+        return
     jobs = {}
     for c in a.cases.split(","):
         base = c.removeprefix("whole-")

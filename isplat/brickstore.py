@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import hashlib
 
-import numba
 import numpy as np
+
+from .jit import jit, stage
 
 SEED_MESSAGE = b"isplat brick hashes 6"
 GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -34,7 +35,7 @@ def channel_seed(file_key: bytes, channel: str) -> int:
     return int.from_bytes(h.digest(), "little")
 
 
-@numba.njit(cache=True, nogil=True)
+@stage
 def _brick_hash(words: np.ndarray, w: int, row, seed: np.uint64) -> np.uint64:
     """The hash of brick ``words[w]`` (its bytes as uint64 words) stored at row ``row`` (module docstring)."""
     h = seed ^ ((np.uint64(row) + np.uint64(1)) * GOLDEN)
@@ -48,7 +49,7 @@ def _brick_hash(words: np.ndarray, w: int, row, seed: np.uint64) -> np.uint64:
     return h
 
 
-@numba.njit(cache=True, nogil=True)
+@jit
 def hash_bricks(words: np.ndarray, rows: np.ndarray, seed: np.uint64) -> np.ndarray:
     """uint64[n]: the hash of each brick ``words[n]`` (its bytes as uint64 words) stored at row ``rows[n]``."""
     out = np.empty(words.shape[0], dtype=np.uint64)
@@ -57,7 +58,7 @@ def hash_bricks(words: np.ndarray, rows: np.ndarray, seed: np.uint64) -> np.ndar
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@stage
 def _minmax(flat: np.ndarray, w: int, e: int, e0: int, e1: int, e2: int):
     """The smallest and largest element of brick ``w`` of ``flat`` (uint8: density codes; bricks of ``e``^3
     elements, one after another, each in C order) within its first ``e0`` x ``e1`` x ``e2`` elements; a whole brick
@@ -78,7 +79,7 @@ def _minmax(flat: np.ndarray, w: int, e: int, e0: int, e1: int, e2: int):
     return lo, hi
 
 
-@numba.njit(cache=True, nogil=True)
+@jit
 def brick_minmax(data: np.ndarray, ext: np.ndarray) -> np.ndarray:
     """uint8[n, 2]: the smallest and largest of each brick ``data[n]`` (uint8, [n, e, e, e], C order) within its
     part inside the volume (``ext[n]``: its extent along k, j, i, each 1..e)."""
@@ -101,7 +102,7 @@ def to_bricks(block: np.ndarray, edge: int) -> np.ndarray:
                                 ).reshape(-1, edge, edge, edge)
 
 
-@numba.njit(cache=True, nogil=True)
+@jit
 def check_place(data: np.ndarray, words: np.ndarray, stored: np.ndarray, r0: int, rows: np.ndarray,
                 pick: np.ndarray, seed: np.uint64, offs: np.ndarray, ext: np.ndarray, lo: np.ndarray, out: np.ndarray,
                 mm: np.ndarray) -> int:
@@ -141,7 +142,7 @@ def check_place(data: np.ndarray, words: np.ndarray, stored: np.ndarray, r0: int
     return bad
 
 
-@numba.njit(cache=True, nogil=True)
+@jit
 def mark_reach(out: np.ndarray, c: np.ndarray, a0: np.ndarray, b0: np.ndarray, n: np.ndarray, back: int, ahead: int,
                edge: np.ndarray, step: np.ndarray) -> int:
     """Mark in ``out`` (bool, a brick grid, flat) every brick that holds a voxel ``(c[q], a, b)`` with ``a`` in
@@ -159,7 +160,7 @@ def mark_reach(out: np.ndarray, c: np.ndarray, a0: np.ndarray, b0: np.ndarray, n
     return -1
 
 
-@numba.njit(cache=True, nogil=True)
+@jit
 def pages_touched(bricks: np.ndarray, size: np.ndarray, lo: np.ndarray, shape: np.ndarray, itemsize: int,
                   shift: int) -> int:
     """The memory pages (of ``2 ** shift`` bytes) of a C-order array of ``shape`` (the block from element ``lo``, of

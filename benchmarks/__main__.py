@@ -19,8 +19,9 @@ from benchmarks import _doc
 # `python -m benchmarks.brick_edge` (format 6 at 4^3 and 8^3 bricks against format 4: reads, loads, held; a table)
 # `python -m benchmarks.sampler_trees` (sampler variants as patches, benchmarks/table_layouts, against a commit)
 # `python -m benchmarks.load_ab` (post's load from format 6, an older commit against the working tree; prints a table)
+# `python -m benchmarks.brick_order` (the 4 KB pages post's bricks touch in C and Morton order; prints a table)
 STANDALONE = ("commits", "threadload", "contour_shift", "whole_read", "simd_span", "thick_spline", "brick_edge",
-              "sampler_trees", "load_ab")
+              "sampler_trees", "load_ab", "brick_order")
 # run by name only, not in `all` (so not in CI's bench-check): compiles an older commit's kernels (~4 min)
 BY_NAME_ONLY = ("sampler",)
 

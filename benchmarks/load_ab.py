@@ -94,14 +94,9 @@ def make_case(name: str, work: Path) -> tuple[Path, Path, Path]:
 
 def tree(rev: str, work: Path) -> Path:
     """``isplat/`` at ``rev`` under ``work``/trees/<sha> (kept, with its compiled kernels)."""
-    sha = subprocess.run(["git", "rev-parse", "--short=12", rev], cwd=ROOT, capture_output=True, text=True,
-                         check=True).stdout.strip()
-    home = work / "trees" / sha
-    if not (home / "isplat").exists():
-        home.mkdir(parents=True, exist_ok=True)
-        tar = subprocess.run(["git", "archive", sha, "isplat"], cwd=ROOT, capture_output=True, check=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(home)], input=tar, check=True)
-    return home
+    from .sampler import old_tree
+
+    return old_tree(rev, work / "trees")
 
 
 class Worker:

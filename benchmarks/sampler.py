@@ -112,11 +112,11 @@ def data(quick: bool, old: Path) -> dict:
     return out
 
 
-def old_tree(rev: str) -> Path:
-    """``isplat/`` at ``rev`` under out/bench-sampler/<sha>/ (kept: its compiled kernels too)."""
+def old_tree(rev: str, work: Path = WORK) -> Path:
+    """``isplat/`` at ``rev`` under ``work``/<sha>/ (kept: its compiled kernels too)."""
     sha = subprocess.run(["git", "rev-parse", "--short=12", rev], cwd=REPO, capture_output=True, text=True,
                          check=True).stdout.strip()
-    home = WORK / sha
+    home = work / sha
     if not (home / "isplat").exists():
         home.mkdir(parents=True, exist_ok=True)
         tar = subprocess.run(["git", "archive", sha, "isplat"], cwd=REPO, capture_output=True, check=True).stdout

@@ -263,38 +263,54 @@ class ReadCounter:
     """What the HDF5 library read from one file: bytes (chunks with their 4-byte checksums, and the metadata
     that finds them) and read calls, counted below h5py, at the file object, so nothing is estimated; and the
     distinct PAGE-byte pages of the file those reads lie in (:meth:`page_bytes`: bytes counted once however
-    often they are read, and the rest of every page a small read touches)."""
+    often they are read, and the rest of every page a small read touches), kept as one flag per page of the
+    file (a 1 GiB file: 256 KiB of flags, however many reads)."""
 
     def __init__(self):
         self.bytes = 0
         self.reads = 0
         self.pages_known = True        # False once a read's file offsets were not seen (format 5's bricks)
-        self._spans: list[np.ndarray] = []        # int64[n, 2]: first and last page of each read
+        self._pages = np.zeros(0, dtype=bool)
 
     def __repr__(self):
         return f"ReadCounter(bytes={self.bytes}, reads={self.reads})"
 
+    def _reach(self, n: int) -> None:
+        if n > self._pages.size:
+            grown = np.zeros(max(n, 2 * self._pages.size), dtype=bool)
+            grown[:self._pages.size] = self._pages
+            self._pages = grown
+
     def touch(self, offset: int, n: int) -> None:
         """Note a read of ``n`` bytes from file offset ``offset``."""
         if n > 0:
-            self._spans.append(np.array([[offset // PAGE, (offset + n - 1) // PAGE]], dtype=np.int64))
+            last = (offset + n - 1) // PAGE + 1
+            self._reach(last)
+            self._pages[offset // PAGE:last] = True
 
     def touch_rows(self, offset: int, size: int, rows: np.ndarray) -> None:
         """Note reads of rows ``rows`` of ``size`` bytes each of a table that starts at file offset ``offset``."""
         rows = np.asarray(rows, dtype=np.int64).reshape(-1)
-        if rows.size and size > 0:
-            start = offset + rows * size
-            self._spans.append(np.stack([start // PAGE, (start + size - 1) // PAGE], axis=1))
+        if rows.size == 0 or size <= 0:
+            return
+        first = (offset + rows * size) // PAGE
+        last = (offset + (rows + 1) * size - 1) // PAGE
+        self._reach(int(last.max()) + 1)
+        for s in range(int((last - first).max()) + 1):
+            self._pages[np.minimum(first + s, last)] = True
 
-    def mark(self) -> int:
-        """A mark for :meth:`page_bytes`: the reads noted so far."""
-        return len(self._spans)
+    def mark(self) -> np.ndarray:
+        """A mark for :meth:`page_bytes`: the pages read so far."""
+        return self._pages.copy()
 
-    def page_bytes(self, since: int = 0) -> int:
-        """Bytes of the distinct pages the reads noted after mark ``since`` lie in (-1: not known)."""
+    def page_bytes(self, since: np.ndarray | None = None) -> int:
+        """Bytes of the distinct pages read (after mark ``since``: pages not read before it; -1: not known)."""
         if not self.pages_known:
             return -1
-        return distinct_pages(self._spans[since:]) * PAGE
+        if since is None:
+            return int(np.count_nonzero(self._pages)) * PAGE
+        n = min(since.size, self._pages.size)
+        return int(np.count_nonzero(self._pages[n:]) + np.count_nonzero(self._pages[:n] & ~since[:n])) * PAGE
 
 
 class _CountingRaw(io.RawIOBase):
@@ -329,21 +345,6 @@ class _CountingRaw(io.RawIOBase):
         if not self.closed:
             self._f.close()
         super().close()
-
-
-def distinct_pages(spans: list) -> int:
-    """How many distinct pages the spans (int64[n, 2] arrays of first and last page, inclusive) cover.
-
-    >>> distinct_pages([np.array([[0, 2], [1, 1], [5, 5]]), np.array([[2, 3]])])
-    5
-    """
-    if not spans:
-        return 0
-    s = np.concatenate(spans)
-    s = s[np.argsort(s[:, 0], kind="stable")]
-    reach = np.maximum.accumulate(s[:, 1])        # the last page covered by the spans up to each one
-    before = np.concatenate(([np.int64(-1)], reach[:-1]))
-    return int(np.maximum(s[:, 1] - np.maximum(before, s[:, 0] - 1), 0).sum())
 
 
 @contextlib.contextmanager

@@ -552,11 +552,11 @@ def select(request, aug=None, idx=None) -> Selection:
         rep.values_from = "whole channels" if sel.report.channels else "none"
     if sel.method == "indexed":
         read0, io0 = (idx.bytes_read, idx.io.bytes) if idx is not None else (0, 0)  # (an index opened before:
-        mark0 = idx.io.mark() if idx is not None else 0                              # this selection's reads)
+        mark0 = idx.io.mark() if idx is not None else None                           # this selection's reads)
         idx = _open_matching_index(request, aug, idx)
         rep.index_format_version = idx.version
         v0, vio0 = idx.values_counts(), idx.values_io()
-        vmark0 = vio0.mark() if vio0 is not None else 0
+        vmark0 = vio0.mark() if vio0 is not None else None
         if not sel.post:
             rep.values_from = "none" if not rep.channels or sel.empty else _values_source(idx, aug, slices)
         if not sel.empty:
@@ -566,7 +566,7 @@ def select(request, aug=None, idx=None) -> Selection:
         rep.values_bytes, rep.values_file_bytes = (b - a for a, b in zip(v0, idx.values_counts()))
         rep.index_file_pages = idx.io.page_bytes(mark0)
         vio = idx.values_io()
-        rep.values_file_pages = 0 if vio is None else vio.page_bytes(vmark0 if vio is vio0 else 0)
+        rep.values_file_pages = 0 if vio is None else vio.page_bytes(vmark0 if vio is vio0 else None)
     if bricked:
         sel = _read_post_bricks(sel, aug, axes, slices)
     rep.augmented_bytes = int(aug.bytes_read)

@@ -108,14 +108,30 @@ def test_worker_report_pickles_its_count_not_the_density():
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.lists(st.lists(st.tuples(st.integers(0, 40), st.integers(0, 9)), max_size=8), max_size=5))
-def test_distinct_pages_is_the_size_of_the_union(spans):
-    """ReadCounter's page count (sorted spans, a running maximum) against the set of every page of every span."""
-    from isplat.fileio import distinct_pages
+@given(st.lists(st.one_of(
+    st.tuples(st.just("read"), st.integers(0, 60000), st.integers(0, 9000)),
+    st.tuples(st.just("rows"), st.integers(0, 9000), st.integers(1, 5000),
+              st.lists(st.integers(0, 40), max_size=6)),
+    st.just(("mark",))), max_size=12))
+def test_read_counter_pages_are_the_set_of_pages_read(ops):
+    """ReadCounter's pages (a flag per page, marks as copies) against the set of every page of every read."""
+    from isplat.fileio import PAGE, ReadCounter
 
-    arrays = [np.array([[a, a + n] for a, n in s], dtype=np.int64).reshape(-1, 2) for s in spans]
-    want = {p for s in spans for a, n in s for p in range(a, a + n + 1)}
-    assert distinct_pages(arrays) == len(want)
+    c, seen, marks = ReadCounter(), set(), []
+    for op in ops:
+        if op[0] == "read":
+            c.touch(op[1], op[2])
+            seen |= set(range(op[1] // PAGE, (op[1] + op[2] - 1) // PAGE + 1)) if op[2] else set()
+        elif op[0] == "rows":
+            _, off, size, rows = op
+            c.touch_rows(off, size, np.array(rows, dtype=np.int64))
+            for r in rows:
+                seen |= set(range((off + r * size) // PAGE, (off + (r + 1) * size - 1) // PAGE + 1))
+        else:
+            marks.append((c.mark(), set(seen)))
+    assert c.page_bytes() == len(seen) * PAGE
+    for m, before in marks:
+        assert c.page_bytes(m) == len(seen - before) * PAGE
 
 
 def test_read_counter_pages_of_reads_and_rows():

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-PAGE = 4096
+from isplat.fileio import PAGE
+
 
 
 def morton_rank(grid) -> np.ndarray:
@@ -42,14 +43,17 @@ def morton_rank(grid) -> np.ndarray:
 
 
 def pages(rows: np.ndarray, size: int) -> int:
-    """Distinct PAGE-byte pages that rows ``rows`` of ``size`` bytes each (from offset 0) lie in.
+    """Distinct pages that rows ``rows`` of ``size`` bytes each (from offset 0) lie in, as isplat counts the
+    pages of its reads (:class:`isplat.fileio.ReadCounter`).
 
     >>> pages(np.array([0, 1, 8, 9]), 512), pages(np.array([0, 1]), 2048), pages(np.array([1]), 4096)
     (2, 1, 1)
     """
-    first, last = rows * size // PAGE, ((rows + 1) * size - 1) // PAGE
-    span = int((last - first).max()) + 1 if rows.size else 0
-    return int(np.unique(np.concatenate([np.minimum(first + s, last) for s in range(span)] or [first])).size)
+    from isplat.fileio import ReadCounter
+
+    c = ReadCounter()
+    c.touch_rows(0, size, rows)
+    return c.page_bytes() // PAGE
 
 
 def figures(need: np.ndarray, sizes) -> dict:

@@ -2,7 +2,20 @@
 [--quick] [--cases H1,E2,...] [--bins 8,16,32,64]`` prints tables (not a docs page). A count, not a timing; no
 change to isplat or its formats.
 
-RESULT: see the report in the commit message / the printed tables; the note below says what is counted.
+Result (full cases, 2026-11-27; read = this layout + post's index reads of today, against post's bytes needed;
+today's bricks: H1 2.23, E2 2.68, B1 1.42, H1-512 1.64, C1 2.04). Positions decide it, not the voxels: the runs read
+hold about the footprint (1.04-1.19x the needed voxels at the best B), but a 4-byte index doubles the bytes
+(1.8-2.1x); brick bitmaps cost 1.0-2.0 B a voxel read at B = 8, spans 1.7-2.9 B, both more with more runs. Best per
+case, ``union`` key (one file, any view): H1 1.37, E2 1.66, B1 1.25, H1-512 1.23 (B = 8, bitmaps), C1 1.63 (B = 64,
+spans: its 51..81 veil needs narrow bins; at B = 8 it reads half the volume, 4.6x); the per-axis key gains little
+(H1 1.34, E2 1.55, C1 1.51). Pages / needed about equal read / needed (runs are contiguous), against today's
+1.73-5.67. But the union and axis keys do not hold what today's sampler reads (it samples whole 4 x 4 cells:
+1.15-1.29x the needed voxels; at the best B the read set must grow by 12-21%); the quads reading those voxels are
+all transparent (tests/test_range_runs.py; no labels, no taps between thick slices), so a sampler that skipped quads
+with a corner not loaded would draw the same image, but today's would not. The ``cells`` key holds them (checked) at
+H1 1.74, E2 1.83, B1 1.35, H1-512 1.38, C1 1.63. File: 1.01-1.14x the augmented file with spans or bitmaps at B = 8
+(idx4: 1.9-2x). Pre from the same file reads 1.42-2.16x its needed (positions cost at least its 2 B of normals),
+against 1.00-1.14 from the values file: one layout cannot serve both at pre's bar of 1.3; /values stays for pre.
 
 Method. For each voxel, key = (lo, hi), the least and greatest density over the voxels whose quads it shares.
 Three keys: ``union``, the in-slice 3 x 3 squares of the three slice axes united (19 voxels: the 3 x 3 x 3 cube
@@ -424,7 +437,7 @@ def pre_rows(m: dict) -> list[str]:
             e = r[kind]
             cells.append(" / ".join(f"{(e[k]['read'] + idx_b) / need:.2f}" for k in ENCODINGS))
             cells.append(" / ".join(f"{(e[k]['pages'] + idx_p) / need:.2f}" for k in ENCODINGS))
-        post_need = m["post"].bytes_needed + 0
+        post_need = m["post"].bytes_needed
         bc = r["by_code"]
         post_bc = " / ".join(f"{(bc[k]['post_read'] + m['post'].index_file_bytes) / post_need:.2f}"
                              for k in ENCODINGS)

@@ -33,12 +33,15 @@ runs), in hi-bin-major, lo-bin-minor order (a threshold scene reads one contiguo
 voxels in C order (k, j, i), each run's block [positions][normal 2 B][gradient magnitude 1 B][density 1 B]
 (planar, so that pre reads positions and normals alone). A scene reads the table rows and blocks of the runs whose
 bin rectangle can meet an interval (lo bin's least code <= interval's top and hi bin's greatest >= its bottom).
-Positions, three encodings: ``idx4`` a 4-byte voxel index each; ``spans`` (start, length) u16 pairs of voxels
-consecutive along i per (run, k, j) row, with a row table of 6 B (k, j, spans) per such row; ``bitmap`` per
-(run, 8^3 brick) holding voxels: its brick number (4 B) and a 64-byte bitmap. *Read* = the layout's bytes (header,
-table rows, positions, values) + what post reads of the index today (its blocks and tables, unchanged); *needed*
-= post's ``LoadReport.bytes_needed`` of the same scene (isplat's own count, as ``selective_read`` reports it);
-*pages* = distinct 4 KB pages of the layout touched (isplat.fileio.ReadCounter) + the index's pages as today.
+Positions, four encodings: ``idx4`` a 4-byte voxel index each; ``spans`` (start, length) u16 pairs of voxels
+consecutive along i per (run, k, j) row, with a row table of 6 B (k, j, spans) per such row; ``bitmap`` per (run,
+8^3 brick) holding voxels: its brick number (4 B) and a 64-byte bitmap; ``adaptive`` per (run, brick): 4 B (number
+and form) and the fewer of its bitmap and 2 B a voxel (its place in the brick). ``--bins LOxHI`` (say 1x8): LO bins
+of lo by HI bins of hi, every pair a run (lo bins 1: the runs of a threshold scene by hi alone). *Read* = the
+layout's bytes (header, table rows, positions, values) + what post reads of the index today (its blocks and tables,
+unchanged); *needed* = post's ``LoadReport.bytes_needed`` of the same scene (isplat's own count, as
+``selective_read`` reports it); *pages* = distinct 4 KB pages of the layout touched (isplat.fileio.ReadCounter) +
+the index's pages as today.
 
 Pre from the same layout (issue 26 item 3, /values gone): pre still takes its voxels of interest from the index
 and needs their normals. (a) runs spatial inside: pre reads positions and normals of every voxel of the runs it
@@ -57,7 +60,8 @@ from pathlib import Path
 import numpy as np
 
 HEADER, TABLE_ROW, ROW_ENTRY, SPAN, BRICK_ENTRY, CODE_COUNT = 64, 24, 6, 4, 4 + 64, 4
-ENCODINGS = ("idx4", "spans", "bitmap")
+BRICK_HEAD, LOCAL = 4, 2        # adaptive: a brick's number and form, then a bitmap or 2 B a voxel, the fewer
+ENCODINGS = ("idx4", "spans", "bitmap", "adaptive")
 KEYS = ("union", "axis", "cells")
 IN_SLICE_DIMS = {"k": (1, 2), "j": (0, 2), "i": (0, 1)}     # as isplat.stats.IN_SLICE_DIMS
 BRICK = 8
@@ -146,36 +150,51 @@ def footprint(interest: np.ndarray, axis: str) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------- runs
 
-def n_runs(bins: int) -> int:
+def n_runs(bins) -> int:
+    """Runs of ``bins``: B (square, lo bin <= hi bin: B(B + 1) / 2) or (lo bins, hi bins) (every pair)."""
+    if isinstance(bins, tuple):
+        return bins[0] * bins[1]
     return bins * (bins + 1) // 2
 
 
-def run_of(lo: np.ndarray, hi: np.ndarray, bins: int) -> np.ndarray:
-    """int32 [k, j, i]: each voxel's run, hi bin major, lo bin minor (lo bin <= hi bin).
+def run_of(lo: np.ndarray, hi: np.ndarray, bins) -> np.ndarray:
+    """int32 [k, j, i]: each voxel's run, hi bin major, lo bin minor (square: lo bin <= hi bin).
 
     >>> run_of(np.array([0, 0, 64, 255]), np.array([0, 255, 200, 255]), 4).tolist()
     [0, 6, 7, 9]
+    >>> run_of(np.array([0, 0, 64, 255]), np.array([0, 255, 200, 255]), (2, 4)).tolist()
+    [0, 6, 6, 7]
     """
-    lb = lo.astype(np.int32) * bins // 256
-    hb = hi.astype(np.int32) * bins // 256
-    return hb * (hb + 1) // 2 + lb
+    bl, bh = bins if isinstance(bins, tuple) else (bins, bins)
+    lb = lo.astype(np.int32) * bl // 256
+    hb = hi.astype(np.int32) * bh // 256
+    return hb * bl + lb if isinstance(bins, tuple) else hb * (hb + 1) // 2 + lb
 
 
-def run_bins(bins: int) -> tuple[np.ndarray, np.ndarray]:
+def run_bins(bins) -> tuple[np.ndarray, np.ndarray]:
     """(lo bin, hi bin) of each run, in run order."""
+    if isinstance(bins, tuple):
+        r = np.arange(n_runs(bins))
+        return r % bins[0], r // bins[0]
     hb = np.repeat(np.arange(bins), np.arange(1, bins + 1))
     lb = np.arange(n_runs(bins)) - hb * (hb + 1) // 2
     return lb, hb
 
 
-def runs_meeting(intervals, bins: int) -> np.ndarray:
-    """bool [runs]: the runs whose bin rectangle can meet one of the inclusive code ``intervals``."""
+def _widths(bins) -> tuple[int, int]:
+    bl, bh = bins if isinstance(bins, tuple) else (bins, bins)
+    return 256 // bl, 256 // bh
+
+
+def runs_meeting(intervals, bins) -> np.ndarray:
+    """bool [runs]: the runs whose bin rectangle can meet one of the inclusive code ``intervals`` (with some
+    lo <= hi in it)."""
     lb, hb = run_bins(bins)
-    w = 256 // bins
+    wl, wh = _widths(bins)
     out = np.zeros(n_runs(bins), dtype=bool)
     for t0, t1 in intervals:
-        out |= (lb * w <= int(t1)) & (hb * w + w - 1 >= int(t0))
-    return out
+        out |= (lb * wl <= int(t1)) & (hb * wh + wh - 1 >= int(t0))
+    return out & (lb * wl <= hb * wh + wh - 1)
 
 
 def group_stats(g: np.ndarray, n_groups: int) -> dict:
@@ -188,29 +207,41 @@ def group_stats(g: np.ndarray, n_groups: int) -> dict:
     spans = np.bincount(g[start], minlength=n_groups)
     rows = np.zeros(n_groups, np.int64)
     bricks = np.zeros(n_groups, np.int64)
+    adaptive = np.zeros(n_groups, np.int64)
     pj, pi = -nj % BRICK, -ni % BRICK
     for k0 in range(0, nk, BRICK):
         s = g[k0:k0 + BRICK]
         rows += _distinct(s.reshape(-1, ni), n_groups)
         p = np.pad(s, ((0, BRICK - s.shape[0]), (0, pj), (0, pi)), constant_values=-1)
         p = p.reshape(BRICK, p.shape[1] // BRICK, BRICK, p.shape[2] // BRICK, BRICK).transpose(1, 3, 0, 2, 4)
-        bricks += _distinct(p.reshape(-1, BRICK ** 3), n_groups)
-    return dict(vox=vox, spans=spans, rows=rows, bricks=bricks)
+        b, a = _distinct(p.reshape(-1, BRICK ** 3), n_groups, adaptive=True)
+        bricks += b
+        adaptive += a
+    return dict(vox=vox, spans=spans, rows=rows, bricks=bricks, adaptive=adaptive)
 
 
-def _distinct(rows: np.ndarray, n_groups: int) -> np.ndarray:
-    """Per group, the rows of ``rows`` (2-d) holding it (-1: no group)."""
+def _distinct(rows: np.ndarray, n_groups: int, adaptive: bool = False):
+    """Per group, the rows of ``rows`` (2-d) holding it (-1: no group); with ``adaptive`` also the bytes of
+    those rows' adaptive positions (per row holding the group: BRICK_HEAD + the fewer of a bitmap of the row and
+    LOCAL bytes per voxel of the group)."""
     s = np.sort(rows, axis=1)
     first = np.ones(s.shape, dtype=bool)
     first[:, 1:] = s[:, 1:] != s[:, :-1]
     v = s[first]
-    return np.bincount(v[v >= 0], minlength=n_groups)
+    keep = v >= 0
+    n = np.bincount(v[keep], minlength=n_groups)
+    if not adaptive:
+        return n
+    flat = np.flatnonzero(first.reshape(-1))
+    count = np.diff(np.append(flat, s.size))            # each (row, group)'s voxels (rows are whole: no spill)
+    cost = BRICK_HEAD + np.minimum(rows.shape[1] // 8, LOCAL * count)
+    return n, np.bincount(v[keep], weights=cost[keep], minlength=n_groups).astype(np.int64)
 
 
 def positions_bytes(st: dict) -> dict:
     """Bytes of each group's positions in each encoding (module docstring)."""
     return {"idx4": 4 * st["vox"], "spans": SPAN * st["spans"] + ROW_ENTRY * st["rows"],
-            "bitmap": BRICK_ENTRY * st["bricks"]}
+            "bitmap": BRICK_ENTRY * st["bricks"], "adaptive": st["adaptive"]}
 
 
 # ------------------------------------------------------------------------------------------------- reads
@@ -255,14 +286,15 @@ def pre_read_spatial(st: dict, sel: np.ndarray) -> dict:
     return out
 
 
-def code_span(bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per run, its codes' span [first, last]: the lo bin's first code .. the hi bin's last."""
+def code_span(bins) -> tuple[np.ndarray, np.ndarray]:
+    """Per run, its codes' span [first, last]: the lo bin's first code .. the hi bin's last (empty when last <
+    first)."""
     lb, hb = run_bins(bins)
-    w = 256 // bins
-    return lb * w, hb * w + w - 1
+    wl, wh = _widths(bins)
+    return lb * wl, np.maximum(hb * wh + wh - 1, lb * wl - 1)
 
 
-def pre_read_by_code(st: dict, bins: int, sel: np.ndarray, interest: np.ndarray) -> dict:
+def pre_read_by_code(st: dict, bins, sel: np.ndarray, interest: np.ndarray) -> dict:
     """Per encoding: what pre reads of runs ordered inside by own code (sub-runs ``run * 256 + code``, ``st``
     their :func:`group_stats`): per run selected with a code of interest in its span, its code counts, and the
     positions and normals of its sub-runs of interest. Also post's read and the file size in this order."""
@@ -379,7 +411,7 @@ def measure(c: dict, work: Path, quick: bool, bins_list) -> dict:
                 sub = runs * 256 + density
                 pre_row["by_code"] = pre_read_by_code(group_stats(sub, n_runs(bins) * 256), bins, sel, lut)
                 base["pre_rows"].append(pre_row)
-            _log(f"  {c['name']} {key} B={bins}: {row['vox']:,} voxels read, sampler's missing "
+            _log(f"  {c['name']} {key} B={_b(bins)}: {row['vox']:,} voxels read, sampler's missing "
                  f"{row['sampler_missing']:,}")
         del lo, hi
     return base
@@ -415,15 +447,16 @@ def post_rows(m: dict) -> list[str]:
         size = " / ".join(f"{e[k]['size'] / m['aug_size']:.2f}" for k in ENCODINGS)
         holds = "yes" if r["sampler_missing"] == 0 else \
             f"no: {r['sampler_missing']:,} missing (read set x{r['grown'] / max(1, r['vox']):.3f})"
-        L.append(f"| {m['name']} | {r['key']} | {r['bins']} | {r['runs_read']} / {r['runs']} | {r['vox']:,} | "
+        L.append(f"| {m['name']} | {r['key']} | {_b(r['bins'])} | {r['runs_read']} / {r['runs']} | {r['vox']:,} | "
                  f"{_mb(4 * r['vox'])} | {pos} | {_mb(e['spans']['read'] + idx_b)} | {_mb(need)} | **{ratios}** | "
                  f"{ch} | {pages} | {size} | {holds} |")
     return L
 
 
-POST_HEAD = ["| case | key | B | runs read | voxels read | values (MB) | positions idx4 / spans / bitmap (MB) | "
-             "read, spans (MB) | needed (MB) | read / needed idx4 / spans / bitmap | channels only: layout / "
-             "channel bytes needed | pages / needed | file / augmented file | holds today's sampler's reads |",
+POST_HEAD = ["| case | key | B | runs read | voxels read | values (MB) | positions idx4 / spans / bitmap / "
+             "adaptive (MB) | read, spans (MB) | needed (MB) | read / needed idx4 / spans / bitmap / adaptive | "
+             "channels only: layout / channel bytes needed | pages / needed | file / augmented file | "
+             "holds today's sampler's reads |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
 
 
@@ -442,14 +475,14 @@ def pre_rows(m: dict) -> list[str]:
         post_bc = " / ".join(f"{(bc[k]['post_read'] + m['post'].index_file_bytes) / post_need:.2f}"
                              for k in ENCODINGS)
         size = " / ".join(f"{bc[k]['size'] / m['aug_size']:.2f}" for k in ENCODINGS)
-        L.append(f"| {m['name']} | {r['bins']} | {_mb(need)} | {pre.read_ratio:.2f} | {cells[0]} | {cells[1]} | "
+        L.append(f"| {m['name']} | {_b(r['bins'])} | {_mb(need)} | {pre.read_ratio:.2f} | {cells[0]} | {cells[1]} | "
                  f"**{cells[2]}** | {cells[3]} | {post_bc} | {size} |")
     return L
 
 
 PRE_HEAD = ["| case | B | pre needed (MB) | pre today (values file) read / needed | runs spatial: read / needed "
-            "idx4 / spans / bitmap | pages / needed | runs by own code: read / needed | pages / needed | post from "
-            "runs by own code: read / needed | file (by code) / augmented |",
+            "idx4 / spans / bitmap / adaptive | pages / needed | runs by own code: read / needed | pages / needed | "
+            "post from runs by own code: read / needed | file (by code) / augmented |",
             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
 
 
@@ -461,9 +494,11 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from .selective_read import cases
 
-    bins_list = [int(b) for b in a.bins.split(",")]
-    if any(b < 1 or 256 % b for b in bins_list):
-        print("range_runs: error: --bins must divide 256", file=sys.stderr)
+    try:
+        bins_list = [_bins(b) for b in a.bins.split(",")]
+    except ValueError:
+        print(f"range_runs: error: --bins {a.bins!r}: give B or LOxHI, each a power of two up to 256",
+              file=sys.stderr)
         return 2
     done = []
     with tempfile.TemporaryDirectory(prefix="isplat-ranges-") as t:
@@ -475,6 +510,22 @@ def main(argv=None) -> int:
                 c["aug"].unlink()
     print(summary(done))
     return 0
+
+
+def _bins(text: str):
+    """``"16"`` -> 16 (square, lo bin <= hi bin), ``"4x32"`` -> (4, 32) (lo bins, hi bins).
+
+    >>> _bins("16"), _bins("4x32")
+    (16, (4, 32))
+    """
+    parts = [int(x) for x in text.lower().split("x")]
+    if len(parts) > 2 or any(p < 1 or p > 256 or 256 % p for p in parts):
+        raise ValueError(text)
+    return parts[0] if len(parts) == 1 else tuple(parts)
+
+
+def _b(bins) -> str:
+    return f"{bins[0]}x{bins[1]}" if isinstance(bins, tuple) else str(bins)
 
 
 def summary(done) -> str:

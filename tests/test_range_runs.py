@@ -90,8 +90,9 @@ def reference_groups(g, n_groups):
             for i in range(ni):
                 if i == 0 or g[k, j, i] != g[k, j, i - 1]:
                     spans[g[k, j, i]] += 1
-                bricks.setdefault(g[k, j, i], set()).add((k // 8, j // 8, i // 8))
-    return dict(vox=vox, spans=spans, rows=rows,
+                bricks.setdefault(g[k, j, i], {}).setdefault((k // 8, j // 8, i // 8), []).append((k, j, i))
+    adaptive = [sum(4 + min(64, 2 * len(v)) for v in bricks.get(x, {}).values()) for x in range(n_groups)]
+    return dict(vox=vox, spans=spans, rows=rows, adaptive=np.array(adaptive),
                 bricks=np.array([len(bricks.get(x, ())) for x in range(n_groups)]))
 
 
@@ -127,7 +128,7 @@ def test_sampler_reads_equal_the_cell_by_cell_reference(v, axis):
 
 
 @settings(max_examples=40, deadline=None)
-@given(volumes, st.sampled_from([1, 2, 4, 8, 16, 64]))
+@given(volumes, st.sampled_from([1, 2, 4, 8, 16, 64, (1, 8), (4, 32), (64, 2)]))
 def test_read_sets_hold_what_post_needs(v, bins):
     """The union key's runs hold every axis's footprint; the cells key's every axis's sampler reads."""
     d, rng = _volume(v)
@@ -147,11 +148,11 @@ def test_read_sets_hold_what_post_needs(v, bins):
 
 def test_runs_meeting_is_the_exact_rectangle_test():
     """A run is read exactly when some (lo, hi) of its bins, lo <= hi, meets an interval."""
-    for bins in (1, 4, 16):
-        w = 256 // bins
+    for bins in (1, 4, 16, (1, 8), (4, 2), (16, 4)):
+        wl, wh = (256 // bins[0], 256 // bins[1]) if isinstance(bins, tuple) else (256 // bins, 256 // bins)
         lb, hb = run_bins(bins)
         for ivs in ([(170, 255)], [(51, 81), (111, 255)], [(3, 3)]):
-            want = [any(lo <= b and hi >= a for lo in range(l * w, l * w + w) for hi in range(h * w, h * w + w)
+            want = [any(lo <= b and hi >= a for lo in range(l * wl, l * wl + wl) for hi in range(h * wh, h * wh + wh)
                         if lo <= hi for a, b in ivs) for l, h in zip(lb, hb)]
             assert runs_meeting(ivs, bins).tolist() == want
 
@@ -163,12 +164,12 @@ def test_group_stats_equal_the_reference(v, n_groups):
     nk, nj, ni, seed = v
     g = np.random.default_rng(seed).integers(0, n_groups, (nk, nj, ni)).astype(np.int32)
     got, want = group_stats(g, n_groups), reference_groups(g, n_groups)
-    for name in ("vox", "spans", "rows", "bricks"):
+    for name in ("vox", "spans", "rows", "bricks", "adaptive"):
         assert got[name].tolist() == want[name].tolist(), name
 
 
 @settings(max_examples=30, deadline=None)
-@given(volumes, st.sampled_from([4, 16, 64]))
+@given(volumes, st.sampled_from([4, 16, 64, (1, 16)]))
 def test_quads_reading_a_voxel_left_out_are_transparent(v, bins):
     """A voxel today's sampler reads but the union key's runs leave out is read only by quads whose corners'
     range misses every interval: their bilinear field has zero opacity, whatever the sampler does with them."""

@@ -1,21 +1,26 @@
 """Post's channels ordered by their neighbourhood's density range (issue 26): ``python -m benchmarks.range_runs
-[--quick] [--cases H1,E2,...] [--bins 8,16,32,64]`` prints tables (not a docs page). A count, not a timing; no
+[--quick] [--cases H1,E2,...] [--bins 8,16,64x16,...]`` prints tables (not a docs page). A count, not a timing; no
 change to isplat or its formats.
 
-Result (full cases, 2026-11-27; read = this layout + post's index reads of today, against post's bytes needed;
-today's bricks: H1 2.23, E2 2.68, B1 1.42, H1-512 1.64, C1 2.04). Positions decide it, not the voxels: the runs read
-hold about the footprint (1.04-1.19x the needed voxels at the best B), but a 4-byte index doubles the bytes
-(1.8-2.1x); brick bitmaps cost 1.0-2.0 B a voxel read at B = 8, spans 1.7-2.9 B, both more with more runs. Best per
-case, ``union`` key (one file, any view): H1 1.37, E2 1.66, B1 1.25, H1-512 1.23 (B = 8, bitmaps), C1 1.63 (B = 64,
-spans: its 51..81 veil needs narrow bins; at B = 8 it reads half the volume, 4.6x); the per-axis key gains little
-(H1 1.34, E2 1.55, C1 1.51). Pages / needed about equal read / needed (runs are contiguous), against today's
-1.73-5.67. But the union and axis keys do not hold what today's sampler reads (it samples whole 4 x 4 cells:
-1.15-1.29x the needed voxels; at the best B the read set must grow by 12-21%); the quads reading those voxels are
-all transparent (tests/test_range_runs.py; no labels, no taps between thick slices), so a sampler that skipped quads
-with a corner not loaded would draw the same image, but today's would not. The ``cells`` key holds them (checked) at
-H1 1.74, E2 1.83, B1 1.35, H1-512 1.38, C1 1.63. File: 1.01-1.14x the augmented file with spans or bitmaps at B = 8
-(idx4: 1.9-2x). Pre from the same file reads 1.42-2.16x its needed (positions cost at least its 2 B of normals),
-against 1.00-1.14 from the values file: one layout cannot serve both at pre's bar of 1.3; /values stays for pre.
+Result (full cases, `--bins` default, 2026-11-28; read = this layout + post's index reads of today, against post's
+bytes needed; today's bricks: H1 2.23, E2 2.68, B1 1.42, H1-512 1.64, C1 2.04; pages 1.73-5.67). The runs read hold
+about the footprint (1.0-1.12x the needed voxels at a fitting B); what decides is the positions: a 4-byte index
+alone makes 1.75-2.1x; ``adaptive`` brick positions cost least (then spans and bitmaps), and they grow with the
+number of runs. The bins are fixed when the file is written, and one binning must serve every scene: the threshold
+scenes want few lo bins (1x8, union key: H1 1.18, E2 1.28, B1 1.11, H1-512 1.10) but C1's 51..81 veil needs fine lo
+bins (1x8: 2.50, it reads half the volume; 64: 1.27). With one binning for all five: ``union`` (one file, any view)
+at B = 64: H1 1.45, E2 1.56, B1 1.33, H1-512 1.25, C1 1.27 (64x16: 1.44, 1.55, 1.28, 1.24, 1.25): E2 misses 1.5 by a
+little; ``axis`` (a file per view axis, 3x the disk) at 64x16: 1.38, 1.37, 1.26, 1.23, 1.19, all met. Pages / needed
+equal read / needed within 0.01 except E2 (+0.2: the index's pages). But neither key holds what today's sampler
+reads: it samples whole 4 x 4 cells (1.15-1.29x the needed voxels); at those B the read set must grow by 13-26%. The
+quads reading the voxels left out are all transparent (tests/test_range_runs.py; no labels, no taps between thick
+slices), so a sampler that skipped quads with a corner not loaded would draw the same image; today's would read
+missing voxels. The ``cells`` key holds them (checked) at 64x16: H1 1.75, E2 1.90, B1 1.35, H1-512 1.37, C1 1.49
+(best binning per case: 1.46, 1.62, 1.25, 1.25, 1.49): H1 and E2 fail. File (union, 64, adaptive): 1.06-1.17x the
+augmented file (idx4: 1.9-2x). Pre from the same file (positions + normals; its voxels of interest and order still
+from the index) reads 1.21-1.43x its needed at its best binning (1x8/1x32) and 1.41-2.03 at 64 or 64x16, against
+1.00-1.14 from the values file: positions cost about as much as its 2 B of normals, so one layout cannot serve pre
+at its bar of 1.3; /values stays for pre.
 
 Method. For each voxel, key = (lo, hi), the least and greatest density over the voxels whose quads it shares.
 Three keys: ``union``, the in-slice 3 x 3 squares of the three slice axes united (19 voxels: the 3 x 3 x 3 cube
@@ -490,7 +495,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.range_runs", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="volumes at 1/4 resolution")
     ap.add_argument("--cases", default="H1,E2,B1,H1-512,C1")
-    ap.add_argument("--bins", default="8,16,32,64")
+    ap.add_argument("--bins", default="8,16,32,64,1x8,1x32,4x32,64x8,64x16",
+                    help="B (square) or LOxHI, comma-separated")
     a = ap.parse_args(argv)
     from .selective_read import cases
 

@@ -3,10 +3,12 @@
 Measured and not kept (docs/design.md, *Where a frame's time goes, per sample*): :func:`span8` (the whole
 sample in lanes) and :func:`scan8` (the pixels' tests in lanes, the samples one by one) made the real chest frame
 1.5x slower, though :mod:`benchmarks.simd_span` (every quad of every slice, no index) is 0.6x. To try it in the
-renderer again: ``cp benchmarks/_simd.py isplat/splat/simd.py``, change its three ``isplat.`` imports back to
-relative ones, ``git apply benchmarks/simd_post.patch`` (post.py's row loop calls :func:`span8` with
-``ISPLAT_SIMD_MODE=2``, :func:`scan8` with 1, the scalar loop with ``ISPLAT_SIMD_SPAN=0``; each value with a
-``NUMBA_CACHE_DIR`` of its own).
+renderer again: the patch was made against commit 63fd162 and no longer applies to later post.py and jit.py, so
+``git worktree add ../simd 63fd162``, there ``cp benchmarks/_simd.py isplat/splat/simd.py``, change its three
+``isplat.`` imports back to relative ones and ``git apply benchmarks/simd_post.patch`` (post.py's row loop then
+calls :func:`span8` with the environment variable ``ISPLAT_SIMD_MODE=2``, :func:`scan8` with 1, the scalar loop
+with ``ISPLAT_SIMD_SPAN=0``; each value with a ``NUMBA_CACHE_DIR`` of its own). These variables exist only in
+the patched tree: isplat itself has no SIMD switch.
 
 The samples of a row span 8 at a time: :func:`span8`, which :func:`isplat.splat.post._sample_square` would call
 for the pixels of a row in place of its per-pixel loop where the frame allows (orthographic, no cutting planes,

@@ -641,7 +641,8 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict, quick: bool =
         *(f"| bone scene end to end, {t}: Renderer (load, decode, select, gather) and its first 256x256 frame | "
           f"{1000 * c[f'frame_{t}_checked']:.1f} ms | {1000 * c[f'frame_{t}_unchecked']:.1f} ms | "
           f"{c[f'frame_{t}_checked'] / c[f'frame_{t}_unchecked']:.2f} |" for t in ("pre", "post")),
-        f"| everything: three whole channels (post-classification reads them whole), all densities on three "
+        f"| everything: the three channels whole (as the full method reads them, and post from a file without "
+        f"bricks), all densities on three "
         f"axes | {1000 * c['whole_checked']:.1f} ms | "
         f"{1000 * c['whole_unchecked']:.1f} ms | {c['whole_checked'] / c['whole_unchecked']:.2f} |",
         "| index bytes a bone load reads: whole chunks, read and checked (checked) against the rows and bytes "

@@ -1,7 +1,8 @@
 r"""Fast, exact direct volume rendering by indexed splatting (Ihm & Lee).
 
 In a notebook, one call from an array (or a scan's path) to a picture, ``isplat.render`` (isplat.api):
-``rgba = isplat.render(ct, preset="ct-bone", azimuth=30)``. From the shell, preprocess once, render many times. Each stage is a plain function first and a command second
+``rgba = isplat.render(ct, preset="ct-bone", azimuth=30)``. From the shell, preprocess once, render many times.
+Each stage is a plain function first and a command second
 (``isplat sample``, ``isplat augment``, ``isplat index``, ``isplat render``, ``isplat stats``; ``isplat --help``):
 
 >>> import pathlib, tempfile, numpy as np
@@ -28,7 +29,8 @@ In a notebook, one call from an array (or a scan's path) to a picture, ``isplat.
 
 Modules: isplat.samples (synthetic volumes), isplat.volume_io (reading scans), isplat.augment and
 isplat.augfile (the augmented volume, formats/augmented.md), isplat.index (the density index,
-formats/index.md), isplat.scene (scene files, formats/scene.md), isplat.renderer (rendering a scene's views), isplat.selection and isplat.frame (the render core), isplat.stats (the
+formats/index.md), isplat.scene (scene files, formats/scene.md), isplat.renderer (rendering a scene's views),
+isplat.selection and isplat.frame (the render core), isplat.stats (the
 paper's Figure 5 figures), isplat.cli (the command). Log lines go through the logging module, under the
 ``isplat`` logger; progress bars (isplat.progress) show only while that logger lets INFO through.
 """

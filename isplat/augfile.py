@@ -129,7 +129,8 @@ class AugmentedVolume:
     def read_bricks(self, channel: str, bricks: np.ndarray, box=None) -> np.ndarray:
         """The whole ``channel`` (shape ``shape``) holding only the bricks whose grid indices are the rows of
         ``bricks`` (int64[n, 3], C order of the grid, unique), zero elsewhere (``np.zeros``: pages never written
-        are not held: :func:`lazy_zeros`); each brick checked against its chunk hash, and the density's against ``brick_range``
+        are not held: :func:`lazy_zeros`); each brick checked against its chunk hash, and the density's against
+        ``brick_range``
         (its smallest and largest code). ``box``: ``(lo, hi)`` (k, j, i) element bounds: the array holds just
         that block (a slab's slices). Adds the bricks' bytes to :attr:`bytes_read`."""
         if channel not in CHANNELS:

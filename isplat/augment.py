@@ -30,7 +30,8 @@ import numba
 import numpy as np
 
 from . import progress
-from .augfile import FORMAT_VERSION, ROWS_VERSION, ChannelWriter, create_augmented, finish_augmented, label_counts, write_labels
+from .augfile import (FORMAT_VERSION, ROWS_VERSION, ChannelWriter, create_augmented, finish_augmented, label_counts,
+                      write_labels)
 from .errors import IsplatError
 from .fileio import atomic_output, check_output, create_hdf5
 from .jit import jit, stage
@@ -507,7 +508,8 @@ def augment_file(inp, out, force=False, window=None, spacing=None, shape=None, d
     stored as the label channel (formats/augmented.md §2.1). ``bricks``: write format 6 (the channels in 8^3
     bricks of isplat's own store, which the post technique reads only where its scene needs them), else format 4
     (chunks of whole rows, read whole; docs/selective-read.md). Returns a
-    summary dict (shape, window, gradient scale, sha256, ``axes_lps`` or None, ``hounsfield`` (why the data are taken as Hounsfield units, or None), and where spacing and
+    summary dict (shape, window, gradient scale, sha256, ``axes_lps`` or None, ``hounsfield`` (why the data are
+    taken as Hounsfield units, or None), and where spacing and
     orientation came from).
     """
     check_output(out, force)  # fail before any work

@@ -411,9 +411,9 @@ class Verifier:
                 bad.append(si)
         ds.id.chunk_iter(visit)
         if bad:
-            self.fail(dataset, bad[0].chunk_offset, f"stored as {bad[0].size} bytes with filter mask "
-                                                    f"{bad[0].filter_mask}, expected {size} (elements and Fletcher-32), "
-                                                    f"so it cannot be checked")
+            self.fail(dataset, bad[0].chunk_offset,
+                      f"stored as {bad[0].size} bytes with filter mask {bad[0].filter_mask}, expected {size} "
+                      f"(elements and Fletcher-32), so it cannot be checked")
         ch, g = np.asarray(chunks, dtype=np.int64), np.asarray(grid, dtype=np.int64)
         c = np.asarray(coords, dtype=np.int64).reshape(-1, 3)
         places = np.full(int(np.prod(grid)), -1, dtype=np.int64)

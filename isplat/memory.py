@@ -33,8 +33,8 @@ def channels_in_memory(density, scene, normal=None, gradient_magnitude=None, gra
     arr, sp = check_volume(density, spacing or scene.volume.spacing)
     needs_normal = bool(scene.shading.enabled)
     needs_gm = len(scene.transfer.gradient_opacity) > 0
-    missing = [name for name, value, need in (("normal", normal, needs_normal),
-                                              ("gradient_magnitude", gradient_magnitude, needs_gm)) if need and value is None]
+    wanted = (("normal", normal, needs_normal), ("gradient_magnitude", gradient_magnitude, needs_gm))
+    missing = [name for name, value, need in wanted if need and value is None]
     if missing and (normal is not None or gradient_magnitude is not None):
         raise IsplatError(f"array: the scene needs {missing[0]} codes too; pass them, or pass no channels and "
                           "let isplat augment the volume")

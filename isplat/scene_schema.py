@@ -22,7 +22,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
-    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "OLD_DEFAULT_MEANING", "Scene", "Data", "Image", "Volume", "Camera", "Transfer",
+    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "OLD_DEFAULT_MEANING", "Scene", "Data", "Image", "Volume",
+    "Camera", "Transfer",
     "Shading", "Light", "Cut", "RenderOptions", "Labels", "LabelStyle", "defaults", "default_for", "spacing_problem",
 ]
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from . import grid
 from .errors import IsplatError
+from .fileio import PAGE
 from .splat.kernels import IndexedVoxels, WholeVolume
 from .transfer import TransferLUTs, build_luts
 
@@ -411,7 +412,8 @@ def gather_channels(read, loaded: dict, channels, shape) -> dict:
 
 
 def _split(out: dict, ch: str, vals: np.ndarray, fis: dict) -> None:
-    """``out[axis][ch]``: each axis's part of ``vals``, the values of the axes' voxels concatenated in ``fis``' order."""
+    """``out[axis][ch]``: each axis's part of ``vals``, the values of the axes' voxels concatenated in ``fis``'
+    order."""
     start = 0
     for ax, fi in fis.items():
         out[ax][ch] = vals[start:start + fi.shape[0]]
@@ -522,6 +524,20 @@ def select_from_files(scene, axes: str, method: str | None = None, aug=None, sli
     return select(RenderRequest.from_files(scene, aug, axes, method, slices), aug)
 
 
+def _channels(sel: Selection, aug, axes, slices) -> Selection:
+    """The channels read before the index, when not from bricks: a slab's slices (post, indexed, one axis), the
+    whole channels (full method, or post on a file without bricks), or none (pre: ``/values``, with the index)."""
+    if sel.post and sel.method == "indexed" and slices is not None and len(axes) == 1 and not sel.empty:
+        whole, slab = _slab_channels(sel, aug, axes, slices)     # post: only the slab's slices
+        sel.report.values_from = "slab's channels"
+        return replace(sel, whole=whole, slab=slab)
+    if sel.method == "full" or sel.post:
+        sel = replace(sel, whole=_whole(sel, aug.read))        # (which notes the channels it read)
+        sel.report.values_from = "whole channels" if sel.report.channels else "none"
+        return sel
+    return sel
+
+
 def select(request, aug=None, idx=None) -> Selection:
     """Read what ``request`` needs from its files: only the index blocks of the transfer function's intervals
     (indexed method) and the channels the request uses (module docstring). ``aug``, ``idx``: the augmented file
@@ -541,15 +557,8 @@ def select(request, aug=None, idx=None) -> Selection:
     sel.report.axes = sorted(axes)
     rep = sel.report
     bricked = _reads_bricks(sel, aug)       # post, version 5: the bricks its quads read, after the index
-    if bricked:
-        pass                                # (read below, once the index's cells are selected)
-    elif sel.post and sel.method == "indexed" and slices is not None and len(axes) == 1 and not sel.empty:
-        whole, slab = _slab_channels(sel, aug, axes, slices)     # post: only the slab's slices
-        sel = replace(sel, whole=whole, slab=slab)
-        rep.values_from = "slab's channels"
-    elif sel.method == "full" or sel.post:
-        sel = replace(sel, whole=_whole(sel, aug.read))
-        rep.values_from = "whole channels" if sel.report.channels else "none"
+    if not bricked:
+        sel = _channels(sel, aug, axes, slices)
     if sel.method == "indexed":
         read0, io0 = (idx.bytes_read, idx.io.bytes) if idx is not None else (0, 0)  # (an index opened before:
         mark0 = idx.io.mark() if idx is not None else None                           # this selection's reads)
@@ -729,8 +738,7 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
     return replace(sel, whole=whole, slab=slab)
 
 
-PAGE_SHIFT = 12
-PAGE = 1 << PAGE_SHIFT
+PAGE_SHIFT = PAGE.bit_length() - 1      # the pages held, as isplat.fileio counts the pages read
 
 
 def pages_filled(bricks: np.ndarray, size, lo, shape, itemsize: int) -> int:
@@ -830,7 +838,8 @@ def _values_source(idx, aug, slices) -> str:
             _SAID_NO_VALUES.add(str(idx.path))
             log.info(f"isplat: {idx.path} has no values file ({values_path(idx.path).name}): pre-classification "
                      f"gathers the channel values from {aug.path} "
-                     f"{'(the bricks that hold them)' if aug.bricked else 'in k-slabs'}; isplat index {aug.path} -o {idx.path} "
+                     f"{'(the bricks that hold them)' if aug.bricked else 'in k-slabs'}; "
+                     f"isplat index {aug.path} -o {idx.path} "
                      f"--force writes it")
         return "augmented slabs"
     _check_values_match(idx.values_meta, idx.path if source == "index" else idx.values_file.path, aug,

@@ -185,7 +185,8 @@ def _report(scene_file, method, out, rep, per_view) -> dict:
             "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
             "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
             "values_bytes_read": rep.values_bytes,
-            "file_bytes_read": rep.file_bytes, "file_pages_read": rep.file_pages, "technique": rep.technique, "needed_voxels": rep.needed_voxels,
+            "file_bytes_read": rep.file_bytes, "file_pages_read": rep.file_pages, "technique": rep.technique,
+            "needed_voxels": rep.needed_voxels,
             "needed_axis": rep.needed_axis, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
             "views": per_view}
 

@@ -22,7 +22,8 @@ its bound: such pixels are finished for it and for every unit after it, whose bo
 of pixels once found finished stays so (:data:`Held`, :func:`_tiles_hold`: a few tests per unit), else its
 pixels are looked at one by one (:func:`_unit`) and its quads sampled at the pixels that are not finished.
 Exact whatever the order: a skipped unit cannot raise any pixel. Each band lists the units that reach its rows
-first, then walks them with the next units' densities prefetched (they lie anywhere in the volume). Early termination, footprints, shading and slab compositing do not apply
+first, then walks them with the next units' densities prefetched (they lie anywhere in the volume). Early
+termination, footprints, shading and slab compositing do not apply
 (docs/mip.md).
 
 A technique of :mod:`isplat.splat.traverse`: its plan (:data:`MipPlan`) has one "sheet" (the frame's one pass
@@ -52,7 +53,8 @@ Units = namedtuple("Units", "c a0 b0 owned ext count hi lo")
 Units.__doc__ = """The units of one axis of a selection (one row per cell holding a voxel of interest): slice
 ``c``, the cell's first voxel ``(a0, b0)``, ``owned`` the quads it samples (bit ``5 (qb - b0 + 1) + qa - a0 + 1``
 of the 5 x 5 quads from (a0 - 1, b0 - 1); :func:`_put`), ``ext`` the columns and rows of the 5 x 5 that hold
-an owned quad (first and one past the last, 3 bits each: ka0, ka1, kb0, kb1), ``count`` its voxels of interest, and the highest
+an owned quad (first and one past the last, 3 bits each: ka0, ka1, kb0, kb1), ``count`` its voxels of interest, and
+the highest
 (``hi``) and lowest (``lo``) density of its quads' corners (int32 each)."""
 MipPlan = namedtuple("MipPlan", "units in_frame whole geo sign window color use_color held between")
 MipPlan.__doc__ = """A frame's tables: ``units`` (:data:`Units`) by bound (high to low for MIP, low to high for

@@ -663,6 +663,4 @@ def max_cells(sel, axis: str) -> int:
     if sel.method == "full":
         _, n_a, n_b = grid.slice_shape(sel.shape, axis)
         return -(-n_a // CELL) * -(-n_b // CELL)
-    a = sel.axes[axis]
-    per_slice = np.diff(a.block_ptr[a.region_ptr[a.slice_ptr]]) if a.n_slices else np.zeros(1, np.int64)
-    return int(per_slice.max(initial=0))
+    return sel.axes[axis].max_cells

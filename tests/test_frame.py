@@ -982,7 +982,7 @@ def _hidden_reference(a0, b0, size, n_a, n_b, xs, ys, coef, ex, ey, w, y0b, y1b,
        turn=st.one_of(st.sampled_from([0.0, 1.5707963267948966]), st.floats(0, 6.3)),
        p=st.sampled_from([0.0, 0.02, 0.3, 0.9]), et_on=st.booleans(), data=st.data())
 def test_visible_cells_against_a_test_per_cell(seed, n_a, n_b, scale, turn, p, et_on, data):
-    """visible_cells (orthographic: a block in the clear keeps its cells untested, _block_clear) against the
+    """visible_cells (orthographic: a block in the clear keeps its cells untested, _block_test) against the
     obvious: every cell of the slice tested on its own, in order, behind its region's and block's tests; a random
     slice's projection (axis-aligned too: a cell one voxel wide then spans no pixel when the reach is under half
     a pixel), band and saturation mask (sparse to dense)."""

@@ -458,10 +458,19 @@ def image_bands(height: int, threads: int, tile: int = TILE) -> np.ndarray:
     equal speed every n-th band, so that the middle of the image, where the work is, is shared. A frame's bands
     are these, or as many cut by the work the frames before it
     found (:func:`band_rows`). The image depends neither on the bands nor on which thread renders which."""
+    return _even_bands(height, threads, tile, BANDS_PER_THREAD, MIN_BAND_TILES)
+
+
+@lru_cache(maxsize=32)
+def _even_bands(height: int, threads: int, tile: int, per_thread: int, least: int) -> np.ndarray:
+    """:func:`image_bands` (read-only, made once per image height, threads and settings: a frame's first of its
+    kind, and every frame of one thread, takes them)."""
     n_tiles = -(-height // tile)
-    per = max(MIN_BAND_TILES, -(-n_tiles // (1 if threads <= 1 else threads * BANDS_PER_THREAD)))
+    per = max(least, -(-n_tiles // (1 if threads <= 1 else threads * per_thread)))
     y0 = np.arange(0, n_tiles, per) * tile
-    return np.stack([y0, np.minimum(y0 + per * tile, height)], axis=1).astype(np.int64)
+    out = np.stack([y0, np.minimum(y0 + per * tile, height)], axis=1).astype(np.int64)
+    out.flags.writeable = False
+    return out
 
 
 def band_rows(bands: "BandLearning | None", view: View, threads: int) -> np.ndarray:

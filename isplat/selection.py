@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -176,6 +177,13 @@ class AxisSelection:
     def voxels(self) -> IndexedVoxels:
         """The arrays as the frame kernel takes them."""
         return IndexedVoxels(*self.arrays(), self.n_a, self.n_b)
+
+    @cached_property
+    def max_cells(self) -> int:
+        """The most cells of one slice (the size of a thread's list of visible cells; worked out once)."""
+        if not self.n_slices:
+            return 0
+        return int(np.diff(self.block_ptr[self.region_ptr[self.slice_ptr]]).max(initial=0))
 
     def arrays(self) -> list[np.ndarray]:
         return [self.slice_ptr, self.region_id, self.region_ptr, self.block_pos, self.block_ptr, self.block_voxel,

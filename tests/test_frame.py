@@ -950,3 +950,90 @@ def test_occlusion_look_ups_against_the_obvious(seed, h, w, p, data):
     touched = whole[y0 // TILE:y1 // TILE + 1, x0 // TILE:x1 // TILE + 1]
     assert K._tiles_whole(satab, ty0, x0, x1, y0, y1) == touched.all()
     assert K.pixels_saturated(sat, x0, x1, y0, y1) == sat[y0:y1 + 1, x0:x1 + 1].all()
+
+
+def _hidden_reference(a0, b0, size, n_a, n_b, xs, ys, coef, ex, ey, w, y0b, y1b, et_on, sat, pixels):
+    """The occlusion test of one square of a slice, orthographic, as docs/design.md states it: its footprints'
+    pixel box (the hull of its corners grown by the reach) meets no pixel of the band, or (early termination on)
+    only saturated ones (``pixels`` False: whole tiles only)."""
+    import math
+
+    from isplat.splat import traverse as K
+    from isplat.splat.composite import TILE
+
+    a1, b1 = min(a0 + size, n_a) - 1, min(b0 + size, n_b) - 1
+    xa, xb = (a0 * coef[K.XA], a1 * coef[K.XA]), (b0 * coef[K.XB], b1 * coef[K.XB])
+    ya, yb = (a0 * coef[K.YA], a1 * coef[K.YA]), (b0 * coef[K.YB], b1 * coef[K.YB])
+    x0 = max(int(math.ceil(xs + min(xa) + min(xb) - ex)), 0)
+    x1 = min(int(math.floor(xs + max(xa) + max(xb) + ex)), w - 1)
+    y0 = max(int(math.ceil(ys + min(ya) + min(yb) - ey)), y0b)
+    y1 = min(int(math.floor(ys + max(ya) + max(yb) + ey)), y1b - 1)
+    if x0 > x1 or y0 > y1:
+        return True
+    if not et_on:
+        return False
+    tiles = [(ty, tx) for ty in range(y0 // TILE, y1 // TILE + 1) for tx in range(x0 // TILE, x1 // TILE + 1)]
+    whole = all(sat[ty * TILE:(ty + 1) * TILE, tx * TILE:(tx + 1) * TILE].all() for ty, tx in tiles)
+    return whole or (pixels and bool(sat[y0:y1 + 1, x0:x1 + 1].all()))
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), n_a=st.integers(1, 64), n_b=st.integers(1, 64), scale=st.floats(0.2, 2.0),
+       turn=st.one_of(st.sampled_from([0.0, 1.5707963267948966]), st.floats(0, 6.3)),
+       p=st.sampled_from([0.0, 0.02, 0.3, 0.9]), et_on=st.booleans(), data=st.data())
+def test_visible_cells_against_a_test_per_cell(seed, n_a, n_b, scale, turn, p, et_on, data):
+    """visible_cells (orthographic: a block in the clear keeps its cells untested, _block_test) against the
+    obvious: every cell of the slice tested on its own, in order, behind its region's and block's tests; a random
+    slice's projection (axis-aligned too: a cell one voxel wide then spans no pixel when the reach is under half
+    a pixel), band and saturation mask (sparse to dense)."""
+    from isplat.splat import traverse as K
+    from isplat.splat.composite import TILE
+
+    rng = np.random.default_rng(seed)
+    h, w = 48, 56
+    sat = (rng.random((h, w)) < p).astype(np.uint8)
+    npix = F._tile_pixels(h, w)
+    tile_sat = np.zeros(npix.shape, np.int32)
+    np.add.at(tile_sat, (np.arange(h)[:, None] // TILE, np.arange(w)[None, :] // TILE), sat)
+    ty0, ty1 = 0, npix.shape[0]                                # the whole image, or a band of it
+    if data.draw(st.booleans()):
+        ty0 = data.draw(st.integers(0, npix.shape[0] - 1))
+        ty1 = data.draw(st.integers(ty0 + 1, npix.shape[0]))
+    y0b, y1b = ty0 * TILE, min(ty1 * TILE, h)
+    satab = np.zeros((ty1 - ty0 + 1, npix.shape[1] + 1), np.int32)
+    K.build_sat(tile_sat, npix, ty0, satab)
+    coef = np.zeros(16)
+    coef[[K.XA, K.XB, K.YA, K.YB]] = scale * np.array([np.cos(turn), -np.sin(turn), np.sin(turn), np.cos(turn)])
+    coef[[K.XB, K.YB]] *= data.draw(st.floats(0.5, 2.0))
+    xs, ys = rng.uniform(-10, 30), rng.uniform(-10, 30)       # mostly inside the image, some blocks in the clear
+    ex, ey = abs(coef[K.XA]) + abs(coef[K.XB]), abs(coef[K.YA]) + abs(coef[K.YB])
+    base = (xs, ys, 0.0, 0.0, 0.0, 0.0, 0.0)
+    boxes = (n_a, n_b, base, tuple(coef), False, ex, ey, w, y0b, y1b, ty0, et_on)
+    # one region: its blocks and their cells inside the slice, each cell with a random count of voxels
+    bpos = [bp for bp in range(16) if (bp % 4) * 16 < n_a and (bp // 4) * 16 < n_b]
+    cpos, ccount, bptr, bvox = [], [], [0], [0]
+    for bp in bpos:
+        for cp in range(16):
+            if (bp % 4) * 16 + (cp % 4) * 4 < n_a and (bp // 4) * 16 + (cp // 4) * 4 < n_b and rng.random() < 0.8:
+                cpos.append(cp)
+                ccount.append(int(rng.integers(1, 17)))
+        bptr.append(len(cpos))
+        bvox.append(bvox[-1] + sum(ccount[bptr[-2]:]))
+    hier = (np.zeros(1, np.int32), np.array([0, len(bpos)], np.int64), np.array(bpos, np.uint8),
+            np.array(bptr, np.int64), np.array(bvox, np.int64), np.array(cpos, np.uint8), np.array(ccount, np.uint8))
+    cells = np.zeros((max(len(cpos), 1), 4), np.int64)
+    nc = K.visible_cells(np.zeros(1, np.int64), 0, 1, hier, n_a, boxes, satab, sat, tile_sat, cells)
+    args = (n_a, n_b, xs, ys, coef, ex, ey, w, y0b, y1b, et_on, sat)
+    want = []
+    if not _hidden_reference(0, 0, 64, *args, False):
+        for k, bp in enumerate(bpos):
+            ba0, bb0 = (bp % 4) * 16, (bp // 4) * 16
+            if _hidden_reference(ba0, bb0, 16, *args, False):
+                continue
+            n = bvox[k]
+            for q in range(bptr[k], bptr[k + 1]):
+                ca0, cb0 = ba0 + (cpos[q] % 4) * 4, bb0 + (cpos[q] // 4) * 4
+                if not _hidden_reference(ca0, cb0, 4, *args, True):
+                    want.append([n, n + ccount[q], ca0, cb0])
+                n += ccount[q]
+    assert cells[:nc].tolist() == want

@@ -302,7 +302,7 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, b
     counts[1] = 0
     base = slice_bases(c, geo, cs)
     boxes = box_args(whole.n_a, whole.n_b, base, geo, reach, buf.img.shape[1], band, et < 1.0)
-    nc = visible_cells(regions, p0, p1, hier, whole.n_a, boxes, satab, buf.sat, cells)
+    nc = visible_cells(regions, p0, p1, hier, whole.n_a, boxes, satab, buf.sat, buf.tile_sat, cells)
     for k in range(nc):
         buf.stats[bi, 1] += cells[k, 1] - cells[k, 0]
     mark, marked, smark, squares, todo = marks

@@ -120,7 +120,7 @@ def _render_slice(c, regions, p0, p1, hier, vals, n_a, n_b, plan, lists, buf, ba
     base = slice_bases(c, geo, cs)
     boxes = box_args(n_a, n_b, base, geo, plan.reach, buf.img.shape[1], band, et < 1.0)
     cells = lists.cells
-    nc = visible_cells(regions, p0, p1, hier[:7], n_a, boxes, satab, buf.sat, cells)
+    nc = visible_cells(regions, p0, p1, hier[:7], n_a, boxes, satab, buf.sat, buf.tile_sat, cells)
     nd = _splat_cells(cells, nc, hier[7], hier[8], vals, base, cs, plan.cls, geo, plan.fp, plan.sheet, lists.dirty,
                       buf, band)
     if composite_sheet(buf.img, plan.sheet.sheet, buf.sat, buf.tile_sat, plan.sheet.dirty_px, lists.dirty, nd,

@@ -300,10 +300,12 @@ def box_args(n_a, n_b, base, geo, reach, img_w, band, et_on):
 
 
 @leaf
-def visible_cells(regions, p0, p1, hier, n_a, boxes, satab, sat, cells):
+def visible_cells(regions, p0, p1, hier, n_a, boxes, satab, sat, tile_sat, cells):
     """Stage 2: the cells of regions ``regions[p0:p1]`` whose footprints can reach an unsaturated pixel of the
     band, as rows ``(first voxel, end voxel, a0, b0)`` of ``cells``; a hidden region or block is skipped with
-    one test (whole tiles), a cell with one test of its tiles or pixels. Returns the number of cells."""
+    one test (whole tiles), a cell with one test of its tiles or pixels, and the cells of a block that
+    :func:`_block_test` finds in the clear (``tile_sat``: the saturated pixels per tile) are kept without
+    theirs. Returns the number of cells."""
     region_id, region_ptr, block_pos, block_ptr, block_voxel, cell_pos, cell_count = hier
     nra = (n_a + REGION - 1) // REGION
     nc = 0
@@ -316,14 +318,15 @@ def visible_cells(regions, p0, p1, hier, n_a, boxes, satab, sat, cells):
         for r in range(region_ptr[g], region_ptr[g + 1]):
             ba0 = ra0 + (block_pos[r] % 4) * BLOCK
             bb0 = rb0 + (block_pos[r] // 4) * BLOCK
-            if _hidden(ba0, bb0, BLOCK, boxes, satab, sat, False):
+            hidden, clear = _block_test(ba0, bb0, boxes, satab, tile_sat)
+            if hidden:
                 continue
             n = block_voxel[r]
             for q in range(block_ptr[r], block_ptr[r + 1]):
                 n1 = n + cell_count[q]
                 ca0 = ba0 + (cell_pos[q] % 4) * CELL
                 cb0 = bb0 + (cell_pos[q] // 4) * CELL
-                if not _hidden(ca0, cb0, CELL, boxes, satab, sat, True):
+                if clear or not _hidden(ca0, cb0, CELL, boxes, satab, sat, True):
                     cells[nc, 0] = n
                     cells[nc, 1] = n1
                     cells[nc, 2] = ca0
@@ -331,6 +334,38 @@ def visible_cells(regions, p0, p1, hier, n_a, boxes, satab, sat, cells):
                     nc += 1
                 n = n1
     return nc
+
+
+# the least footprint reach (pixels, x and y) for which _block_test vouches for a cell's box: over half a pixel
+# and the coordinates' rounding, so that every cell's box (at least 2 reach wide) holds a pixel
+CLEAR_REACH = 0.5 + 1e-6
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _block_test(a0, b0, boxes, satab, tile_sat):
+    """``(hidden, clear)`` of the block from voxel (a0, b0), from one box: ``hidden`` as :func:`_hidden` tests a
+    block (whole tiles); ``clear`` True when :func:`_hidden` would find none of its cells hidden, so they need no
+    test of their own: orthographic (a cell's box then lies in its block's, bounds computed alike and rounding
+    monotonic, :func:`rect_hull`), the block's box inside the image and the band, no saturated pixel in the tiles
+    it touches (``tile_sat``; or early termination off), and a footprint reach over half a pixel each way
+    (:data:`CLEAR_REACH`: no cell's box is empty). ``clear`` False when unsure: the cells are then tested."""
+    n_a, n_b, base, coef, persp, ex, ey, img_w, y0b, y1b, ty0, et_on = boxes
+    ok, box = _rect_box(a0, min(a0 + BLOCK, n_a) - 1, b0, min(b0 + BLOCK, n_b) - 1, base, coef, persp, ex, ey)
+    if not ok:
+        return False, False
+    gx0, gx1 = max(box[0], 0), min(box[1], img_w - 1)
+    gy0, gy1 = max(box[2], y0b), min(box[3], y1b - 1)
+    if gy0 > gy1 or gx0 > gx1 or (et_on and _tiles_whole(satab, ty0, gx0, gx1, gy0, gy1)):
+        return True, False
+    if (persp or ex < CLEAR_REACH or ey < CLEAR_REACH or box[0] < 0 or box[1] > img_w - 1 or box[2] < y0b
+            or box[3] > y1b - 1):
+        return False, False
+    if et_on:
+        for ty in range(box[2] // TILE, box[3] // TILE + 1):
+            for tx in range(box[0] // TILE, box[1] // TILE + 1):
+                if tile_sat[ty, tx] != 0:
+                    return False, False
+    return False, True
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
@@ -634,6 +669,4 @@ def max_cells(sel, axis: str) -> int:
     if sel.method == "full":
         _, n_a, n_b = grid.slice_shape(sel.shape, axis)
         return -(-n_a // CELL) * -(-n_b // CELL)
-    a = sel.axes[axis]
-    per_slice = np.diff(a.block_ptr[a.region_ptr[a.slice_ptr]]) if a.n_slices else np.zeros(1, np.int64)
-    return int(per_slice.max(initial=0))
+    return sel.axes[axis].max_cells

@@ -89,9 +89,9 @@ def _cli(*args, root: Path = REPO):
 
 
 def data(quick: bool, old: Path) -> dict:
-    """(augmented, index) of each data tag, made once under out/bench-sampler/<old commit>/data: indexed by the
-    old commit's isplat (tree ``old``), whose index format both read (the new reads older index formats; the old
-    may not read the new one)."""
+    """(augmented, index) of each data tag, made once under out/bench-sampler/<old commit>/data: augmented and
+    indexed by the old commit's isplat (tree ``old``), whose formats both read (the new reads older formats; the
+    old may not read the new ones: a file augmented by the new isplat made the old one's ``index`` fail)."""
     d = old / "data"
     d.mkdir(parents=True, exist_ok=True)
     chest_shape = "256,256,67" if quick else "512,512,133"
@@ -105,7 +105,7 @@ def data(quick: bool, old: Path) -> dict:
         npy, aug, idx = (d / f"{name}{e}" for e in (".npy", ".aug.h5", ".idx.h5"))
         if not idx.exists():
             _cli("sample", sample, "-o", npy, "--force", *(["--shape", shape] if shape else []))
-            _cli("augment", npy, "-o", aug, "--force", *aug_args)
+            _cli("augment", npy, "-o", aug, "--force", *aug_args, root=old)
             _cli("index", aug, "-o", idx, "--force", root=old)
             npy.unlink()
         out[tag] = (aug, idx)

@@ -13,8 +13,8 @@ at B = 64: H1 1.45, E2 1.56, B1 1.33, H1-512 1.25, C1 1.27 (64x16: 1.44, 1.55, 1
 little; ``axis`` (a file per view axis, 3x the disk) at 64x16: 1.38, 1.37, 1.26, 1.23, 1.19, all met. Pages / needed
 equal read / needed within 0.01 except E2 (+0.2: the index's pages). But neither key holds what today's sampler
 reads: it samples whole 4 x 4 cells (1.15-1.29x the needed voxels); at those B the read set must grow by 13-26%. The
-quads reading the voxels left out are all transparent (tests/test_range_runs.py; no labels, no taps between thick
-slices), so a sampler that skipped quads with a corner not loaded would draw the same image; today's would read
+quads reading the voxels left out are all transparent (benchmarks/test_range_runs.py, run by make bench-check; no
+labels, no taps between thick slices), so a sampler that skipped quads with a corner not loaded would draw the same image; today's would read
 missing voxels. The ``cells`` key holds them (checked) at 64x16: H1 1.75, E2 1.90, B1 1.35, H1-512 1.37, C1 1.49
 (best binning per case: 1.46, 1.62, 1.25, 1.25, 1.49): H1 and E2 fail. File (union, 64, adaptive): 1.06-1.17x the
 augmented file (idx4: 1.9-2x). Pre from the same file (positions + normals; its voxels of interest and order still

@@ -30,7 +30,7 @@ BY_NAME_ONLY = ("sampler",)
 def names(by_name: bool = False):
     skip = STANDALONE if by_name else STANDALONE + BY_NAME_ONLY
     return sorted(m.name for m in pkgutil.iter_modules(pkg.__path__)
-                  if not m.name.startswith("_") and m.name not in skip)
+                  if not m.name.startswith(("_", "test_")) and m.name not in skip)     # test_*: pytest's
 
 
 def main(argv=None):

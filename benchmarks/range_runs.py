@@ -22,6 +22,20 @@ from the index) reads 1.21-1.43x its needed at its best binning (1x8/1x32) and 1
 1.00-1.14 from the values file: positions cost about as much as its 2 B of normals, so one layout cannot serve pre
 at its bar of 1.3; /values stays for pre.
 
+Bins cut by the data (branch rangebins, 2026-11-28; ``--post-only --keys union``): one file for every view meets
+1.5 in every row when its bins are few and cut by the volume's keys. ``dpLOxHI``, the cut of least mean read / ideal
+over every interval [t0, t1], 1 <= t0 <= t1 <= 255 (volume only, no transfer function), at 8 x 8 (64 runs): H1
+1.19, E2 1.45, B1 1.18, H1-512 1.16, C1 1.26 (adaptive; pages 1.20, 1.64, 1.19, 1.16, 1.26: E2's index pages);
+16 x 16: 1.31, 1.46, 1.25, 1.22, 1.26; 64 x 16: 1.39, 1.62, 1.35, 1.28, 1.30 (uniform 64 x 16: 1.44, 1.55, 1.28,
+1.24, 1.25). Fewer runs win: the voxels read change little with the cut (the scenes' intervals start at the
+histogram's material boundaries, where the cut puts its edges), the positions shrink with the runs. Uniform bins
+that few fail C1 (16 x 16: 2.56, its veil inside one lo bin); equal-count (``q``) cuts are worse than uniform:
+they spend their bins where the voxels are and leave the rare high codes coarse (E2 q64x16: hi 177..246 one bin;
+2.86). File (dp8x8, adaptive) / augmented file: 1.03-1.09. Other scenes (scripts/range_spread.py: voxels read /
+the key's ideal over every interval holding 1/1000 of the volume, H1, E2, B1, C1): dp16x16 median 1.02-1.03, 90th
+percentile 1.10-1.14; dp8x8 1.03-1.07, 1.19-1.29; uniform 64 x 16 1.01-1.03, 1.78-3.78 (its 16 hi bins). Few
+bins fitted to the volume are not fitted to these five scenes only.
+
 Method. For each voxel, key = (lo, hi), the least and greatest density over the voxels whose quads it shares.
 Three keys: ``union``, the in-slice 3 x 3 squares of the three slice axes united (19 voxels: the 3 x 3 x 3 cube
 without its 8 corners; one file serves every view); ``axis``, the 3 x 3 square of the view's axis alone (one file
@@ -31,6 +45,14 @@ a0 - 1 .. a0 + 4 of the cell at a0 (in a and b); voxel a is read when a cell of 
 *cell window* (a - 4 .. a + 3 at a % 4 == 0, a - 1 .. a + 2, a - 2 .. a + 1, a - 3 .. a + 4 at a % 4 == 3), and
 the key is over those windows, the three axes united. The bilinear field of a quad spans exactly [least corner,
 greatest corner], so a scene needs a voxel only if its range meets an interval of non-zero opacity.
+
+Bins cut by the data (``qLOxHI``, ``dpLOxHI``; the bins are fixed when the file is written, so from the volume's
+keys alone): every pair (lo bin, hi bin) a run, as LOxHI, with bin edges at any code. ``q``: equal-count bins of
+the lo and of the hi codes over all voxels (a code above its share a bin alone). ``dp``: the edges that minimise
+the sum over every interval [t0, t1] (1 <= t0 <= t1 <= 255) of the voxels read (lo below the end of t1's lo bin,
+hi at or above the start of t0's hi bin) over the voxels a key with a bin per code would read: from the 2-d
+histogram of (lo, hi), the lo edges exactly optimal for fixed hi edges by dynamic programming, then the hi edges
+for those, four rounds from uniform bins (each round can only lower the sum). Positions are not in the objective.
 
 Layout counted (one file, not HDF5): a 64-byte header; a run table of 24 B a run (values offset, count, positions
 offset, positions bytes); runs, one per (lo bin, hi bin) with lo bin <= hi bin over B code bins (B(B + 1) / 2
@@ -61,6 +83,7 @@ import argparse
 import sys
 import tempfile
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -155,11 +178,28 @@ def footprint(interest: np.ndarray, axis: str) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------- runs
 
+class Cut(NamedTuple):
+    """Bins cut by the data: ``lo`` / ``hi`` the first code of each lo / hi bin (increasing, from 0); every pair
+    (lo bin, hi bin) a run, hi bin major (as LOxHI), the pairs that cannot hold a voxel (lo bin above hi bin)
+    empty. ``label``: how it was cut (``q64x16``, ``dp64x16``)."""
+    lo: np.ndarray
+    hi: np.ndarray
+    label: str
+
+
 def n_runs(bins) -> int:
-    """Runs of ``bins``: B (square, lo bin <= hi bin: B(B + 1) / 2) or (lo bins, hi bins) (every pair)."""
+    """Runs of ``bins``: B (square, lo bin <= hi bin: B(B + 1) / 2), (lo bins, hi bins) or a :class:`Cut` (every
+    pair)."""
+    if isinstance(bins, Cut):
+        return len(bins.lo) * len(bins.hi)
     if isinstance(bins, tuple):
         return bins[0] * bins[1]
     return bins * (bins + 1) // 2
+
+
+def _bin_lut(first: np.ndarray) -> np.ndarray:
+    """int32 [256]: each code's bin, the bins starting at codes ``first``."""
+    return (np.searchsorted(np.asarray(first), np.arange(256), side="right") - 1).astype(np.int32)
 
 
 def run_of(lo: np.ndarray, hi: np.ndarray, bins) -> np.ndarray:
@@ -169,7 +209,12 @@ def run_of(lo: np.ndarray, hi: np.ndarray, bins) -> np.ndarray:
     [0, 6, 7, 9]
     >>> run_of(np.array([0, 0, 64, 255]), np.array([0, 255, 200, 255]), (2, 4)).tolist()
     [0, 6, 6, 7]
+    >>> cut = Cut(np.r_[0, 128], np.r_[0, 64, 128, 192], "")
+    >>> run_of(np.array([0, 0, 64, 255]), np.array([0, 255, 200, 255]), cut).tolist()
+    [0, 6, 6, 7]
     """
+    if isinstance(bins, Cut):
+        return _bin_lut(bins.hi)[hi] * len(bins.lo) + _bin_lut(bins.lo)[lo]
     bl, bh = bins if isinstance(bins, tuple) else (bins, bins)
     lb = lo.astype(np.int32) * bl // 256
     hb = hi.astype(np.int32) * bh // 256
@@ -178,28 +223,133 @@ def run_of(lo: np.ndarray, hi: np.ndarray, bins) -> np.ndarray:
 
 def run_bins(bins) -> tuple[np.ndarray, np.ndarray]:
     """(lo bin, hi bin) of each run, in run order."""
-    if isinstance(bins, tuple):
+    if isinstance(bins, (tuple, Cut)):
+        nl = len(bins.lo) if isinstance(bins, Cut) else bins[0]
         r = np.arange(n_runs(bins))
-        return r % bins[0], r // bins[0]
+        return r % nl, r // nl
     hb = np.repeat(np.arange(bins), np.arange(1, bins + 1))
     lb = np.arange(n_runs(bins)) - hb * (hb + 1) // 2
     return lb, hb
 
 
-def _widths(bins) -> tuple[int, int]:
+def _run_codes(bins) -> tuple[np.ndarray, np.ndarray]:
+    """Per run, the least code of its lo bin and the greatest of its hi bin."""
+    lb, hb = run_bins(bins)
+    if isinstance(bins, Cut):
+        hi_last = np.append(bins.hi[1:], 256) - 1
+        return np.asarray(bins.lo)[lb], hi_last[hb]
     bl, bh = bins if isinstance(bins, tuple) else (bins, bins)
-    return 256 // bl, 256 // bh
+    wl, wh = 256 // bl, 256 // bh
+    return lb * wl, hb * wh + wh - 1
 
 
 def runs_meeting(intervals, bins) -> np.ndarray:
     """bool [runs]: the runs whose bin rectangle can meet one of the inclusive code ``intervals`` (with some
     lo <= hi in it)."""
-    lb, hb = run_bins(bins)
-    wl, wh = _widths(bins)
+    lo_first, hi_last = _run_codes(bins)
     out = np.zeros(n_runs(bins), dtype=bool)
     for t0, t1 in intervals:
-        out |= (lb * wl <= int(t1)) & (hb * wh + wh - 1 >= int(t0))
-    return out & (lb * wl <= hb * wh + wh - 1)
+        out |= (lo_first <= int(t1)) & (hi_last >= int(t0))
+    return out & (lo_first <= hi_last)
+
+
+# ------------------------------------------------------------------------------------------------- cuts by the data
+
+def quantile_cut(lo: np.ndarray, hi: np.ndarray, n_lo: int, n_hi: int) -> Cut:
+    """Equal-count bins: ``n_lo`` bins of the voxels' lo codes and ``n_hi`` of their hi codes, each bin about an
+    equal share of the voxels (a code holding more than its share is a bin alone, and the share of the rest is
+    recomputed)."""
+    return Cut(_equal_count(np.bincount(lo.ravel(), minlength=256), n_lo),
+               _equal_count(np.bincount(hi.ravel(), minlength=256), n_hi), f"q{n_lo}x{n_hi}")
+
+
+def _equal_count(h: np.ndarray, n: int) -> np.ndarray:
+    """First codes of ``n`` bins of about equal count of histogram ``h`` [256].
+
+    >>> _equal_count(np.array([1000] + [1] * 255), 3).tolist()
+    [0, 1, 129]
+    """
+    first, acc, rest = [0], 0, int(h.sum())
+    for c in range(255):
+        left = n - len(first)                        # bins still to open after this one
+        if left == 0:
+            break
+        acc += int(h[c])
+        if acc * left >= rest - acc or 255 - c <= left:   # this bin has its share, or the codes run out
+            first.append(c + 1)
+            rest -= acc
+            acc = 0
+    return np.array(first, np.int64)
+
+
+def interval_weights(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The typical scenes a :func:`dp_cut` serves, from the volume alone: every interval [t0, t1], 1 <= t0 <= t1
+    <= 255, each weighted by 1 / its voxels (those a key at one bin a code would read, lo <= t1 and hi >= t0; at
+    least 1/1000 of the volume), so that the sum is the mean read / ideal. Returns (C, W): C [257, 257] with
+    C[e, s] = voxels with lo < e and hi >= s; W [t1, t0]."""
+    h2 = np.bincount(lo.ravel().astype(np.int64) * 256 + hi.ravel(), minlength=65536).reshape(256, 256)
+    C = np.zeros((257, 257))
+    C[1:, :256] = np.cumsum(h2, 0)[:, ::-1].cumsum(1)[:, ::-1]
+    t1, t0 = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")
+    ideal = C[t1 + 1, t0]
+    W = np.where((t0 >= 1) & (t0 <= t1), 1.0 / np.maximum(ideal, max(1.0, lo.size / 1000)), 0.0)
+    return C, W
+
+
+def cut_cost(C: np.ndarray, W: np.ndarray, lo_first, hi_first) -> float:
+    """Sum over the weighted intervals of the voxels read: per [t0, t1], those with lo below the end of t1's lo
+    bin and hi at or above the start of t0's hi bin."""
+    end = np.append(np.asarray(lo_first)[1:], 256)[_bin_lut(lo_first)]       # [t1]
+    start = np.asarray(hi_first)[_bin_lut(hi_first)]                        # [t0]
+    return float((W * C[end[:, None], start[None, :]]).sum())
+
+
+def _best_bins(cost: np.ndarray, n: int) -> np.ndarray:
+    """First codes of the ``n`` bins [a, b) covering 0 .. 256 of least total ``cost[a, b]`` (dynamic
+    programming; a bin at least one code)."""
+    F = np.full(257, np.inf)
+    F[0] = 0.0
+    back = []
+    for _ in range(n):
+        tot = F[:, None] + cost                     # [a, b]
+        a = np.argmin(tot, axis=0)
+        F = tot[a, np.arange(257)]
+        back.append(a)
+    first, b = [], 256
+    for a in reversed(back):
+        b = int(a[b])
+        first.append(b)
+    return np.array(first[::-1], np.int64)
+
+
+def dp_cut(lo: np.ndarray, hi: np.ndarray, n_lo: int, n_hi: int, rounds: int = 4) -> Cut:
+    """Bins of least :func:`cut_cost` over :func:`interval_weights`' intervals: from uniform bins, the lo edges
+    best for the hi edges (exactly, by :func:`_best_bins`), then the hi edges best for those, ``rounds`` times
+    (each step can only lower the cost)."""
+    C, W = interval_weights(lo, hi)
+    lo_first = np.arange(n_lo) * 256 // n_lo
+    hi_first = np.arange(n_hi) * 256 // n_hi
+    a, b = np.meshgrid(np.arange(257), np.arange(257), indexing="ij")
+    bad = a >= b
+    for _ in range(rounds):
+        start = hi_first[_bin_lut(hi_first)]
+        G = W @ C[:, start].T                                # G[t1, e] = sum_t0 W[t1, t0] C[e, S(t0)]
+        P = np.vstack([np.zeros(257), np.cumsum(G, 0)])      # P[x, e] = sum_{t1 < x} G[t1, e]
+        cost = np.where(bad, np.inf, P[b, b] - P[a, b])
+        lo_first = _best_bins(cost, n_lo)
+        end = np.append(lo_first[1:], 256)[_bin_lut(lo_first)]
+        K = W.T @ C[end, :]                                  # K[t0, s] = sum_t1 W[t1, t0] C[E(t1), s]
+        Q = np.vstack([np.zeros(257), np.cumsum(K, 0)])      # Q[x, s] = sum_{t0 < x} K[t0, s]
+        cost = np.where(bad, np.inf, Q[b, a] - Q[a, a])
+        hi_first = _best_bins(cost, n_hi)
+    return Cut(lo_first, hi_first, f"dp{n_lo}x{n_hi}")
+
+
+def resolve(bins, lo: np.ndarray, hi: np.ndarray):
+    """``bins`` as given, or a cut spec (``("q", 64, 16)``, ``("dp", 64, 16)``) cut from this key."""
+    if isinstance(bins, tuple) and isinstance(bins[0], str):
+        return (quantile_cut if bins[0] == "q" else dp_cut)(lo, hi, bins[1], bins[2])
+    return bins
 
 
 def group_stats(g: np.ndarray, n_groups: int) -> dict:
@@ -294,9 +444,8 @@ def pre_read_spatial(st: dict, sel: np.ndarray) -> dict:
 def code_span(bins) -> tuple[np.ndarray, np.ndarray]:
     """Per run, its codes' span [first, last]: the lo bin's first code .. the hi bin's last (empty when last <
     first)."""
-    lb, hb = run_bins(bins)
-    wl, wh = _widths(bins)
-    return lb * wl, np.maximum(hb * wh + wh - 1, lb * wl - 1)
+    first, last = _run_codes(bins)
+    return first, np.maximum(last, first - 1)
 
 
 def pre_read_by_code(st: dict, bins, sel: np.ndarray, interest: np.ndarray) -> dict:
@@ -379,7 +528,7 @@ def _cell_origins(s):
     return cell_origins(s)[0]
 
 
-def measure(c: dict, work: Path, quick: bool, bins_list) -> dict:
+def measure(c: dict, work: Path, quick: bool, bins_list, keys=KEYS, with_pre: bool = True) -> dict:
     """Every figure of case ``c`` (tables: :func:`post_rows`, :func:`pre_rows`)."""
     from isplat.augfile import open_augmented
     from isplat.stats import interest_mask
@@ -400,9 +549,12 @@ def measure(c: dict, work: Path, quick: bool, bins_list) -> dict:
     if base["foot"] != post.needed_voxels:
         _log(f"{c['name']}: footprint {base['foot']} here, {post.needed_voxels} in the report")
     lut = interest_mask(post.intervals)
-    for key in KEYS:
+    for key in keys:
         lo, hi = range_key(density, key, axis)
-        for bins in bins_list:
+        for spec in bins_list:
+            bins = resolve(spec, lo, hi)
+            if isinstance(bins, Cut):
+                _log(f"  {c['name']} {key} {bins.label}: lo {bins.lo.tolist()}, hi {bins.hi.tolist()}")
             runs = run_of(lo, hi, bins)
             sel = runs_meeting(post.intervals, bins)
             read_set = sel[runs]
@@ -411,7 +563,7 @@ def measure(c: dict, work: Path, quick: bool, bins_list) -> dict:
                        foot_missing=int((foot & ~read_set).sum()), sampler_missing=int((samp & ~read_set).sum()),
                        grown=int((read_set | samp).sum()), enc=post_read(st, sel, 4))
             base["rows"].append(row)
-            if key == "union":
+            if key == "union" and with_pre:
                 pre_row = dict(bins=bins, spatial=pre_read_spatial(st, sel))
                 sub = runs * 256 + density
                 pre_row["by_code"] = pre_read_by_code(group_stats(sub, n_runs(bins) * 256), bins, sel, lut)
@@ -495,23 +647,30 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.range_runs", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="volumes at 1/4 resolution")
     ap.add_argument("--cases", default="H1,E2,B1,H1-512,C1")
-    ap.add_argument("--bins", default="8,16,32,64,1x8,1x32,4x32,64x8,64x16",
-                    help="B (square) or LOxHI, comma-separated")
+    ap.add_argument("--bins", default="8,16,32,64,1x8,1x32,4x32,64x8,64x16,q64x16,dp64x16,dp32x32,dp16x16,dp8x8",
+                    help="B (square), LOxHI, or cut by the volume's keys: qLOxHI (equal-count), dpLOxHI (least "
+                         "read over every interval), comma-separated")
+    ap.add_argument("--keys", default=",".join(KEYS), help="of " + ", ".join(KEYS))
+    ap.add_argument("--post-only", action="store_true", help="no rows of pre from the same layout")
     a = ap.parse_args(argv)
     from .selective_read import cases
 
     try:
         bins_list = [_bins(b) for b in a.bins.split(",")]
     except ValueError:
-        print(f"range_runs: error: --bins {a.bins!r}: give B or LOxHI, each a power of two up to 256",
-              file=sys.stderr)
+        print(f"range_runs: error: --bins {a.bins!r}: give B or LOxHI, each a power of two up to 256, or qLOxHI / "
+              f"dpLOxHI, each 1 to 256", file=sys.stderr)
+        return 2
+    keys = a.keys.split(",")
+    if not set(keys) <= set(KEYS):
+        print(f"range_runs: error: --keys {a.keys!r}: give some of {', '.join(KEYS)}", file=sys.stderr)
         return 2
     done = []
     with tempfile.TemporaryDirectory(prefix="isplat-ranges-") as t:
         work = Path(t)
         for c in cases(work, a.quick, only=a.cases.split(",")):
             _log(f"{c['name']}: {c['what']}")
-            done.append(measure(c, work, a.quick, bins_list))
+            done.append(measure(c, work, a.quick, bins_list, keys, not a.post_only))
             if c["aug"].parent == work:
                 c["aug"].unlink()
     print(summary(done))
@@ -519,11 +678,18 @@ def main(argv=None) -> int:
 
 
 def _bins(text: str):
-    """``"16"`` -> 16 (square, lo bin <= hi bin), ``"4x32"`` -> (4, 32) (lo bins, hi bins).
+    """``"16"`` -> 16 (square, lo bin <= hi bin), ``"4x32"`` -> (4, 32) (lo bins, hi bins), ``"dp64x16"`` ->
+    ("dp", 64, 16) (a cut by the data, :func:`resolve`).
 
-    >>> _bins("16"), _bins("4x32")
-    (16, (4, 32))
+    >>> _bins("16"), _bins("4x32"), _bins("q48x20")
+    (16, (4, 32), ('q', 48, 20))
     """
+    for how in ("dp", "q"):
+        if text.lower().startswith(how):
+            parts = [int(x) for x in text[len(how):].lower().split("x")]
+            if len(parts) != 2 or any(p < 1 or p > 256 for p in parts):
+                raise ValueError(text)
+            return (how, parts[0], parts[1])
     parts = [int(x) for x in text.lower().split("x")]
     if len(parts) > 2 or any(p < 1 or p > 256 or 256 % p for p in parts):
         raise ValueError(text)
@@ -531,6 +697,8 @@ def _bins(text: str):
 
 
 def _b(bins) -> str:
+    if isinstance(bins, Cut):
+        return bins.label
     return f"{bins[0]}x{bins[1]}" if isinstance(bins, tuple) else str(bins)
 
 

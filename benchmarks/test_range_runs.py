@@ -6,7 +6,8 @@ import itertools
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from benchmarks.range_runs import (footprint, group_stats, range_key, run_bins, run_of, runs_meeting,
+from benchmarks.range_runs import (Cut, _best_bins, _equal_count, cut_cost, dp_cut, footprint, group_stats,
+                                   interval_weights, range_key, resolve, run_bins, run_of, runs_meeting,
                                    sampler_reads)
 
 AXIS_DIM = {"k": 0, "j": 1, "i": 2}          # the array dimension of [k, j, i] a slice axis is
@@ -128,33 +129,115 @@ def test_sampler_reads_equal_the_cell_by_cell_reference(v, axis):
 
 
 @settings(max_examples=40, deadline=None)
-@given(volumes, st.sampled_from([1, 2, 4, 8, 16, 64, (1, 8), (4, 32), (64, 2)]))
+@given(volumes, st.sampled_from([1, 2, 4, 8, 16, 64, (1, 8), (4, 32), (64, 2), ("q", 64, 16), ("dp", 64, 16),
+                                  ("q", 3, 5), ("dp", 32, 32), ("dp", 7, 3)]))
 def test_read_sets_hold_what_post_needs(v, bins):
-    """The union key's runs hold every axis's footprint; the cells key's every axis's sampler reads."""
+    """The union key's runs hold every axis's footprint; the cells key's every axis's sampler reads (bins cut by
+    each key's own data too)."""
     d, rng = _volume(v)
     ivs = _intervals(rng)
     interest = np.zeros(d.shape, bool)
     for a, b in ivs:
         interest |= (d >= a) & (d <= b)
-    sel = runs_meeting(ivs, bins)
-    union = sel[run_of(*range_key(d, "union"), bins)]
-    cells = sel[run_of(*range_key(d, "cells"), bins)]
+    sel = runs_meeting(ivs, bins) if not isinstance(bins[0] if isinstance(bins, tuple) else 0, str) else None
+    lo, hi = range_key(d, "union")
+    cut = resolve(bins, lo, hi)
+    union = runs_meeting(ivs, cut)[run_of(lo, hi, cut)]
+    lo, hi = range_key(d, "cells")
+    cut = resolve(bins, lo, hi)
+    cells = runs_meeting(ivs, cut)[run_of(lo, hi, cut)]
     for axis in "kji":
         assert not (footprint(interest, axis) & ~union).any()
         assert not (sampler_reads(interest, axis) & ~cells).any()
-        axis_only = sel[run_of(*range_key(d, "axis", axis), bins)]
+        lo, hi = range_key(d, "axis", axis)
+        cut = resolve(bins, lo, hi)
+        axis_only = runs_meeting(ivs, cut)[run_of(lo, hi, cut)]
         assert not (footprint(interest, axis) & ~axis_only).any()
+    if sel is not None:
+        assert np.array_equal(sel, runs_meeting(ivs, bins))
+
+
+def _codes_of(first, b):
+    """The codes of bin ``b`` of bins starting at ``first``."""
+    return range(int(first[b]), int(first[b + 1]) if b + 1 < len(first) else 256)
 
 
 def test_runs_meeting_is_the_exact_rectangle_test():
     """A run is read exactly when some (lo, hi) of its bins, lo <= hi, meets an interval."""
-    for bins in (1, 4, 16, (1, 8), (4, 2), (16, 4)):
-        wl, wh = (256 // bins[0], 256 // bins[1]) if isinstance(bins, tuple) else (256 // bins, 256 // bins)
+    cuts = [Cut(np.array([0, 3, 90, 200]), np.array([0, 1, 100, 120, 254]), ""),
+            Cut(np.array([0]), np.array([0, 171]), ""), Cut(np.array([0, 52, 82]), np.array([0, 51, 81, 111]), "")]
+    for bins in (1, 4, 16, (1, 8), (4, 2), (16, 4), *cuts):
+        if isinstance(bins, Cut):
+            lf, hf = bins.lo, bins.hi
+        else:
+            nl, nh = bins if isinstance(bins, tuple) else (bins, bins)
+            lf, hf = np.arange(nl) * (256 // nl), np.arange(nh) * (256 // nh)
         lb, hb = run_bins(bins)
         for ivs in ([(170, 255)], [(51, 81), (111, 255)], [(3, 3)]):
-            want = [any(lo <= b and hi >= a for lo in range(l * wl, l * wl + wl) for hi in range(h * wh, h * wh + wh)
+            want = [any(lo <= b and hi >= a for lo in _codes_of(lf, l) for hi in _codes_of(hf, h)
                         if lo <= hi for a, b in ivs) for l, h in zip(lb, hb)]
             assert runs_meeting(ivs, bins).tolist() == want
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(0, 1000), min_size=256, max_size=256), st.integers(1, 64))
+def test_equal_count_gives_n_bins(h, n):
+    first = _equal_count(np.array(h), n)
+    assert first[0] == 0 and len(first) == n and np.all(np.diff(first) > 0) and first[-1] <= 255
+
+
+def test_equal_count_of_a_flat_histogram_is_uniform():
+    for n in (1, 2, 16, 64, 256):
+        assert np.diff(np.append(_equal_count(np.ones(256, np.int64), n), 256)).tolist() == [256 // n] * n
+
+
+def reference_cut_cost(lo, hi, lo_first, hi_first):
+    """Sum over every interval [t0, t1] (1 <= t0 <= t1 <= 255) of the voxels the cut's runs meeting it hold,
+    divided by the voxels with lo <= t1 and hi >= t0 (at least 1/1000 of the volume, and 1), interval by
+    interval."""
+    cut = Cut(np.asarray(lo_first), np.asarray(hi_first), "")
+    runs = run_of(lo, hi, cut)
+    per_run = np.bincount(runs.ravel(), minlength=len(lo_first) * len(hi_first))
+    total = 0.0
+    for t0 in range(1, 256):
+        for t1 in range(t0, 256):
+            ideal = int(((lo <= t1) & (hi >= t0)).sum())
+            total += per_run[runs_meeting([(t0, t1)], cut)].sum() / max(ideal, max(1.0, lo.size / 1000))
+    return total
+
+
+@settings(max_examples=4, deadline=None)
+@given(volumes, st.integers(1, 9), st.integers(1, 9))
+def test_cut_cost_equals_the_interval_by_interval_count(v, n_lo, n_hi):
+    d, rng = _volume(v)
+    lo, hi = range_key(d, "union")
+    lf = np.unique(np.concatenate([[0], rng.integers(1, 256, n_lo - 1)]))
+    hf = np.unique(np.concatenate([[0], rng.integers(1, 256, n_hi - 1)]))
+    C, W = interval_weights(lo, hi)
+    assert abs(cut_cost(C, W, lf, hf) - reference_cut_cost(lo, hi, lf, hf)) <= 1e-9 * max(1.0, cut_cost(C, W, lf, hf))
+
+
+def test_best_bins_is_the_exhaustive_optimum():
+    rng = np.random.default_rng(7)
+    cost = rng.random((257, 257))
+    cost[np.tril_indices(257)] = np.inf                 # a bin [a, b) needs a < b
+    first = _best_bins(cost, 1)
+    assert first.tolist() == [0]
+    first = _best_bins(cost, 3)
+    best = min((cost[0, a] + cost[a, b] + cost[b, 256], a, b) for a in range(1, 255) for b in range(a + 1, 256))
+    assert first.tolist() == [0, best[1], best[2]]
+
+
+@settings(max_examples=10, deadline=None)
+@given(volumes, st.sampled_from([(4, 4), (8, 2), (16, 16), (64, 16)]))
+def test_dp_cut_reads_no_more_than_uniform_bins(v, n):
+    d, _ = _volume(v)
+    lo, hi = range_key(d, "union")
+    C, W = interval_weights(lo, hi)
+    dp = dp_cut(lo, hi, *n)
+    uniform = cut_cost(C, W, np.arange(n[0]) * 256 // n[0], np.arange(n[1]) * 256 // n[1])
+    assert len(dp.lo) == n[0] and len(dp.hi) == n[1] and dp.lo[0] == 0 and dp.hi[0] == 0
+    assert cut_cost(C, W, dp.lo, dp.hi) <= uniform * (1 + 1e-12)
 
 
 @settings(max_examples=30, deadline=None)

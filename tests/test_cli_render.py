@@ -166,3 +166,20 @@ def test_an_old_version_says_once_which_defaults_it_keeps(data):
     res = run("render", "orbit_v1.toml", "-o", "v4.gif", "--set", "version=4", "--set", "camera.up=[0,0,1]", "--set", "volume.axes=[[1,0,0],[0,1,0],[0,0,1]]", cwd=data)
     assert res.returncode == 0 and b"keeps version-" not in res.stderr and b"post-classified" in res.stderr, \
         res.stderr
+
+
+@pytest.mark.parametrize("flags, built", [((), False), (("-q",), False), (("-v",), True), (("--json",), True)])
+def test_the_report_is_built_only_when_printed(data, monkeypatch, flags, built):
+    """The report's bytes needed take a pass over the selection (tens of ms of a one-frame process,
+    docs/startup.md): a run that prints neither -v's lines nor --json's object does not build it."""
+    import isplat.cli.render as cli_render
+    from isplat.cli.main import main
+
+    calls = []
+    real = cli_render._report
+    monkeypatch.setattr(cli_render, "_report", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.chdir(data)
+    with pytest.raises(SystemExit) as exc:
+        main(["render", "scene.toml", "-o", f"r{len(flags)}{''.join(flags)}.png", "--force", *flags])
+    assert exc.value.code == 0
+    assert bool(calls) == built

@@ -97,11 +97,12 @@ def render(scene_file, out, preset, index, size, overrides, print_scene, view, a
             per_view.append(_view_row(n if view is None else view, st))
             plan.add(n, rgba)
     plan.finish()
-    report = _report(scene_file, renderer.method, plan.out, rep, per_view)
-    if as_json:
-        json.dump(report, sys.stdout, allow_nan=False)
-        sys.stdout.write("\n")
-    _log_report(report, rep, renderer.held_bytes())
+    if as_json or log.isEnabledFor(logging.DEBUG):   # the bytes needed take a pass over the selection: only
+        report = _report(scene_file, renderer.method, plan.out, rep, per_view)   # when printed
+        if as_json:
+            json.dump(report, sys.stdout, allow_nan=False)
+            sys.stdout.write("\n")
+        _log_report(report, rep, renderer.held_bytes())
     log.info(_summary(plan.out, scene, renderer, per_view, time.perf_counter() - t0))
 
 

@@ -170,8 +170,8 @@ def test_an_old_version_says_once_which_defaults_it_keeps(data):
 
 @pytest.mark.parametrize("flags, built", [((), False), (("-q",), False), (("-v",), True), (("--json",), True)])
 def test_the_report_is_built_only_when_printed(data, monkeypatch, flags, built):
-    """The report's bytes needed take a pass over the selection (tens of ms of a one-frame process,
-    docs/startup.md): a run that prints neither -v's lines nor --json's object does not build it."""
+    """The report's bytes needed take a pass over the selection (tens of ms of a one-frame process): a run
+    that prints neither -v's lines nor --json's object does not build it."""
     import isplat.cli.render as cli_render
     from isplat.cli.main import main
 

@@ -83,15 +83,16 @@ import argparse
 import sys
 import tempfile
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
+
+from isplat.runs import (IN_SLICE_DIMS, Cut, cut_cost, dp_cut, interval_weights, union_key,   # noqa: F401
+                         best_bins as _best_bins, bin_lut as _bin_lut, plane_ops as _plane_ops, step3 as _step3)
 
 HEADER, TABLE_ROW, ROW_ENTRY, SPAN, BRICK_ENTRY, CODE_COUNT = 64, 24, 6, 4, 4 + 64, 4
 BRICK_HEAD, LOCAL = 4, 2        # adaptive: a brick's number and form, then a bitmap or 2 B a voxel, the fewer
 ENCODINGS = ("idx4", "spans", "bitmap", "adaptive")
 KEYS = ("union", "axis", "cells")
-IN_SLICE_DIMS = {"k": (1, 2), "j": (0, 2), "i": (0, 1)}     # as isplat.stats.IN_SLICE_DIMS
 BRICK = 8
 
 
@@ -100,20 +101,6 @@ def _log(msg):
 
 
 # ------------------------------------------------------------------------------------------------- keys
-
-def _step3(a: np.ndarray, d: int, op) -> np.ndarray:
-    """``op`` over a voxel and its neighbours at -1, +1 along dimension ``d`` (cut at the edge).
-
-    >>> _step3(np.array([[[3, 1, 2, 5]]], np.uint8), 2, np.minimum).tolist()
-    [[[1, 1, 1, 2]]]
-    """
-    out = a.copy()
-    lo, hi = [slice(None)] * 3, [slice(None)] * 3
-    lo[d], hi[d] = slice(None, -1), slice(1, None)
-    op(out[tuple(hi)], a[tuple(lo)], out=out[tuple(hi)])
-    op(out[tuple(lo)], a[tuple(hi)], out=out[tuple(lo)])
-    return out
-
 
 def _cell_window(a: np.ndarray, d: int, op) -> np.ndarray:
     """``op`` along dimension ``d`` over each voxel's cell window (module docstring): the 4-voxel cells (from 0)
@@ -143,16 +130,13 @@ def _cell_window(a: np.ndarray, d: int, op) -> np.ndarray:
     return np.ascontiguousarray(np.moveaxis(out, 0, d))
 
 
-def _plane_ops(a: np.ndarray, dims, op, step) -> np.ndarray:
-    for d in dims:
-        a = step(a, d, op)
-    return a
-
-
 def range_key(density: np.ndarray, kind: str, axis: str = "k") -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi), uint8 [k, j, i]: per voxel the least and greatest density over its ``kind`` neighbourhood
     (module docstring): ``union`` (the three axes' in-slice 3 x 3 squares united), ``axis`` (``axis``'s square
-    alone), ``cells`` (the cell windows of the three axes' slices united), ``cells-axis`` (``axis``'s alone)."""
+    alone), ``cells`` (the cell windows of the three axes' slices united), ``cells-axis`` (``axis``'s alone).
+    ``union`` is :func:`isplat.runs.union_key`, which the runs file (formats/runs.md) uses."""
+    if kind == "union":
+        return union_key(density)
     step = _cell_window if kind.startswith("cells") else _step3
     planes = [IN_SLICE_DIMS[axis]] if kind in ("axis", "cells-axis") else list(IN_SLICE_DIMS.values())
     out = []
@@ -178,15 +162,6 @@ def footprint(interest: np.ndarray, axis: str) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------- runs
 
-class Cut(NamedTuple):
-    """Bins cut by the data: ``lo`` / ``hi`` the first code of each lo / hi bin (increasing, from 0); every pair
-    (lo bin, hi bin) a run, hi bin major (as LOxHI), the pairs that cannot hold a voxel (lo bin above hi bin)
-    empty. ``label``: how it was cut (``q64x16``, ``dp64x16``)."""
-    lo: np.ndarray
-    hi: np.ndarray
-    label: str
-
-
 def n_runs(bins) -> int:
     """Runs of ``bins``: B (square, lo bin <= hi bin: B(B + 1) / 2), (lo bins, hi bins) or a :class:`Cut` (every
     pair)."""
@@ -195,11 +170,6 @@ def n_runs(bins) -> int:
     if isinstance(bins, tuple):
         return bins[0] * bins[1]
     return bins * (bins + 1) // 2
-
-
-def _bin_lut(first: np.ndarray) -> np.ndarray:
-    """int32 [256]: each code's bin, the bins starting at codes ``first``."""
-    return (np.searchsorted(np.asarray(first), np.arange(256), side="right") - 1).astype(np.int32)
 
 
 def run_of(lo: np.ndarray, hi: np.ndarray, bins) -> np.ndarray:
@@ -280,69 +250,6 @@ def _equal_count(h: np.ndarray, n: int) -> np.ndarray:
             rest -= acc
             acc = 0
     return np.array(first, np.int64)
-
-
-def interval_weights(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The typical scenes a :func:`dp_cut` serves, from the volume alone: every interval [t0, t1], 1 <= t0 <= t1
-    <= 255, each weighted by 1 / its voxels (those a key at one bin a code would read, lo <= t1 and hi >= t0; at
-    least 1/1000 of the volume), so that the sum is the mean read / ideal. Returns (C, W): C [257, 257] with
-    C[e, s] = voxels with lo < e and hi >= s; W [t1, t0]."""
-    h2 = np.bincount(lo.ravel().astype(np.int64) * 256 + hi.ravel(), minlength=65536).reshape(256, 256)
-    C = np.zeros((257, 257))
-    C[1:, :256] = np.cumsum(h2, 0)[:, ::-1].cumsum(1)[:, ::-1]
-    t1, t0 = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")
-    ideal = C[t1 + 1, t0]
-    W = np.where((t0 >= 1) & (t0 <= t1), 1.0 / np.maximum(ideal, max(1.0, lo.size / 1000)), 0.0)
-    return C, W
-
-
-def cut_cost(C: np.ndarray, W: np.ndarray, lo_first, hi_first) -> float:
-    """Sum over the weighted intervals of the voxels read: per [t0, t1], those with lo below the end of t1's lo
-    bin and hi at or above the start of t0's hi bin."""
-    end = np.append(np.asarray(lo_first)[1:], 256)[_bin_lut(lo_first)]       # [t1]
-    start = np.asarray(hi_first)[_bin_lut(hi_first)]                        # [t0]
-    return float((W * C[end[:, None], start[None, :]]).sum())
-
-
-def _best_bins(cost: np.ndarray, n: int) -> np.ndarray:
-    """First codes of the ``n`` bins [a, b) covering 0 .. 256 of least total ``cost[a, b]`` (dynamic
-    programming; a bin at least one code)."""
-    F = np.full(257, np.inf)
-    F[0] = 0.0
-    back = []
-    for _ in range(n):
-        tot = F[:, None] + cost                     # [a, b]
-        a = np.argmin(tot, axis=0)
-        F = tot[a, np.arange(257)]
-        back.append(a)
-    first, b = [], 256
-    for a in reversed(back):
-        b = int(a[b])
-        first.append(b)
-    return np.array(first[::-1], np.int64)
-
-
-def dp_cut(lo: np.ndarray, hi: np.ndarray, n_lo: int, n_hi: int, rounds: int = 4) -> Cut:
-    """Bins of least :func:`cut_cost` over :func:`interval_weights`' intervals: from uniform bins, the lo edges
-    best for the hi edges (exactly, by :func:`_best_bins`), then the hi edges best for those, ``rounds`` times
-    (each step can only lower the cost)."""
-    C, W = interval_weights(lo, hi)
-    lo_first = np.arange(n_lo) * 256 // n_lo
-    hi_first = np.arange(n_hi) * 256 // n_hi
-    a, b = np.meshgrid(np.arange(257), np.arange(257), indexing="ij")
-    bad = a >= b
-    for _ in range(rounds):
-        start = hi_first[_bin_lut(hi_first)]
-        G = W @ C[:, start].T                                # G[t1, e] = sum_t0 W[t1, t0] C[e, S(t0)]
-        P = np.vstack([np.zeros(257), np.cumsum(G, 0)])      # P[x, e] = sum_{t1 < x} G[t1, e]
-        cost = np.where(bad, np.inf, P[b, b] - P[a, b])
-        lo_first = _best_bins(cost, n_lo)
-        end = np.append(lo_first[1:], 256)[_bin_lut(lo_first)]
-        K = W.T @ C[end, :]                                  # K[t0, s] = sum_t1 W[t1, t0] C[E(t1), s]
-        Q = np.vstack([np.zeros(257), np.cumsum(K, 0)])      # Q[x, s] = sum_{t0 < x} K[t0, s]
-        cost = np.where(bad, np.inf, Q[b, a] - Q[a, a])
-        hi_first = _best_bins(cost, n_hi)
-    return Cut(lo_first, hi_first, f"dp{n_lo}x{n_hi}")
 
 
 def resolve(bins, lo: np.ndarray, hi: np.ndarray):

@@ -20,18 +20,23 @@ log = logging.getLogger(__name__)
 @click.option("--no-values", "no_values", is_flag=True,
               help="Do not write OUT.values.idx.h5 (the indexed voxels' normals and gradient magnitudes, read only by "
                    "render.classification = \"pre\"; without it pre gathers them from AUG.h5).")
+@click.option("--no-runs", "no_runs", is_flag=True,
+              help="Do not write OUT.runs.idx.h5 (the channel bytes in range runs, formats/runs.md; not read by "
+                   "the renderer yet).")
 @force_option
 @quiet_option
-def index(augmented, output, densities, axes, force, no_values):
+def index(augmented, output, densities, axes, force, no_values, no_runs):
     """Index AUG.h5 by density, slice by slice, along each axis; write OUT.idx.h5 atomically, and beside it
-    OUT.values.idx.h5, the channel values the pre-classified technique reads (formats/index.md §9)."""
+    OUT.values.idx.h5, the channel values the pre-classified technique reads (formats/index.md §9), and
+    OUT.runs.idx.h5, the channel bytes in runs by their neighbourhood's density range (formats/runs.md)."""
     from ..fileio import check_output
     from ..index import build_index_file, open_index, parse_axes, parse_ranges
 
     axes = parse_axes(axes)
     ranges = parse_ranges(densities) if densities is not None else None
     check_output(output, force)
-    path = build_index_file(augmented, output, axes=axes, ranges=ranges, force=force, values=not no_values)
+    path = build_index_file(augmented, output, axes=axes, ranges=ranges, force=force, values=not no_values,
+                            runs=not no_runs)
     if log.isEnabledFor(logging.INFO):
         idx = open_index(path)
         counts = {a: int(idx.voxel_counts(a).sum()) for a in idx.axes}
@@ -41,5 +46,9 @@ def index(augmented, output, densities, axes, force, no_values):
         vf = idx.values_file
         values = f"; values {vf.path} ({vf.path.stat().st_size} bytes)" if vf is not None else \
             "; no values file (--no-values: pre-classification gathers them from the augmented file)"
+        from ..runsfile import runs_path
+
+        rp = runs_path(path)
+        runs = f"; runs {rp} ({rp.stat().st_size} bytes)" if not no_runs and rp.is_file() else ""
         log.info(f"isplat index: wrote {path} (axes {idx.axes}, {n} voxels indexed per axis, "
-                 f"{size} bytes, {per:.3f} bytes per indexed voxel per axis){values}")
+                 f"{size} bytes, {per:.3f} bytes per indexed voxel per axis){values}{runs}")

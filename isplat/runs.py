@@ -1,0 +1,426 @@
+"""Range runs (formats/runs.md; docs/design.md, "Runs ordered by the neighbourhood's density range"): the channel
+bytes of each voxel stored in the run of its key's (lo bin, hi bin), so that a scene reads only the runs whose bin
+rectangle meets one of its intervals of non-zero opacity.
+
+Kernels (arrays in, arrays out; numpy, nothing compiled indexes with what a file holds):
+
+- :func:`union_key`: per voxel the least and greatest density over the voxels it shares a quad with in any of the
+  three slice lattices (the 3 x 3 x 3 cube without its 8 corners);
+- :func:`dp_cut`: the bins (first codes of 8 lo bins and 8 hi bins by default) of least mean voxels read over every
+  interval, from the (lo, hi) histogram of the volume alone;
+- :func:`layer_runs` / :func:`build_runs`: the layout (runs hi bin major; inside a run by brick number, then by
+  place in the brick), the positions per (run, brick) the cheaper of a 64-byte bitmap and 2 B a voxel;
+- :func:`decode_positions` and :func:`place`: the inverse.
+
+The file (write, open, read, validate) is :mod:`isplat.runsfile`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .errors import IsplatError
+
+BRICK = 8                       # bricks of 8^3 voxels, numbered in C order over the brick grid (bk, bj, bi)
+BRICK_VOXELS = BRICK ** 3       # a voxel's place in its brick: (dk * 8 + dj) * 8 + di
+BITMAP_BYTES = BRICK_VOXELS // 8
+LIST_MAX = BITMAP_BYTES // 2    # a (run, brick) of at most 32 voxels: 2 B a voxel; of more: a 64-byte bitmap
+IN_SLICE_DIMS = {"k": (1, 2), "j": (0, 2), "i": (0, 1)}     # as isplat.stats.IN_SLICE_DIMS
+DEFAULT_BINS = (8, 8)
+
+
+# ------------------------------------------------------------------------------------------------- keys
+
+def step3(a: np.ndarray, d: int, op) -> np.ndarray:
+    """``op`` over a voxel and its neighbours at -1, +1 along dimension ``d`` (cut at the edge).
+
+    >>> step3(np.array([[[3, 1, 2, 5]]], np.uint8), 2, np.minimum).tolist()
+    [[[1, 1, 1, 2]]]
+    """
+    out = a.copy()
+    lo, hi = [slice(None)] * 3, [slice(None)] * 3
+    lo[d], hi[d] = slice(None, -1), slice(1, None)
+    op(out[tuple(hi)], a[tuple(lo)], out=out[tuple(hi)])
+    op(out[tuple(lo)], a[tuple(hi)], out=out[tuple(lo)])
+    return out
+
+
+def plane_ops(a: np.ndarray, dims, op, step=step3) -> np.ndarray:
+    """``step`` along each dimension of ``dims`` in turn (a square of a slice lattice)."""
+    for d in dims:
+        a = step(a, d, op)
+    return a
+
+
+def union_key(density: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi), uint8 [k, j, i]: per voxel the least and greatest density over the in-slice 3 x 3 squares of the
+    three slice axes united (19 voxels: the 3 x 3 x 3 cube without its 8 corners, cut at the volume's edge)."""
+    density = np.ascontiguousarray(density, dtype=np.uint8)
+    out = []
+    for op in (np.minimum, np.maximum):
+        acc = None
+        for dims in IN_SLICE_DIMS.values():
+            m = plane_ops(density, dims, op)
+            acc = m if acc is None else op(acc, m, out=acc)
+        out.append(acc)
+    return out[0], out[1]
+
+
+def layer_key(density: np.ndarray, k0: int, k1: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`union_key` of planes ``k0 .. k1 - 1`` alone, from ``density`` planes ``k0 - 1 .. k1`` (those in the
+    volume): equal to the whole volume's key there."""
+    a, b = max(0, k0 - 1), min(density.shape[0], k1 + 1)
+    lo, hi = union_key(density[a:b])
+    return lo[k0 - a:k1 - a], hi[k0 - a:k1 - a]
+
+
+# ------------------------------------------------------------------------------------------------- bins
+
+class Cut(NamedTuple):
+    """Bins cut by the data: ``lo`` / ``hi`` the first code of each lo / hi bin (increasing, from 0); every pair
+    (lo bin, hi bin) a run, hi bin major (run = hi bin * lo bins + lo bin), the pairs that cannot hold a voxel (lo
+    bin above hi bin) empty. ``label``: how it was cut (``q64x16``, ``dp8x8``)."""
+    lo: np.ndarray
+    hi: np.ndarray
+    label: str
+
+
+def bin_lut(first: np.ndarray) -> np.ndarray:
+    """int32 [256]: each code's bin, the bins starting at codes ``first``."""
+    return (np.searchsorted(np.asarray(first), np.arange(256), side="right") - 1).astype(np.int32)
+
+
+def interval_weights(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The typical scenes a :func:`dp_cut` serves, from the volume alone: every interval [t0, t1], 1 <= t0 <= t1
+    <= 255, each weighted by 1 / its voxels (those a key at one bin a code would read, lo <= t1 and hi >= t0; at
+    least 1/1000 of the volume), so that the sum is the mean read / ideal. Returns (C, W): C [257, 257] with
+    C[e, s] = voxels with lo < e and hi >= s; W [t1, t0]."""
+    return weights_of_histogram(key_histogram(lo, hi))
+
+
+def key_histogram(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """int64 [256, 256]: voxels per (lo, hi) (summed over the layers when a volume is read in layers)."""
+    return np.bincount(np.asarray(lo).ravel().astype(np.int64) * 256 + np.asarray(hi).ravel(),
+                       minlength=65536).reshape(256, 256)
+
+
+def weights_of_histogram(h2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`interval_weights` from the (lo, hi) histogram ``h2``."""
+    total = int(h2.sum())
+    C = np.zeros((257, 257))
+    C[1:, :256] = np.cumsum(h2, 0)[:, ::-1].cumsum(1)[:, ::-1]
+    t1, t0 = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")
+    ideal = C[t1 + 1, t0]
+    W = np.where((t0 >= 1) & (t0 <= t1), 1.0 / np.maximum(ideal, max(1.0, total / 1000)), 0.0)
+    return C, W
+
+
+def cut_cost(C: np.ndarray, W: np.ndarray, lo_first, hi_first) -> float:
+    """Sum over the weighted intervals of the voxels read: per [t0, t1], those with lo below the end of t1's lo
+    bin and hi at or above the start of t0's hi bin."""
+    end = np.append(np.asarray(lo_first)[1:], 256)[bin_lut(lo_first)]       # [t1]
+    start = np.asarray(hi_first)[bin_lut(hi_first)]                        # [t0]
+    return float((W * C[end[:, None], start[None, :]]).sum())
+
+
+def best_bins(cost: np.ndarray, n: int) -> np.ndarray:
+    """First codes of the ``n`` bins [a, b) covering 0 .. 256 of least total ``cost[a, b]`` (dynamic
+    programming; a bin at least one code)."""
+    F = np.full(257, np.inf)
+    F[0] = 0.0
+    back = []
+    for _ in range(n):
+        tot = F[:, None] + cost                     # [a, b]
+        a = np.argmin(tot, axis=0)
+        F = tot[a, np.arange(257)]
+        back.append(a)
+    first, b = [], 256
+    for a in reversed(back):
+        b = int(a[b])
+        first.append(b)
+    return np.array(first[::-1], np.int64)
+
+
+def dp_cut(lo: np.ndarray, hi: np.ndarray, n_lo: int, n_hi: int, rounds: int = 4) -> Cut:
+    """Bins of least :func:`cut_cost` over :func:`interval_weights`' intervals: from uniform bins, the lo edges
+    best for the hi edges (exactly, by :func:`best_bins`), then the hi edges best for those, ``rounds`` times
+    (each step can only lower the cost)."""
+    return dp_cut_of(key_histogram(lo, hi), n_lo, n_hi, rounds)
+
+
+def dp_cut_of(h2: np.ndarray, n_lo: int, n_hi: int, rounds: int = 4) -> Cut:
+    """:func:`dp_cut` from the (lo, hi) histogram ``h2`` (:func:`key_histogram`)."""
+    if not (1 <= n_lo <= 256 and 1 <= n_hi <= 256):
+        raise IsplatError(f"bins {n_lo}x{n_hi}: expected 1 to 256 lo bins and hi bins")
+    C, W = weights_of_histogram(h2)
+    lo_first = np.arange(n_lo) * 256 // n_lo
+    hi_first = np.arange(n_hi) * 256 // n_hi
+    a, b = np.meshgrid(np.arange(257), np.arange(257), indexing="ij")
+    bad = a >= b
+    for _ in range(rounds):
+        start = hi_first[bin_lut(hi_first)]
+        G = W @ C[:, start].T                                # G[t1, e] = sum_t0 W[t1, t0] C[e, S(t0)]
+        P = np.vstack([np.zeros(257), np.cumsum(G, 0)])      # P[x, e] = sum_{t1 < x} G[t1, e]
+        cost = np.where(bad, np.inf, P[b, b] - P[a, b])
+        lo_first = best_bins(cost, n_lo)
+        end = np.append(lo_first[1:], 256)[bin_lut(lo_first)]
+        K = W.T @ C[end, :]                                  # K[t0, s] = sum_t1 W[t1, t0] C[E(t1), s]
+        Q = np.vstack([np.zeros(257), np.cumsum(K, 0)])      # Q[x, s] = sum_{t0 < x} K[t0, s]
+        cost = np.where(bad, np.inf, Q[b, a] - Q[a, a])
+        hi_first = best_bins(cost, n_hi)
+    return Cut(lo_first, hi_first, f"dp{n_lo}x{n_hi}")
+
+
+def n_runs(cut: Cut) -> int:
+    return len(cut.lo) * len(cut.hi)
+
+
+def run_of(lo: np.ndarray, hi: np.ndarray, cut: Cut) -> np.ndarray:
+    """int32, ``lo``'s shape: each voxel's run, hi bin major, lo bin minor.
+
+    >>> cut = Cut(np.r_[0, 128], np.r_[0, 64, 128, 192], "")
+    >>> run_of(np.array([0, 0, 64, 255]), np.array([0, 255, 200, 255]), cut).tolist()
+    [0, 6, 6, 7]
+    """
+    return bin_lut(cut.hi)[hi] * len(cut.lo) + bin_lut(cut.lo)[lo]
+
+
+def run_codes(cut: Cut) -> tuple[np.ndarray, np.ndarray]:
+    """Per run, the least code of its lo bin and the greatest of its hi bin."""
+    r = np.arange(n_runs(cut))
+    hi_last = np.append(np.asarray(cut.hi)[1:], 256) - 1
+    return np.asarray(cut.lo)[r % len(cut.lo)], hi_last[r // len(cut.lo)]
+
+
+def runs_meeting(intervals, cut: Cut) -> np.ndarray:
+    """bool [runs]: the runs whose bin rectangle can meet one of the inclusive code ``intervals`` (with some
+    lo <= hi in it)."""
+    lo_first, hi_last = run_codes(cut)
+    out = np.zeros(n_runs(cut), dtype=bool)
+    for t0, t1 in intervals:
+        out |= (lo_first <= int(t1)) & (hi_last >= int(t0))
+    return out & (lo_first <= hi_last)
+
+
+# ------------------------------------------------------------------------------------------------- layout
+
+class Runs(NamedTuple):
+    """The runs of a volume or of one layer of bricks (formats/runs.md §3): per run ``r`` its voxels
+    ``run_voxel_ptr[r] .. [r + 1]`` of ``density``, ``normal``, ``gradient_magnitude``; its bricks
+    ``run_brick_ptr[r] .. [r + 1]`` of ``brick_number`` (increasing) and ``brick_voxel_count``; its positions'
+    bytes ``run_position_ptr[r] .. [r + 1]`` of ``positions`` (per brick a 64-byte bitmap or 2 B a voxel)."""
+    run_voxel_ptr: np.ndarray
+    run_brick_ptr: np.ndarray
+    run_position_ptr: np.ndarray
+    brick_number: np.ndarray
+    brick_voxel_count: np.ndarray
+    positions: np.ndarray
+    density: np.ndarray
+    normal: np.ndarray
+    gradient_magnitude: np.ndarray
+
+
+RUN_ARRAYS = ("brick_number", "brick_voxel_count", "positions", "density", "normal", "gradient_magnitude")
+PTR_OF = {"brick_number": "run_brick_ptr", "brick_voxel_count": "run_brick_ptr", "positions": "run_position_ptr",
+          "density": "run_voxel_ptr", "normal": "run_voxel_ptr", "gradient_magnitude": "run_voxel_ptr"}
+
+
+def brick_grid(shape) -> tuple[int, int, int]:
+    return tuple(-(-int(n) // BRICK) for n in shape)
+
+
+def position_bytes(count: np.ndarray) -> np.ndarray:
+    """int64: bytes of the positions of (run, brick)s of ``count`` voxels: 2 B a voxel up to LIST_MAX, else a
+    64-byte bitmap."""
+    c = np.asarray(count, dtype=np.int64)
+    return np.where(c > LIST_MAX, BITMAP_BYTES, 2 * c)
+
+
+def encode_positions(group: np.ndarray, local: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """uint8: the positions of consecutive groups (each a (run, brick)): ``group`` [n] each voxel's group
+    (0 .. len(counts) - 1, non-decreasing), ``local`` [n] its place in the brick (increasing within a group),
+    ``counts`` each group's voxels. A group of at most LIST_MAX voxels: its places as uint16 little-endian; of more:
+    a bitmap of 64 bytes, place p at bit p % 8 (least significant first) of byte p // 8."""
+    size = position_bytes(counts)
+    start = np.concatenate([[0], np.cumsum(size)])
+    out = np.zeros(int(start[-1]), dtype=np.uint8)
+    is_map = counts > LIST_MAX
+    vmap = is_map[group]
+    if vmap.any():
+        maps = np.flatnonzero(is_map)
+        row = np.searchsorted(maps, group[vmap])
+        bits = np.zeros((maps.size, BRICK_VOXELS), dtype=bool)
+        bits[row, local[vmap]] = True
+        packed = np.packbits(bits, axis=1, bitorder="little")
+        out[(start[maps][:, None] + np.arange(BITMAP_BYTES)).ravel()] = packed.ravel()
+    if (~vmap).any():
+        g = group[~vmap]
+        first = np.concatenate([[0], np.cumsum(counts)])[:-1]
+        rank = np.arange(group.size)[~vmap] - first[g]
+        at = start[g] + 2 * rank
+        v = local[~vmap].astype("<u2").view(np.uint8).reshape(-1, 2)
+        out[at], out[at + 1] = v[:, 0], v[:, 1]
+    return out
+
+
+def decode_positions(counts: np.ndarray, data: np.ndarray, where: str = "positions") -> np.ndarray:
+    """int64: each voxel's place in its brick, group after group, from ``counts`` (each group's voxels) and
+    ``data`` (:func:`encode_positions`' bytes). Refuses (IsplatError naming ``where``) a length that does not
+    match, a bitmap whose bits are not its count, and places not strictly increasing within a group or not
+    below 512."""
+    counts = np.asarray(counts, dtype=np.int64)
+    size = position_bytes(counts)
+    if (counts < 1).any() or (counts > BRICK_VOXELS).any():
+        bad = int(np.flatnonzero((counts < 1) | (counts > BRICK_VOXELS))[0])
+        raise IsplatError(f"{where}: brick {bad} of the run has {int(counts[bad])} voxels, expected 1 to 512")
+    if int(size.sum()) != data.size:
+        raise IsplatError(f"{where}: {data.size} bytes of positions, the bricks' counts make {int(size.sum())}")
+    start = np.concatenate([[0], np.cumsum(size)])
+    vfirst = np.concatenate([[0], np.cumsum(counts)])
+    out = np.empty(int(vfirst[-1]), dtype=np.int64)
+    is_map = counts > LIST_MAX
+    if is_map.any():
+        maps = np.flatnonzero(is_map)
+        raw = data[(start[maps][:, None] + np.arange(BITMAP_BYTES)).ravel()].reshape(-1, BITMAP_BYTES)
+        bits = np.unpackbits(raw, axis=1, bitorder="little").astype(bool)
+        have = bits.sum(axis=1)
+        if (have != counts[maps]).any():
+            bad = int(np.flatnonzero(have != counts[maps])[0])
+            raise IsplatError(f"{where}: brick {int(maps[bad])} of the run: its bitmap holds {int(have[bad])} "
+                              f"voxels, its count says {int(counts[maps[bad]])}")
+        _, place = np.nonzero(bits)                     # row-major: group after group, places increasing
+        out[_ranges(vfirst[maps], counts[maps])] = place
+    if (~is_map).any():
+        lists = np.flatnonzero(~is_map)
+        at = _ranges(start[lists], 2 * counts[lists])
+        place = data[at].view("<u2").astype(np.int64)
+        dest = _ranges(vfirst[lists], counts[lists])
+        grp = np.repeat(np.arange(lists.size), counts[lists])
+        bad = place >= BRICK_VOXELS
+        step = np.ones(place.size, dtype=bool)
+        step[1:] = (grp[1:] != grp[:-1]) | (place[1:] > place[:-1])
+        if bad.any() or not step.all():
+            n = int(np.flatnonzero(bad | ~step)[0])
+            raise IsplatError(f"{where}: brick {int(lists[grp[n]])} of the run: place {int(place[n])}, expected "
+                              f"places below 512, strictly increasing within the brick")
+        out[dest] = place
+    return out
+
+
+def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """int64: the concatenated ranges ``starts[g] .. starts[g] + lengths[g] - 1``."""
+    lengths = np.asarray(lengths, dtype=np.int64)
+    total = int(lengths.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    first = np.concatenate([[0], np.cumsum(lengths)])[:-1]
+    return np.repeat(np.asarray(starts, dtype=np.int64) - first, lengths) + np.arange(total)
+
+
+def flat_positions(brick_number: np.ndarray, counts: np.ndarray, place: np.ndarray, shape,
+                   where: str = "positions") -> np.ndarray:
+    """int64: each voxel's flat position ``i + n_i * (j + n_j * k)`` from its brick's number (C order over
+    :func:`brick_grid`) and its place in the brick. Refuses a brick number beyond the grid and a voxel beyond
+    the volume (a place in the part of an edge brick outside it)."""
+    nk, nj, ni = (int(n) for n in shape)
+    gk, gj, gi = brick_grid(shape)
+    b = np.asarray(brick_number, dtype=np.int64)
+    if (b >= gk * gj * gi).any():
+        bad = int(np.flatnonzero(b >= gk * gj * gi)[0])
+        raise IsplatError(f"{where}: brick number {int(b[bad])}, beyond the {gk * gj * gi} bricks of shape "
+                          f"{tuple(shape)}")
+    bv = np.repeat(b, counts)
+    k = (bv // (gj * gi)) * BRICK + place // (BRICK * BRICK)
+    j = (bv // gi % gj) * BRICK + place // BRICK % BRICK
+    i = (bv % gi) * BRICK + place % BRICK
+    out = (k >= nk) | (j >= nj) | (i >= ni)
+    if out.any():
+        n = int(np.flatnonzero(out)[0])
+        raise IsplatError(f"{where}: voxel ({int(k[n])}, {int(j[n])}, {int(i[n])}) (k, j, i) of brick {int(bv[n])} "
+                          f"lies outside the volume of shape {tuple(shape)}")
+    return i + ni * (j + nj * k)
+
+
+def layer_runs(run: np.ndarray, k0: int, shape, density: np.ndarray, normal: np.ndarray,
+               gradient_magnitude: np.ndarray, n_run: int) -> Runs:
+    """The runs of one layer of bricks (planes ``k0 .. k0 + len(run) - 1``, ``k0`` a multiple of 8; ``run`` the
+    voxels' runs, the channels the layer's planes), brick numbers those of the whole volume's grid."""
+    nl, nj, ni = run.shape
+    _, gj, gi = brick_grid(shape)
+    k, j, i = np.indices(run.shape, dtype=np.int64)
+    brick = (k0 // BRICK) * gj * gi + (j // BRICK) * gi + i // BRICK
+    place = ((k % BRICK) * BRICK + j % BRICK) * BRICK + i % BRICK
+    order = np.argsort((run.astype(np.int64) * (gj * gi * BRICK_VOXELS) + (brick - (k0 // BRICK) * gj * gi)
+                        * BRICK_VOXELS + place).ravel(), kind="stable")
+    r, b, p = run.ravel()[order], brick.ravel()[order], place.ravel()[order]
+    new = np.ones(r.size, dtype=bool)
+    new[1:] = (r[1:] != r[:-1]) | (b[1:] != b[:-1])
+    group = np.cumsum(new) - 1
+    firsts = np.flatnonzero(new)
+    counts = np.diff(np.append(firsts, r.size))
+    pos = encode_positions(group, p, counts)
+    vptr = _ptr(np.bincount(r, minlength=n_run))
+    bptr = _ptr(np.bincount(r[firsts], minlength=n_run))
+    pptr = _ptr(np.bincount(r[firsts], weights=position_bytes(counts), minlength=n_run).astype(np.int64))
+    return Runs(vptr, bptr, pptr, b[firsts].astype(np.uint32), counts.astype(np.uint16), pos,
+                density.ravel()[order], normal.ravel()[order], gradient_magnitude.ravel()[order])
+
+
+def _ptr(counts: np.ndarray) -> np.ndarray:
+    out = np.zeros(counts.size + 1, dtype=np.int64)
+    np.cumsum(counts, out=out[1:])
+    return out
+
+
+def layers(shape):
+    """(k0, k1) of each layer of bricks."""
+    nk = int(shape[0])
+    return [(k0, min(nk, k0 + BRICK)) for k0 in range(0, nk, BRICK)]
+
+
+def assemble(parts, totals: Runs, out: dict) -> None:
+    """Write the layers' runs ``parts`` (an iterable of :class:`Runs`, layer after layer) into ``out`` (name ->
+    a 1-D array or dataset taking slice assignment, as long as ``totals``' pointers say): run by run, each
+    layer's piece after the earlier layers' pieces of that run."""
+    cursor = {name: np.array(getattr(totals, PTR_OF[name])[:-1]) for name in RUN_ARRAYS}
+    for part in parts:
+        for name in RUN_ARRAYS:
+            src, ptr, cur = getattr(part, name), getattr(part, PTR_OF[name]), cursor[name]
+            for r in np.flatnonzero(np.diff(ptr)):
+                a, b = int(ptr[r]), int(ptr[r + 1])
+                out[name][int(cur[r]):int(cur[r]) + b - a] = src[a:b]
+                cur[r] += b - a
+
+
+def total_pointers(parts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The whole volume's run_voxel_ptr, run_brick_ptr, run_position_ptr from its layers' runs."""
+    sums = None
+    for p in parts:
+        d = [np.diff(getattr(p, n)) for n in ("run_voxel_ptr", "run_brick_ptr", "run_position_ptr")]
+        sums = d if sums is None else [s + x for s, x in zip(sums, d)]
+    return tuple(_ptr(s) for s in sums)
+
+
+def build_runs(density: np.ndarray, normal: np.ndarray, gradient_magnitude: np.ndarray,
+               cut: Cut | None = None) -> tuple[Cut, Runs]:
+    """The cut (default :func:`dp_cut` 8 x 8 of the volume's keys) and the runs of a whole volume in memory."""
+    lo, hi = union_key(density)
+    cut = dp_cut(lo, hi, *DEFAULT_BINS) if cut is None else cut
+    run = run_of(lo, hi, cut)
+    parts = [layer_runs(run[k0:k1], k0, density.shape, density[k0:k1], normal[k0:k1],
+                        gradient_magnitude[k0:k1], n_runs(cut)) for k0, k1 in layers(density.shape)]
+    ptrs = total_pointers(parts)
+    size = {"brick_number": ptrs[1], "brick_voxel_count": ptrs[1], "positions": ptrs[2]}
+    out = {n: np.empty(int(size.get(n, ptrs[0])[-1]), dtype=parts[0]._asdict()[n].dtype) for n in RUN_ARRAYS}
+    assemble(parts, Runs(*ptrs, *(None,) * 6), out)
+    return cut, Runs(*ptrs, *(out[n] for n in RUN_ARRAYS))
+
+
+def place(shape, positions: np.ndarray, values: np.ndarray, fill=0) -> np.ndarray:
+    """A full-shape array holding ``values`` at flat ``positions`` and ``fill`` elsewhere (positions checked in
+    bounds by numpy)."""
+    out = np.full(int(np.prod(shape)), fill, dtype=values.dtype)
+    out[positions] = values
+    return out.reshape(tuple(int(n) for n in shape))

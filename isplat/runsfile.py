@@ -1,0 +1,335 @@
+"""The range-runs file ``NAME.runs.idx.h5`` beside an index (formats/runs.md): written by ``isplat index`` from
+the augmented file, layer of bricks by layer (three passes: the keys' histogram, the runs' sizes, the runs);
+opened and read by :func:`open_runs` / :func:`read_runs`, which check everything the format says before any
+array is indexed with what the file holds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import h5py
+import numpy as np
+
+from . import chunkhash, runs as R
+from .errors import IsplatError
+from .fileio import (ReadCounter, attr_array, attr_string, check_hashed_dataset, check_string_attrs,
+                     create_group, create_hashed_dataset, hdf5_errors, open_hdf5, set_string_attr)
+
+FORMAT_NAME = "isplat-runs"
+FORMAT_VERSION = 1
+KEY = "union"
+PTRS = ("run_voxel_ptr", "run_brick_ptr", "run_position_ptr")
+DTYPES = {
+    "run_voxel_ptr": "<i8", "run_brick_ptr": "<i8", "run_position_ptr": "<i8",
+    "brick_number": "<u4", "brick_voxel_count": "<u2", "positions": "|u1",
+    "density": "|u1", "normal": "<u2", "gradient_magnitude": "|u1",
+}
+DATASETS = tuple(f"runs/{n}" for n in DTYPES)
+HASHED_ATTRS = tuple(("", n) for n in ("format", "format_version", "shape", "density_sha256",
+                                       "augmented_chunk_hash_check", "key", "brick", "lo_first", "hi_first"))
+
+
+def runs_path(index_path) -> Path:
+    """``NAME.idx.h5`` -> ``NAME.runs.idx.h5`` (else INDEX + ``.runs.idx.h5``), as the values file is named."""
+    s = str(index_path)
+    return Path(s[: -len(".idx.h5")] + ".runs.idx.h5" if s.endswith(".idx.h5") else s + ".runs.idx.h5")
+
+
+def _hint(p) -> str:
+    return f"isplat index AUG.h5 -o INDEX.idx.h5 --force (AUG.h5: the augmented volume; {Path(p).name} is " \
+           f"written beside INDEX.idx.h5)"
+
+
+# ----------------------------------------------------------------------------------------------- write
+
+def write_runs(f: h5py.File, aug, read, bins=R.DEFAULT_BINS) -> R.Cut:
+    """Write the runs of augmented volume ``aug`` (open, validated; ``read(channel, k0, k1)`` its k-planes) into
+    the new HDF5 file ``f``: root attributes, ``/runs``, then the chunk hashes. Memory: a layer of bricks."""
+    shape = tuple(int(n) for n in aug.shape)
+    nk = shape[0]
+
+    def keys(k0, k1):
+        a, b = max(0, k0 - 1), min(nk, k1 + 1)
+        return R.layer_key(read("density", a, b), k0 - a, k1 - a)
+
+    h2 = np.zeros((256, 256), dtype=np.int64)
+    for k0, k1 in R.layers(shape):
+        h2 += R.key_histogram(*keys(k0, k1))
+    cut = R.dp_cut_of(h2, *bins)
+    n_run = R.n_runs(cut)
+
+    def parts(sizes_only: bool):
+        for k0, k1 in R.layers(shape):
+            run = R.run_of(*keys(k0, k1), cut)
+            d = read("density", k0, k1)
+            ch = (d, d) if sizes_only else (read("normal", k0, k1), read("gradient_magnitude", k0, k1))
+            yield R.layer_runs(run, k0, shape, d, ch[0], ch[1], n_run)
+
+    ptrs = R.total_pointers(parts(True))
+    out = _create(f, aug.shape, aug.density_sha256, aug.attrs.get(chunkhash.CHECK_ATTR, ""), cut, ptrs)
+    R.assemble(parts(False), R.Runs(*ptrs, *(None,) * 6), out)
+    _finish(f)
+    return cut
+
+
+def write_runs_arrays(f: h5py.File, shape, density_sha256: str, augmented_check: str, cut: R.Cut,
+                      runs: R.Runs) -> None:
+    """Write the runs ``runs`` (:func:`isplat.runs.build_runs`, or any arrays: tests of the reader's checks)
+    into the new HDF5 file ``f``, with their chunk hashes."""
+    out = _create(f, shape, density_sha256, augmented_check, cut, runs[:3])
+    for name, ds in out.items():
+        if ds.shape[0]:
+            ds[...] = getattr(runs, name)
+    _finish(f)
+
+
+def _create(f: h5py.File, shape, sha: str, check: str, cut: R.Cut, ptrs) -> dict:
+    """The root attributes and ``/runs`` with its pointer tables written; the other datasets (returned by name)
+    made to the lengths the pointers give, to be filled."""
+    from .index.store import chunk_rows
+
+    _write_root(f, shape, sha, check, cut)
+    g = create_group(f, "runs")
+    length = {n: int(ptrs[PTRS.index(R.PTR_OF[n])][-1]) for n in R.RUN_ARRAYS}
+    out = {}
+    for name, dt in DTYPES.items():
+        n = len(ptrs[0]) if name in PTRS else length[name]
+        ds = create_hashed_dataset(g, name, (n,), dt, chunks=(chunk_rows(n, np.dtype(dt).itemsize),))
+        if name in PTRS:
+            ds[...] = np.asarray(ptrs[PTRS.index(name)], dtype=dt)
+        else:
+            out[name] = ds
+    return out
+
+
+def _finish(f: h5py.File) -> None:
+    """The chunk hashes (formats/runs.md §2), once everything else is written."""
+    from .index.store import _hash_table
+
+    chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), DATASETS,
+                           chunkhash.attributes_of(f, HASHED_ATTRS), create=_hash_table)
+
+
+def _write_root(f: h5py.File, shape, sha: str, check: str, cut: R.Cut) -> None:
+    from . import __version__
+
+    set_string_attr(f, "format", FORMAT_NAME)
+    f.attrs["format_version"] = np.int64(FORMAT_VERSION)
+    f.attrs["shape"] = np.asarray(shape, dtype="<i8")
+    set_string_attr(f, "density_sha256", str(sha))
+    set_string_attr(f, "augmented_chunk_hash_check", str(check))
+    set_string_attr(f, "key", KEY)
+    f.attrs["brick"] = np.int64(R.BRICK)
+    f.attrs["lo_first"] = np.asarray(cut.lo, dtype="<i8")
+    f.attrs["hi_first"] = np.asarray(cut.hi, dtype="<i8")
+    set_string_attr(f, "created_by", f"isplat {__version__}")
+
+
+# ----------------------------------------------------------------------------------------------- read
+
+class RunsRead(NamedTuple):
+    """What :meth:`RunsFile.read` returns: the voxels of the runs read, run after run (each by brick number,
+    then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
+    (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
+    (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool)."""
+    positions: np.ndarray
+    density: np.ndarray
+    normal: np.ndarray
+    gradient_magnitude: np.ndarray
+    bytes_read: int
+    runs: np.ndarray
+
+
+class RunsFile:
+    """An open, validated runs file (:func:`open_runs`); :meth:`read` reads runs; close it (or use ``with``)."""
+
+    def __init__(self, path, f, counter, shape, sha, cut, ptrs, verifier):
+        self.path, self._f, self.counter = path, f, counter
+        self.shape, self.density_sha256, self.cut = shape, sha, cut
+        self.ptrs, self.verifier = ptrs, verifier
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        if self._f is not None:
+            self._f.close()
+            self._f = None
+
+    def runs_for(self, intervals) -> np.ndarray:
+        """bool [runs]: the runs whose bin rectangle meets one of the inclusive ``intervals`` (None: every run)."""
+        if intervals is None:
+            return np.ones(R.n_runs(self.cut), dtype=bool)
+        ivs = [(int(a), int(b)) for a, b in intervals]
+        if any(not 0 <= a <= b <= 255 for a, b in ivs):
+            raise IsplatError(f"{self.path}: intervals {ivs}: expected inclusive code intervals within 0..255")
+        return R.runs_meeting(ivs, self.cut)
+
+    def read(self, intervals=None) -> RunsRead:
+        """The runs meeting ``intervals`` (None: all, then every voxel of the volume must be read exactly once),
+        each checked against its hashes and formats/runs.md §4 before its positions are made."""
+        sel = self.runs_for(intervals)
+        pieces = []
+        for a, b in _spans(sel & (np.diff(self.ptrs[0]) > 0)):
+            pieces += self._read_span(a, b)
+        cat = [np.concatenate([p[n] for p in pieces]) if pieces else np.zeros(0, dt)
+               for n, dt in enumerate((np.int64, np.uint8, np.uint16, np.uint8))]
+        s = np.sort(cat[0])
+        if s.size > 1 and not (np.diff(s) > 0).all():
+            dup = int(s[np.flatnonzero(np.diff(s) == 0)[0]])
+            raise IsplatError(f"{self.path}: dataset 'runs/positions': voxel {dup} (flat) lies in two runs")
+        if sel.all() and s.size != int(np.prod(self.shape)):
+            raise IsplatError(f"{self.path}: the runs hold {s.size} voxels, the volume {int(np.prod(self.shape))}")
+        return RunsRead(*cat, int(self.counter.bytes), sel)
+
+    def _get(self, name: str, lo: int, hi: int, runs: str) -> np.ndarray:
+        with hdf5_errors(self.path, f"dataset 'runs/{name}' [{lo}:{hi}] ({runs})"):
+            try:
+                return np.asarray(self.verifier.read(self._f, f"runs/{name}", (slice(lo, hi),)))
+            except IsplatError as exc:
+                raise IsplatError(f"{exc} ({runs})") from None
+
+    def _read_span(self, a: int, b: int) -> list:
+        """Runs ``a .. b - 1`` (consecutive): one read per dataset, then each run checked."""
+        vp, bp, pp = self.ptrs
+        where = f"runs {a}..{b - 1}"
+        got = {n: self._get(n, int(ptr[a]), int(ptr[b]), where)
+               for n, ptr in (("brick_number", bp), ("brick_voxel_count", bp), ("positions", pp), ("density", vp),
+                              ("normal", vp), ("gradient_magnitude", vp))}
+        lo_first, hi_last = R.run_codes(self.cut)
+        out = []
+        for r in range(a, b):
+            if vp[r + 1] == vp[r]:
+                continue
+            cut = {n: got[n][int(ptr[r] - ptr[a]):int(ptr[r + 1] - ptr[a])] for n, ptr in
+                   (("brick_number", bp), ("brick_voxel_count", bp), ("positions", pp), ("density", vp),
+                    ("normal", vp), ("gradient_magnitude", vp))}
+            out.append(self._check_run(r, cut, int(lo_first[r]), int(hi_last[r])))
+        return out
+
+    def _check_run(self, r: int, c: dict, lo: int, hi: int):
+        p = self.path
+        num, cnt = c["brick_number"].astype(np.int64), c["brick_voxel_count"].astype(np.int64)
+        if num.size > 1 and not (np.diff(num) > 0).all():
+            raise IsplatError(f"{p}: dataset 'runs/brick_number', run {r}: brick numbers not strictly increasing")
+        if int(cnt.sum()) != c["density"].size:
+            raise IsplatError(f"{p}: dataset 'runs/brick_voxel_count', run {r}: the bricks hold {int(cnt.sum())} "
+                              f"voxels, 'runs/run_voxel_ptr' gives the run {c['density'].size}")
+        place = R.decode_positions(cnt, c["positions"], f"{p}: dataset 'runs/positions', run {r}")
+        flat = R.flat_positions(num, cnt, place, self.shape, f"{p}: dataset 'runs/brick_number', run {r}")
+        d = c["density"]
+        if d.size and (int(d.min()) < lo or int(d.max()) > hi):
+            raise IsplatError(f"{p}: dataset 'runs/density', run {r}: a density outside the run's codes {lo}..{hi}")
+        return flat, d, c["normal"], c["gradient_magnitude"]
+
+
+def _spans(sel: np.ndarray):
+    """(a, b) of each stretch of consecutive True in ``sel``."""
+    edges = np.diff(np.concatenate([[0], sel.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
+
+
+def open_runs(path, shape=None, density_sha256: str | None = None,
+              augmented_chunk_hash_check: str | None = None) -> RunsFile:
+    """Open and validate a runs file (formats/runs.md §4): its attributes, datasets, chunk hashes' key and
+    pointer tables; with ``shape``, ``density_sha256``, ``augmented_chunk_hash_check`` (those of the augmented
+    file it is read with), that it was written from that file. Every problem is one :class:`IsplatError`."""
+    counter = ReadCounter()
+    p, f = open_hdf5(path, "runs file", FORMAT_NAME, FORMAT_VERSION, counter=counter)
+    try:
+        with hdf5_errors(p, "attributes and pointer tables"):
+            shape_f, sha, cut = _check_root(p, f.attrs)
+            own = attr_string(f.attrs, "augmented_chunk_hash_check")
+            for what, want, have in (("shape", None if shape is None else tuple(int(n) for n in shape), shape_f),
+                                     ("density_sha256", density_sha256, sha),
+                                     ("augmented_chunk_hash_check", augmented_chunk_hash_check, own)):
+                if want is not None and want != have:
+                    raise IsplatError(f"{p}: attribute {what!r} is {have}, the augmented file's {want}: the runs of "
+                                      f"another volume; rebuild it: {_hint(p)}")
+            _check_datasets(p, f, shape_f, R.n_runs(cut))
+            verifier = chunkhash.open_verifier(p, f, sha, DATASETS, chunkhash.attributes_of(f, HASHED_ATTRS),
+                                               _hint(p))
+            ptrs = tuple(np.asarray(verifier.read(f, f"runs/{n}"), dtype=np.int64) for n in PTRS)
+            _check_ptrs(p, f, ptrs, cut)
+    except BaseException:
+        f.close()
+        raise
+    return RunsFile(p, f, counter, shape_f, sha, cut, ptrs, verifier)
+
+
+def read_runs(path, intervals=None, **tie):
+    """``(flat positions, density, normal, gradient magnitude, bytes read)`` of the runs of ``path`` meeting
+    ``intervals`` (inclusive code pairs; None: all), validated (:func:`open_runs`, :meth:`RunsFile.read`)."""
+    with open_runs(path, **tie) as rf:
+        got = rf.read(intervals)
+    return got.positions, got.density, got.normal, got.gradient_magnitude, got.bytes_read
+
+
+def _check_root(p, a):
+    check_string_attrs(p, a, ("density_sha256", "created_by", "augmented_chunk_hash_check", "key"))
+    shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
+    if min(shape) < 1:
+        raise IsplatError(f"{p}: attribute 'shape' is {shape}, expected three positive sizes")
+    sha = attr_string(a, "density_sha256")
+    if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+        raise IsplatError(f"{p}: attribute 'density_sha256' is not a SHA-256 hex digest (64 lower-case hex digits)")
+    if attr_string(a, "key") != KEY:
+        raise IsplatError(f"{p}: attribute 'key' is {attr_string(a, 'key')!r}, expected {KEY!r}")
+    if int(attr_array(p, a, "brick", "i")) != R.BRICK:
+        raise IsplatError(f"{p}: attribute 'brick' is {int(attr_array(p, a, 'brick', 'i'))}, expected {R.BRICK}")
+    firsts = []
+    for name in ("lo_first", "hi_first"):
+        v = np.asarray(attr_array(p, a, name, "i", (-1,)), dtype=np.int64)
+        if not 1 <= v.size <= 256 or v[0] != 0 or v[-1] > 255 or (v.size > 1 and not (np.diff(v) > 0).all()):
+            raise IsplatError(f"{p}: attribute {name!r} is {v.tolist()[:8]}{'...' if v.size > 8 else ''}, expected "
+                              f"1 to 256 bin edges from 0, strictly increasing, within 0..255")
+        firsts.append(v)
+    return shape, sha, R.Cut(firsts[0], firsts[1], f"{firsts[0].size}x{firsts[1].size}")
+
+
+def _check_datasets(p, f, shape, n_run: int) -> None:
+    if not isinstance(f.get("runs"), h5py.Group):
+        raise IsplatError(f"{p}: group '/runs' is missing; rebuild it: {_hint(p)}")
+    g = f["runs"]
+    for name, dt in DTYPES.items():
+        ds = g.get(name)
+        if not isinstance(ds, h5py.Dataset):
+            raise IsplatError(f"{p}: dataset 'runs/{name}' is missing; rebuild it: {_hint(p)}")
+        if ds.ndim != 1 or ds.dtype != np.dtype(dt):
+            raise IsplatError(f"{p}: dataset 'runs/{name}' is {ds.dtype} {ds.shape}, expected 1-D {np.dtype(dt)}")
+        check_hashed_dataset(f"{p}: dataset 'runs/{name}'", ds)
+    n = {name: int(g[name].shape[0]) for name in DTYPES}
+    want = dict.fromkeys(PTRS, n_run + 1)
+    want.update(density=int(np.prod(shape, dtype=np.int64)), normal=n["density"], gradient_magnitude=n["density"],
+                brick_voxel_count=n["brick_number"])
+    for name, m in want.items():
+        if n[name] != m:
+            raise IsplatError(f"{p}: dataset 'runs/{name}' has {n[name]} rows, expected {m}")
+
+
+def _check_ptrs(p, f, ptrs, cut: R.Cut) -> None:
+    """Each pointer table: from 0, non-decreasing, ending at its datasets' length (so every run's counts and
+    offsets are non-negative, in bounds, not overlapping, summing to the length); a run that cannot hold a voxel
+    (lo bin above hi bin) empty; a run's bricks at least one and at most its voxels, 512 voxels a brick at most."""
+    lengths = {"run_voxel_ptr": f["runs/density"].shape[0], "run_brick_ptr": f["runs/brick_number"].shape[0],
+               "run_position_ptr": f["runs/positions"].shape[0]}
+    for name, ptr in zip(PTRS, ptrs):
+        step = np.diff(ptr)
+        if ptr[0] != 0 or ptr[-1] != lengths[name] or (step < 0).any():
+            r = int(np.flatnonzero(step < 0)[0]) if (step < 0).any() else (0 if ptr[0] != 0 else len(step) - 1)
+            raise IsplatError(f"{p}: dataset 'runs/{name}', run {r}: offsets {int(ptr[r])}..{int(ptr[r + 1])}; "
+                              f"expected from 0, non-decreasing, to the {lengths[name]} rows they point into")
+    nv, nb, npos = (np.diff(x) for x in ptrs)
+    lo_first, hi_last = R.run_codes(cut)
+    bad = ((nv > 0) & (lo_first > hi_last)) | ((nv > 0) != (nb > 0)) | (nb > nv) | (nv > R.BRICK_VOXELS * nb) | \
+        (npos < R.position_bytes(1) * nb) | (npos > R.BITMAP_BYTES * nb)
+    if bad.any():
+        r = int(np.flatnonzero(bad)[0])
+        raise IsplatError(f"{p}: dataset 'runs/run_voxel_ptr', run {r}: {int(nv[r])} voxels in {int(nb[r])} bricks "
+                          f"with {int(npos[r])} bytes of positions (codes {int(lo_first[r])}..{int(hi_last[r])}), "
+                          f"which formats/runs.md §4 does not allow")

@@ -1,0 +1,315 @@
+"""isplat.runs and the runs file (formats/runs.md): the keys, the positions' two forms and the layout against slow,
+obvious references; the file's round trip; the reader refuses corrupted bytes and bad tables, naming the file, the
+dataset and the run; ``isplat index`` writes the file unless ``--no-runs``."""
+
+import itertools
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from hypothesis.extra.numpy import arrays
+
+from isplat import runs as R
+from isplat.errors import IsplatError
+from isplat.fileio import create_hdf5
+from isplat.runsfile import open_runs, read_runs, runs_path, write_runs_arrays
+
+from conftest import write_volume
+
+SHA = "ab" * 32
+CHECK = "cd" * 16
+
+
+# ------------------------------------------------------------------------------------------------ references
+
+def reference_key(density):
+    """Per voxel, min and max over the voxels of its 3 x 3 x 3 cube (cut at the edge) that are not its corners:
+    those it shares a quad with in some slice lattice."""
+    lo, hi = np.empty_like(density), np.empty_like(density)
+    for v in np.ndindex(density.shape):
+        vals = []
+        for d in itertools.product((-1, 0, 1), repeat=3):
+            w = tuple(a + b for a, b in zip(v, d))
+            if all(x != 0 for x in d) or any(not 0 <= x < n for x, n in zip(w, density.shape)):
+                continue
+            vals.append(density[w])
+        lo[v], hi[v] = min(vals), max(vals)
+    return lo, hi
+
+
+def reference_encode(groups):
+    """``groups``: a list of sorted place lists; bytes of each in turn: <= 32 places as uint16 LE, else a
+    64-byte bitmap (bit p % 8 of byte p // 8)."""
+    out = bytearray()
+    for places in groups:
+        if len(places) <= 32:
+            for p in places:
+                out += int(p).to_bytes(2, "little")
+        else:
+            bm = bytearray(64)
+            for p in places:
+                bm[p // 8] |= 1 << (p % 8)
+            out += bm
+    return np.frombuffer(bytes(out), dtype=np.uint8)
+
+
+def reference_layout(density, cut):
+    """Per run, the voxels (k, j, i) of its key's bins, by brick number then place."""
+    lo, hi = reference_key(density)
+    lo_bin = [max(n for n, c in enumerate(cut.lo) if c <= x) for x in range(256)]
+    hi_bin = [max(n for n, c in enumerate(cut.hi) if c <= x) for x in range(256)]
+    _, gj, gi = R.brick_grid(density.shape)
+    per = {}
+    for v in np.ndindex(density.shape):
+        r = hi_bin[hi[v]] * len(cut.lo) + lo_bin[lo[v]]
+        b = (v[0] // 8 * gj + v[1] // 8) * gi + v[2] // 8
+        p = (v[0] % 8 * 8 + v[1] % 8) * 8 + v[2] % 8
+        per.setdefault(r, []).append((b, p, v))
+    return {r: sorted(x) for r, x in per.items()}
+
+
+volumes = arrays(np.uint8, st.tuples(st.integers(1, 11), st.integers(1, 11), st.integers(1, 19)),
+                 elements=st.sampled_from([0, 1, 40, 41, 90, 200, 255]))
+
+
+def channels(density, seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.integers(0, 65536, density.shape).astype(np.uint16),
+            rng.integers(0, 256, density.shape).astype(np.uint8))
+
+
+# ------------------------------------------------------------------------------------------------ kernels
+
+@settings(max_examples=40, deadline=None)
+@given(volumes)
+def test_union_key_equals_the_reference(d):
+    lo, hi = R.union_key(d)
+    rlo, rhi = reference_key(d)
+    assert np.array_equal(lo, rlo) and np.array_equal(hi, rhi)
+    for k0, k1 in R.layers(d.shape):
+        llo, lhi = R.layer_key(d, k0, k1)
+        assert np.array_equal(llo, lo[k0:k1]) and np.array_equal(lhi, hi[k0:k1])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.sets(st.integers(0, 511), min_size=1, max_size=512), min_size=1, max_size=6))
+def test_positions_both_forms_equal_the_reference(groups):
+    groups = [sorted(g) for g in groups]
+    counts = np.array([len(g) for g in groups])
+    group = np.repeat(np.arange(len(groups)), counts)
+    local = np.concatenate([np.array(g) for g in groups])
+    enc = R.encode_positions(group, local, counts)
+    assert np.array_equal(enc, reference_encode(groups))
+    assert np.array_equal(R.decode_positions(counts, enc), local)
+
+
+def test_positions_refused():
+    enc = reference_encode([[3, 7]])
+    with pytest.raises(IsplatError, match="4 bytes of positions, the bricks' counts make 6"):
+        R.decode_positions(np.array([3]), enc)
+    with pytest.raises(IsplatError, match="strictly increasing"):
+        R.decode_positions(np.array([2]), reference_encode([[7, 3]]))
+    with pytest.raises(IsplatError, match="places below 512"):
+        R.decode_positions(np.array([1]), reference_encode([[600]]))
+    bm = reference_encode([list(range(40))]).copy()
+    bm[10] = 1
+    with pytest.raises(IsplatError, match="its bitmap holds 41 voxels, its count says 40"):
+        R.decode_positions(np.array([40]), bm)
+    with pytest.raises(IsplatError, match="outside the volume"):
+        R.flat_positions(np.array([0]), np.array([1]), np.array([511]), (7, 8, 8))
+    with pytest.raises(IsplatError, match="beyond the 1 bricks"):
+        R.flat_positions(np.array([1]), np.array([1]), np.array([0]), (7, 8, 8))
+
+
+@settings(max_examples=25, deadline=None)
+@given(volumes, st.integers(1, 4), st.integers(1, 4))
+def test_layout_equals_the_reference(d, n_lo, n_hi):
+    lo, hi = R.union_key(d)
+    cut = R.dp_cut(lo, hi, n_lo, n_hi)
+    nrm, gm = channels(d)
+    _, runs = R.build_runs(d, nrm, gm, cut)
+    ref = reference_layout(d, cut)
+    vp, bp = runs.run_voxel_ptr, runs.run_brick_ptr
+    for r in range(R.n_runs(cut)):
+        want = ref.get(r, [])
+        assert vp[r + 1] - vp[r] == len(want)
+        assert [int(x) for x in runs.density[vp[r]:vp[r + 1]]] == [int(d[v]) for _, _, v in want]
+        assert [int(x) for x in runs.normal[vp[r]:vp[r + 1]]] == [int(nrm[v]) for _, _, v in want]
+        assert runs.brick_number[bp[r]:bp[r + 1]].tolist() == sorted({b for b, _, _ in want})
+    place = R.decode_positions(runs.brick_voxel_count, runs.positions)
+    flat = R.flat_positions(runs.brick_number, runs.brick_voxel_count, place, d.shape)
+    assert np.array_equal(R.place(d.shape, flat, runs.gradient_magnitude), gm)
+
+
+def test_runs_meeting_is_the_rectangle_test():
+    cut = R.Cut(np.array([0, 10, 100]), np.array([0, 50, 200]), "")
+    got = R.runs_meeting([(60, 70)], cut)
+    lo_first, hi_last = np.array([0, 10, 100] * 3), np.repeat([49, 199, 255], 3)
+    assert got.tolist() == ((lo_first <= 70) & (hi_last >= 60) & (lo_first <= hi_last)).tolist()
+
+
+# ------------------------------------------------------------------------------------------------ the file
+
+def write_file(path, d, cut=None, runs=None, seed=0):
+    nrm, gm = channels(d, seed)
+    if runs is None:
+        cut, runs = R.build_runs(d, nrm, gm, cut)
+    with create_hdf5(path) as f:
+        write_runs_arrays(f, d.shape, SHA, CHECK, cut, runs)
+    return cut, runs, nrm, gm
+
+
+@settings(max_examples=25, deadline=None)
+@given(volumes, st.lists(st.tuples(st.integers(0, 255), st.integers(0, 255)).map(sorted), max_size=3))
+def test_round_trip(tmp_path_factory, d, intervals):
+    path = tmp_path_factory.mktemp("runs") / "v.runs.idx.h5"
+    cut, _, nrm, gm = write_file(path, d)
+    pos, dens, n, g, nbytes = read_runs(path, None, shape=d.shape, density_sha256=SHA,
+                                        augmented_chunk_hash_check=CHECK)
+    assert np.array_equal(np.sort(pos), np.arange(d.size)) and nbytes > 0
+    assert np.array_equal(R.place(d.shape, pos, dens), d)
+    assert np.array_equal(R.place(d.shape, pos, n), nrm)
+    assert np.array_equal(R.place(d.shape, pos, g), gm)
+    pos, dens, n, g, _ = read_runs(path, intervals)
+    lo, hi = R.union_key(d)
+    meets = np.zeros(d.shape, bool)
+    for t0, t1 in intervals:
+        meets |= (lo <= t1) & (hi >= t0)
+    assert np.isin(np.flatnonzero(meets.ravel()), pos).all()
+    assert np.array_equal(dens, d.ravel()[pos]) and np.array_equal(n, nrm.ravel()[pos])
+
+
+def test_tied_to_its_augmented_file(tmp_path):
+    d = np.arange(60, dtype=np.uint8).reshape(3, 4, 5)
+    write_file(tmp_path / "a.runs.idx.h5", d)
+    for tie, what in ((dict(shape=(3, 4, 6)), "shape"), (dict(density_sha256="00" * 32), "density_sha256"),
+                      (dict(augmented_chunk_hash_check="00" * 16), "augmented_chunk_hash_check")):
+        with pytest.raises(IsplatError, match=f"attribute '{what}' .* the runs of another volume"):
+            open_runs(tmp_path / "a.runs.idx.h5", **tie)
+
+
+def _flip(path, dataset, at=0):
+    with h5py.File(path, "r") as f:
+        off = f[dataset].id.get_chunk_info(0).byte_offset + at
+    with open(path, "r+b") as fh:
+        fh.seek(off)
+        b = fh.read(1)
+        fh.seek(off)
+        fh.write(bytes([b[0] ^ 0x5A]))
+
+
+@pytest.mark.parametrize("name", ["run_voxel_ptr", "run_brick_ptr", "run_position_ptr", "brick_number",
+                                  "brick_voxel_count", "positions", "density", "normal", "gradient_magnitude"])
+def test_a_flipped_byte_is_refused_naming_the_dataset(tmp_path, name):
+    d = np.random.default_rng(5).choice(np.array([0, 60, 61, 200], np.uint8), size=(9, 10, 11))
+    path = tmp_path / "v.runs.idx.h5"
+    write_file(path, d)
+    _flip(path, f"runs/{name}")
+    with pytest.raises(IsplatError) as exc:
+        read_runs(path, None)
+    msg = str(exc.value)
+    assert str(path) in msg and f"runs/{name}" in msg and "\n" not in msg
+    if name not in ("run_voxel_ptr", "run_brick_ptr", "run_position_ptr"):
+        assert "run" in msg.split(f"runs/{name}")[1]
+
+
+def _rewrite(path, d, **change):
+    """The runs of ``d`` with arrays changed, written with fresh (valid) hashes: only the structure's checks
+    can refuse them."""
+    nrm, gm = channels(d)
+    cut, runs = R.build_runs(d, nrm, gm)
+    runs = runs._replace(**{k: v(runs) for k, v in change.items()})
+    with create_hdf5(path) as f:
+        write_runs_arrays(f, d.shape, SHA, CHECK, cut, runs)
+
+
+def _bumped(a, n, by):
+    a = np.array(a)
+    a[n] += by
+    return a
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(run_voxel_ptr=lambda r: _bumped(r.run_voxel_ptr, slice(1, -1), 5)), r"'runs/run_voxel_ptr', run \d+"),
+    (dict(run_voxel_ptr=lambda r: _bumped(r.run_voxel_ptr, 0, 1)), r"'runs/run_voxel_ptr', run 0: offsets 1"),
+    (dict(run_brick_ptr=lambda r: r.run_brick_ptr[::-1].copy()), r"'runs/run_brick_ptr', run \d+: offsets"),
+    (dict(run_position_ptr=lambda r: np.where(np.arange(r.run_position_ptr.size) == r.run_position_ptr.size // 2,
+                                              -7, r.run_position_ptr)), r"'runs/run_position_ptr', run \d+"),
+    (dict(brick_number=lambda r: r.brick_number[::-1].copy()), r"'runs/brick_number', run \d+: brick numbers not"),
+    (dict(brick_number=lambda r: r.brick_number + 1000), r"'runs/brick_number', run \d+: brick number 10\d\d"),
+    (dict(brick_voxel_count=lambda r: _bumped(r.brick_voxel_count, 0, 1)), r"'runs/brick_voxel_count', run \d+"),
+    (dict(positions=lambda r: np.full_like(r.positions, 0xFF)), r"'runs/positions', run \d+"),
+    (dict(density=lambda r: 255 - r.density), r"'runs/density', run \d+: a density outside"),
+])
+def test_bad_tables_are_refused_naming_dataset_and_run(tmp_path, change, match):
+    d = np.random.default_rng(6).choice(np.array([0, 60, 61, 200], np.uint8), size=(9, 10, 11))
+    path = tmp_path / "v.runs.idx.h5"
+    _rewrite(path, d, **change)
+    with pytest.raises(IsplatError, match=match) as exc:
+        read_runs(path, None)
+    assert str(path) in str(exc.value)
+
+
+def test_a_voxel_in_two_runs_or_missing_is_refused(tmp_path):
+    d = np.zeros((1, 1, 2), np.uint8)
+    cut = R.Cut(np.array([0]), np.array([0]), "")
+    one = R.Runs(np.array([0, 2]), np.array([0, 1]), np.array([0, 4]), np.array([0], np.uint32),
+                 np.array([2], np.uint16), reference_encode([[0, 0]]).copy(), np.zeros(2, np.uint8),
+                 np.zeros(2, np.uint16), np.zeros(2, np.uint8))
+    with create_hdf5(tmp_path / "a.h5") as f:
+        write_runs_arrays(f, d.shape, SHA, CHECK, cut, one)
+    with pytest.raises(IsplatError, match="strictly increasing"):
+        read_runs(tmp_path / "a.h5")
+    cut2 = R.Cut(np.array([0]), np.array([0, 100]), "")
+    two = R.Runs(np.array([0, 1, 2]), np.array([0, 1, 2]), np.array([0, 2, 4]), np.array([0, 0], np.uint32),
+                 np.array([1, 1], np.uint16), reference_encode([[0], [0]]).copy(), np.array([0, 100], np.uint8),
+                 np.zeros(2, np.uint16), np.zeros(2, np.uint8))
+    with create_hdf5(tmp_path / "b.h5") as f:
+        write_runs_arrays(f, d.shape, SHA, CHECK, cut2, two)
+    with pytest.raises(IsplatError, match="voxel 0 \\(flat\\) lies in two runs"):
+        read_runs(tmp_path / "b.h5")
+
+
+def test_bad_bin_edges_are_refused(tmp_path):
+    d = np.arange(24, dtype=np.uint8).reshape(2, 3, 4)
+    path = tmp_path / "v.runs.idx.h5"
+    write_file(path, d)
+    for bad in ([1, 5], [0, 5, 5], [0, 300], [0, 9, 3]):
+        with h5py.File(path, "r+") as f:
+            f.attrs["lo_first"] = np.asarray(bad, "<i8")
+        with pytest.raises(IsplatError, match="'lo_first' .* expected 1 to 256 bin edges from 0, strictly"):
+            open_runs(path)
+
+
+# ------------------------------------------------------------------------------------------------ isplat index
+
+def test_isplat_index_writes_the_runs_file_and_no_runs_leaves_it_out(tmp_path, capsys):
+    from isplat.augfile import open_augmented
+    from isplat.cli.main import main
+
+    def run(*args):
+        with pytest.raises(SystemExit) as exc:
+            main([str(a) for a in args])
+        return exc.value.code, capsys.readouterr().err
+
+    rng = np.random.default_rng(11)
+    dens = rng.choice(np.array([0, 120, 121, 200], np.uint8), size=(10, 9, 17))
+    gm = rng.integers(0, 256, dens.shape).astype(np.uint8)
+    nrm = rng.integers(0, 65536, dens.shape).astype(np.uint16)
+    aug, _ = write_volume(tmp_path, dens, gm=gm, normal=nrm, index=False)
+    out = tmp_path / "x.idx.h5"
+    assert run("index", aug, "-o", out, "-q")[0] == 0
+    rp = runs_path(out)
+    assert rp == tmp_path / "x.runs.idx.h5" and rp.is_file()
+    a = open_augmented(aug)
+    pos, d, n, g, _ = read_runs(rp, None, shape=a.shape, density_sha256=a.density_sha256,
+                                augmented_chunk_hash_check=a.attrs["chunk_hash_check"])
+    assert np.array_equal(R.place(dens.shape, pos, d), dens) and np.array_equal(R.place(dens.shape, pos, n), nrm)
+    assert np.array_equal(R.place(dens.shape, pos, g), gm)
+    code, err = run("index", aug, "-o", out, "-q")
+    assert code != 0 and len(err.strip().splitlines()) == 1
+    assert run("index", aug, "-o", out, "-q", "--force", "--no-runs")[0] == 0
+    assert out.is_file() and not rp.exists()
+    assert run("index", aug, "-o", tmp_path / "y.idx.h5", "-q", "--no-runs")[0] == 0
+    assert not (tmp_path / "y.runs.idx.h5").exists() and (tmp_path / "y.values.idx.h5").exists()

@@ -278,6 +278,9 @@ def _check_root(p, a):
     sha = attr_string(a, "density_sha256")
     if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
         raise IsplatError(f"{p}: attribute 'density_sha256' is not a SHA-256 hex digest (64 lower-case hex digits)")
+    own = attr_string(a, "augmented_chunk_hash_check")
+    if own and (len(own) != 32 or any(c not in "0123456789abcdef" for c in own)):
+        raise IsplatError(f"{p}: attribute 'augmented_chunk_hash_check' is not empty nor 32 lower-case hex digits")
     if attr_string(a, "key") != KEY:
         raise IsplatError(f"{p}: attribute 'key' is {attr_string(a, 'key')!r}, expected {KEY!r}")
     if int(attr_array(p, a, "brick", "i")) != R.BRICK:

@@ -3,6 +3,8 @@ obvious references; the file's round trip; the reader refuses corrupted bytes an
 dataset and the run; ``isplat index`` writes the file unless ``--no-runs``."""
 
 import itertools
+import json
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -313,3 +315,66 @@ def test_isplat_index_writes_the_runs_file_and_no_runs_leaves_it_out(tmp_path, c
     assert out.is_file() and not rp.exists()
     assert run("index", aug, "-o", tmp_path / "y.idx.h5", "-q", "--no-runs")[0] == 0
     assert not (tmp_path / "y.runs.idx.h5").exists() and (tmp_path / "y.values.idx.h5").exists()
+
+
+# ------------------------------------------------------------------------------------------------ examples
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "formats" / "examples" / "runs"
+NAMES = sorted(p.stem for p in EXAMPLES.glob("*.json"))
+
+
+def _example(name):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("runs_examples", EXAMPLES / "generate.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    return gen, json.loads((EXAMPLES / f"{name}.json").read_text())
+
+
+def _flat_of(name, ex, shape):
+    if "flat_positions" in ex:
+        return ex["flat_positions"]
+    nk, nj, ni = shape          # bitmap.json's rule: brick 0 (i 0..7), then brick 1 (i 8..9), each k, j, i nested
+    return [i + ni * (j + nj * k) for lo, hi in ((0, 8), (8, ni)) for k in range(nk) for j in range(nj)
+            for i in range(lo, hi)]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_examples_writer_reproduces_the_json(name):
+    gen, ex = _example(name)
+    d, n, g = gen.channels(ex)
+    if "lo_kji" in ex:
+        lo, hi = R.union_key(d)
+        assert lo.tolist() == ex["lo_kji"] and hi.tolist() == ex["hi_kji"]
+    _, runs = R.build_runs(d, n, g, gen.cut(ex))
+    for key in ("run_voxel_ptr", "run_brick_ptr", "run_position_ptr", "brick_number", "brick_voxel_count"):
+        assert getattr(runs, key).tolist() == ex[key], key
+    assert runs.positions.tobytes().hex() == ex["positions_hex"]
+    flat = _flat_of(name, ex, d.shape)
+    assert runs.density.tolist() == d.ravel()[flat].tolist() and runs.normal.tolist() == n.ravel()[flat].tolist()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_committed_examples_read_back(name):
+    from isplat.augfile import density_sha256
+
+    gen, ex = _example(name)
+    d, n, g = gen.channels(ex)
+    path = EXAMPLES / f"{name}.runs.idx.h5"
+    pos, dens, nrm, gm, _ = read_runs(path, None, shape=d.shape, density_sha256=density_sha256(d))
+    assert pos.tolist() == _flat_of(name, ex, d.shape)
+    assert np.array_equal(R.place(d.shape, pos, dens), d) and np.array_equal(R.place(d.shape, pos, nrm), n)
+    assert np.array_equal(R.place(d.shape, pos, gm), g)
+    with h5py.File(path, "r") as f:
+        assert f.attrs["lo_first"].tolist() == ex["lo_first"] and f.attrs["hi_first"].tolist() == ex["hi_first"]
+        assert f["runs/positions"][...].tobytes().hex() == ex["positions_hex"]
+        for key in ("run_voxel_ptr", "run_brick_ptr", "run_position_ptr", "brick_number", "brick_voxel_count"):
+            assert f[f"runs/{key}"][...].tolist() == ex[key], key
+
+
+def test_invalid_example_is_refused():
+    path = EXAMPLES / "invalid-flipped-byte.runs.idx.h5"
+    with pytest.raises(IsplatError, match=r"invalid-flipped-byte.runs.idx.h5: dataset 'runs/density', chunk at \(0\)"
+                                          r".* \(runs 0..0\)"):
+        read_runs(path, None)

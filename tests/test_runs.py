@@ -144,6 +144,31 @@ def test_layout_equals_the_reference(d, n_lo, n_hi):
     assert np.array_equal(R.place(d.shape, flat, runs.gradient_magnitude), gm)
 
 
+def test_best_bins_is_the_exhaustive_optimum():
+    rng = np.random.default_rng(7)
+    cost = rng.random((257, 257))
+    cost[np.tril_indices(257)] = np.inf
+    best = min((cost[0, a] + cost[a, b] + cost[b, 256], a, b) for a in range(1, 255) for b in range(a + 1, 256))
+    assert R.best_bins(cost, 3).tolist() == [0, best[1], best[2]]
+
+
+@settings(max_examples=15, deadline=None)
+@given(volumes, st.integers(1, 12), st.integers(1, 12))
+def test_dp_cut_by_layers_equals_the_whole_and_its_edges_are_valid(d, n_lo, n_hi):
+    """The writer sums the keys' histogram layer by layer: the same cut as from the whole volume's keys, with
+    edges the file can hold (from 0, strictly increasing, within 0..255), reading no more than uniform bins."""
+    lo, hi = R.union_key(d)
+    whole = R.dp_cut(lo, hi, n_lo, n_hi)
+    h2 = sum(R.key_histogram(*R.layer_key(d, k0, k1)) for k0, k1 in R.layers(d.shape))
+    by_layers = R.dp_cut_of(h2, n_lo, n_hi)
+    assert whole.lo.tolist() == by_layers.lo.tolist() and whole.hi.tolist() == by_layers.hi.tolist()
+    for e, n in ((whole.lo, n_lo), (whole.hi, n_hi)):
+        assert len(e) == n and e[0] == 0 and e[-1] <= 255 and (np.diff(e) > 0).all()
+    C, W = R.interval_weights(lo, hi)
+    uniform = R.cut_cost(C, W, np.arange(n_lo) * 256 // n_lo, np.arange(n_hi) * 256 // n_hi)
+    assert R.cut_cost(C, W, whole.lo, whole.hi) <= uniform * (1 + 1e-12)
+
+
 def test_runs_meeting_is_the_rectangle_test():
     cut = R.Cut(np.array([0, 10, 100]), np.array([0, 50, 200]), "")
     got = R.runs_meeting([(60, 70)], cut)

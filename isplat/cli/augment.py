@@ -43,7 +43,8 @@ log = logging.getLogger(__name__)
                    "k superior; RAS: NIfTI's identity): for input without an orientation (.npy, raw, TIFF, Zarr), "
                    "or to override the file's. Recorded as axes_lps for named views.")
 @click.option("--index", "with_index", is_flag=True,
-              help="Also build the index beside OUT (NAME.aug.h5 -> NAME.idx.h5), as `isplat index` would.")
+              help="Also build the index beside OUT (NAME.aug.h5 -> NAME.idx.h5) with its values and runs files, as "
+                   "`isplat index` would.")
 @click.option("--thin-slices", "thin", is_flag=True,
               help="Interpolate (linearly) along an axis whose spacing is more than twice the smallest, before "
                    "augmenting: for the paper's pre-classified splatting (render.classification = \"pre\"), whose "
@@ -85,9 +86,11 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     idx = index_path(out) if with_index else None
     if idx is not None:
         from ..index.store import values_path
+        from ..runsfile import runs_path
 
-        check_output(idx, force)  # before any work: the index and its values file (formats/index.md §9.1)
+        check_output(idx, force)  # before any work: the index, its values and runs files (formats/index.md §9.1, §12)
         check_output(values_path(idx), force)
+        check_output(runs_path(idx), force)
     win = window if window else None
     sp = parse_triple(spacing, "--spacing") if spacing else None
     shp = parse_triple(shape, "--shape", int) if shape else None
@@ -111,8 +114,8 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     if idx is not None:
         from ..index import build_index_file
 
-        build_index_file(out, idx, force=force)
-        log.info(f"isplat augment: wrote {idx} (the index, all axes)")
+        build_index_file(out, idx, force=force, runs=True)
+        log.info(f"isplat augment: wrote {idx} (the index, all axes, its values and runs files)")
 
 
 def index_path(out: str) -> str:

@@ -349,12 +349,16 @@ def layer_runs(run: np.ndarray, k0: int, shape, density: np.ndarray, normal: np.
     voxels' runs, the channels the layer's planes), brick numbers those of the whole volume's grid."""
     nl, nj, ni = run.shape
     _, gj, gi = brick_grid(shape)
-    k, j, i = np.indices(run.shape, dtype=np.int64)
-    brick = (k0 // BRICK) * gj * gi + (j // BRICK) * gi + i // BRICK
-    place = ((k % BRICK) * BRICK + j % BRICK) * BRICK + i % BRICK
-    order = np.argsort((run.astype(np.int64) * (gj * gi * BRICK_VOXELS) + (brick - (k0 // BRICK) * gj * gi)
-                        * BRICK_VOXELS + place).ravel(), kind="stable")
-    r, b, p = run.ravel()[order], brick.ravel()[order], place.ravel()[order]
+    k, j, i = (np.arange(n, dtype=np.int64) for n in run.shape)
+    # (brick in the layer) * 512 + place, built from its three axes' parts (one int64 array of the layer)
+    within = ((k % BRICK) * BRICK * BRICK)[:, None, None] + \
+        ((j // BRICK) * gi * BRICK_VOXELS + (j % BRICK) * BRICK)[None, :, None] + \
+        ((i // BRICK) * BRICK_VOXELS + i % BRICK)[None, None, :]
+    order = np.argsort((run.astype(np.int64) * (gj * gi * BRICK_VOXELS) + within).ravel(), kind="stable")
+    w = within.ravel()[order]
+    del within
+    r = run.ravel()[order]
+    b, p = (k0 // BRICK) * gj * gi + w // BRICK_VOXELS, w % BRICK_VOXELS
     new = np.ones(r.size, dtype=bool)
     new[1:] = (r[1:] != r[:-1]) | (b[1:] != b[:-1])
     group = np.cumsum(new) - 1
@@ -380,11 +384,12 @@ def layers(shape):
     return [(k0, min(nk, k0 + BRICK)) for k0 in range(0, nk, BRICK)]
 
 
-def assemble(parts, totals: Runs, out: dict) -> None:
+def assemble(parts, ptrs, out: dict) -> None:
     """Write the layers' runs ``parts`` (an iterable of :class:`Runs`, layer after layer) into ``out`` (name ->
-    a 1-D array or dataset taking slice assignment, as long as ``totals``' pointers say): run by run, each
-    layer's piece after the earlier layers' pieces of that run."""
-    cursor = {name: np.array(getattr(totals, PTR_OF[name])[:-1]) for name in RUN_ARRAYS}
+    a 1-D array or dataset taking slice assignment, as long as the whole volume's pointers ``ptrs``
+    (:func:`total_pointers`) say): run by run, each layer's piece after the earlier layers' pieces of that run."""
+    totals = dict(zip(("run_voxel_ptr", "run_brick_ptr", "run_position_ptr"), ptrs))
+    cursor = {name: np.array(totals[PTR_OF[name]][:-1]) for name in RUN_ARRAYS}
     for part in parts:
         for name in RUN_ARRAYS:
             src, ptr, cur = getattr(part, name), getattr(part, PTR_OF[name]), cursor[name]
@@ -414,7 +419,7 @@ def build_runs(density: np.ndarray, normal: np.ndarray, gradient_magnitude: np.n
     ptrs = total_pointers(parts)
     size = {"brick_number": ptrs[1], "brick_voxel_count": ptrs[1], "positions": ptrs[2]}
     out = {n: np.empty(int(size.get(n, ptrs[0])[-1]), dtype=parts[0]._asdict()[n].dtype) for n in RUN_ARRAYS}
-    assemble(parts, Runs(*ptrs, *(None,) * 6), out)
+    assemble(parts, ptrs, out)
     return cut, Runs(*ptrs, *(out[n] for n in RUN_ARRAYS))
 
 

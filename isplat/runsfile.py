@@ -69,7 +69,7 @@ def write_runs(f: h5py.File, aug, read, bins=R.DEFAULT_BINS) -> R.Cut:
 
     ptrs = R.total_pointers(parts(True))
     out = _create(f, aug.shape, aug.density_sha256, aug.attrs.get(chunkhash.CHECK_ATTR, ""), cut, ptrs)
-    R.assemble(parts(False), R.Runs(*ptrs, *(None,) * 6), out)
+    R.assemble(parts(False), ptrs, out)
     _finish(f)
     return cut
 
@@ -329,10 +329,11 @@ def _check_ptrs(p, f, ptrs, cut: R.Cut) -> None:
                               f"expected from 0, non-decreasing, to the {lengths[name]} rows they point into")
     nv, nb, npos = (np.diff(x) for x in ptrs)
     lo_first, hi_last = R.run_codes(cut)
-    bad = ((nv > 0) & (lo_first > hi_last)) | ((nv > 0) != (nb > 0)) | (nb > nv) | (nv > R.BRICK_VOXELS * nb) | \
-        (npos < R.position_bytes(1) * nb) | (npos > R.BITMAP_BYTES * nb)
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise IsplatError(f"{p}: dataset 'runs/run_voxel_ptr', run {r}: {int(nv[r])} voxels in {int(nb[r])} bricks "
-                          f"with {int(npos[r])} bytes of positions (codes {int(lo_first[r])}..{int(hi_last[r])}), "
-                          f"which formats/runs.md §4 does not allow")
+    for name, bad in (("run_voxel_ptr", (nv > 0) & (lo_first > hi_last)),
+                      ("run_brick_ptr", ((nv > 0) != (nb > 0)) | (nb > nv) | (nv > R.BRICK_VOXELS * nb)),
+                      ("run_position_ptr", (npos < R.position_bytes(1) * nb) | (npos > R.BITMAP_BYTES * nb))):
+        if bad.any():
+            r = int(np.flatnonzero(bad)[0])
+            raise IsplatError(f"{p}: dataset 'runs/{name}', run {r}: {int(nv[r])} voxels in {int(nb[r])} bricks "
+                              f"with {int(npos[r])} bytes of positions (codes {int(lo_first[r])}..{int(hi_last[r])}),"
+                              f" which formats/runs.md §5 does not allow")

@@ -298,6 +298,25 @@ def test_a_voxel_in_two_runs_or_missing_is_refused(tmp_path):
         read_runs(tmp_path / "b.h5")
 
 
+def test_runs_tables_that_cannot_be_are_refused(tmp_path):
+    """A voxel in a run whose lo bin starts above its hi bin's end; more bricks than voxels; too few position
+    bytes for its bricks: refused at open, naming the table and the run."""
+    cut = R.Cut(np.array([0, 128]), np.array([0, 128]), "")
+    one = dict(brick_number=np.array([0], np.uint32), brick_voxel_count=np.array([1], np.uint16),
+               positions=reference_encode([[0]]).copy(), density=np.array([200], np.uint8),
+               normal=np.zeros(1, np.uint16), gradient_magnitude=np.zeros(1, np.uint8))
+    for ptrs, match in ((([0, 0, 1, 1, 1], [0, 0, 1, 1, 1], [0, 0, 2, 2, 2]), r"'runs/run_voxel_ptr', run 1: 1 "),
+                        (([0, 0, 0, 0, 1], [0, 0, 0, 0, 1], [0, 0, 0, 0, 1]), r"'runs/run_position_ptr', run 3"),
+                        (([0, 0, 0, 0, 1], [0, 0, 0, 1, 1], [0, 0, 0, 2, 2]), r"'runs/run_brick_ptr', run 2")):
+        runs = R.Runs(*(np.array(x) for x in ptrs), **one)
+        if ptrs[2][-1] == 1:
+            runs = runs._replace(positions=np.zeros(1, np.uint8))
+        with create_hdf5(tmp_path / "x.h5") as f:
+            write_runs_arrays(f, (1, 1, 1), SHA, CHECK, cut, runs)
+        with pytest.raises(IsplatError, match=match):
+            open_runs(tmp_path / "x.h5")
+
+
 def test_bad_bin_edges_are_refused(tmp_path):
     d = np.arange(24, dtype=np.uint8).reshape(2, 3, 4)
     path = tmp_path / "v.runs.idx.h5"

@@ -278,10 +278,13 @@ def test_two_index_runs_to_one_new_path(data, tmp_path):
     assert codes == [0, 2], results
     err = next(e for c, e in results if c == 2)
     assert err.count("\n") == 1 and ("appeared while" in err or "output exists" in err), err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.idx.h5", "o.values.idx.h5"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.idx.h5", "o.runs.idx.h5", "o.values.idx.h5"]
     from isplat.index import open_index
+    from isplat.runsfile import open_runs
 
-    assert open_index(out).values_file is not None      # the winner's pair: the values file matches its index
+    idx = open_index(out)
+    assert idx.values_file is not None      # the winner's pair: the values file matches its index
+    open_runs(tmp_path / "o.runs.idx.h5", shape=idx.shape, density_sha256=idx.density_sha256).close()
 
 
 # ---------------------------------------------------------------------------------------------- 7. signals
@@ -383,6 +386,31 @@ def test_sigint_while_the_values_file_is_written_leaves_neither_file(data, tmp_p
     assert sorted(x.name for x in tmp_path.iterdir()) == []
 
 
+SLOW_RUNS = """
+import sys, time
+import isplat.runsfile as rf
+real = rf.write_runs
+def slow(*a, **k):
+    print("runs", flush=True)
+    time.sleep(30)
+    return real(*a, **k)
+rf.write_runs = slow
+from isplat.cli.main import main
+main(sys.argv[1:])
+"""
+
+
+def test_sigint_while_the_runs_file_is_written_leaves_no_file(data, tmp_path):
+    """The runs file is committed with the index and its values file, last: a signal while it is written leaves
+    none of the three, nor their temporary files (formats/runs.md §1)."""
+    out = tmp_path / "o.idx.h5"
+    p = _popen(["index", data / "ball.aug.h5", "-o", out], script=SLOW_RUNS)
+    assert p.stdout.readline().strip() == "runs"
+    p.send_signal(signal.SIGINT)
+    _interrupted(p, signal.SIGINT, timeout=60)
+    assert sorted(x.name for x in tmp_path.iterdir()) == []
+
+
 def test_sigint_after_the_output_is_in_place_says_no_removal(data, tmp_path):
     out = tmp_path / "o.idx.h5"
     p = _popen(["index", data / "ball.aug.h5", "-o", out], script=SLOW_INDEX_LOG)
@@ -393,7 +421,7 @@ def test_sigint_after_the_output_is_in_place_says_no_removal(data, tmp_path):
     from isplat.index import open_index
 
     assert open_index(out).values_file is not None
-    assert sorted(x.name for x in tmp_path.iterdir()) == ["o.idx.h5", "o.values.idx.h5"]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["o.idx.h5", "o.runs.idx.h5", "o.values.idx.h5"]
 
 
 SWALLOWING_WRITE = """

@@ -36,6 +36,9 @@ the key's ideal over every interval holding 1/1000 of the volume, H1, E2, B1, C1
 percentile 1.10-1.14; dp8x8 1.03-1.07, 1.19-1.29; uniform 64 x 16 1.01-1.03, 1.78-3.78 (its 16 hi bins). Few
 bins fitted to the volume are not fitted to these five scenes only.
 
+The ``union`` key and the ``dp`` cut are isplat.runs' (moved there for the runs file, formats/runs.md, which
+``isplat index`` writes with dp8x8 bins); this module imports them.
+
 Method. For each voxel, key = (lo, hi), the least and greatest density over the voxels whose quads it shares.
 Three keys: ``union``, the in-slice 3 x 3 squares of the three slice axes united (19 voxels: the 3 x 3 x 3 cube
 without its 8 corners; one file serves every view); ``axis``, the 3 x 3 square of the view's axis alone (one file

@@ -172,7 +172,7 @@ class RunsFile:
 
     def read(self, intervals=None) -> RunsRead:
         """The runs meeting ``intervals`` (None: all, then every voxel of the volume must be read exactly once),
-        each checked against its hashes and formats/runs.md §4 before its positions are made."""
+        each checked against its hashes and formats/runs.md §5 before its positions are made."""
         sel = self.runs_for(intervals)
         pieces = []
         for a, b in _spans(sel & (np.diff(self.ptrs[0]) > 0)):
@@ -254,12 +254,23 @@ def open_runs(path, shape=None, density_sha256: str | None = None,
             _check_datasets(p, f, shape_f, R.n_runs(cut))
             verifier = chunkhash.open_verifier(p, f, sha, DATASETS, chunkhash.attributes_of(f, HASHED_ATTRS),
                                                _hint(p))
-            ptrs = tuple(np.asarray(verifier.read(f, f"runs/{n}"), dtype=np.int64) for n in PTRS)
+            ptrs = tuple(_read_ptr(verifier, f, n) for n in PTRS)
             _check_ptrs(p, f, ptrs, cut)
     except BaseException:
         f.close()
         raise
     return RunsFile(p, f, counter, shape_f, sha, cut, ptrs, verifier)
+
+
+def _read_ptr(verifier, f, name: str) -> np.ndarray:
+    """A pointer table, whole, its chunks checked (a failure names the runs whose rows the chunk holds)."""
+    try:
+        return np.asarray(verifier.read(f, f"runs/{name}"), dtype=np.int64)
+    except IsplatError as exc:
+        rows = int(f[f"runs/{name}"].chunks[0])
+        off = str(exc).split("chunk at (", 1)[-1].split(")", 1)[0]
+        runs = f"the offsets of runs {int(off)}..{int(off) + rows - 1}" if off.isdigit() else "the runs' offsets"
+        raise IsplatError(f"{exc} ({runs})") from None
 
 
 def read_runs(path, intervals=None, **tie):

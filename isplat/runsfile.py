@@ -44,6 +44,21 @@ def _hint(p) -> str:
 
 # ----------------------------------------------------------------------------------------------- write
 
+def build_runs_file(aug_path, index_path, force: bool = False) -> Path:
+    """Write the runs file of augmented file ``aug_path`` beside the index ``index_path`` (:func:`runs_path`),
+    atomically (``isplat index`` does after the index and its values file; formats/runs.md §1)."""
+    from .augfile import open_augmented
+    from .fileio import atomic_output, create_hdf5
+    from .index.store import _channel_reader
+
+    aug = open_augmented(aug_path)
+    path = runs_path(index_path)
+    with atomic_output(path, force) as tmp:
+        with create_hdf5(tmp) as f, _channel_reader(aug) as read:
+            write_runs(f, aug, read)
+    return path
+
+
 def write_runs(f: h5py.File, aug, read, bins=R.DEFAULT_BINS) -> R.Cut:
     """Write the runs of augmented volume ``aug`` (open, validated; ``read(channel, k0, k1)`` its k-planes) into
     the new HDF5 file ``f``: root attributes, ``/runs``, then the chunk hashes. Memory: a layer of bricks."""

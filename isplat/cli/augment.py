@@ -86,11 +86,11 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     idx = index_path(out) if with_index else None
     if idx is not None:
         from ..index.store import values_path
-        from ..runsfile import runs_path
+        from .index import check_runs_beside
 
         check_output(idx, force)  # before any work: the index, its values and runs files (formats/index.md §9.1, §12)
         check_output(values_path(idx), force)
-        check_output(runs_path(idx), force)
+        check_runs_beside(idx, force)
     win = window if window else None
     sp = parse_triple(spacing, "--spacing") if spacing else None
     shp = parse_triple(shape, "--shape", int) if shape else None
@@ -114,7 +114,10 @@ def augment(input, out, force, window, spacing, shape, dtype, byte_order, header
     if idx is not None:
         from ..index import build_index_file
 
-        build_index_file(out, idx, force=force, runs=True)
+        from .index import write_runs_beside
+
+        build_index_file(out, idx, force=force)
+        write_runs_beside(out, idx, force, True)
         log.info(f"isplat augment: wrote {idx} (the index, all axes, its values and runs files)")
 
 

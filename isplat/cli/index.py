@@ -35,8 +35,9 @@ def index(augmented, output, densities, axes, force, no_values, no_runs):
     axes = parse_axes(axes)
     ranges = parse_ranges(densities) if densities is not None else None
     check_output(output, force)
-    path = build_index_file(augmented, output, axes=axes, ranges=ranges, force=force, values=not no_values,
-                            runs=not no_runs)
+    check_runs_beside(output, force)
+    path = build_index_file(augmented, output, axes=axes, ranges=ranges, force=force, values=not no_values)
+    write_runs_beside(augmented, path, force, not no_runs)
     if log.isEnabledFor(logging.INFO):
         idx = open_index(path)
         counts = {a: int(idx.voxel_counts(a).sum()) for a in idx.axes}
@@ -52,3 +53,23 @@ def index(augmented, output, densities, axes, force, no_values, no_runs):
         runs = f"; runs {rp} ({rp.stat().st_size} bytes)" if not no_runs and rp.is_file() else ""
         log.info(f"isplat index: wrote {path} (axes {idx.axes}, {n} voxels indexed per axis, "
                  f"{size} bytes, {per:.3f} bytes per indexed voxel per axis){values}{runs}")
+
+
+def check_runs_beside(index_path, force: bool) -> None:
+    """Before any work: the runs file beside ``index_path`` may be written (new, or ``force``); with ``force`` a
+    runs file of an earlier build is removed now, so that an interrupted build never leaves it beside a new
+    index (formats/runs.md §1)."""
+    from ..fileio import check_output
+    from ..runsfile import runs_path
+
+    rpath = check_output(runs_path(index_path), force)
+    if force and rpath.is_file():
+        rpath.unlink()
+
+
+def write_runs_beside(augmented, index_path, force: bool, runs: bool) -> None:
+    """The runs file beside the index just written (``isplat index``, ``isplat augment --index``)."""
+    from ..runsfile import build_runs_file
+
+    if runs:
+        build_runs_file(augmented, index_path, force)

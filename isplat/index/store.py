@@ -306,7 +306,7 @@ def copy_values(f: h5py.File, aug, density: np.ndarray | None, ranges, budget: i
 
 def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: bool = False,
                      values: bool = True, budget: int = BUILD_BUDGET, slab_voxels: int | None = None,
-                     labels: bool = True, runs: bool | None = None) -> Path:
+                     labels: bool = True) -> Path:
     """Index the density channel of augmented file ``aug_path`` into ``out_path`` (atomic), and write the indexed
     voxels' channel values in density order to its values file (:func:`values_path`, formats/index.md §9);
     ``values=False`` writes no values file (the pre-classified technique then gathers them from the augmented
@@ -317,13 +317,9 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
     at most ``budget`` bytes, one pass over the slabs per window (docs/design.md, "isplat index streams"), and
     the values likewise. The files equal those of :func:`write_index` on the in-memory build. With ``labels`` and
     an augmented file with labels, the index of the labels is written beside (:mod:`isplat.index.labels`).
-    ``runs``: True writes the range runs ``NAME.runs.idx.h5`` beside (:mod:`isplat.runsfile`, formats/runs.md;
-    ``isplat index`` does unless ``--no-runs``), False writes none and, with ``force``, removes a stale one; None
-    (the default here) leaves that file alone.
     Every output is checked before any work; the index is committed first, then its values file, so an
     interruption leaves either nothing new or a whole index (without values, which renders)."""
     from ..augfile import open_augmented
-    from ..runsfile import runs_path, write_runs
     from .labels import build_label_index_file, label_index_path
 
     axes = parse_axes(axes)
@@ -335,16 +331,12 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
     check_output(vpath, force)              # before any work: also without values (a stale one is removed)
     if labels:
         check_output(label_index_path(out_path), force)
-    rpath = runs_path(out_path)
-    if runs is not None:
-        check_output(rpath, force)
     for a in axes:
         escape_width(*axis_geometry(aug.shape, a)[1:])     # refuse impossible sizes before any work
     slabs = _slabs_of(aug, SLAB_VOXELS if slab_voxels is None else slab_voxels)
     with contextlib.ExitStack() as stack:
-        rtmp = stack.enter_context(atomic_output(rpath, force)) if runs else None
         vtmp = stack.enter_context(atomic_output(vpath, force)) if values else None
-        tmp = stack.enter_context(atomic_output(out_path, force))     # committed first, then values, then runs
+        tmp = stack.enter_context(atomic_output(out_path, force))     # committed first, then the values file
         with create_hdf5(tmp) as f, _channel_reader(aug) as read:
             _write_root(f, aug.shape, aug.density_sha256, ranges)
             dens = lambda k0, k1: read("density", k0, k1)      # noqa: E731
@@ -364,13 +356,8 @@ def build_index_file(aug_path, out_path, axes: str = "ijk", ranges=None, force: 
                 copy_values(g, aug, None, ranges, budget, **({} if slab_voxels is None else
                                                             {"slab_voxels": slab_voxels}))
                 finish_index(g)
-        if runs:
-            with create_hdf5(rtmp) as h, _channel_reader(aug) as read:
-                write_runs(h, aug, read)
     if not values and vpath.is_file():
         vpath.unlink()                          # another build's values (check_output allowed it: --force)
-    if runs is False and rpath.is_file():
-        rpath.unlink()                          # another build's runs (check_output allowed it: --force)
     if labels:
         build_label_index_file(aug, label_index_path(out_path), axes, force)
     return Path(out_path)

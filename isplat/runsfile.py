@@ -27,6 +27,7 @@ DTYPES = {
     "density": "|u1", "normal": "<u2", "gradient_magnitude": "|u1",
 }
 DATASETS = tuple(f"runs/{n}" for n in DTYPES)
+VALUE_CHANNELS = ("normal", "gradient_magnitude")     # read or not (RunsFile.read); the density always
 HASHED_ATTRS = tuple(("", n) for n in ("format", "format_version", "shape", "density_sha256",
                                        "augmented_chunk_hash_check", "key", "brick", "lo_first", "hi_first"))
 
@@ -185,13 +186,18 @@ class RunsFile:
             raise IsplatError(f"{self.path}: intervals {ivs}: expected inclusive code intervals within 0..255")
         return R.runs_meeting(ivs, self.cut)
 
-    def read(self, intervals=None) -> RunsRead:
+    def read(self, intervals=None, channels=VALUE_CHANNELS) -> RunsRead:
         """The runs meeting ``intervals`` (None: all, then every voxel of the volume must be read exactly once),
-        each checked against its hashes and formats/runs.md §5 before its positions are made."""
+        each checked against its hashes and formats/runs.md §5 before its positions are made. ``channels``: which
+        of the normal and the gradient magnitude to read besides the density (the others come back empty, their
+        bytes not read)."""
         sel = self.runs_for(intervals)
+        bad = set(channels) - set(VALUE_CHANNELS)
+        if bad:
+            raise ValueError(f"channels {sorted(bad)}: expected some of {VALUE_CHANNELS}")
         pieces = []
         for a, b in _spans(sel & (np.diff(self.ptrs[0]) > 0)):
-            pieces += self._read_span(a, b)
+            pieces += self._read_span(a, b, tuple(channels))
         cat = [np.concatenate([p[n] for p in pieces]) if pieces else np.zeros(0, dt)
                for n, dt in enumerate((np.int64, np.uint8, np.uint16, np.uint8))]
         s = np.sort(cat[0])
@@ -209,21 +215,22 @@ class RunsFile:
             except IsplatError as exc:
                 raise IsplatError(f"{exc} ({runs})") from None
 
-    def _read_span(self, a: int, b: int) -> list:
-        """Runs ``a .. b - 1`` (consecutive): one read per dataset, then each run checked."""
+    def _read_span(self, a: int, b: int, channels=VALUE_CHANNELS) -> list:
+        """Runs ``a .. b - 1`` (consecutive): one read per dataset (of ``channels`` besides the density and the
+        positions; the others empty), then each run checked."""
         vp, bp, pp = self.ptrs
         where = f"runs {a}..{b - 1}"
-        got = {n: self._get(n, int(ptr[a]), int(ptr[b]), where)
-               for n, ptr in (("brick_number", bp), ("brick_voxel_count", bp), ("positions", pp), ("density", vp),
-                              ("normal", vp), ("gradient_magnitude", vp))}
+        names = (("brick_number", bp), ("brick_voxel_count", bp), ("positions", pp), ("density", vp),
+                 ("normal", vp), ("gradient_magnitude", vp))
+        got = {n: self._get(n, int(ptr[a]), int(ptr[b]), where) if n not in VALUE_CHANNELS or n in channels
+               else None for n, ptr in names}
         lo_first, hi_last = R.run_codes(self.cut)
         out = []
         for r in range(a, b):
             if vp[r + 1] == vp[r]:
                 continue
-            cut = {n: got[n][int(ptr[r] - ptr[a]):int(ptr[r + 1] - ptr[a])] for n, ptr in
-                   (("brick_number", bp), ("brick_voxel_count", bp), ("positions", pp), ("density", vp),
-                    ("normal", vp), ("gradient_magnitude", vp))}
+            cut = {n: np.zeros(0, DTYPES[f"{n}"]) if got[n] is None else
+                   got[n][int(ptr[r] - ptr[a]):int(ptr[r + 1] - ptr[a])] for n, ptr in names}
             out.append(self._check_run(r, cut, int(lo_first[r]), int(hi_last[r])))
         return out
 

@@ -53,6 +53,8 @@ class LoadReport:
     augmented_file_pages: int = 0     # bytes of the distinct 4 KB pages of each file those reads lie in
     index_file_pages: int = 0         # (ReadCounter.page_bytes; -1: not known, format 5's bricks; a frame
     values_file_pages: int = 0        # in slabs: each file's pages over all its slabs)
+    runs_file_bytes: int = 0          # bytes HDF5 read from the runs file (post; its opening included)
+    runs_file_pages: int = 0
     index_decoded_bytes: int = 0      # the decoded blocks (LoadedAxis arrays), before selection
     index_block_bytes: int = 0        # requested index blocks and table rows of the intervals, all axes (a slab
     #                                   of a streamed frame: its own rows, the tables the slabs share counted once)
@@ -65,8 +67,9 @@ class LoadReport:
     footprint: object = field(default=None, repr=False, compare=False)   # post: () -> (axis, voxels), lazy
     _needed: tuple | None = field(default=None, repr=False, compare=False)
     values_from: str = "none"         # "values file", "index", "augmented bricks", "augmented slabs",
-    #                                   "whole channels" or "none"
-    values_path: str = ""             # the values file read ("values file"), or the index ("index")
+    #                                   "whole channels", "slab's channels", post's "bricks (N of M)" and
+    #                                   "runs file (N of M runs)", or "none"
+    values_path: str = ""             # the values file read ("values file"), the index ("index"), the runs file
     channels: list = field(default_factory=list)
     axes: list = field(default_factory=list)
     intervals: list = field(default_factory=list)
@@ -95,9 +98,9 @@ class LoadReport:
 
     SUMMED = ("augmented_bytes", "index_bytes", "augmented_file_bytes", "index_file_bytes", "values_bytes",
               "values_file_bytes", "index_decoded_bytes", "index_block_bytes", "voxels_of_interest",
-              "index_bytes_needed")
+              "index_bytes_needed", "runs_file_bytes")
 
-    PAGES = ("augmented_file_pages", "index_file_pages", "values_file_pages")
+    PAGES = ("augmented_file_pages", "index_file_pages", "values_file_pages", "runs_file_pages")
 
     def plus(self, other: "LoadReport") -> "LoadReport":
         """The report of two slabs of one frame (streamed, or on Dask workers): what each read, requested and
@@ -124,8 +127,8 @@ class LoadReport:
 
     @property
     def file_bytes(self) -> int:
-        """Bytes read from the files at the HDF5 layer (augmented, index and its values file)."""
-        return self.augmented_file_bytes + self.index_file_bytes + self.values_file_bytes
+        """Bytes read from the files at the HDF5 layer (augmented, index, its values file and its runs file)."""
+        return self.augmented_file_bytes + self.index_file_bytes + self.values_file_bytes + self.runs_file_bytes
 
     @property
     def read_ratio(self) -> float:
@@ -236,6 +239,9 @@ class Selection:
     slab: tuple | None = None              # (axis, c0, c1): ``whole`` holds only these slices (post, a slab)
     request: object = field(default=None, repr=False)   # the RenderRequest it was made from
     labels: object = None                  # label_select.LabelSelection: the labels shown, or None
+    # post from range runs (:func:`_read_post_runs`): per axis, the bits of the quads whose four corners ``whole``
+    # holds (isplat.splat.post.held_quads); None: it holds every voxel the quads read
+    held: dict | None = field(default=None, repr=False)
 
     @property
     def empty(self) -> bool:
@@ -269,9 +275,21 @@ class Selection:
         return WholeVolume(w.density, w.gradient_magnitude, w.normal, np.append(steps, base), n_a, n_b)
 
     def held_bytes(self) -> int:
-        """Bytes of volume data held for the frames (selection and gathered values, or whole channels)."""
+        """Bytes of volume data held for the frames (selection and gathered values, or whole channels, and the
+        bits of the quads held)."""
         held = self.whole.held_bytes() if self.whole is not None else 0
+        held += sum(int(b.nbytes) for b in (self.held or {}).values())
         return held + int(sum(a.nbytes for s in self.axes.values() for a in s.arrays()))
+
+    def held_quads(self, axis: str):
+        """post's test of quads (isplat.splat.post.PostPlan ``held``): None when ``whole`` holds every voxel the
+        quads read, else the bits of ``axis``'s quads with all four corners held."""
+        if self.held is None:
+            return None
+        if axis not in self.held:
+            raise IsplatError(f"axis {axis} was not selected (selected: {sorted(self.held)}); select the axes of "
+                              "every view to be rendered")
+        return self.held[axis]
 
     @classmethod
     def from_arrays(cls, density, scene, normal=None, gradient_magnitude=None, gradient_magnitude_scale=None,
@@ -564,8 +582,9 @@ def select(request, aug=None, idx=None) -> Selection:
     axes, slices = request.axes, request.slices
     sel.report.axes = sorted(axes)
     rep = sel.report
-    bricked = _reads_bricks(sel, aug)       # post, version 5: the bricks its quads read, after the index
-    if not bricked:
+    runs = _runs_file(sel, aug, slices)     # post: the range runs its quads can read, after the index
+    bricked = runs is None and _reads_bricks(sel, aug)   # post, version 5: the bricks its quads read, after it
+    if runs is None and not bricked:
         sel = _channels(sel, aug, axes, slices)
     if sel.method == "indexed":
         read0, io0 = (idx.bytes_read, idx.io.bytes) if idx is not None else (0, 0)  # (an index opened before:
@@ -586,6 +605,8 @@ def select(request, aug=None, idx=None) -> Selection:
         rep.values_file_pages = 0 if vio is None else vio.page_bytes(vmark0 if vio is vio0 else None)
     if bricked:
         sel = _read_post_bricks(sel, aug, axes, slices)
+    if runs is not None:
+        sel = _read_post_runs(sel, aug, runs)
     rep.augmented_bytes = int(aug.bytes_read)
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
     rep.augmented_file_pages = aug.io.page_bytes()
@@ -662,6 +683,66 @@ def _reads_bricks(sel: Selection, aug) -> bool:
     interest (the bricks not read hold zeros, which must then never be of interest)."""
     return bool(sel.post and sel.method == "indexed" and getattr(aug, "bricked", False) and not sel.empty
                 and sel.labels is None and not any(int(lo) == 0 for lo, _ in sel.report.intervals))
+
+
+def _runs_file(sel: Selection, aug, slices):
+    """The runs file (isplat.runsfile.runs_path) post reads instead of bricks or whole channels, or None:
+    post-classified, indexed, not a slab (``--slabs`` and Dask's slab workers read bricks or the slab's
+    channels for now), something to show, no labels, no density code 0 of interest (the voxels not read are
+    zeros, which the bytes needed count from the density must never take for voxels of interest), no thick
+    axis on the axes read (the cubic between slices reads beyond the quad's corners), and the file present
+    beside the index (else bricks or whole channels, as without it)."""
+    from .runsfile import runs_path
+    from .splat.post import between_slices
+
+    req = sel.request
+    if not (sel.post and sel.method == "indexed" and slices is None and not sel.empty and sel.labels is None
+            and req is not None and req.index is not None):
+        return None
+    if any(int(lo) == 0 for lo, _ in sel.report.intervals):
+        return None
+    if any(between_slices(sel.spacing_ijk, ax)[0] for ax in req.axes):
+        return None
+    path = runs_path(req.index)
+    return path if path.exists() else None
+
+
+def _read_post_runs(sel: Selection, aug, path) -> Selection:
+    """Post from the range runs (formats/runs.md): the runs meeting the intervals of non-zero opacity, of the
+    channels the scene uses (the density always), placed into zeroed full-shape channels (pages no voxel of
+    theirs lies in never written), and per axis read the bits of the quads whose four corners they hold, which
+    the sampler tests (isplat.splat.post: a quad with a corner not held is transparent in truth). The runs file
+    is checked to be written from ``aug`` (shape, density hash, chunk hash check); any problem is one
+    IsplatError."""
+    from .chunkhash import CHECK_ATTR
+    from .runsfile import VALUE_CHANNELS, open_runs
+    from .splat.post import held_quads
+
+    rep = sel.report
+    if "density" not in rep.channels:
+        rep.channels.insert(0, "density")
+    ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
+    with open_runs(path, shape=sel.shape, density_sha256=aug.density_sha256,
+                   augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
+        got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels])
+        rep.runs_file_bytes = int(rf.counter.bytes)
+        rep.runs_file_pages = rf.counter.page_bytes()
+    n = int(np.prod(sel.shape))
+    pos = got.positions
+    out, held = {}, 0
+    for ch in rep.channels:
+        vals = getattr(got, ch)
+        out[ch] = np.zeros(n, dtype=vals.dtype)         # pages no voxel is written into stay unallocated
+        out[ch][pos] = vals
+        held += np.unique((pos * vals.itemsize) >> PAGE_SHIFT).size * PAGE
+    loaded = np.zeros(n, dtype=np.uint8)
+    loaded[pos] = 1
+    bits = {ax: held_quads(loaded, sel.shape, ax) for ax in sorted(sel.request.axes)}
+    rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
+    rep.values_path = str(path)
+    whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
+                          held)
+    return replace(sel, whole=whole, held=bits)
 
 
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -325,6 +325,8 @@ def scene_section(scene_file, overrides, aug, aug_path: Path, idx, hist_from_ind
             "augmented_file_bytes_read": int(rep.augmented_file_bytes),
             "index_file_bytes_read": int(rep.index_file_bytes),
             "values_file_bytes_read": int(rep.values_file_bytes),
+            "runs_file_bytes_read": int(rep.runs_file_bytes),
+            "runs_path": rep.values_path if rep.runs_file_bytes else "",
             "file_bytes_read": int(rep.file_bytes),
             "technique": rep.technique,
             "needed_voxels": int(rep.needed_voxels),
@@ -413,6 +415,14 @@ def _b(n) -> str:
 
 def _pct(x) -> str:
     return f"{100 * x:.2f}%"
+
+
+def _values_words(values_from: str) -> str:
+    """post's channel values from bricks or from range runs, in words (``values_from`` with its counts)."""
+    if values_from.startswith("runs file"):
+        return (f"the index's runs file, {values_from[len('runs file '):].strip('()')} (post-classification: the "
+                f"voxels whose quads can meet an interval, the rest zero and its quads skipped)")
+    return f"the augmented file, {values_from} (post-classification: the bricks its quads read)"
 
 
 def needed_words(ld: dict) -> str:
@@ -518,7 +528,10 @@ def format_table(s: dict) -> str:
         row("loaded: total", f"{_b(ld['bytes'])} = {_pct(ld['files_fraction'])} of {_b(ld['files_bytes'])} on disk")
         if ld.get("values_file_bytes_read"):
             row("loaded: values file", f"{_b(ld['values_bytes'])} ({_b(ld['values_file_bytes_read'])} read)")
-        row("channel values from", {"index": "the index's /values (only the voxels of interest)",
+        if ld.get("runs_file_bytes_read"):
+            row("loaded: runs file", f"{ld['runs_path']} ({_b(ld['runs_file_bytes_read'])} read)")
+        row("channel values from", _values_words(ld["values_from"]) if ld["values_from"].startswith(
+            ("runs file", "bricks")) else {"index": "the index's /values (only the voxels of interest)",
                                     "values file": "the index's values file (only the voxels of interest)",
                                     "augmented slabs": "the augmented file, in slabs of 8 k-slices (no values "
                                                        "file; isplat index writes it, to read only theirs)",

@@ -189,6 +189,7 @@ def _report(scene_file, method, out, rep, per_view) -> dict:
             "file_bytes_read": rep.file_bytes, "file_pages_read": rep.file_pages, "technique": rep.technique,
             "needed_voxels": rep.needed_voxels,
             "needed_axis": rep.needed_axis, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
+            "runs_file_bytes_read": rep.runs_file_bytes,
             "views": per_view}
 
 
@@ -205,6 +206,7 @@ def _log_report(report, rep, held) -> None:
               + f"); channel values from {rep.values_from}"
               + (f" {rep.values_path} ({rep.values_bytes} bytes, {rep.values_file_bytes} read)"
                  if rep.values_file_bytes else "")
+              + (f" {rep.values_path} ({rep.runs_file_bytes} bytes read)" if rep.runs_file_bytes else "")
               + (
                   f"; held {held} bytes, {held / max(1, rep.voxels_of_interest):.2f} per voxel of interest"
                   if held is not None else " (selections held by the workers or one slab at a time)"))

@@ -58,7 +58,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
-from ..jit import leaf, prefetch, stage
+from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
 from .labels import sample_label
 from .select import BLOCK, CELL
@@ -138,7 +138,7 @@ which the density is a cubic between voxels (1 a, 2 b), the cubic's kind and whe
 :func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`), or None on a grid that takes the bilinear
 sampler: a type of its own, so that numba compiles that frame's kernel with no cubic in it (:func:`_taps`,
 :func:`_between`)."""
-PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach stride")
+PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach stride held")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
 :data:`isplat.splat.traverse.WholeVolume`, each voxel classified); ``whole`` the whole channels
@@ -146,8 +146,41 @@ its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole c
 the squares scanned together (:func:`scan_unit`); ``cls`` :data:`PostClassify`; ``geo``
 :data:`isplat.splat.traverse.SliceGeometry`; ``reach`` the tent's reach in pixels (:func:`reach`), which the
 occlusion tests and the bins take; ``stride`` ``render.slice_stride``: only the slices whose index is a multiple of
-it are sampled (:func:`_slice`; ``cls`` and ``geo`` corrected for the path of that many slices). A thread's scratch
+it are sampled (:func:`_slice`; ``cls`` and ``geo`` corrected for the path of that many slices); ``held`` None when
+the channels hold every voxel the quads read (whole channels, bricks), else the bits of :func:`held_quads`: a
+reader of range runs (isplat.selection, formats/runs.md) loads only the voxels whose neighbourhood can meet an
+interval and zero-fills the rest, so a quad with a corner not loaded is skipped (its field is transparent in
+truth, the zeros would interpolate to wrong densities; :func:`_corners_held`). A thread's scratch
 is its list of a slice's visible cells (int64[C, 4])."""
+
+def held_quads(loaded: np.ndarray, shape, axis: str) -> np.ndarray:
+    """uint8 [ceil(n / 8)]: the bits (little-endian bit order, one per voxel of the channels' flat ``[k, j, i]``
+    layout) of :data:`PostPlan`'s ``held`` for ``axis``'s slices: set when the quad of the slice whose first corner
+    the voxel is has all four corners loaded (``loaded``: uint8 or bool, flat or ``shape``, non-zero where the
+    channels hold the voxel; the edge voxel repeated at the volume's edge, as the sampler clamps)."""
+    from ..grid import flat_strides, slice_shape
+
+    _, n_a, n_b = slice_shape(shape, axis)
+    st = np.asarray(flat_strides(shape, axis), dtype=np.int64)
+    flat = np.ascontiguousarray(loaded, dtype=np.uint8).reshape(-1)
+    return _held_quads(flat, int(n_a), int(n_b), st)
+
+
+@jit
+def _held_quads(loaded, n_a, n_b, st):
+    """:func:`held_quads`' loop: ``st`` the flat steps of a, b and c (isplat.grid.flat_strides)."""
+    n = loaded.shape[0]
+    out = np.zeros((n + 7) // 8, dtype=np.uint8)
+    n_c = n // max(1, n_a * n_b)
+    for c in range(n_c):
+        for b in range(n_b):
+            db = st[1] if b + 1 < n_b else 0
+            for a in range(n_a):
+                i = c * st[2] + b * st[1] + a * st[0]
+                da = st[0] if a + 1 < n_a else 0
+                if loaded[i] != 0 and loaded[i + da] != 0 and loaded[i + db] != 0 and loaded[i + da + db] != 0:
+                    out[i >> 3] |= np.uint8(1 << (i & 7))
+    return out
 
 
 def reach(coef) -> tuple[float, float]:
@@ -179,7 +212,11 @@ def plan(tables):
     n_cells = max_cells(sel, tables.axis)
     lists = [np.empty((n_cells, 4), np.int64) for _ in range(tables.threads)]
     stride = int(tables.view.render.slice_stride)
-    return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent, stride), lists, None
+    held = sel.held_quads(tables.axis)
+    if held is not None and cls.between is not None:
+        raise IsplatError("a selection holding only some voxels (range runs) cannot take the cubic between thick "
+                          "slices, whose taps reach beyond the quad")
+    return PostPlan(source, whole, scan_unit(tables.proj.jac), cls, tables.geo, tent, stride, held), lists, None
 
 
 def between_slices(spacing, axis: str, kind: str | None = None, ratio: float | None = None) -> tuple[int, int, int]:
@@ -244,7 +281,7 @@ def _slice(plan, cells, scratch, c, pos, buf, band):
     regions, p0, p1, hier, _, _, _ = slice_regions(plan.source, scratch[0], c, pos, plan.cls.alpha, plan.cls.use_gm,
                                                    plan.geo, plan.reach, buf, band)
     _post_slice(c, regions, p0, p1, hier[:7], plan.whole, plan.unit, plan.cls, plan.geo, plan.reach, cells, buf,
-                band, scratch[1], scratch[2])
+                band, scratch[1], scratch[2], plan.held)
 
 
 @stage
@@ -291,7 +328,7 @@ def scan_unit(jac, target: float = SCAN_PIXELS) -> int:
 
 
 @leaf
-def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, buf, band, marks, scratch):
+def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, buf, band, marks, scratch, held):
     """One slice and one band: the cells of interest left by the occlusion tests, the quads that touch their
     voxels sampled, classified and composited into the image. A leaf of its own, called once per slice: as
     fast or faster than inlined into :func:`_slice` (scripts/ab.py, 1-4%), and numba 0.68 inlined it there
@@ -313,7 +350,7 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, b
     voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c, cls.between)
     inv = _ortho_inverse(base, geo.coef)
     _sample_squares(todo, nt, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
-                    cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts, cls.lab)
+                    cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts, cls.lab, held)
     for t in range(nm):
         mark[marked[t]] = 0
     for t in range(ns):
@@ -394,7 +431,7 @@ def _plan_squares(squares, ns, smark, mark, nca, ncb, unit, todo):
 
 @leaf(inline="always")
 def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
-                    sat, tile_sat, band, counts, lab):
+                    sat, tile_sat, band, counts, lab, held):
     """Sample the squares and cells ``todo[:nt]`` (:func:`_sample_square`). One call per slice: the per-square
     stage is inlined here, since handing a stage this many arrays costs more than a small square."""
     for t in range(min(nt, AHEAD)):
@@ -403,7 +440,7 @@ def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shad
         if t + AHEAD < nt:          # the voxels of squares ahead come from memory while this one is sampled
             _prefetch_square(todo[t + AHEAD, 1], todo[t + AHEAD, 2], todo[t + AHEAD, 3], voxel, use_gm, use_shade)
         _sample_square(todo[t, 0], todo[t, 1], todo[t, 2], todo[t, 3], mark, voxel, alpha, color, shade, use_gm,
-                       use_shade, base, cs, geo, inv, img, sat, tile_sat, band, counts, lab)
+                       use_shade, base, cs, geo, inv, img, sat, tile_sat, band, counts, lab, held)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
@@ -437,7 +474,7 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
 
 @leaf(forceinline=True)
 def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
-                   sat, tile_sat, band, counts, lab):
+                   sat, tile_sat, band, counts, lab, held):
     """Sample the quads of square ``sq`` (``unit`` voxels a side, from voxel (a0, b0); a cell's index when
     ``unit`` is a cell) that their cells' flags ask for, at the pixels
     whose point on the slice plane lies in them (each pixel of the slice falls in one quad), and composite the
@@ -485,6 +522,8 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                     continue                # a quad no voxel of interest touches
             if geo.cuts.shape[0] > 0 and cut_away(u, v, geo.cuts, cs):
                 continue
+            if not _corners_held(held, cbase + qa * strides[0] + qb * strides[1]):
+                continue                # a corner not loaded: the quad is transparent in truth
             fu, fv = max(u - qa, 0.0), max(v - qb, 0.0)
             done = 0            # a shown label's sample in front of the density's (isplat.splat.labels)
             if lab[0].shape[0] > 0:
@@ -499,6 +538,29 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
             newly += done > 1
     counts[0] += drawn
     counts[1] += newly
+
+
+def _corners_held(held, i00):
+    """Whether the four corners of the quad whose first corner is at flat index ``i00`` are loaded: its bit in
+    ``held`` (:func:`held_quads`; one load of 1/8 byte a voxel, tested on every quad sampled: measured 0-3% a
+    frame, docs/design.md "Bins cut by the data, and the sampler's test"). Compiled, the choice is the type's (the
+    overload below): with ``held`` None (every voxel loaded) the test is the constant True, and the frames' kernel
+    is the one without it, bit for bit as before."""
+    if held is None:
+        return True
+    i = np.uint64(i00)
+    return (held[i >> np.uint64(3)] >> (i & np.uint64(7))) & np.uint8(1) != 0
+
+
+@overload(_corners_held, inline="always")
+def _typed_corners_held(held, i00):
+    if isinstance(held, types.NoneType):
+        return lambda held, i00: True
+
+    def test(held, i00):
+        i = np.uint64(i00)
+        return (held[i >> np.uint64(3)] >> (i & np.uint64(7))) & np.uint8(1) != 0
+    return test
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf

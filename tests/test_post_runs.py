@@ -1,0 +1,251 @@
+"""Post-classified frames from the range runs file (isplat.selection._read_post_runs, formats/runs.md): the image
+equals, bit for bit, the images from whole channels and from bricks; a mismatched or damaged runs file is one
+clear error; without it post reads bricks as before."""
+
+import contextlib
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+from conftest import write_volume
+from test_post import random_normals
+
+from isplat import selection as S
+from isplat.errors import IsplatError
+from isplat.renderer import Renderer
+from isplat.runsfile import build_runs_file, runs_path
+
+SHAPE = (22, 24, 20)
+CAMERAS = ["azimuth = 0\nelevation = 0", "azimuth = 90\nelevation = 0", "azimuth = 0\nelevation = 90",
+           "azimuth = 33\nelevation = 21"]
+COLOR = "color = [[0, 1, 0.8, 0.6], [120, 0.9, 0.3, 0.2], [255, 1, 1, 0.9]]"
+TFS = {
+    "threshold": "opacity = [[170, 0.0], [180, 0.8], [255, 0.9]]\n" + COLOR,
+    # a faint veil and bone: the zeros left by the runs not read interpolate into the veil (zero-filling alone
+    # draws a wrong picture, the sampler's test of the quads held does not)
+    "veil+bone": "opacity = [[60, 0.0], [70, 0.05], [95, 0.05], [105, 0.0], [170, 0.0], [180, 0.8], [255, 0.9]]\n"
+                 + COLOR,
+}
+
+
+def smooth(r, shape, scale):
+    g = r.normal(size=tuple(-(-n // scale) + 1 for n in shape))
+    k = np.kron(g, np.ones((scale,) * 3))[:shape[0], :shape[1], :shape[2]]
+    return k
+
+
+def head_like(seed, shape=SHAPE):
+    """Air, a soft-tissue ellipsoid (about 80-100), a bone shell (about 200) and a noisy core."""
+    r = np.random.default_rng(seed)
+    k, j, i = np.meshgrid(*(np.linspace(-1, 1, n) for n in shape), indexing="ij")
+    rad = np.sqrt((k / 0.9) ** 2 + (j / 0.85) ** 2 + (i / 0.8) ** 2) + 0.05 * smooth(r, shape, 4)
+    v = np.where(rad < 0.95, 85.0, 5.0)
+    v = np.where((rad > 0.7) & (rad < 0.85), 205.0, v)
+    v += 8 * r.normal(size=shape) * (rad < 0.95)
+    return np.clip(v, 0, 255).astype(np.uint8)
+
+
+def chest_like(seed, shape=SHAPE):
+    """A body (about 100) with two lungs (about 20) and a few bones (about 210)."""
+    r = np.random.default_rng(seed)
+    k, j, i = np.meshgrid(*(np.linspace(-1, 1, n) for n in shape), indexing="ij")
+    body = (j / 0.8) ** 2 + (i / 0.95) ** 2 < 1
+    lungs = ((j / 0.5) ** 2 + ((np.abs(i) - 0.45) / 0.3) ** 2 < 1) & (np.abs(k) < 0.8)
+    v = np.where(body, 100.0, 3.0)
+    v = np.where(lungs, 20.0, v)
+    v = np.where(body & (r.random(shape) < 0.02) | (np.abs(k) < 0.1) & (j > 0.55) & body, 210.0, v)
+    v += 6 * smooth(r, shape, 3)
+    return np.clip(v, 1, 255).astype(np.uint8)
+
+
+VOLUMES = {"head": head_like, "chest": chest_like}
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    out = {}
+    for name, make in VOLUMES.items():
+        tmp = tmp_path_factory.mktemp(name)
+        dens = make(3)
+        gm = np.clip(np.abs(np.gradient(dens.astype(float))[0]) * 4, 0, 255).astype(np.uint8)
+        aug, idx = write_volume(tmp, dens, normal=random_normals(3, SHAPE), gm=gm, gscale=1.0)
+        build_runs_file(aug, idx)
+        out[name] = (aug, idx)
+    return out
+
+
+@contextlib.contextmanager
+def without_runs(idx):
+    p = runs_path(idx)
+    keep = p.with_suffix(".away")
+    shutil.move(p, keep)
+    try:
+        yield
+    finally:
+        shutil.move(keep, p)
+
+
+@contextlib.contextmanager
+def brick_share(value):
+    old = S.BRICK_SHARE
+    S.BRICK_SHARE = value
+    try:
+        yield
+    finally:
+        S.BRICK_SHARE = old
+
+
+def three_images(sc, idx):
+    """(runs, bricks, whole channels): each image and its renderer."""
+    runs = Renderer(sc)
+    with without_runs(idx):
+        with brick_share(1.0):
+            bricks = Renderer(sc)
+        with brick_share(-1.0):
+            whole = Renderer(sc)
+    return [(r.render_view(0)[0], r) for r in (runs, bricks, whole)]
+
+
+@pytest.mark.parametrize("cam", CAMERAS)
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+@pytest.mark.parametrize("shade", [True, False])
+@pytest.mark.parametrize("tf", sorted(TFS))
+@pytest.mark.parametrize("vol", sorted(VOLUMES))
+def test_runs_give_the_image_of_bricks_and_whole_channels(files, make_scene, vol, tf, shade, proj, cam):
+    aug, idx = files[vol]
+    sc = make_scene(aug, idx, camera=f'projection = "{proj}"\n{cam}', transfer=TFS[tf],
+                    shading=f"enabled = {str(shade).lower()}", image="width = 44\nheight = 40",
+                    render='classification = "post"\nearly_termination = 1.0')
+    (img, r), (ib, rb), (iw, rw) = three_images(sc, idx)
+    assert r.report.values_from.startswith("runs file"), r.report.values_from
+    assert rb.report.values_from.startswith("bricks") and rw.report.values_from == "whole channels"
+    assert r.selection.held is not None and rb.selection.held is None and rw.selection.held is None
+    assert ("normal" in r.report.channels) == shade
+    assert np.array_equal(img, ib) and np.array_equal(img, iw)
+    assert img[..., 3].max() > 0.1
+    loaded = np.count_nonzero(r.selection.whole.density)
+    assert loaded < np.count_nonzero(rw.selection.whole.density)       # some voxels left out
+
+
+@pytest.mark.parametrize("vol", sorted(VOLUMES))
+def test_runs_with_gradient_modulated_opacity(files, make_scene, vol):
+    aug, idx = files[vol]
+    sc = make_scene(aug, idx, camera='projection = "perspective"\nazimuth = 33\nelevation = 21',
+                    transfer=TFS["veil+bone"] + "\ngradient_opacity = [[0, 0.2], [255, 1.0]]",
+                    shading="enabled = true", image="width = 44\nheight = 40",
+                    render='classification = "post"\nearly_termination = 1.0')
+    (img, r), (ib, _), (iw, _) = three_images(sc, idx)
+    assert r.report.values_from.startswith("runs file")
+    assert "gradient_magnitude" in r.report.channels and r.selection.whole.gradient_magnitude.size
+    assert np.array_equal(img, ib) and np.array_equal(img, iw)
+
+
+def test_zero_filling_alone_draws_a_wrong_veil(files, make_scene):
+    """The test of the quads held is what makes the veil right: marked all held, the zeros show."""
+    aug, idx = files["head"]
+    sc = make_scene(aug, idx, camera='projection = "orthographic"\nazimuth = 33\nelevation = 21',
+                    transfer=TFS["veil+bone"], shading="enabled = false", image="width = 44\nheight = 40",
+                    render='classification = "post"\nearly_termination = 1.0')
+    (img, r), _, (iw, _) = three_images(sc, idx)
+    assert np.array_equal(img, iw)
+    from dataclasses import replace
+    r.selection = replace(r.selection, held={ax: np.full_like(b, 255) for ax, b in r.selection.held.items()})
+    assert not np.array_equal(r.render_view(0)[0], iw)
+
+
+def test_report_counts_the_runs_file(files, make_scene):
+    aug, idx = files["chest"]
+    sc = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0", transfer=TFS["threshold"],
+                    shading="enabled = true", render='classification = "post"')
+    rep = Renderer(sc).report
+    assert rep.runs_file_bytes > 0 and rep.values_path == str(runs_path(idx))
+    assert rep.file_bytes == rep.augmented_file_bytes + rep.index_file_bytes + rep.runs_file_bytes
+    assert rep.runs_file_pages >= rep.runs_file_bytes - 4096 * 64 and rep.bytes_needed > 0
+    with without_runs(idx):
+        rb = Renderer(sc).report
+    assert rb.runs_file_bytes == 0 and rb.values_from.startswith("bricks")
+    assert rep.channels == rb.channels and rep.bytes_needed == rb.bytes_needed
+
+
+def test_slabs_and_thick_slices_keep_bricks(files, make_scene, tmp_path):
+    aug, idx = files["head"]
+    sc = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0", transfer=TFS["threshold"],
+                    render='classification = "post"')
+    from isplat.request import RenderRequest
+    from isplat.selection import select
+    from isplat.augfile import open_augmented
+    a = open_augmented(aug)
+    sel = select(RenderRequest.from_files(sc, a, "k", None, range(3, 9)), a)
+    assert sel.held is None and not sel.report.values_from.startswith("runs")
+    thick = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0", transfer=TFS["threshold"],
+                       render='classification = "post"', volume="spacing = [1.0, 1.0, 5.0]")
+    r = Renderer(thick)
+    assert r.selection.held is None and not r.report.values_from.startswith("runs")
+
+
+def _copy(files, tmp_path, name="head"):
+    aug, idx = files[name]
+    out = tmp_path / "c"
+    out.mkdir()
+    for p in (aug, idx, runs_path(idx)):
+        shutil.copy(p, out / p.name)
+    from isplat.index.store import values_path
+    if values_path(idx).exists():
+        shutil.copy(values_path(idx), out / values_path(idx).name)
+    return out / aug.name, out / idx.name
+
+
+def _scene(make_scene, aug, idx):
+    return make_scene(aug, idx, camera="azimuth = 0\nelevation = 0", transfer=TFS["threshold"],
+                      render='classification = "post"')
+
+
+def test_runs_of_another_volume_refused(files, make_scene, tmp_path):
+    aug, idx = _copy(files, tmp_path)
+    shutil.copy(runs_path(files["chest"][1]), runs_path(idx))          # same shape, another density
+    with pytest.raises(IsplatError, match="runs of another volume"):
+        Renderer(_scene(make_scene, aug, idx))
+
+
+@pytest.mark.parametrize("what", ["density", "positions", "garbage"])
+def test_damaged_runs_file_refused(files, make_scene, tmp_path, what):
+    aug, idx = _copy(files, tmp_path)
+    p = runs_path(idx)
+    if what == "garbage":
+        p.write_bytes(b"not an HDF5 file at all" * 10)
+    else:
+        with h5py.File(p, "r+") as f:
+            ds = f[f"runs/{what}"]
+            v = ds[...]
+            v[v.size // 2] ^= 0x5A
+            ds[...] = v
+    with pytest.raises(IsplatError) as exc:
+        Renderer(_scene(make_scene, aug, idx))
+    assert "\n" not in str(exc.value) and str(p.name) in str(exc.value)
+
+
+def test_cli_render_reports_runs_and_falls_back(files, tmp_path, capsys):
+    """isplat render -v says where the channel values came from; without the runs file, the bricks."""
+    import logging
+
+    from conftest import scene_text
+
+    from isplat.cli.main import main
+    aug, idx = _copy(files, tmp_path, "chest")
+    scene = tmp_path / "s.toml"
+    scene.write_text(scene_text(aug, idx, transfer=TFS["veil+bone"], render='classification = "post"',
+                                image="width = 32\nheight = 32"))
+    outs = []
+    for _ in range(2):
+        logging.getLogger("isplat").handlers.clear()
+        with pytest.raises(SystemExit) as ex:
+            main(["-v", "render", str(scene), "-o", str(tmp_path / f"o{len(outs)}.png")])
+        assert ex.value.code in (0, None)
+        outs.append(capsys.readouterr().err)
+        runs_path(idx).unlink(missing_ok=True)
+    assert "channel values from runs file (" in outs[0] and "read/needed" in outs[0]
+    assert "channel values from bricks (" in outs[1]
+    a = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(tmp_path / "o0.png"))
+    b = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(tmp_path / "o1.png"))
+    assert np.array_equal(a, b)

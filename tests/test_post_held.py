@@ -1,0 +1,146 @@
+"""post's sampler with only the needed voxels loaded (isplat.splat.post's ``held``, as a reader of range runs
+leaves the channels): the bits of the quads held against a voxel-by-voxel reference, and the image of channels
+loaded by the range key equal bit for bit to the full channels'."""
+
+import itertools
+
+import numpy as np
+import pytest
+from conftest import write_volume
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_post import post_scene, random_normals
+
+from isplat.renderer import Renderer
+from isplat.splat import post as P
+
+
+def reference_held_quads(loaded, axis):
+    """bool [k, j, i]: whether the quad of ``axis``'s slices whose first corner is the voxel has its four corners
+    loaded (the next voxel along a and b clamped to the edge), voxel by voxel."""
+    from isplat.grid import SLICE_AXES
+    ia, ib, _ = SLICE_AXES[axis]                  # i, j, k = 0, 1, 2; the array is [k, j, i]
+    da, db = 2 - ia, 2 - ib
+    n = loaded.shape
+    out = np.zeros(n, bool)
+    for v in np.ndindex(*n):
+        ok = True
+        for sa in (0, 1):
+            for sb in (0, 1):
+                w = list(v)
+                w[da] = min(w[da] + sa, n[da] - 1)
+                w[db] = min(w[db] + sb, n[db] - 1)
+                ok &= bool(loaded[tuple(w)])
+        out[v] = ok
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.tuples(st.integers(1, 6), st.integers(1, 11), st.integers(1, 11)), st.sampled_from("ijk"),
+       st.floats(0, 1), st.integers(0, 10 ** 6))
+def test_held_quads_equal_the_voxel_by_voxel_reference(shape, axis, p, seed):
+    loaded = np.random.default_rng(seed).random(shape) < p
+    bits = P.held_quads(loaded, shape, axis)
+    got = np.unpackbits(bits, bitorder="little")[:loaded.size].reshape(shape).astype(bool)
+    assert bits.size == -(-loaded.size // 8)
+    assert np.array_equal(got, reference_held_quads(loaded, axis))
+
+
+def needed_by_range(density, intervals):
+    """bool [k, j, i]: voxels whose range key (least and greatest density over the in-slice 3 x 3 squares of the
+    three slice axes, benchmarks/range_runs.py's ``union``) meets an interval, voxel by voxel."""
+    out = np.zeros(density.shape, bool)
+    n = density.shape
+    for v in np.ndindex(*n):
+        vals = set()
+        for d in range(3):
+            rng = [[v[e]] if e == d else [x for x in (v[e] - 1, v[e], v[e] + 1) if 0 <= x < n[e]] for e in range(3)]
+            vals |= {int(density[w]) for w in itertools.product(*rng)}
+        out[v] = any(min(vals) <= b and max(vals) >= a for a, b in intervals)
+    return out
+
+
+def sparse_volume(seed, shape):
+    """Blocks of 0 and of 200 with a few 120s (in the window): 200s far from a 120 and from the 0s are left out
+    and zero-filled, next to 200s kept, so that a quad between them would draw the zeros' ramp through the
+    window."""
+    r = np.random.default_rng(seed)
+    coarse = (r.random(tuple(-(-n // 4) for n in shape)) < 0.6).astype(np.uint8) * 200
+    dens = np.kron(coarse, np.ones((4, 4, 4), np.uint8))[:shape[0], :shape[1], :shape[2]]
+    dens[r.random(shape) < 0.02] = 120
+    return np.ascontiguousarray(dens)
+
+
+TF_WINDOW = "opacity = [[100, 0.0], [110, 0.6], [130, 0.6], [140, 0.0]]\ncolor = [[0, 1, 0, 0], [255, 0, 0.5, 1]]"
+
+
+def _render_held(sc, density, held):
+    """The image with the channels zero-filled where ``held`` is False, as a reader of range runs leaves them,
+    and the bits of the quads held made from ``held`` (isplat.splat.post.held_quads)."""
+    from dataclasses import replace
+    r = Renderer(sc)
+    sel = r.selection
+    w = sel.whole
+    keep = held.reshape(-1)
+    for ch in (w.density, w.gradient_magnitude, w.normal):
+        if ch.shape[0]:
+            ch[~keep] = 0                       # what a reader of the needed voxels leaves in the rest
+    r.selection = replace(sel, held={ax: P.held_quads(held, sel.shape, ax) for ax in sel.request.axes})
+    return r.render_view(0)[0], r
+
+
+@pytest.mark.parametrize("cam", ["azimuth = 0\nelevation = 0", "azimuth = 90\nelevation = 0",
+                                 "azimuth = 0\nelevation = 90", "azimuth = 33\nelevation = 21"])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_only_the_needed_voxels_loaded_give_the_same_image(tmp_path, make_scene, cam, seed):
+    shape = (12, 13, 11)
+    dens = sparse_volume(seed, shape)
+    aug, idx = write_volume(tmp_path, dens, normal=random_normals(seed, shape))
+    sc = post_scene(make_scene, aug, idx, cam, transfer=TF_WINDOW, image="width = 40\nheight = 36")
+    r0 = Renderer(sc)
+    full = r0.render_view(0)[0]
+    held = needed_by_range(dens, r0.report.intervals)
+    assert 0 < held.sum() < held.size
+    img, _ = _render_held(sc, dens, held)
+    assert np.array_equal(img, full)
+    assert full[..., 3].max() > 0.2
+
+
+def test_without_the_test_the_zeros_show(tmp_path, make_scene):
+    """The channels zero-filled but every voxel marked loaded: quads with a zeroed corner draw wrong densities."""
+    shape = (12, 13, 11)
+    dens = sparse_volume(1, shape)
+    aug, idx = write_volume(tmp_path, dens, normal=random_normals(1, shape))
+    sc = post_scene(make_scene, aug, idx, "azimuth = 33\nelevation = 21", transfer=TF_WINDOW,
+                    image="width = 40\nheight = 36")
+    full = Renderer(sc).render_view(0)[0]
+    held = needed_by_range(dens, Renderer(sc).report.intervals)
+    r = Renderer(sc)
+    w = r.selection.whole
+    w.density[~held.reshape(-1)] = 0
+    assert not np.array_equal(r.render_view(0)[0], full)
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 10 ** 6), az=st.floats(0, 360), el=st.floats(-80, 80), zoom=st.floats(0.5, 3.0),
+       proj=st.sampled_from(["orthographic", "perspective"]), unit=st.sampled_from([4, 8, 16]))
+def test_property_only_the_needed_voxels_loaded(tmp_path_factory, seed, az, el, zoom, proj, unit):
+    from conftest import scene_text
+    from isplat.scene import parse_scene
+    tmp = tmp_path_factory.mktemp("held")
+    shape = tuple(int(x) for x in np.random.default_rng(seed).integers(3, 13, 3))
+    dens = sparse_volume(seed, shape)
+    aug, idx = write_volume(tmp, dens, normal=random_normals(seed, shape))
+    text = scene_text(aug, idx, image="width = 32\nheight = 28", transfer=TF_WINDOW, shading="enabled = true",
+                      camera=f'projection = "{proj}"\nazimuth = {az}\nelevation = {el}\nzoom = {zoom}',
+                      render='classification = "post"\nearly_termination = 1.0')
+    sc = parse_scene(text, tmp, "t.toml")
+    old = P.scan_unit
+    P.scan_unit = lambda jac, target=None: unit          # squares of every side, partial or not
+    try:
+        r0 = Renderer(sc)
+        full = r0.render_view(0)[0]
+        img, _ = _render_held(sc, dens, needed_by_range(dens, r0.report.intervals))
+    finally:
+        P.scan_unit = old
+    assert np.array_equal(img, full)

@@ -734,7 +734,7 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
         vals = getattr(got, ch)
         out[ch] = np.zeros(n, dtype=vals.dtype)         # pages no voxel is written into stay unallocated
         out[ch][pos] = vals
-        held += np.unique((pos * vals.itemsize) >> PAGE_SHIFT).size * PAGE
+        held += _pages_of(pos, vals.itemsize, n)
     loaded = np.zeros(n, dtype=np.uint8)
     loaded[pos] = 1
     bits = {ax: held_quads(loaded, sel.shape, ax) for ax in sorted(sel.request.axes)}
@@ -743,6 +743,14 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
                           held)
     return replace(sel, whole=whole, held=bits)
+
+
+def _pages_of(pos: np.ndarray, itemsize: int, n: int) -> int:
+    """Bytes of the memory pages of a zeroed array of ``n`` elements of ``itemsize`` bytes that writing the flat
+    ``pos`` touches (what the operating system then holds of it)."""
+    pages = np.zeros(-(-n * itemsize // PAGE), dtype=bool)
+    pages[(pos * itemsize) >> PAGE_SHIFT] = True
+    return int(np.count_nonzero(pages)) * PAGE
 
 
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 7
+STATS_VERSION = 8
 
 
 def density_histogram(aug) -> np.ndarray:
@@ -417,12 +417,28 @@ def _pct(x) -> str:
     return f"{100 * x:.2f}%"
 
 
+VALUES_WORDS = {
+    "index": "the index's /values (only the voxels of interest)",
+    "values file": "the index's values file (only the voxels of interest)",
+    "augmented slabs": "the augmented file, in slabs of 8 k-slices (no values file; isplat index writes it, to read "
+                       "only theirs)",
+    "augmented bricks": "the augmented file, the bricks that hold a voxel of interest (a slab, or no values file; "
+                        "isplat index writes it, to read only theirs)",
+    "whole channels": "the augmented file, whole channels (full method, or post-classification: the neighbours of "
+                      "the voxels of interest are sampled too)",
+    "slab's channels": "the augmented file, the slab's slices of the channels",
+    "none": "nowhere (no channel needed)"}
+
+
 def _values_words(values_from: str) -> str:
-    """post's channel values from bricks or from range runs, in words (``values_from`` with its counts)."""
+    """``scene.loaded.values_from`` in words; post's ``bricks (N of M)`` and ``runs file (R of N runs)`` with
+    their counts."""
     if values_from.startswith("runs file"):
         return (f"the index's runs file, {values_from[len('runs file '):].strip('()')} (post-classification: the "
-                f"voxels whose quads can meet an interval, the rest zero and its quads skipped)")
-    return f"the augmented file, {values_from} (post-classification: the bricks its quads read)"
+                f"voxels whose quads can meet an interval; the quads with a corner not read are skipped)")
+    if values_from.startswith("bricks"):
+        return f"the augmented file, {values_from} (post-classification: the bricks of 8^3 its quads can read)"
+    return VALUES_WORDS[values_from]
 
 
 def needed_words(ld: dict) -> str:
@@ -530,19 +546,7 @@ def format_table(s: dict) -> str:
             row("loaded: values file", f"{_b(ld['values_bytes'])} ({_b(ld['values_file_bytes_read'])} read)")
         if ld.get("runs_file_bytes_read"):
             row("loaded: runs file", f"{ld['runs_path']} ({_b(ld['runs_file_bytes_read'])} read)")
-        row("channel values from", _values_words(ld["values_from"]) if ld["values_from"].startswith(
-            ("runs file", "bricks")) else {"index": "the index's /values (only the voxels of interest)",
-                                    "values file": "the index's values file (only the voxels of interest)",
-                                    "augmented slabs": "the augmented file, in slabs of 8 k-slices (no values "
-                                                       "file; isplat index writes it, to read only theirs)",
-                                    "augmented bricks": "the augmented file, the bricks that hold a voxel of "
-                                                        "interest (a slab, or no values file; isplat index "
-                                                        "writes it, to read only theirs)",
-                                    "whole channels": "the augmented file, whole channels (full method, or "
-                                                      "post-classification: the neighbours of the voxels of "
-                                                      "interest are sampled too)",
-                                    "slab's channels": "the augmented file, the slab's slices of the channels",
-                                    "none": "nowhere (no channel needed)"}[ld["values_from"]])
+        row("channel values from", _values_words(ld["values_from"]))
         row("bytes read from the files", f"{_b(ld['file_bytes_read'])} (HDF5's reads: whole chunks with checksums, "
                                          f"and metadata)")
         row(f"bytes needed ({ld['technique']})", f"{_b(ld['bytes_needed'])}: {needed_words(ld)}")

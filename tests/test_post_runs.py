@@ -9,6 +9,8 @@ import h5py
 import numpy as np
 import pytest
 from conftest import write_volume
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_post import random_normals
 
 from isplat import selection as S
@@ -266,3 +268,34 @@ def test_cli_render_reports_runs_and_falls_back(files, tmp_path, capsys):
     a = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(tmp_path / "o0.png"))
     b = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(tmp_path / "o1.png"))
     assert np.array_equal(a, b)
+
+
+def test_stats_scene_says_runs(files, tmp_path, capsys):
+    """isplat stats --scene: the runs file in the table and the JSON, its bytes in the bytes read."""
+    import json
+
+    from conftest import scene_text
+
+    from isplat.cli.main import main
+    aug, idx = files["head"]
+    scene = tmp_path / "s.toml"
+    scene.write_text(scene_text(aug, idx, transfer=TFS["veil+bone"], render='classification = "post"',
+                                image="width = 32\nheight = 32"))
+    outs = []
+    for extra in (["--json"], []):
+        with pytest.raises(SystemExit) as ex:
+            main(["stats", str(aug), str(idx), "--scene", str(scene), "-q", *extra])
+        assert ex.value.code in (0, None)
+        outs.append(capsys.readouterr().out)
+    ld = json.loads(outs[0])["scene"]["loaded"]
+    assert ld["values_from"].startswith("runs file (") and ld["runs_path"] == str(runs_path(idx))
+    assert ld["runs_file_bytes_read"] > 0 and ld["file_bytes_read"] >= ld["runs_file_bytes_read"]
+    assert "the index's runs file" in outs[1] and "loaded: runs file" in outs[1]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 20000), st.sampled_from([1, 2]), st.integers(0, 10 ** 6), st.floats(0, 0.05))
+def test_pages_of_equal_the_pages_counted_one_by_one(n, itemsize, seed, share):
+    pos = np.flatnonzero(np.random.default_rng(seed).random(n) < share)
+    want = len({int(p) * itemsize // 4096 for p in pos}) * 4096
+    assert S._pages_of(pos, itemsize, n) == want

@@ -201,10 +201,11 @@ def test_json_keys(vol, capsys):
     assert {"channels", "axes", "augmented_bytes", "index_bytes", "bytes", "index_decoded_bytes", "held_bytes",
             "augmented_fraction", "index_fraction", "files_bytes", "files_fraction", "values_from",
             "augmented_file_bytes_read", "index_file_bytes_read", "file_bytes_read", "bytes_needed", "read_ratio",
-            "values_bytes", "values_file_bytes_read", "file_pages_read", "page_ratio",
+            "values_bytes", "values_file_bytes_read", "runs_file_bytes_read", "runs_path", "file_pages_read",
+            "page_ratio",
             "held_bytes_per_voxel_of_interest", "technique", "needed_voxels", "needed_axis",
             "channel_bytes_per_voxel", "channel_bytes_needed", "index_bytes_needed"} == set(s["scene"]["loaded"])
-    assert s["stats_version"] == 7
+    assert s["stats_version"] == 8
     # the table carries the same figures
     code, table, _ = run(capsys, aug, idx, "--scene", scene, "-q")
     assert code == 0 and f"{s['scene']['voxels_of_interest']:,}" in table and "spatial ratio" in table

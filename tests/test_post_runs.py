@@ -299,3 +299,22 @@ def test_pages_of_equal_the_pages_counted_one_by_one(n, itemsize, seed, share):
     pos = np.flatnonzero(np.random.default_rng(seed).random(n) < share)
     want = len({int(p) * itemsize // 4096 for p in pos}) * 4096
     assert S._pages_of(pos, itemsize, n) == want
+
+
+def test_runs_read_only_the_channels_asked_for(files):
+    """RunsFile.read(channels=): the normals and gradient magnitudes not asked for are not read (fewer bytes),
+    the density and positions the same."""
+    from isplat.runsfile import open_runs
+
+    _, idx = files["chest"]
+    got = {}
+    for chans in ((), ("gradient_magnitude",), ("normal", "gradient_magnitude")):
+        with open_runs(runs_path(idx)) as rf:
+            got[chans] = rf.read([(60, 105), (170, 255)], chans)
+    none, gm, both = got.values()
+    assert none.normal.size == 0 and none.gradient_magnitude.size == 0 and gm.normal.size == 0
+    assert np.array_equal(none.positions, both.positions) and np.array_equal(none.density, both.density)
+    assert np.array_equal(gm.gradient_magnitude, both.gradient_magnitude) and both.normal.size == both.density.size
+    assert none.bytes_read < gm.bytes_read < both.bytes_read
+    with open_runs(runs_path(idx)) as rf, pytest.raises(ValueError):
+        rf.read(None, ("density",))

@@ -19,7 +19,9 @@ bone and air); the reconstruction of such a quad is what a ray caster shows as a
 
 The four voxels' densities come from the whole density channel (one byte per voxel; the normals and gradient
 codes too when the scene uses them): the neighbours of the voxels of interest have any density, and the index
-does not hold them. Classification interpolates the 256-entry tables linearly between codes (the transfer
+does not hold them. Read from the range runs (isplat.selection, formats/runs.md) the channels hold only the voxels
+whose neighbourhood can meet an interval, zeros elsewhere; the sampler then skips every quad with a corner not held
+(:data:`PostPlan`'s ``held``, :func:`held_quads`), whose field meets no interval. Classification interpolates the 256-entry tables linearly between codes (the transfer
 function is applied to the interpolated value, not to a truncated code). Shading interpolates the four
 voxels' Phong factors (the shading of a trilinear ray caster that shades its grid points), each weighted by its
 bilinear weight times its gradient magnitude code (normalised; the bilinear weights alone where all four are 0):

@@ -16,10 +16,11 @@ intervals). *Load*: constructing the :class:`isplat.renderer.Renderer` (open bot
 *frame*: one frame rendered from it (one thread). Techniques interleaved in rotating order, median of several
 rounds after a warm-up round. *Held*: ``Renderer.held_bytes()`` over the voxels of interest.
 
-Post is measured twice (issue 26, old against new, interleaved with pre in one run): from the augmented file of
-format 6 (channels in 8^3 bricks of isplat's own store: post reads the bricks its quads touch) and from the same
-volume written as
-format 4 (``isplat.augfile.write_augmented(..., version=4)``: chunks of whole rows, read as whole channels).
+Post is measured three times (issue 26, interleaved with pre in one run): from the index's runs file
+(``NAME.runs.idx.h5``, formats/runs.md: the runs meeting the intervals), from the augmented file of format 6 with the
+runs file moved aside (channels in 8^3 bricks of isplat's own store: post reads the bricks its quads touch) and
+from the same volume written as format 4 (``isplat.augfile.write_augmented(..., version=4)``: chunks of whole rows,
+read as whole channels; the runs file moved aside too, it is tied to the format-6 file).
 """
 
 from __future__ import annotations
@@ -35,10 +36,12 @@ from pathlib import Path
 from . import _doc
 
 TECHNIQUES = ["pre", "post"]     # render.classification of its rows (the page's stamp)
-VARIANTS = {"pre": "pre", "post": "post", "post-v4": "post"}   # rows: post from bricks, and from a version-4 file
-LABELS = {"pre": "pre", "post": "post (format 6: bricks)", "post-v4": "post (format 4: whole channels)"}
+# rows: post from the runs file beside the index, from bricks (the runs file moved aside), and from a version-4 file
+VARIANTS = {"pre": "pre", "post": "post", "post-bricks": "post", "post-v4": "post"}
+LABELS = {"pre": "pre", "post": "post (runs file)", "post-bricks": "post (format 6: bricks)",
+          "post-v4": "post (format 4: whole channels)"}
 SOURCES = _doc.sources(_doc.READ, _doc.AUGMENT, _doc.SAMPLES, _doc.RENDER, ("isplat/stats.py",
-                       "benchmarks/paper.py", "benchmarks/selective_read.py"))
+                       "isplat/runsfile.py", "isplat/runs.py", "benchmarks/paper.py", "benchmarks/selective_read.py"))
 
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS, REPEATS_QUICK = 5, 2
@@ -157,7 +160,10 @@ def _index(aug: Path, out: Path, quick: bool) -> None:
     if quick:
         from isplat.index import build_index_file
 
+        from isplat.runsfile import build_runs_file
+
         build_index_file(aug, out, force=True)
+        build_runs_file(aug, out, force=True)           # as isplat index does
         return
     subprocess.run([sys.executable, "-m", "isplat", "index", str(aug), "-o", str(out), "-q", "--force"], check=True,
                    cwd=ROOT)
@@ -179,10 +185,20 @@ def index_figures(idx_path: Path) -> dict:
                 axes_per_voxel_axis=axes_bytes / max(1, vox * len(idx.axes)), values=values, version=idx.version)
 
 
-def _once(scene) -> tuple[float, float, object, int]:
-    """Load (s), frame (s), the report and the held bytes of one renderer of ``scene``'s first view."""
+def _once(scene, runs: bool = True) -> tuple[float, float, object, int]:
+    """Load (s), frame (s), the report and the held bytes of one renderer of ``scene``'s first view (``runs``
+    False: the index's runs file moved aside for the load)."""
     from isplat.renderer import Renderer
+    from isplat.runsfile import runs_path
 
+    if not runs:
+        p = runs_path(scene.data.index)
+        aside = p.with_name(p.name + ".aside")
+        p.rename(aside)
+        try:
+            return _once(scene)
+        finally:
+            aside.rename(p)
     t = time.perf_counter()
     r = Renderer(scene, (scene.views[0],), slabs=1)
     load = time.perf_counter() - t
@@ -203,8 +219,8 @@ def measure(c: dict, work: Path, repeats: int, quick: bool) -> list[dict]:
     times = {t: ([], []) for t in order}
     last = {}
     for n in range(repeats + 1):                       # the first round warms up (numba, page cache)
-        for t in order[n % 3:] + order[:n % 3]:
-            load, frame, rep, held = _once(scenes[t])
+        for t in order[n % len(order):] + order[:n % len(order)]:
+            load, frame, rep, held = _once(scenes[t], runs=t == "post")
             if n:
                 times[t][0].append(load)
                 times[t][1].append(frame)
@@ -218,10 +234,12 @@ def measure(c: dict, work: Path, repeats: int, quick: bool) -> list[dict]:
                          needed_voxels=rep.needed_voxels, per_voxel=rep.channel_bytes_per_voxel,
                          channels=list(rep.channels), values_from=rep.values_from, read=rep.file_bytes,
                          aug_read=rep.augmented_file_bytes, idx_read=rep.index_file_bytes, needed=rep.bytes_needed,
+                         runs_read=rep.runs_file_bytes,
                          ratio=rep.read_ratio, pages=rep.file_pages, page_ratio=rep.page_ratio, held=held, load=statistics.median(times[t][0]),
                          frame=statistics.median(times[t][1]), index=ixf))
     idx.unlink()
     Path(str(idx).replace(".idx.h5", ".values.idx.h5")).unlink(missing_ok=True)
+    Path(str(idx).replace(".idx.h5", ".runs.idx.h5")).unlink(missing_ok=True)
     c["aug_v4"].unlink()
     return rows
 
@@ -242,7 +260,7 @@ def run(out_dir: Path, quick: bool) -> Path:
         for c in cases(work, quick):
             _log(f"{c['name']}: {c['what']}")
             rows += measure(c, work, repeats, quick)
-            for r in rows[-3:]:
+            for r in rows[-len(VARIANTS):]:
                 _log(f"  {LABELS[r['variant']]}: read {_mb(r['read'])} MB for {_mb(r['needed'])} MB needed "
                      f"({r['ratio']:.2f}x; pages {_mb(r['pages'])} MB), held {r['held'] / max(1, r['voi']):.1f} B per voxel of interest, load "
                      f"{1000 * r['load']:.0f} ms, frame {1000 * r['frame']:.0f} ms")
@@ -281,7 +299,11 @@ def _explanation(repeats: int) -> list[str]:
         "since index format 6), one row range per interval (format 7: chunks without a chunk index, sized by the "
         "dataset, formats/index.md §1.1). Only the voxels of interest are read; *read* includes the "
         "values file's opening.",
-        "- **post (format 6: bricks)** (the default technique, post-classification, from a file written by "
+        "- **post (runs file)** (the default technique, with the index's runs file `NAME.runs.idx.h5` beside it, "
+        "as `isplat index` writes it): the same index blocks, and of the channels it samples only the runs "
+        "meeting the intervals (formats/runs.md: every voxel whose quads can meet an interval, with its "
+        "positions); the quads with a corner not read are skipped. *Read* includes the runs file's opening.",
+        "- **post (format 6: bricks)** (the default technique without the runs file, post-classification, from a file written by "
         "`isplat augment`): the same index blocks, and of the "
         "channels it samples (the density, and when shaded the normal and the gradient magnitude) only the 8^3 "
         "bricks its quads can read: for each 4 x 4 cell of interest of the index, its quads, their in-slice "
@@ -329,19 +351,23 @@ def _pages(r) -> str:
 
 
 def _old_new(rows) -> list[str]:
-    """Post from bricks against post from whole channels, per case: bytes read, load and frame time."""
-    L = ["Post, format 6 (bricks) against format 4 (whole channels), the same volume and scene, interleaved: "
+    """Post from the runs file and from bricks against post from whole channels, per case: bytes read, load and
+    frame time."""
+    L = ["Post from the runs file, and format 6 (bricks), against format 4 (whole channels), the same volume and "
+         "scene, interleaved: "
          "bytes read from the augmented file, held, load and frame time (medians), and the ratios new / old.", "",
-         "| case | channel values from | augmented read, new / old (MB) | read / needed, new / old | held per voxel "
+         "| case | channel values from | augmented (+ runs file) read, new / old (MB) | read / needed, new / old | held per voxel "
          "of interest, new / old (B) | load new / old (ms) | load ratio | frame new / old (ms) | frame ratio |",
          "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     by = {(r["name"], r["variant"]): r for r in rows}
-    for name in dict.fromkeys(r["name"] for r in rows):
-        n, o = by.get((name, "post")), by.get((name, "post-v4"))
+    for name, new in ((name, new) for name in dict.fromkeys(r["name"] for r in rows) for new in ("post",
+                                                                                                  "post-bricks")):
+        n, o = by.get((name, new)), by.get((name, "post-v4"))
         if n is None or o is None:
             continue
         voi = max(1, n["voi"])
-        L.append(f"| {name} | {n['values_from']} | {_mb(n['aug_read'])} / {_mb(o['aug_read'])} | "
+        L.append(f"| {name} | {n['values_from']} | {_mb(n['aug_read'] + n.get('runs_read', 0))} / "
+                 f"{_mb(o['aug_read'])} | "
                  f"{n['ratio']:.2f} / {o['ratio']:.2f} | {n['held'] / voi:.1f} / {o['held'] / voi:.1f} | "
                  f"{1000 * n['load']:.0f} / {1000 * o['load']:.0f} | {n['load'] / max(1e-9, o['load']):.2f} | "
                  f"{1000 * n['frame']:.0f} / {1000 * o['frame']:.0f} | {n['frame'] / max(1e-9, o['frame']):.2f} |")

@@ -737,7 +737,7 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
         held += _pages_of(pos, vals.itemsize, n)
     loaded = np.zeros(n, dtype=np.uint8)
     loaded[pos] = 1
-    bits = {ax: held_quads(loaded, sel.shape, ax) for ax in sorted(sel.request.axes)}
+    bits = {ax: held_quads(loaded, sel.shape, ax, pos) for ax in sorted(sel.request.axes)}
     rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
     rep.values_path = str(path)
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),

@@ -144,3 +144,12 @@ def test_property_only_the_needed_voxels_loaded(tmp_path_factory, seed, az, el, 
     finally:
         P.scan_unit = old
     assert np.array_equal(img, full)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.tuples(st.integers(1, 6), st.integers(1, 11), st.integers(1, 11)), st.sampled_from("ijk"),
+       st.floats(0, 1), st.integers(0, 10 ** 6))
+def test_held_quads_from_the_positions_equal_those_from_the_mask(shape, axis, p, seed):
+    loaded = np.random.default_rng(seed).random(shape) < p
+    pos = np.random.default_rng(seed).permutation(np.flatnonzero(loaded))      # in any order
+    assert np.array_equal(P.held_quads(loaded, shape, axis, pos), P.held_quads(loaded, shape, axis))

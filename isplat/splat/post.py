@@ -155,33 +155,33 @@ interval and zero-fills the rest, so a quad with a corner not loaded is skipped 
 truth, the zeros would interpolate to wrong densities; :func:`_corners_held`). A thread's scratch
 is its list of a slice's visible cells (int64[C, 4])."""
 
-def held_quads(loaded: np.ndarray, shape, axis: str) -> np.ndarray:
+def held_quads(loaded: np.ndarray, shape, axis: str, positions: np.ndarray | None = None) -> np.ndarray:
     """uint8 [ceil(n / 8)]: the bits (little-endian bit order, one per voxel of the channels' flat ``[k, j, i]``
     layout) of :data:`PostPlan`'s ``held`` for ``axis``'s slices: set when the quad of the slice whose first corner
     the voxel is has all four corners loaded (``loaded``: uint8 or bool, flat or ``shape``, non-zero where the
-    channels hold the voxel; the edge voxel repeated at the volume's edge, as the sampler clamps)."""
-    from ..grid import flat_strides, slice_shape
+    channels hold the voxel; the edge voxel repeated at the volume's edge, as the sampler clamps). ``positions``:
+    the flat positions of the voxels loaded, each once, if known (only their quads are looked at)."""
+    from ..grid import SLICE_AXES, shape_ijk
 
-    _, n_a, n_b = slice_shape(shape, axis)
-    st = np.asarray(flat_strides(shape, axis), dtype=np.int64)
+    ia, ib, _ = SLICE_AXES[axis]
     flat = np.ascontiguousarray(loaded, dtype=np.uint8).reshape(-1)
-    return _held_quads(flat, int(n_a), int(n_b), st)
+    pos = np.flatnonzero(flat) if positions is None else np.asarray(positions, dtype=np.int64)
+    n = np.asarray(shape_ijk(shape), dtype=np.int64)
+    return _held_quads(flat, pos, n, int(ia), int(ib))
 
 
 @jit
-def _held_quads(loaded, n_a, n_b, st):
-    """:func:`held_quads`' loop: ``st`` the flat steps of a, b and c (isplat.grid.flat_strides)."""
-    n = loaded.shape[0]
-    out = np.zeros((n + 7) // 8, dtype=np.uint8)
-    n_c = n // max(1, n_a * n_b)
-    for c in range(n_c):
-        for b in range(n_b):
-            db = st[1] if b + 1 < n_b else 0
-            for a in range(n_a):
-                i = c * st[2] + b * st[1] + a * st[0]
-                da = st[0] if a + 1 < n_a else 0
-                if loaded[i] != 0 and loaded[i + da] != 0 and loaded[i + db] != 0 and loaded[i + da + db] != 0:
-                    out[i >> 3] |= np.uint8(1 << (i & 7))
+def _held_quads(loaded, pos, n, ia, ib):
+    """:func:`held_quads`' loop over the voxels loaded ``pos`` (``n``: the volume's extents along i, j, k; ``ia``,
+    ``ib``: which of them a and b are)."""
+    out = np.zeros((loaded.shape[0] + 7) // 8, dtype=np.uint8)
+    step = np.array([1, n[0], n[0] * n[1]], dtype=np.int64)
+    for t in range(pos.shape[0]):
+        p = pos[t]
+        da = step[ia] if p // step[ia] % n[ia] + 1 < n[ia] else 0       # the edge voxel repeated
+        db = step[ib] if p // step[ib] % n[ib] + 1 < n[ib] else 0
+        if loaded[p] != 0 and loaded[p + da] != 0 and loaded[p + db] != 0 and loaded[p + da + db] != 0:
+            out[p >> 3] |= np.uint8(1 << (p & 7))
     return out
 
 

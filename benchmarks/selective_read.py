@@ -303,7 +303,8 @@ def _explanation(repeats: int) -> list[str]:
         "as `isplat index` writes it): the same index blocks, and of the channels it samples only the runs "
         "meeting the intervals (formats/runs.md: every voxel whose quads can meet an interval, with its "
         "positions); the quads with a corner not read are skipped. *Read* includes the runs file's opening.",
-        "- **post (format 6: bricks)** (the default technique without the runs file, post-classification, from a file written by "
+        "- **post (format 6: bricks)** (the default technique without the runs file, post-classification, from a "
+        "file written by "
         "`isplat augment`): the same index blocks, and of the "
         "channels it samples (the density, and when shaded the normal and the gradient magnitude) only the 8^3 "
         "bricks its quads can read: for each 4 x 4 cell of interest of the index, its quads, their in-slice "
@@ -356,7 +357,8 @@ def _old_new(rows) -> list[str]:
     L = ["Post from the runs file, and format 6 (bricks), against format 4 (whole channels), the same volume and "
          "scene, interleaved: "
          "bytes read from the augmented file, held, load and frame time (medians), and the ratios new / old.", "",
-         "| case | channel values from | augmented (+ runs file) read, new / old (MB) | read / needed, new / old | held per voxel "
+         "| case | channel values from | augmented (+ runs file) read, new / old (MB) | read / needed, new / old | "
+         "held per voxel "
          "of interest, new / old (B) | load new / old (ms) | load ratio | frame new / old (ms) | frame ratio |",
          "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     by = {(r["name"], r["variant"]): r for r in rows}

@@ -17,17 +17,17 @@ of :mod:`isplat.splat.traverse`). A quad none of whose voxels is of interest is 
 density inside can still cross an interval (a thin material between two others, say skin at the boundary of
 bone and air); the reconstruction of such a quad is what a ray caster shows as a thin false layer.
 
-The four voxels' densities come from the whole density channel (one byte per voxel; the normals and gradient
-codes too when the scene uses them): the neighbours of the voxels of interest have any density, and the index
-does not hold them. Read from the range runs (isplat.selection, formats/runs.md) the channels hold only the voxels
-whose neighbourhood can meet an interval, zeros elsewhere; the sampler then skips every quad with a corner not held
-(:data:`PostPlan`'s ``held``, :func:`held_quads`), whose field meets no interval. Classification interpolates the 256-entry tables linearly between codes (the transfer
-function is applied to the interpolated value, not to a truncated code). Shading interpolates the four
-voxels' Phong factors (the shading of a trilinear ray caster that shades its grid points), each weighted by its
-bilinear weight times its gradient magnitude code (normalised; the bilinear weights alone where all four are 0):
-on slices much thicker than the pixels a corner just off a surface nearly parallel to the slices (air, a short
-gradient whose direction is mostly along the slice axis) otherwise shades as much as the corner on it, which
-draws rings of the slices on the surface (docs/thick-slices.md).
+The four voxels' densities come from the whole density channel (one byte per voxel; the normals and gradient codes
+too when the scene uses them): the neighbours of the voxels of interest have any density, and the index does not
+hold them. Read from the range runs (isplat.selection, formats/runs.md) the channels hold only the voxels whose
+neighbourhood can meet an interval, zeros elsewhere; the sampler then skips every quad with a corner not held
+(:data:`PostPlan`'s ``held``, :func:`held_quads`), whose field meets no interval. Classification interpolates the
+256-entry tables linearly between codes (the transfer function is applied to the interpolated value, not to a
+truncated code). Shading interpolates the four voxels' Phong factors (the shading of a trilinear ray caster that
+shades its grid points), each weighted by its bilinear weight times its gradient magnitude code (normalised; the
+bilinear weights alone where all four are 0): on slices much thicker than the pixels a corner just off a surface
+nearly parallel to the slices (air, a short gradient whose direction is mostly along the slice axis) otherwise
+shades as much as the corner on it, which draws rings of the slices on the surface (docs/thick-slices.md).
 
 Between thick slices. When the thicker in-slice axis' spacing is at least :data:`THICK_RATIO` times the volume's
 finest (slices 5-7 mm thick over 1 mm pixels seen from the side, say; not a CT's 2.5 mm slices over 0.7 mm,
@@ -154,6 +154,7 @@ reader of range runs (isplat.selection, formats/runs.md) loads only the voxels w
 interval and zero-fills the rest, so a quad with a corner not loaded is skipped (its field is transparent in
 truth, the zeros would interpolate to wrong densities; :func:`_corners_held`). A thread's scratch
 is its list of a slice's visible cells (int64[C, 4])."""
+
 
 def held_quads(loaded: np.ndarray, shape, axis: str, positions: np.ndarray | None = None) -> np.ndarray:
     """uint8 [ceil(n / 8)]: the bits (little-endian bit order, one per voxel of the channels' flat ``[k, j, i]``

@@ -560,7 +560,6 @@ def _channels(sel: Selection, aug, axes, slices) -> Selection:
     if sel.method == "full" or sel.post:
         sel = replace(sel, whole=_whole(sel, aug.read))        # (which notes the channels it read)
         sel.report.values_from = "whole channels" if sel.report.channels else "none"
-        return sel
     return sel
 
 

@@ -353,9 +353,8 @@ def _block_test(a0, b0, boxes, satab, tile_sat):
     ok, box = _rect_box(a0, min(a0 + BLOCK, n_a) - 1, b0, min(b0 + BLOCK, n_b) - 1, base, coef, persp, ex, ey)
     if not ok:
         return False, False
-    gx0, gx1 = max(box[0], 0), min(box[1], img_w - 1)
-    gy0, gy1 = max(box[2], y0b), min(box[3], y1b - 1)
-    if gy0 > gy1 or gx0 > gx1 or (et_on and _tiles_whole(satab, ty0, gx0, gx1, gy0, gy1)):
+    empty, gx0, gx1, gy0, gy1 = _band_box(box, img_w, y0b, y1b)
+    if empty or (et_on and _tiles_whole(satab, ty0, gx0, gx1, gy0, gy1)):
         return True, False
     if (persp or ex < CLEAR_REACH or ey < CLEAR_REACH or box[0] < 0 or box[1] > img_w - 1 or box[2] < y0b
             or box[3] > y1b - 1):
@@ -377,15 +376,23 @@ def _hidden(a0, b0, size, boxes, satab, sat, pixels):
     ok, box = _rect_box(a0, min(a0 + size, n_a) - 1, b0, min(b0 + size, n_b) - 1, base, coef, persp, ex, ey)
     if not ok:
         return False
-    gx0, gx1 = max(box[0], 0), min(box[1], img_w - 1)
-    gy0, gy1 = max(box[2], y0b), min(box[3], y1b - 1)
-    if gy0 > gy1 or gx0 > gx1:
+    empty, gx0, gx1, gy0, gy1 = _band_box(box, img_w, y0b, y1b)
+    if empty:
         return True
     if not et_on:
         return False
     if pixels:
         return covered(satab, ty0, sat, gx0, gx1, gy0, gy1)
     return _tiles_whole(satab, ty0, gx0, gx1, gy0, gy1)
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def _band_box(box, img_w, y0b, y1b):
+    """``(empty, x0, x1, y0, y1)``: the pixel box ``box`` (x0, x1, y0, y1) clipped to the image and the band
+    (rows [y0b, y1b)), and whether nothing is left (:func:`_hidden`, :func:`_block_test`)."""
+    gx0, gx1 = max(box[0], 0), min(box[1], img_w - 1)
+    gy0, gy1 = max(box[2], y0b), min(box[3], y1b - 1)
+    return gy0 > gy1 or gx0 > gx1, gx0, gx1, gy0, gy1
 
 
 @leaf(forceinline=True)

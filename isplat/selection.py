@@ -723,19 +723,12 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
     ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
     with open_runs(path, shape=sel.shape, density_sha256=aug.density_sha256,
                    augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
-        got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels])
+        got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels], place=True)
         rep.runs_file_bytes = int(rf.counter.bytes)
         rep.runs_file_pages = rf.counter.page_bytes()
-    n = int(np.prod(sel.shape))
-    pos = got.positions
-    out, held = {}, 0
-    for ch in rep.channels:
-        vals = getattr(got, ch)
-        out[ch] = np.zeros(n, dtype=vals.dtype)         # pages no voxel is written into stay unallocated
-        out[ch][pos] = vals
-        held += _pages_of(pos, vals.itemsize, n)
-    loaded = np.zeros(n, dtype=np.uint8)
-    loaded[pos] = 1
+    pos, loaded = got.positions, got.loaded
+    out = dict(zip(("density", "normal", "gradient_magnitude"), got.placed))   # pages never written: unallocated
+    held = sum(_pages_of(loaded, out[ch].itemsize) for ch in rep.channels)
     bits = {ax: held_quads(loaded, sel.shape, ax, pos) for ax in sorted(sel.request.axes)}
     rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
     rep.values_path = str(path)
@@ -744,12 +737,14 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
     return replace(sel, whole=whole, held=bits)
 
 
-def _pages_of(pos: np.ndarray, itemsize: int, n: int) -> int:
-    """Bytes of the memory pages of a zeroed array of ``n`` elements of ``itemsize`` bytes that writing the flat
-    ``pos`` touches (what the operating system then holds of it)."""
-    pages = np.zeros(-(-n * itemsize // PAGE), dtype=bool)
-    pages[(pos * itemsize) >> PAGE_SHIFT] = True
-    return int(np.count_nonzero(pages)) * PAGE
+def _pages_of(loaded: np.ndarray, itemsize: int) -> int:
+    """Bytes of the memory pages of a zeroed array of ``loaded.size`` elements of ``itemsize`` bytes that writing
+    the elements where ``loaded`` is non-zero touches (what the operating system then holds of it)."""
+    per = PAGE // itemsize
+    n = loaded.size
+    whole = loaded[:n - n % per].reshape(-1, per).view(np.uint64 if per % 8 == 0 else np.uint8)
+    pages = int(np.count_nonzero(whole.any(axis=1)))
+    return (pages + int(bool(n % per and loaded[n - n % per:].any()))) * PAGE
 
 
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -174,15 +174,30 @@ def held_quads(loaded: np.ndarray, shape, axis: str, positions: np.ndarray | Non
 @jit
 def _held_quads(loaded, pos, n, ia, ib):
     """:func:`held_quads`' loop over the voxels loaded ``pos`` (``n``: the volume's extents along i, j, k; ``ia``,
-    ``ib``: which of them a and b are)."""
+    ``ib``: which of them a and b are): first as if no voxel were at the volume's edge (no division per voxel),
+    then the voxels of the last line along a or b set again with the edge voxel repeated."""
     out = np.zeros((loaded.shape[0] + 7) // 8, dtype=np.uint8)
     step = np.array([1, n[0], n[0] * n[1]], dtype=np.int64)
+    sa, sb, total = step[ia], step[ib], loaded.shape[0]
     for t in range(pos.shape[0]):
         p = pos[t]
-        da = step[ia] if p // step[ia] % n[ia] + 1 < n[ia] else 0       # the edge voxel repeated
-        db = step[ib] if p // step[ib] % n[ib] + 1 < n[ib] else 0
-        if loaded[p] != 0 and loaded[p + da] != 0 and loaded[p + db] != 0 and loaded[p + da + db] != 0:
+        if p + sa + sb < total and loaded[p] != 0 and loaded[p + sa] != 0 and loaded[p + sb] != 0 \
+                and loaded[p + sa + sb] != 0:
             out[p >> 3] |= np.uint8(1 << (p & 7))
+    # the last line along a, then along b: every voxel of it, its bit set or cleared
+    oc = 3 - ia - ib
+    for edge in range(2):
+        e, f = (ia, ib) if edge == 0 else (ib, ia)
+        for u in range(n[f]):
+            for w in range(n[oc]):
+                p = (n[e] - 1) * step[e] + u * step[f] + w * step[oc]
+                da = sa if p // sa % n[ia] + 1 < n[ia] else 0
+                db = sb if p // sb % n[ib] + 1 < n[ib] else 0
+                held = loaded[p] != 0 and loaded[p + da] != 0 and loaded[p + db] != 0 and loaded[p + da + db] != 0
+                if held:
+                    out[p >> 3] |= np.uint8(1 << (p & 7))
+                else:
+                    out[p >> 3] &= np.uint8(~(1 << (p & 7)) & 0xFF)
     return out
 
 

@@ -151,7 +151,7 @@ class RunsRead(NamedTuple):
     then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
     (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
     (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool);
-    ``loaded``: uint8 [n], flat, 1 at each voxel read; ``placed``: with ``place=True``, the density, normal and
+    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``); ``placed``: with ``place=True``, the density, normal and
     gradient magnitude as zeroed flat channels of the volume with the voxels read written in (a channel not read:
     empty), else None."""
     positions: np.ndarray
@@ -207,7 +207,7 @@ class RunsFile:
         n = int(np.prod(self.shape, dtype=np.int64))
         vp = self.ptrs[0]
         pos = np.empty(sum(int(vp[b] - vp[a]) for a, b in spans), dtype=np.int64)
-        loaded = np.zeros(n, dtype=np.uint8)
+        loaded = np.zeros(-(-n // 64), dtype=np.uint64)
         outs = tuple(np.zeros(n if place and (name == "density" or name in channels) else 0, dtype=dt)
                      for name, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8)))
         at = 0
@@ -215,9 +215,6 @@ class RunsFile:
             m = int(vp[b] - vp[a])
             self._place(a, b, arrays, loaded, pos[at:at + m], outs)
             at += m
-        if np.count_nonzero(loaded) != pos.size:           # two threads placed one voxel at once (runsplace)
-            u, c = np.unique(pos, return_counts=True)
-            raise IsplatError(f"{self.path}: dataset 'runs/positions': voxel {int(u[c > 1][0])} (flat) lies in two runs")
         if sel.all() and pos.size != n:
             raise IsplatError(f"{self.path}: the runs hold {pos.size} voxels, the volume {n}")
         cat = [np.concatenate([g[k] for g in got]) if got else np.zeros(0, dt)

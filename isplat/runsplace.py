@@ -9,7 +9,6 @@ against :func:`isplat.runs.decode_positions` and :func:`isplat.runs.flat_positio
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from .jit import jit, leaf, stage
@@ -90,7 +89,7 @@ def _places(pdata, q, c, buf):
     return 0
 
 
-@jit
+@stage
 def _bricks_of(bp, pp, vp, num, cnt, n_bricks, err):
     """Every run's bricks checked (:func:`_check_run`) and, per brick of the span, its run and its first voxel
     and position byte (int64[3, bricks]); on a fault, ``err`` set and an empty table."""
@@ -107,16 +106,17 @@ def _bricks_of(bp, pp, vp, num, cnt, n_bricks, err):
     return at
 
 
-@jit(parallel=True)
+@jit
 def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, loaded, pos, out_d, out_n, out_g):
     """Runs ``0 .. len(bp) - 2`` of a span (``bp``, ``pp``, ``vp``: int64 pointers into this span's brick, position
     byte and voxel arrays; ``lo``, ``hi``: each run's least and greatest code) placed: for each voxel, its flat
-    position ``i + n_i * (j + n_j * k)`` into ``pos[v]``, ``loaded[p] = 1``, and its density, normal and gradient
+    position ``i + n_i * (j + n_j * k)`` into ``pos[v]``, its bit set in ``loaded`` (uint64 words: bit ``p % 64``
+    of word ``p // 64``), and its density, normal and gradient
     magnitude into ``out_d``, ``out_n``, ``out_g`` (each skipped when of size 0; ``nrm``, ``gm`` of the span's size
-    when their outputs are not). ``shape``: int64 (n_k, n_j, n_i). The bricks are placed in parallel: a voxel
-    that two bricks hold is caught here or, when two threads place it at once, by the caller's count of the
-    voxels loaded. Returns int64[5]: (0, ...) when every run checked out, else (code, run, brick of the run,
-    x, y) of the first fault in brick order (:func:`message`)."""
+    when their outputs are not). ``shape``: int64 (n_k, n_j, n_i). Returns int64[5]: (0, ...) when every run
+    checked out, else (code, run, brick of the run, x, y) of the first fault (:func:`message`). (Placing the
+    bricks on two threads measured no faster on this 2-core machine with another process busy: 437 against
+    392 ms for the 512^3 head's bone; memory-bound.)"""
     err = np.zeros(5, dtype=np.int64)
     nk, nj, ni = shape[0], shape[1], shape[2]
     gj, gi = (nj + 7) // 8, (ni + 7) // 8
@@ -128,47 +128,39 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, loaded
     at = _bricks_of(bp, pp, vp, num, cnt, (nk + 7) // 8 * gj * gi, err)
     if err[0]:
         return err
-    nb = at.shape[1]
-    errs = np.zeros((nb, 5), dtype=np.int64)
-    for g in numba.prange(nb):
-        r, v, c = at[0, g], at[1, g], np.int64(cnt[g])
-        _place_brick(r, g - bp[r], np.int64(num[g]), c, v, at[2, g], lo[r], hi[r], pdata, dens, nrm, gm, nj, ni,
-                     nk, gj, gi, loaded, pos, out_d, out_n, out_g, errs[g])
-    for g in range(nb):
-        if errs[g, 0]:
-            return errs[g].copy()
+    buf = np.empty(BRICK_VOXELS, dtype=np.int64)
+    for g in range(at.shape[1]):
+        r = at[0, g]
+        if _place_brick(r, g - bp[r], np.int64(num[g]), np.int64(cnt[g]), at[1, g], at[2, g], lo[r], hi[r], pdata,
+                        dens, nrm, gm, nj, ni, nk, gj, gi, buf, loaded, pos, out_d, out_n, out_g, err):
+            break
     return err
 
 
-@stage
-def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, nj, ni, nk, gj, gi, loaded, pos, out_d,
+@leaf
+def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, nj, ni, nk, gj, gi, buf, loaded, pos, out_d,
                  out_n, out_g, err):
     """Brick ``b`` of run ``r`` (brick number ``n``, ``c`` voxels from the span's voxel ``v``, positions from
-    byte ``q``) decoded and placed (:func:`place_runs`); a fault into ``err``."""
-    buf = np.empty(BRICK_VOXELS, dtype=np.int64)
+    byte ``q``) decoded (into ``buf``) and placed (:func:`place_runs`); True on a fault (then in ``err``)."""
     got = _places(pdata, q, c, buf)
     if got < -(1 << 20):
-        _fail(err, PLACE, r, b, -got - 1 - (1 << 20), 0)
-        return
+        return _fail(err, PLACE, r, b, -got - 1 - (1 << 20), 0)
     if got < 0:
-        _fail(err, BITMAP_COUNT, r, b, -got, c)
-        return
+        return _fail(err, BITMAP_COUNT, r, b, -got, c)
     k0, j0, i0 = n // (gj * gi) * BRICK, n // gi % gj * BRICK, n % gi * BRICK
     for t in range(c):
         place = buf[t]
         k, j, i = k0 + (place >> 6), j0 + (place >> 3 & 7), i0 + (place & 7)
         if k >= nk or j >= nj or i >= ni:
-            _fail(err, OUTSIDE, r, b, k * 1_000_000_000_000 + j * 1_000_000 + i, 0)     # (k, j, i) in one
-            return
+            return _fail(err, OUTSIDE, r, b, k * 1_000_000_000_000 + j * 1_000_000 + i, 0)     # (k, j, i) in one
         p = i + ni * (j + nj * k)
         d = dens[v + t]
         if d < lo_r or d > hi_r:
-            _fail(err, DENSITY, r, b, d, 0)
-            return
-        if loaded[p] != 0:
-            _fail(err, TWICE, r, b, p, 0)
-            return
-        loaded[p] = 1
+            return _fail(err, DENSITY, r, b, d, 0)
+        bit = np.uint64(1) << np.uint64(p & 63)
+        if loaded[p >> 6] & bit:
+            return _fail(err, TWICE, r, b, p, 0)
+        loaded[p >> 6] |= bit
         pos[v + t] = p
         if out_d.shape[0]:
             out_d[p] = d
@@ -176,6 +168,7 @@ def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, nj, ni, nk,
             out_n[p] = nrm[v + t]
         if out_g.shape[0]:
             out_g[p] = gm[v + t]
+    return False
 
 
 def message(err, first_run: int, shape, lo, hi) -> tuple[str, str]:

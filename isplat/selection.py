@@ -726,10 +726,10 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
         got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels], place=True)
         rep.runs_file_bytes = int(rf.counter.bytes)
         rep.runs_file_pages = rf.counter.page_bytes()
-    pos, loaded = got.positions, got.loaded
+    loaded = got.loaded
     out = dict(zip(("density", "normal", "gradient_magnitude"), got.placed))   # pages never written: unallocated
     held = sum(_pages_of(loaded, out[ch].itemsize) for ch in rep.channels)
-    bits = {ax: held_quads(loaded, sel.shape, ax, pos) for ax in sorted(sel.request.axes)}
+    bits = {ax: held_quads(loaded, sel.shape, ax) for ax in sorted(sel.request.axes)}
     rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
     rep.values_path = str(path)
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
@@ -738,13 +738,12 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
 
 
 def _pages_of(loaded: np.ndarray, itemsize: int) -> int:
-    """Bytes of the memory pages of a zeroed array of ``loaded.size`` elements of ``itemsize`` bytes that writing
-    the elements where ``loaded`` is non-zero touches (what the operating system then holds of it)."""
-    per = PAGE // itemsize
-    n = loaded.size
-    whole = loaded[:n - n % per].reshape(-1, per).view(np.uint64 if per % 8 == 0 else np.uint8)
-    pages = int(np.count_nonzero(whole.any(axis=1)))
-    return (pages + int(bool(n % per and loaded[n - n % per:].any()))) * PAGE
+    """Bytes of the memory pages of a zeroed array of elements of ``itemsize`` bytes, one per voxel, that writing
+    the voxels of the bit set ``loaded`` (uint64 words, :func:`isplat.splat.post.loaded_bits`) touches (what the
+    operating system then holds of it)."""
+    per = PAGE // itemsize // 64                                 # words of the bit set per page
+    pad = np.concatenate([loaded, np.zeros(-loaded.size % per, dtype=loaded.dtype)])
+    return int(np.count_nonzero(pad.reshape(-1, per).any(axis=1))) * PAGE
 
 
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

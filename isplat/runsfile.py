@@ -147,8 +147,8 @@ def _write_root(f: h5py.File, shape, sha: str, check: str, cut: R.Cut) -> None:
 # ----------------------------------------------------------------------------------------------- read
 
 class RunsRead(NamedTuple):
-    """What :meth:`RunsFile.read` returns: the voxels of the runs read, run after run (each by brick number,
-    then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
+    """What :meth:`RunsFile.read` returns: the voxels of the runs read (empty when placed), run after run (each
+    by brick number, then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
     (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
     (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool);
     ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``); ``placed``: with ``place=True``, the density, normal and
@@ -203,21 +203,22 @@ class RunsFile:
         if bad:
             raise ValueError(f"channels {sorted(bad)}: expected some of {VALUE_CHANNELS}")
         spans = _spans(sel & (np.diff(self.ptrs[0]) > 0))
-        got = [self._read_span(a, b, tuple(channels)) for a, b in spans]
         n = int(np.prod(self.shape, dtype=np.int64))
         vp = self.ptrs[0]
-        pos = np.empty(sum(int(vp[b] - vp[a]) for a, b in spans), dtype=np.int64)
+        pos = np.empty(0 if place else sum(int(vp[b] - vp[a]) for a, b in spans), dtype=np.int64)
         loaded = np.zeros(-(-n // 64), dtype=np.uint64)
         outs = tuple(np.zeros(n if place and (name == "density" or name in channels) else 0, dtype=dt)
                      for name, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8)))
-        at = 0
-        for (a, b), arrays in zip(spans, got):
+        at, kept = 0, []
+        for a, b in spans:                                  # a span read, placed, and (when placing) let go
+            arrays = self._read_span(a, b, tuple(channels))
             m = int(vp[b] - vp[a])
             self._place(a, b, arrays, loaded, pos[at:at + m], outs)
             at += m
-        if sel.all() and pos.size != n:
-            raise IsplatError(f"{self.path}: the runs hold {pos.size} voxels, the volume {n}")
-        cat = [np.concatenate([g[k] for g in got]) if got else np.zeros(0, dt)
+            kept += [] if place else [arrays]
+        if sel.all() and at != n:
+            raise IsplatError(f"{self.path}: the runs hold {at} voxels, the volume {n}")
+        cat = [np.concatenate([g[k] for g in kept]) if kept else np.zeros(0, dt)
                for k, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8))]
         return RunsRead(pos, *cat, int(self.counter.bytes), sel, loaded, outs if place else None)
 

@@ -110,7 +110,7 @@ def _bricks_of(bp, pp, vp, num, cnt, n_bricks, err):
 def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, loaded, pos, out_d, out_n, out_g):
     """Runs ``0 .. len(bp) - 2`` of a span (``bp``, ``pp``, ``vp``: int64 pointers into this span's brick, position
     byte and voxel arrays; ``lo``, ``hi``: each run's least and greatest code) placed: for each voxel, its flat
-    position ``i + n_i * (j + n_j * k)`` into ``pos[v]``, its bit set in ``loaded`` (uint64 words: bit ``p % 64``
+    position ``i + n_i * (j + n_j * k)`` into ``pos[v]`` (unless ``pos`` is empty), its bit set in ``loaded`` (uint64 words: bit ``p % 64``
     of word ``p // 64``), and its density, normal and gradient
     magnitude into ``out_d``, ``out_n``, ``out_g`` (each skipped when of size 0; ``nrm``, ``gm`` of the span's size
     when their outputs are not). ``shape``: int64 (n_k, n_j, n_i). Returns int64[5]: (0, ...) when every run
@@ -120,7 +120,8 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, loaded
     err = np.zeros(5, dtype=np.int64)
     nk, nj, ni = shape[0], shape[1], shape[2]
     gj, gi = (nj + 7) // 8, (ni + 7) // 8
-    if vp[vp.shape[0] - 1] > min(dens.shape[0], pos.shape[0]) or pp[pp.shape[0] - 1] > pdata.shape[0] \
+    if vp[vp.shape[0] - 1] > dens.shape[0] or (pos.shape[0] and pos.shape[0] < vp[vp.shape[0] - 1]) \
+            or pp[pp.shape[0] - 1] > pdata.shape[0] \
             or cnt.shape[0] < num.shape[0] or (out_n.shape[0] and nrm.shape[0] < dens.shape[0]) \
             or (out_g.shape[0] and gm.shape[0] < dens.shape[0]):
         _fail(err, POINTERS, 0, 0, 0, 0)
@@ -161,7 +162,8 @@ def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, nj, ni, nk,
         if loaded[p >> 6] & bit:
             return _fail(err, TWICE, r, b, p, 0)
         loaded[p >> 6] |= bit
-        pos[v + t] = p
+        if pos.shape[0]:
+            pos[v + t] = p
         if out_d.shape[0]:
             out_d[p] = d
         if out_n.shape[0]:

@@ -151,8 +151,8 @@ class RunsRead(NamedTuple):
     by brick number, then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
     (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
     (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool);
-    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``); ``placed``: with ``place=True``, the density, normal and
-    gradient magnitude as zeroed flat channels of the volume with the voxels read written in (a channel not read:
+    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``);
+    ``placed``: with ``place=True``, the density, normal and gradient magnitude as zeroed flat channels of the volume with the voxels read written in (a channel not read:
     empty), else None."""
     positions: np.ndarray
     density: np.ndarray

@@ -28,6 +28,7 @@ DTYPES = {
     "density": "|u1", "normal": "<u2", "gradient_magnitude": "|u1",
 }
 DATASETS = tuple(f"runs/{n}" for n in DTYPES)
+HASH = "xxh3"                                          # the chunk hash (formats/runs.md §2; isplat.chunkhash)
 VALUE_CHANNELS = ("normal", "gradient_magnitude")     # read or not (RunsFile.read); the density always
 HASHED_ATTRS = tuple(("", n) for n in ("format", "format_version", "shape", "density_sha256",
                                        "augmented_chunk_hash_check", "key", "brick", "lo_first", "hi_first"))
@@ -132,7 +133,7 @@ def _finish(f: h5py.File) -> None:
     from .index.store import _hash_table
 
     chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), DATASETS,
-                           chunkhash.attributes_of(f, HASHED_ATTRS), create=_hash_table)
+                           chunkhash.attributes_of(f, HASHED_ATTRS), create=_hash_table, algorithm=HASH)
 
 
 def _write_root(f: h5py.File, shape, sha: str, check: str, cut: R.Cut) -> None:
@@ -287,7 +288,7 @@ def open_runs(path, shape=None, density_sha256: str | None = None,
                                       f"another volume; rebuild it: {_hint(p)}")
             _check_datasets(p, f, shape_f, R.n_runs(cut))
             verifier = chunkhash.open_verifier(p, f, sha, DATASETS, chunkhash.attributes_of(f, HASHED_ATTRS),
-                                               _hint(p))
+                                               _hint(p), HASH)
             ptrs = tuple(_read_ptr(verifier, f, n) for n in PTRS)
             _check_ptrs(p, f, ptrs, cut)
     except BaseException:

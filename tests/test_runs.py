@@ -417,6 +417,40 @@ def test_committed_examples_read_back(name):
             assert f[f"runs/{key}"][...].tolist() == ex[key], key
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_committed_examples_chunk_hashes_as_the_spec_says(name):
+    """formats/runs.md §2 followed by hand: the key K (formats/augmented.md §1.1's BLAKE2b over the file), then
+    XXH3-128 seeded with K's first 8 bytes over path, NUL, offset and elements, per chunk of each dataset."""
+    import hashlib
+
+    import xxhash
+
+    from isplat.runsfile import DATASETS, HASHED_ATTRS
+
+    with h5py.File(EXAMPLES / f"{name}.runs.idx.h5", "r") as f:
+        a = f.attrs
+        h = hashlib.blake2b(digest_size=32, person=b"isplat-chunks")
+        h.update(b"isplat chunk hashes 1\0" + bytes(a["density_sha256"]) + b"\0")
+        for d in DATASETS:
+            h.update(d.encode() + b"\0")
+        h.update(b"\0")
+        for _, attr in HASHED_ATTRS:
+            v = a[attr]
+            raw = bytes(v) if isinstance(v, bytes) else np.asarray(v).astype(np.asarray(v).dtype.newbyteorder("<"))\
+                .tobytes()                                      # strings: fixed-length UTF-8, as stored
+            h.update(f"@{attr}".encode() + b"\0" + b"\1" + len(raw).to_bytes(8, "little") + raw)
+        key = h.digest()
+        seed = int.from_bytes(key[:8], "little")
+        for d in DATASETS:
+            ds, table = f[d], f["chunk_hashes/" + d.replace("/", ".")][...]
+            c = ds.chunks[0]
+            data = ds[...].astype(ds.dtype.newbyteorder("<"))
+            for r in range(table.shape[0]):
+                piece = data[r * c:(r + 1) * c].tobytes()
+                want = xxhash.xxh3_128(d.encode() + b"\0" + (r * c).to_bytes(8, "little") + piece, seed=seed).digest()
+                assert bytes(table[r]) == want, (d, r)
+
+
 def test_invalid_example_is_refused():
     path = EXAMPLES / "invalid-flipped-byte.runs.idx.h5"
     with pytest.raises(IsplatError, match=r"invalid-flipped-byte.runs.idx.h5: dataset 'runs/density', chunk at \(0\)"

@@ -168,8 +168,8 @@ def held_quads(loaded: np.ndarray, shape, axis: str) -> np.ndarray:
     layout) of :data:`PostPlan`'s ``held`` for ``axis``'s slices: set when the quad of the slice whose first corner
     the voxel is has all four corners loaded (the edge voxel repeated at the volume's edge, as the sampler
     clamps). ``loaded``: the voxels the channels hold, as :func:`loaded_bits`' words (uint64), or a mask. Whole
-    words at a time: the loaded bits and those shifted by one step along a, along b and along both, ANDed; then
-    the last line along a and along b set again voxel by voxel (:func:`_held_edges`)."""
+    words at a time: the loaded bits and those one step on along a, along b and along both, ANDed
+    (:func:`_held_words`); then the last line along a and along b set again voxel by voxel (:func:`_held_edges`)."""
     from ..grid import SLICE_AXES, shape_ijk
 
     words = loaded if loaded.dtype == np.uint64 else loaded_bits(loaded)
@@ -178,23 +178,30 @@ def held_quads(loaded: np.ndarray, shape, axis: str) -> np.ndarray:
     if words.size * 64 < int(np.prod(n)):
         raise ValueError(f"{words.size} words of loaded bits for {int(np.prod(n))} voxels")
     step = (1, int(n[0]), int(n[0] * n[1]))
-    sa, sb = step[ia], step[ib]
-    held = words & _shifted(words, sa) & _shifted(words, sb) & _shifted(words, sa + sb)
+    held = _held_words(words, step[ia], step[ib])
     _held_edges(words, held, n, int(ia), int(ib))
     return held.view(np.uint8)[:(int(np.prod(n)) + 7) // 8]
 
 
-def _shifted(words: np.ndarray, s: int) -> np.ndarray:
-    """The bit set whose bit p is bit ``p + s`` of ``words`` (zero beyond its end)."""
-    q, r = divmod(int(s), 64)
-    out = np.zeros_like(words)
-    m = words.size - q
-    if m <= 0:
-        return out
-    out[:m] = words[q:] >> np.uint64(r) if r else words[q:]
-    if r and m > 1:
-        out[:m - 1] |= words[q + 1:] << np.uint64(64 - r)
+@jit
+def _held_words(words, sa, sb):
+    """Per 64-bit word: the loaded bits ANDed with those ``sa``, ``sb`` and ``sa + sb`` voxels on (zero beyond the
+    last word), in one pass."""
+    out = np.empty_like(words)
+    for w in range(words.shape[0]):
+        out[w] = words[w] & _bits_from(words, w, sa) & _bits_from(words, w, sb) & _bits_from(words, w, sa + sb)
     return out
+
+
+@leaf
+def _bits_from(words, w, s):
+    """The 64 bits of ``words`` from bit ``64 w + s`` on (zeros past the end)."""
+    q, r = w + (s >> 6), np.uint64(s & 63)
+    lo = words[q] if q < words.shape[0] else np.uint64(0)
+    if r == 0:
+        return lo
+    hi = words[q + 1] if q + 1 < words.shape[0] else np.uint64(0)
+    return (lo >> r) | (hi << (np.uint64(64) - r))
 
 
 @jit

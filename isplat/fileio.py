@@ -432,6 +432,25 @@ def create_checked_dataset(group, name: str, shape, dtype, data=None, target: in
                                 fletcher32=True, track_times=False, **kw)
 
 
+def read_chunk_span(path, counter: ReadCounter, ds, lo: int, hi: int):
+    """Rows ``lo:hi`` (from a chunk's first row) of a 1-D dataset made by :func:`create_hashed_dataset` in one
+    read of the file, when HDF5 stored their chunks back to back, whole and unfiltered; else None (HDF5 then
+    reads them, a chunk at a time). Counted in ``counter`` as HDF5's reads through :class:`_CountingRaw` are; the
+    caller checks each chunk's hash."""
+    c, item = int(ds.chunks[0]), ds.dtype.itemsize
+    first = ds.id.get_chunk_info_by_coord((lo,))
+    last = ds.id.get_chunk_info_by_coord(((hi - 1) // c * c,))
+    span = ((hi - 1) // c - lo // c) * c * item
+    if first.byte_offset is None or last.byte_offset is None or first.filter_mask or last.filter_mask or \
+            first.size != c * item or last.size != c * item or last.byte_offset != first.byte_offset + span:
+        return None
+    out = np.empty(hi - lo, dtype=ds.dtype)
+    with contextlib.closing(_CountingRaw(path, counter)) as fh:
+        fh.seek(first.byte_offset)
+        n = fh.readinto(memoryview(out).cast("B"))
+    return out if n == out.nbytes else None
+
+
 def create_hashed_dataset(group, name: str, shape, dtype, data=None, chunks=None):
     """A chunked dataset without filters whose chunks are allocated when it is created (formats/index.md §1,
     version 7): HDF5 then keeps no chunk index (a chunk's place in the file follows from its number), so a read

@@ -16,7 +16,8 @@ import numpy as np
 from . import chunkhash, runs as R
 from .errors import IsplatError
 from .fileio import (ReadCounter, attr_array, attr_string, check_hashed_dataset, check_string_attrs,
-                     create_group, create_hashed_dataset, hdf5_errors, open_hdf5, set_string_attr)
+                     create_group, create_hashed_dataset, hdf5_errors, open_hdf5, read_chunk_span,
+                     set_string_attr)
 
 FORMAT_NAME = "isplat-runs"
 FORMAT_VERSION = 1
@@ -147,16 +148,21 @@ def _write_root(f: h5py.File, shape, sha: str, check: str, cut: R.Cut) -> None:
 # ----------------------------------------------------------------------------------------------- read
 
 class RunsRead(NamedTuple):
-    """What :meth:`RunsFile.read` returns: the voxels of the runs read, run after run (each by brick number,
-    then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
+    """What :meth:`RunsFile.read` returns: the voxels of the runs read (empty when placed), run after run (each
+    by brick number, then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
     (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
-    (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool)."""
+    (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool);
+    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``); ``placed``: with ``place=True``, the density, normal and
+    gradient magnitude as zeroed flat channels of the volume with the voxels read written in (a channel not read:
+    empty), else None."""
     positions: np.ndarray
     density: np.ndarray
     normal: np.ndarray
     gradient_magnitude: np.ndarray
     bytes_read: int
     runs: np.ndarray
+    loaded: np.ndarray | None = None
+    placed: tuple | None = None
 
 
 class RunsFile:
@@ -193,68 +199,68 @@ class RunsFile:
             raise IsplatError(f"{self.path}: intervals {ivs}: expected inclusive code intervals within 0..255")
         return R.runs_meeting(ivs, self.cut)
 
-    def read(self, intervals=None, channels=VALUE_CHANNELS) -> RunsRead:
+    def read(self, intervals=None, channels=VALUE_CHANNELS, place: bool = False) -> RunsRead:
         """The runs meeting ``intervals`` (None: all, then every voxel of the volume must be read exactly once),
-        each checked against its hashes and formats/runs.md §5 before its positions are made. ``channels``: which
-        of the normal and the gradient magnitude to read besides the density (the others come back empty, their
-        bytes not read)."""
+        each checked against its hashes and formats/runs.md §5 as its voxels are placed
+        (:func:`isplat.runsplace.place_runs`). ``channels``: which of the normal and the gradient magnitude to
+        read besides the density (the others come back empty, their bytes not read). ``place``: also return the
+        voxels written into zeroed full-shape channels (:class:`RunsRead`)."""
         sel = self.runs_for(intervals)
         bad = set(channels) - set(VALUE_CHANNELS)
         if bad:
             raise ValueError(f"channels {sorted(bad)}: expected some of {VALUE_CHANNELS}")
-        pieces = []
-        for a, b in _spans(sel & (np.diff(self.ptrs[0]) > 0)):
-            pieces += self._read_span(a, b, tuple(channels))
-        cat = [np.concatenate([p[n] for p in pieces]) if pieces else np.zeros(0, dt)
-               for n, dt in enumerate((np.int64, np.uint8, np.uint16, np.uint8))]
-        s = np.sort(cat[0])
-        if s.size > 1 and not (np.diff(s) > 0).all():
-            dup = int(s[np.flatnonzero(np.diff(s) == 0)[0]])
-            raise IsplatError(f"{self.path}: dataset 'runs/positions': voxel {dup} (flat) lies in two runs")
-        if sel.all() and s.size != int(np.prod(self.shape)):
-            raise IsplatError(f"{self.path}: the runs hold {s.size} voxels, the volume {int(np.prod(self.shape))}")
-        return RunsRead(*cat, int(self.counter.bytes), sel)
+        spans = _spans(sel & (np.diff(self.ptrs[0]) > 0))
+        n = int(np.prod(self.shape, dtype=np.int64))
+        vp = self.ptrs[0]
+        pos = np.empty(0 if place else sum(int(vp[b] - vp[a]) for a, b in spans), dtype=np.int64)
+        loaded = np.zeros(-(-n // 64), dtype=np.uint64)
+        outs = tuple(np.zeros(n if place and (name == "density" or name in channels) else 0, dtype=dt)
+                     for name, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8)))
+        at, kept = 0, []
+        for a, b in spans:                                  # a span read, placed, and (when placing) let go
+            arrays = self._read_span(a, b, tuple(channels))
+            m = int(vp[b] - vp[a])
+            self._place(a, b, arrays, loaded, pos[at:at + m], outs)
+            at += m
+            kept += [] if place else [arrays]
+        if sel.all() and at != n:
+            raise IsplatError(f"{self.path}: the runs hold {at} voxels, the volume {n}")
+        cat = [np.concatenate([g[k] for g in kept]) if kept else np.zeros(0, dt)
+               for k, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8))]
+        return RunsRead(pos, *cat, int(self.counter.bytes), sel, loaded, outs if place else None)
 
     def _get(self, name: str, lo: int, hi: int, runs: str) -> np.ndarray:
         with hdf5_errors(self.path, f"dataset 'runs/{name}' [{lo}:{hi}] ({runs})"):
             try:
-                return np.asarray(self.verifier.read(self._f, f"runs/{name}", (slice(lo, hi),)))
+                return np.asarray(self.verifier.read(self._f, f"runs/{name}", (slice(lo, hi),), fetch=self._fetch))
             except IsplatError as exc:
                 raise IsplatError(f"{exc} ({runs})") from None
 
-    def _read_span(self, a: int, b: int, channels=VALUE_CHANNELS) -> list:
+    def _fetch(self, ds, lo: int, hi: int):
+        return read_chunk_span(self.path, self.counter, ds, lo, hi)
+
+    def _read_span(self, a: int, b: int, channels=VALUE_CHANNELS) -> dict:
         """Runs ``a .. b - 1`` (consecutive): one read per dataset (of ``channels`` besides the density and the
-        positions; the others empty), then each run checked."""
+        positions; the others empty)."""
         vp, bp, pp = self.ptrs
         where = f"runs {a}..{b - 1}"
         names = (("brick_number", bp), ("brick_voxel_count", bp), ("positions", pp), ("density", vp),
                  ("normal", vp), ("gradient_magnitude", vp))
-        got = {n: self._get(n, int(ptr[a]), int(ptr[b]), where) if n not in VALUE_CHANNELS or n in channels
-               else None for n, ptr in names}
-        lo_first, hi_last = R.run_codes(self.cut)
-        out = []
-        for r in range(a, b):
-            if vp[r + 1] == vp[r]:
-                continue
-            cut = {n: np.zeros(0, DTYPES[f"{n}"]) if got[n] is None else
-                   got[n][int(ptr[r] - ptr[a]):int(ptr[r + 1] - ptr[a])] for n, ptr in names}
-            out.append(self._check_run(r, cut, int(lo_first[r]), int(hi_last[r])))
-        return out
+        return {n: self._get(n, int(ptr[a]), int(ptr[b]), where) if n not in VALUE_CHANNELS or n in channels
+                else np.zeros(0, DTYPES[n]) for n, ptr in names}
 
-    def _check_run(self, r: int, c: dict, lo: int, hi: int):
-        p = self.path
-        num, cnt = c["brick_number"].astype(np.int64), c["brick_voxel_count"].astype(np.int64)
-        if num.size > 1 and not (np.diff(num) > 0).all():
-            raise IsplatError(f"{p}: dataset 'runs/brick_number', run {r}: brick numbers not strictly increasing")
-        if int(cnt.sum()) != c["density"].size:
-            raise IsplatError(f"{p}: dataset 'runs/brick_voxel_count', run {r}: the bricks hold {int(cnt.sum())} "
-                              f"voxels, 'runs/run_voxel_ptr' gives the run {c['density'].size}")
-        place = R.decode_positions(cnt, c["positions"], f"{p}: dataset 'runs/positions', run {r}")
-        flat = R.flat_positions(num, cnt, place, self.shape, f"{p}: dataset 'runs/brick_number', run {r}")
-        d = c["density"]
-        if d.size and (int(d.min()) < lo or int(d.max()) > hi):
-            raise IsplatError(f"{p}: dataset 'runs/density', run {r}: a density outside the run's codes {lo}..{hi}")
-        return flat, d, c["normal"], c["gradient_magnitude"]
+    def _place(self, a: int, b: int, g: dict, loaded, pos, outs) -> None:
+        """Runs ``a .. b - 1`` read (``g``) checked and placed (:func:`isplat.runsplace.place_runs`)."""
+        from . import runsplace
+
+        vp, bp, pp = (np.ascontiguousarray(p[a:b + 1] - p[a]) for p in self.ptrs)
+        lo_first, hi_last = (np.ascontiguousarray(x[a:b]) for x in R.run_codes(self.cut))
+        err = runsplace.place_runs(bp, pp, vp, lo_first, hi_last, g["brick_number"], g["brick_voxel_count"],
+                                   g["positions"], g["density"], g["normal"], g["gradient_magnitude"],
+                                   np.asarray(self.shape, dtype=np.int64), loaded, pos, *outs)
+        if err[0]:
+            name, text = runsplace.message(err, a, self.shape, lo_first, hi_last)
+            raise IsplatError(f"{self.path}: dataset 'runs/{name}'{text}")
 
 
 def _spans(sel: np.ndarray):

@@ -724,20 +724,13 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
     with refusal(path, aug.path, sel.request.index), \
             open_runs(path, shape=sel.shape, density_sha256=aug.density_sha256,
                       augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
-        got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels])
+        got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels], place=True)
         rep.runs_file_bytes = int(rf.counter.bytes)
         rep.runs_file_pages = rf.counter.page_bytes()
-    n = int(np.prod(sel.shape))
-    pos = got.positions
-    out, held = {}, 0
-    for ch in rep.channels:
-        vals = getattr(got, ch)
-        out[ch] = np.zeros(n, dtype=vals.dtype)         # pages no voxel is written into stay unallocated
-        out[ch][pos] = vals
-        held += _pages_of(pos, vals.itemsize, n)
-    loaded = np.zeros(n, dtype=np.uint8)
-    loaded[pos] = 1
-    bits = {ax: held_quads(loaded, sel.shape, ax, pos) for ax in sorted(sel.request.axes)}
+    loaded = got.loaded
+    out = dict(zip(("density", "normal", "gradient_magnitude"), got.placed))   # pages never written: unallocated
+    held = sum(_pages_of(loaded, out[ch].itemsize) for ch in rep.channels)
+    bits = {ax: held_quads(loaded, sel.shape, ax) for ax in sorted(sel.request.axes)}
     rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
     rep.values_path = str(path)
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
@@ -745,12 +738,13 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
     return replace(sel, whole=whole, held=bits)
 
 
-def _pages_of(pos: np.ndarray, itemsize: int, n: int) -> int:
-    """Bytes of the memory pages of a zeroed array of ``n`` elements of ``itemsize`` bytes that writing the flat
-    ``pos`` touches (what the operating system then holds of it)."""
-    pages = np.zeros(-(-n * itemsize // PAGE), dtype=bool)
-    pages[(pos * itemsize) >> PAGE_SHIFT] = True
-    return int(np.count_nonzero(pages)) * PAGE
+def _pages_of(loaded: np.ndarray, itemsize: int) -> int:
+    """Bytes of the memory pages of a zeroed array of elements of ``itemsize`` bytes, one per voxel, that writing
+    the voxels of the bit set ``loaded`` (uint64 words, :func:`isplat.splat.post.loaded_bits`) touches (what the
+    operating system then holds of it)."""
+    per = PAGE // itemsize // 64                                 # words of the bit set per page
+    pad = np.concatenate([loaded, np.zeros(-loaded.size % per, dtype=loaded.dtype)])
+    return int(np.count_nonzero(pad.reshape(-1, per).any(axis=1))) * PAGE
 
 
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

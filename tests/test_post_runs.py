@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from test_post import random_normals
 
 from isplat import selection as S
+from isplat.splat import post as P
 from isplat.errors import IsplatError
 from isplat.renderer import Renderer
 from isplat.runsfile import build_runs_file, runs_path
@@ -296,9 +297,9 @@ def test_stats_scene_says_runs(files, tmp_path, capsys):
 @settings(max_examples=40, deadline=None)
 @given(st.integers(1, 20000), st.sampled_from([1, 2]), st.integers(0, 10 ** 6), st.floats(0, 0.05))
 def test_pages_of_equal_the_pages_counted_one_by_one(n, itemsize, seed, share):
-    pos = np.flatnonzero(np.random.default_rng(seed).random(n) < share)
-    want = len({int(p) * itemsize // 4096 for p in pos}) * 4096
-    assert S._pages_of(pos, itemsize, n) == want
+    loaded = np.random.default_rng(seed).random(n) < share
+    want = len({int(p) * itemsize // 4096 for p in np.flatnonzero(loaded)}) * 4096
+    assert S._pages_of(P.loaded_bits(loaded), itemsize) == want
 
 
 def test_runs_read_only_the_channels_asked_for(files):

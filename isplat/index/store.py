@@ -16,10 +16,10 @@ import numpy as np
 
 from .. import chunkhash, progress
 from ..errors import IsplatError
-from ..fileio import (ReadCounter, _CountingRaw, attr_array, attr_string, attr_values, atomic_output,
+from ..fileio import (ReadCounter, attr_array, attr_string, attr_values, atomic_output,
                       check_checked_dataset, check_hashed_dataset, check_output, check_string_attrs,
                       create_checked_dataset, create_group, create_hashed_dataset, create_hdf5, hdf5_errors,
-                      open_counted, open_hdf5, set_string_attr)
+                      open_counted, open_hdf5, read_chunk_span, set_string_attr)
 from . import codec
 from .build import (AXES, IN_SLICE_AXES, AxisIndex, ChannelValues, axis_geometry, encode_windows, escape_width,
                     SLAB_VOXELS, k_slabs, measure_axes, normalize_ranges, parse_axes, ranges_mask, slice_runs)
@@ -546,22 +546,9 @@ class IndexFile:
         return arr
 
     def _fetch(self, ds, lo: int, hi: int):
-        """Rows ``lo:hi`` (from a chunk's first row) of a version-7 dataset in one read of the file, when HDF5
-        stored their chunks back to back, whole and unfiltered (§1: allocated at creation); else None (HDF5 reads
-        them, a chunk at a time). Counted in :attr:`io` through the same file object as HDF5's reads; the caller
-        checks each chunk's hash."""
-        c, item = int(ds.chunks[0]), ds.dtype.itemsize
-        first = ds.id.get_chunk_info_by_coord((lo,))
-        last = ds.id.get_chunk_info_by_coord(((hi - 1) // c * c,))
-        span = ((hi - 1) // c - lo // c) * c * item
-        if first.byte_offset is None or last.byte_offset is None or first.filter_mask or last.filter_mask or \
-                first.size != c * item or last.size != c * item or last.byte_offset != first.byte_offset + span:
-            return None
-        out = np.empty(hi - lo, dtype=ds.dtype)
-        with contextlib.closing(_CountingRaw(self.path, self.io)) as fh:     # counted as HDF5's reads are
-            fh.seek(first.byte_offset)
-            n = fh.readinto(memoryview(out).cast("B"))
-        return out if n == out.nbytes else None
+        """Rows ``lo:hi`` of a version-7 dataset in one read (:func:`isplat.fileio.read_chunk_span`), counted in
+        :attr:`io`; the caller checks each chunk's hash."""
+        return read_chunk_span(self.path, self.io, ds, lo, hi)
 
     # -- channel values (in the file: version 4; beside it: version 6, formats/index.md §9)
     @property

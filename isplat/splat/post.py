@@ -156,34 +156,65 @@ truth, the zeros would interpolate to wrong densities; :func:`_corners_held`). A
 is its list of a slice's visible cells (int64[C, 4])."""
 
 
-def held_quads(loaded: np.ndarray, shape, axis: str, positions: np.ndarray | None = None) -> np.ndarray:
+def loaded_bits(loaded: np.ndarray) -> np.ndarray:
+    """uint64 words: the bit set (bit ``p % 64`` of word ``p // 64``, one per voxel of the flat ``[k, j, i]``
+    layout) of ``loaded`` (uint8 or bool, any shape, non-zero where the channels hold the voxel)."""
+    packed = np.packbits(np.asarray(loaded).reshape(-1) != 0, bitorder="little")
+    return np.concatenate([packed, np.zeros(-packed.size % 8, np.uint8)]).view("<u8")
+
+
+def held_quads(loaded: np.ndarray, shape, axis: str) -> np.ndarray:
     """uint8 [ceil(n / 8)]: the bits (little-endian bit order, one per voxel of the channels' flat ``[k, j, i]``
     layout) of :data:`PostPlan`'s ``held`` for ``axis``'s slices: set when the quad of the slice whose first corner
-    the voxel is has all four corners loaded (``loaded``: uint8 or bool, flat or ``shape``, non-zero where the
-    channels hold the voxel; the edge voxel repeated at the volume's edge, as the sampler clamps). ``positions``:
-    the flat positions of the voxels loaded, each once, if known (only their quads are looked at)."""
+    the voxel is has all four corners loaded (the edge voxel repeated at the volume's edge, as the sampler
+    clamps). ``loaded``: the voxels the channels hold, as :func:`loaded_bits`' words (uint64), or a mask. Whole
+    words at a time: the loaded bits and those shifted by one step along a, along b and along both, ANDed; then
+    the last line along a and along b set again voxel by voxel (:func:`_held_edges`)."""
     from ..grid import SLICE_AXES, shape_ijk
 
+    words = loaded if loaded.dtype == np.uint64 else loaded_bits(loaded)
     ia, ib, _ = SLICE_AXES[axis]
-    flat = np.ascontiguousarray(loaded, dtype=np.uint8).reshape(-1)
-    pos = np.flatnonzero(flat) if positions is None else np.asarray(positions, dtype=np.int64)
     n = np.asarray(shape_ijk(shape), dtype=np.int64)
-    return _held_quads(flat, pos, n, int(ia), int(ib))
+    if words.size * 64 < int(np.prod(n)):
+        raise ValueError(f"{words.size} words of loaded bits for {int(np.prod(n))} voxels")
+    step = (1, int(n[0]), int(n[0] * n[1]))
+    sa, sb = step[ia], step[ib]
+    held = words & _shifted(words, sa) & _shifted(words, sb) & _shifted(words, sa + sb)
+    _held_edges(words, held, n, int(ia), int(ib))
+    return held.view(np.uint8)[:(int(np.prod(n)) + 7) // 8]
+
+
+def _shifted(words: np.ndarray, s: int) -> np.ndarray:
+    """The bit set whose bit p is bit ``p + s`` of ``words`` (zero beyond its end)."""
+    q, r = divmod(int(s), 64)
+    out = np.zeros_like(words)
+    m = words.size - q
+    if m <= 0:
+        return out
+    out[:m] = words[q:] >> np.uint64(r) if r else words[q:]
+    if r and m > 1:
+        out[:m - 1] |= words[q + 1:] << np.uint64(64 - r)
+    return out
 
 
 @jit
-def _held_quads(loaded, pos, n, ia, ib):
-    """:func:`held_quads`' loop over the voxels loaded ``pos`` (``n``: the volume's extents along i, j, k; ``ia``,
-    ``ib``: which of them a and b are)."""
-    out = np.zeros((loaded.shape[0] + 7) // 8, dtype=np.uint8)
+def _held_edges(words, held, n, ia, ib):
+    """:func:`held_quads`' bits of the voxels of the last line along a and along b (``n``: the volume's extents
+    along i, j, k; ``ia``, ``ib``: which of them a and b are), the next voxel past the edge being the edge voxel."""
     step = np.array([1, n[0], n[0] * n[1]], dtype=np.int64)
-    for t in range(pos.shape[0]):
-        p = pos[t]
-        da = step[ia] if p // step[ia] % n[ia] + 1 < n[ia] else 0       # the edge voxel repeated
-        db = step[ib] if p // step[ib] % n[ib] + 1 < n[ib] else 0
-        if loaded[p] != 0 and loaded[p + da] != 0 and loaded[p + db] != 0 and loaded[p + da + db] != 0:
-            out[p >> 3] |= np.uint8(1 << (p & 7))
-    return out
+    sa, sb, oc = step[ia], step[ib], 3 - ia - ib
+    for edge in range(2):
+        e, f = (ia, ib) if edge == 0 else (ib, ia)
+        for u in range(n[f]):
+            for w in range(n[oc]):
+                p = (n[e] - 1) * step[e] + u * step[f] + w * step[oc]
+                da = sa if p // sa % n[ia] + 1 < n[ia] else 0
+                db = sb if p // sb % n[ib] + 1 < n[ib] else 0
+                ok = True
+                for q in (p, p + da, p + db, p + da + db):
+                    ok = ok and (words[q >> 6] >> np.uint64(q & 63)) & np.uint64(1) != 0
+                bit = np.uint64(1) << np.uint64(p & 63)
+                held[p >> 6] = held[p >> 6] | bit if ok else held[p >> 6] & ~bit
 
 
 def reach(coef) -> tuple[float, float]:

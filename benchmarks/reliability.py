@@ -1,13 +1,13 @@
-"""Reliability: a seeded fuzzer over index and augmented files (and the index's values and runs files), the catalogue of bad inputs with the message each
-gets, and what the checksums cost (docs/reliability.md).
+"""Reliability: a seeded fuzzer over index and augmented files (and the index's values and runs files), the
+catalogue of bad inputs with the message each gets, and what the checksums cost (docs/reliability.md).
 
     python -m benchmarks reliability --out docs [--fuzz-seconds 120] [--seed 0]
 
 The fuzzer mutates the bytes of a small head's augmented and index files and of the index's values and runs files
-(bit flips, random bytes, zeroed runs, truncation) and renders each mutant through the CLI, in process, and runs ``isplat stats --json`` on it: every run
-must end in one ``isplat: error:`` line with a non-zero exit, or in images and figures equal to the unmutated
-ones. tests/test_fuzz.py runs it for a bounded time; ``make fuzz-boundscheck`` runs it with numba bounds checking
-on (a fresh NUMBA_CACHE_DIR).
+(bit flips, random bytes, zeroed runs, truncation) and renders each mutant through the CLI, in process, and runs
+``isplat stats --json`` on it: every run must end in one ``isplat: error:`` line with a non-zero exit, or in images
+and figures equal to the unmutated ones. tests/test_fuzz.py runs it for a bounded time; ``make fuzz-boundscheck``
+runs it with numba bounds checking on (a fresh NUMBA_CACHE_DIR).
 """
 
 from __future__ import annotations
@@ -349,7 +349,8 @@ def write_hash_cost(out: Path, c: dict, note: str = "") -> Path:
             "### Mutant classes that Fletcher-32 cannot see",
             "",
             f"tests/fuzzlab.py's `MUTANT_CLASSES`, {c['per_class']} mutants per class (in turn of the augmented "
-            f"file, the index, its values file and its runs file, those a class applies to; seed {c['seed']}) of the fuzzer's small head ({'x'.join(map(str, SHAPE_IJK))}), each "
+            f"file, the index, its values file and its runs file, those a class applies to; seed {c['seed']}) of "
+            f"the fuzzer's small head ({'x'.join(map(str, SHAPE_IJK))}), each "
             f"rendered with the scenes {', '.join(fz['_scenes'])} and run through `isplat stats --json`, "
             f"{fz['_seconds']} s in all. *error*: one `isplat: error:` line, a non-zero exit, no image; *equal*: the "
             "unmutated images and figures; *unchanged*: the mutation left the bytes as they were; *failure*: "
@@ -751,8 +752,8 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict, quick: bool =
         f"## Catalogue of bad inputs ({len(cat)})",
         "",
         "Each row was run by the command above; `W/` is its temporary folder. Corrupted files are rendered "
-        "(both techniques: pre indexed, pre full, post indexed); the result is `error` when the run ended in one "
-        "error line and a non-zero exit.",
+        "(both techniques: pre indexed, pre full, post indexed, post indexed from the runs file); the result is "
+        "`error` when the run ended in one error line and a non-zero exit.",
         "",
         "| # | input | command | result | message |",
         "|---|---|---|---|---|",

@@ -1,10 +1,11 @@
 """The fuzzer and the corruptions shared by tests/test_fuzz.py, tests/test_integrity.py and the reliability
 benchmark (benchmarks/reliability.py, which writes docs/reliability.md).
 
-The fuzzer mutates the bytes of a small head's augmented and index files (bit flips, random bytes, zeroed runs,
-truncation) and renders each mutant through the CLI, in process, with both techniques (``SCENES``: the paper's
-pre-classified splatting with the indexed and the full method, and the default, post-classification, shaded), and
-runs ``isplat stats --json`` on it: every run must end in one ``isplat: error:`` line with a non-zero exit, or in
+The fuzzer mutates the bytes of a small head's augmented and index files and of the index's values and runs files
+(bit flips, random bytes, zeroed runs, truncation; ``TARGETS``) and renders each mutant through the CLI, in
+process, with both techniques (``SCENES``: the paper's pre-classified splatting with the indexed and the full
+method, and the default, post-classification, shaded, from whole channels and from the runs file), and runs
+``isplat stats --json`` on it: every run must end in one ``isplat: error:`` line with a non-zero exit, or in
 images and figures equal to the unmutated ones. ``make fuzz-boundscheck`` runs the fuzz test with numba bounds
 checking on (a fresh NUMBA_CACHE_DIR).
 """

@@ -1,7 +1,8 @@
-"""Seeded fuzzing of the index and augmented files, and of the index's values and runs files (issue #13): every mutant ends in one error line and a
-non-zero exit, or renders the unmutated images with both techniques (issue 30: the paper's pre-classified
-splatting, indexed and full, and the default post-classification, shaded; fuzzlab.SCENES). Budget: ISPLAT_FUZZ_SECONDS (default 45 s); the seed is
-ISPLAT_FUZZ_SEED (default: a new one per day, printed on failure). `make fuzz-boundscheck` runs it with numba
+"""Seeded fuzzing of the index and augmented files, and of the index's values and runs files (issue #13): every
+mutant ends in one error line and a non-zero exit, or renders the unmutated images with both techniques (issue 30:
+the paper's pre-classified splatting, indexed and full, and the default post-classification, shaded, once from
+whole channels and once from the runs file; fuzzlab.SCENES). Budget: ISPLAT_FUZZ_SECONDS (default 45 s); the seed
+is ISPLAT_FUZZ_SEED (default: a new one per day, printed on failure). `make fuzz-boundscheck` runs it with numba
 bounds checking on. A mutant that fails belongs, as a named corruption, in tests/corpus/mutations.json."""
 
 import datetime

@@ -394,8 +394,9 @@ def refusal(path, aug_path, index_path):
         yield
     except IsplatError as exc:
         text, cmd = str(exc), f"isplat index {aug_path} -o {index_path} --force"
-        if _hint(path) in text:                     # the reader's hint, with the files' names
-            raise IsplatError(text.replace(_hint(path), cmd)) from None
+        head, hint, tail = text.partition(f"; rebuild it: {_hint(path)}")
+        if hint:                  # the reader's hint, last and with the files' names (after a read's "(runs a..b)")
+            raise IsplatError(f"{head}{tail}; rebuild it: {cmd}") from None
         if "rebuild it" in text:
             raise
         p = Path(path)

@@ -56,7 +56,9 @@ def test_pair_cases_of_the_runs_file_are_refused(fx, case):
     finally:
         path.write_bytes(original)
     out = R.check_mutant(fx, target, mutant, op)
-    assert out.result == "error" and str(path) in out.message and "isplat index " in out.message, out
+    # the command last, with the files' names (a chunk's "(runs a..b)" before it)
+    assert out.result == "error" and str(path) in out.message, out
+    assert out.message.endswith(f"; rebuild it: isplat index {fx['aug']} -o {fx['idx']} --force"), out
 
 
 def test_unreadable_runs_file_is_one_line(fx, tmp_path, monkeypatch):

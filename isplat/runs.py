@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .errors import IsplatError
+from .jit import jit, leaf
 
 BRICK = 8                       # bricks of 8^3 voxels, numbered in C order over the brick grid (bk, bj, bi)
 BRICK_VOXELS = BRICK ** 3       # a voxel's place in its brick: (dk * 8 + dj) * 8 + di
@@ -346,30 +347,109 @@ def flat_positions(brick_number: np.ndarray, counts: np.ndarray, place: np.ndarr
 def layer_runs(run: np.ndarray, k0: int, shape, density: np.ndarray, normal: np.ndarray,
                gradient_magnitude: np.ndarray, n_run: int) -> Runs:
     """The runs of one layer of bricks (planes ``k0 .. k0 + len(run) - 1``, ``k0`` a multiple of 8; ``run`` the
-    voxels' runs, the channels the layer's planes), brick numbers those of the whole volume's grid."""
-    nl, nj, ni = run.shape
+    voxels' runs, the channels the layer's planes), brick numbers those of the whole volume's grid: two passes of
+    :func:`_layer_runs` over the layer's bricks (a counting sort by run; tests/test_runs.py holds the NumPy
+    reference, a stable sort by run, brick and place)."""
     _, gj, gi = brick_grid(shape)
-    k, j, i = (np.arange(n, dtype=np.int64) for n in run.shape)
-    # (brick in the layer) * 512 + place, built from its three axes' parts (one int64 array of the layer)
-    within = ((k % BRICK) * BRICK * BRICK)[:, None, None] + \
-        ((j // BRICK) * gi * BRICK_VOXELS + (j % BRICK) * BRICK)[None, :, None] + \
-        ((i // BRICK) * BRICK_VOXELS + i % BRICK)[None, None, :]
-    order = np.argsort((run.astype(np.int64) * (gj * gi * BRICK_VOXELS) + within).ravel(), kind="stable")
-    w = within.ravel()[order]
-    del within
-    r = run.ravel()[order]
-    b, p = (k0 // BRICK) * gj * gi + w // BRICK_VOXELS, w % BRICK_VOXELS
-    new = np.ones(r.size, dtype=bool)
-    new[1:] = (r[1:] != r[:-1]) | (b[1:] != b[:-1])
-    group = np.cumsum(new) - 1
-    firsts = np.flatnonzero(new)
-    counts = np.diff(np.append(firsts, r.size))
-    pos = encode_positions(group, p, counts)
-    vptr = _ptr(np.bincount(r, minlength=n_run))
-    bptr = _ptr(np.bincount(r[firsts], minlength=n_run))
-    pptr = _ptr(np.bincount(r[firsts], weights=position_bytes(counts), minlength=n_run).astype(np.int64))
-    return Runs(vptr, bptr, pptr, b[firsts].astype(np.uint32), counts.astype(np.uint16), pos,
-                density.ravel()[order], normal.ravel()[order], gradient_magnitude.ravel()[order])
+    run = np.ascontiguousarray(run, dtype=np.int32)
+    if run.size and (int(run.min()) < 0 or int(run.max()) >= n_run):
+        raise ValueError(f"runs {int(run.min())}..{int(run.max())} of a layer, expected 0..{n_run - 1}")
+    out = _layer_runs(run, int(n_run), int(k0) // BRICK * gj * gi, np.ascontiguousarray(density),
+                      np.ascontiguousarray(normal), np.ascontiguousarray(gradient_magnitude))
+    return Runs(*out)
+
+
+def layer_pointers(run: np.ndarray, n_run: int) -> Runs:
+    """:class:`Runs` of a layer with only its three pointer tables (the other fields None): the sizes alone."""
+    size = _layer_sizes(np.ascontiguousarray(run, dtype=np.int32), int(n_run))
+    return Runs(*(_ptr(size[x]) for x in range(3)), *([None] * len(RUN_ARRAYS)))
+
+
+@jit
+def _layer_sizes(run, n_run):
+    """Per run: its voxels, its bricks and its position bytes in the layer ``run`` (int64 [3, n_run])."""
+    nl, nj, ni = run.shape
+    size = np.zeros((3, n_run), dtype=np.int64)
+    tally = np.zeros(n_run, dtype=np.int64)
+    touched = np.empty(BRICK_VOXELS, dtype=np.int64)
+    for j0 in range(0, nj, BRICK):
+        for i0 in range(0, ni, BRICK):
+            nt = _tally(run, j0, i0, tally, touched)
+            for t in range(nt):
+                r = touched[t]
+                c = tally[r]
+                size[0, r] += c
+                size[1, r] += 1
+                size[2, r] += BITMAP_BYTES if c > LIST_MAX else 2 * c
+                tally[r] = 0
+    return size
+
+
+@leaf
+def _tally(run, j0, i0, tally, touched):
+    """The voxels of each run in the brick at (j0, i0) of the layer into ``tally``, the runs met (first met first)
+    into ``touched``; returns how many."""
+    nl, nj, ni = run.shape
+    nt = 0
+    for dk in range(nl):
+        for j in range(j0, min(nj, j0 + BRICK)):
+            for i in range(i0, min(ni, i0 + BRICK)):
+                r = run[dk, j, i]
+                if tally[r] == 0:
+                    touched[nt] = r
+                    nt += 1
+                tally[r] += 1
+    return nt
+
+
+@jit
+def _layer_runs(run, n_run, first_brick, density, normal, gm):
+    """:func:`layer_runs`: the sizes (:func:`_layer_sizes`), then each brick's voxels written run by run at
+    each run's cursor (brick numbers from ``first_brick``, the layer's first)."""
+    nl, nj, ni = run.shape
+    size = _layer_sizes(run, n_run)
+    ptr = np.zeros((3, n_run + 1), dtype=np.int64)
+    for x in range(3):
+        for r in range(n_run):
+            ptr[x, r + 1] = ptr[x, r] + size[x, r]
+    number = np.empty(ptr[1, n_run], dtype=np.uint32)
+    count = np.empty(ptr[1, n_run], dtype=np.uint16)
+    pos = np.zeros(ptr[2, n_run], dtype=np.uint8)
+    d = np.empty(ptr[0, n_run], dtype=density.dtype)
+    nrm = np.empty(ptr[0, n_run], dtype=normal.dtype)
+    g = np.empty(ptr[0, n_run], dtype=gm.dtype)
+    cur = ptr[:, :n_run].copy()
+    tally = np.zeros(n_run, dtype=np.int64)
+    touched = np.empty(BRICK_VOXELS, dtype=np.int64)
+    base = np.zeros(n_run, dtype=np.int64)
+    gi = (ni + BRICK - 1) // BRICK
+    for j0 in range(0, nj, BRICK):
+        for i0 in range(0, ni, BRICK):
+            nt = _tally(run, j0, i0, tally, touched)
+            for t in range(nt):
+                r = touched[t]
+                number[cur[1, r]] = first_brick + j0 // BRICK * gi + i0 // BRICK
+                count[cur[1, r]] = tally[r]
+                cur[1, r] += 1
+                base[r] = cur[2, r]
+                cur[2, r] += BITMAP_BYTES if tally[r] > LIST_MAX else 2 * tally[r]
+            for dk in range(nl):
+                for j in range(j0, min(nj, j0 + BRICK)):
+                    for i in range(i0, min(ni, i0 + BRICK)):
+                        r = run[dk, j, i]
+                        v = cur[0, r]
+                        d[v], nrm[v], g[v] = density[dk, j, i], normal[dk, j, i], gm[dk, j, i]
+                        cur[0, r] += 1
+                        place = (dk * BRICK + j - j0) * BRICK + i - i0
+                        if tally[r] > LIST_MAX:
+                            pos[base[r] + (place >> 3)] |= np.uint8(1 << (place & 7))
+                        else:
+                            pos[base[r]] = place & 255
+                            pos[base[r] + 1] = place >> 8
+                            base[r] += 2
+            for t in range(nt):
+                tally[touched[t]] = 0
+    return ptr[0], ptr[1], ptr[2], number, count, pos, d, nrm, g
 
 
 def _ptr(counts: np.ndarray) -> np.ndarray:

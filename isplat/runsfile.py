@@ -29,9 +29,17 @@ DTYPES = {
     "density": "|u1", "normal": "<u2", "gradient_magnitude": "|u1",
 }
 DATASETS = tuple(f"runs/{n}" for n in DTYPES)
+HASH = "xxh3"                                          # the chunk hash (formats/runs.md §2; isplat.chunkhash)
 VALUE_CHANNELS = ("normal", "gradient_magnitude")     # read or not (RunsFile.read); the density always
 HASHED_ATTRS = tuple(("", n) for n in ("format", "format_version", "shape", "density_sha256",
                                        "augmented_chunk_hash_check", "key", "brick", "lo_first", "hi_first"))
+
+
+# HDF5's chunk cache per dataset while writing: each layer of bricks adds a piece to every run, so a dataset is
+# written at up to R places in turn (64 runs by default); with HDF5's 1 MiB the partial chunks were read back and
+# written again (the ct-chest sample, 512 x 512 x 133: the writes took 1.8 s of 6.2; 0.7 s with 64 MiB; 8 and
+# 16 MiB timed alike, 8 MiB adds 64 MB to isplat index's peak memory there).
+WRITE_CACHE = 8 << 20
 
 
 def runs_path(index_path) -> Path:
@@ -57,7 +65,7 @@ def build_runs_file(aug_path, index_path, force: bool = False) -> Path:
     aug = open_augmented(aug_path)
     path = runs_path(index_path)
     with atomic_output(path, force) as tmp:
-        with create_hdf5(tmp) as f, _channel_reader(aug) as read:
+        with create_hdf5(tmp, chunk_cache=WRITE_CACHE) as f, _channel_reader(aug) as read:
             write_runs(f, aug, read)
     return path
 
@@ -78,16 +86,15 @@ def write_runs(f: h5py.File, aug, read, bins=R.DEFAULT_BINS) -> R.Cut:
     cut = R.dp_cut_of(h2, *bins)
     n_run = R.n_runs(cut)
 
-    def parts(sizes_only: bool):
+    def parts():
         for k0, k1 in R.layers(shape):
             run = R.run_of(*keys(k0, k1), cut)
-            d = read("density", k0, k1)
-            ch = (d, d) if sizes_only else (read("normal", k0, k1), read("gradient_magnitude", k0, k1))
-            yield R.layer_runs(run, k0, shape, d, ch[0], ch[1], n_run)
+            yield R.layer_runs(run, k0, shape, read("density", k0, k1), read("normal", k0, k1),
+                               read("gradient_magnitude", k0, k1), n_run)
 
-    ptrs = R.total_pointers(parts(True))
+    ptrs = R.total_pointers(R.layer_pointers(R.run_of(*keys(k0, k1), cut), n_run) for k0, k1 in R.layers(shape))
     out = _create(f, aug.shape, aug.density_sha256, aug.attrs.get(chunkhash.CHECK_ATTR, ""), cut, ptrs)
-    R.assemble(parts(False), ptrs, out)
+    R.assemble(parts(), ptrs, out)
     _finish(f)
     return cut
 
@@ -127,7 +134,7 @@ def _finish(f: h5py.File) -> None:
     from .index.store import _hash_table
 
     chunkhash.write_tables(f, attr_string(f.attrs, "density_sha256"), DATASETS,
-                           chunkhash.attributes_of(f, HASHED_ATTRS), create=_hash_table)
+                           chunkhash.attributes_of(f, HASHED_ATTRS), create=_hash_table, algorithm=HASH)
 
 
 def _write_root(f: h5py.File, shape, sha: str, check: str, cut: R.Cut) -> None:
@@ -152,8 +159,8 @@ class RunsRead(NamedTuple):
     by brick number, then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
     (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
     (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool);
-    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``); ``placed``: with ``place=True``, the density, normal and
-    gradient magnitude as zeroed flat channels of the volume with the voxels read written in (a channel not read:
+    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``);
+    ``placed``: with ``place=True``, the density, normal and gradient magnitude as zeroed flat channels of the volume with the voxels read written in (a channel not read:
     empty), else None."""
     positions: np.ndarray
     density: np.ndarray
@@ -288,7 +295,7 @@ def open_runs(path, shape=None, density_sha256: str | None = None,
                                       f"another volume or of another augmentation of it; rebuild it: {_hint(p)}")
             _check_datasets(p, f, shape_f, R.n_runs(cut))
             verifier = chunkhash.open_verifier(p, f, sha, DATASETS, chunkhash.attributes_of(f, HASHED_ATTRS),
-                                               _hint(p))
+                                               _hint(p), HASH)
             ptrs = tuple(_read_ptr(verifier, f, n) for n in PTRS)
             _check_ptrs(p, f, ptrs, cut)
     except BaseException:

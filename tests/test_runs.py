@@ -417,8 +417,87 @@ def test_committed_examples_read_back(name):
             assert f[f"runs/{key}"][...].tolist() == ex[key], key
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_committed_examples_chunk_hashes_as_the_spec_says(name):
+    """formats/runs.md §2 followed by hand: the key K (formats/augmented.md §1.1's BLAKE2b over the file), then
+    XXH3-128 seeded with K's first 8 bytes over path, NUL, offset and elements, per chunk of each dataset."""
+    import hashlib
+
+    import xxhash
+
+    from isplat.runsfile import DATASETS, HASHED_ATTRS
+
+    with h5py.File(EXAMPLES / f"{name}.runs.idx.h5", "r") as f:
+        a = f.attrs
+        h = hashlib.blake2b(digest_size=32, person=b"isplat-chunks")
+        h.update(b"isplat chunk hashes 1\0" + bytes(a["density_sha256"]) + b"\0")
+        for d in DATASETS:
+            h.update(d.encode() + b"\0")
+        h.update(b"\0")
+        for _, attr in HASHED_ATTRS:
+            v = a[attr]
+            raw = bytes(v) if isinstance(v, bytes) else np.asarray(v).astype(np.asarray(v).dtype.newbyteorder("<"))\
+                .tobytes()                                      # strings: fixed-length UTF-8, as stored
+            h.update(f"@{attr}".encode() + b"\0" + b"\1" + len(raw).to_bytes(8, "little") + raw)
+        key = h.digest()
+        seed = int.from_bytes(key[:8], "little")
+        for d in DATASETS:
+            ds, table = f[d], f["chunk_hashes/" + d.replace("/", ".")][...]
+            c = ds.chunks[0]
+            data = ds[...].astype(ds.dtype.newbyteorder("<"))
+            for r in range(table.shape[0]):
+                piece = data[r * c:(r + 1) * c].tobytes()
+                want = xxhash.xxh3_128(d.encode() + b"\0" + (r * c).to_bytes(8, "little") + piece, seed=seed).digest()
+                assert bytes(table[r]) == want, (d, r)
+
+
 def test_invalid_example_is_refused():
     path = EXAMPLES / "invalid-flipped-byte.runs.idx.h5"
     with pytest.raises(IsplatError, match=r"invalid-flipped-byte.runs.idx.h5: dataset 'runs/density', chunk at \(0\)"
                                           r".* \(runs 0..0\)"):
         read_runs(path, None)
+
+
+def reference_layer_runs(run: np.ndarray, k0: int, shape, density: np.ndarray, normal: np.ndarray,
+               gradient_magnitude: np.ndarray, n_run: int) -> R.Runs:
+    """isplat.runs.layer_runs the slow, obvious way: a stable sort of the layer's voxels by (run, brick, place)."""
+    nl, nj, ni = run.shape
+    _, gj, gi = R.brick_grid(shape)
+    k, j, i = (np.arange(n, dtype=np.int64) for n in run.shape)
+    # (brick in the layer) * 512 + place, built from its three axes' parts (one int64 array of the layer)
+    within = ((k % R.BRICK) * R.BRICK * R.BRICK)[:, None, None] + \
+        ((j // R.BRICK) * gi * R.BRICK_VOXELS + (j % R.BRICK) * R.BRICK)[None, :, None] + \
+        ((i // R.BRICK) * R.BRICK_VOXELS + i % R.BRICK)[None, None, :]
+    order = np.argsort((run.astype(np.int64) * (gj * gi * R.BRICK_VOXELS) + within).ravel(), kind="stable")
+    w = within.ravel()[order]
+    del within
+    r = run.ravel()[order]
+    b, p = (k0 // R.BRICK) * gj * gi + w // R.BRICK_VOXELS, w % R.BRICK_VOXELS
+    new = np.ones(r.size, dtype=bool)
+    new[1:] = (r[1:] != r[:-1]) | (b[1:] != b[:-1])
+    group = np.cumsum(new) - 1
+    firsts = np.flatnonzero(new)
+    counts = np.diff(np.append(firsts, r.size))
+    pos = R.encode_positions(group, p, counts)
+    vptr = R._ptr(np.bincount(r, minlength=n_run))
+    bptr = R._ptr(np.bincount(r[firsts], minlength=n_run))
+    pptr = R._ptr(np.bincount(r[firsts], weights=R.position_bytes(counts), minlength=n_run).astype(np.int64))
+    return R.Runs(vptr, bptr, pptr, b[firsts].astype(np.uint32), counts.astype(np.uint16), pos,
+                density.ravel()[order], normal.ravel()[order], gradient_magnitude.ravel()[order])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 8), st.integers(1, 20), st.integers(1, 20), st.integers(1, 6), st.floats(0, 1),
+       st.integers(0, 10 ** 6))
+def test_layer_runs_equal_the_sorting_reference(nl, nj, ni, n_run, share, seed):
+    """The counting sort against the stable sort, field by field, on layers of any shape (edge bricks cut),
+    lists and bitmaps both (a run holding most of a brick)."""
+    rng = np.random.default_rng(seed)
+    run = np.where(rng.random((nl, nj, ni)) < share, 0, rng.integers(0, n_run, (nl, nj, ni))).astype(np.int32)
+    d, g = (rng.integers(0, 256, run.shape).astype(np.uint8) for _ in range(2))
+    nrm = rng.integers(0, 65536, run.shape).astype(np.uint16)
+    shape = (8 + nl, nj, ni)                        # the layer is the volume's second (brick numbers offset)
+    got = R.layer_runs(run, 8, shape, d, nrm, g, n_run)
+    want = reference_layer_runs(run, 8, shape, d, nrm, g, n_run)
+    for name, a, b in zip(R.Runs._fields, got, want):
+        assert np.array_equal(a, b) and a.dtype == b.dtype, name

@@ -1,13 +1,13 @@
-"""Reliability: a seeded fuzzer over index and augmented files, the catalogue of bad inputs with the message each
-gets, and what the checksums cost (docs/reliability.md).
+"""Reliability: a seeded fuzzer over index and augmented files (and the index's values and runs files), the
+catalogue of bad inputs with the message each gets, and what the checksums cost (docs/reliability.md).
 
     python -m benchmarks reliability --out docs [--fuzz-seconds 120] [--seed 0]
 
-The fuzzer mutates the bytes of a small head's augmented and index files (bit flips, random bytes, zeroed runs,
-truncation) and renders each mutant through the CLI, in process, and runs ``isplat stats --json`` on it: every run
-must end in one ``isplat: error:`` line with a non-zero exit, or in images and figures equal to the unmutated
-ones. tests/test_fuzz.py runs it for a bounded time; ``make fuzz-boundscheck`` runs it with numba bounds checking
-on (a fresh NUMBA_CACHE_DIR).
+The fuzzer mutates the bytes of a small head's augmented and index files and of the index's values and runs files
+(bit flips, random bytes, zeroed runs, truncation) and renders each mutant through the CLI, in process, and runs
+``isplat stats --json`` on it: every run must end in one ``isplat: error:`` line with a non-zero exit, or in images
+and figures equal to the unmutated ones. tests/test_fuzz.py runs it for a bounded time; ``make fuzz-boundscheck``
+runs it with numba bounds checking on (a fresh NUMBA_CACHE_DIR).
 """
 
 from __future__ import annotations
@@ -177,6 +177,7 @@ def no_chunk_hashes():
         yield
 
 
+FILE_NAMES = {"aug": "augmented", "idx": "index", "values": "values file", "runs": "runs file"}
 HASH_SECTION = "reliability-chunk-hashes"
 HASH_SOURCES = _doc.sources(("isplat/chunkhash.py", "isplat/augfile.py", "isplat/index/store.py",
                              "isplat/selection.py", "isplat/fileio.py", "benchmarks/reliability.py"))
@@ -347,8 +348,9 @@ def write_hash_cost(out: Path, c: dict, note: str = "") -> Path:
             "",
             "### Mutant classes that Fletcher-32 cannot see",
             "",
-            f"tests/fuzzlab.py's `MUTANT_CLASSES`, {c['per_class']} mutants per class (alternately of the augmented "
-            f"and the index file; seed {c['seed']}) of the fuzzer's small head ({'x'.join(map(str, SHAPE_IJK))}), each "
+            f"tests/fuzzlab.py's `MUTANT_CLASSES`, {c['per_class']} mutants per class (in turn of the augmented "
+            f"file, the index, its values file and its runs file, those a class applies to; seed {c['seed']}) of "
+            f"the fuzzer's small head ({'x'.join(map(str, SHAPE_IJK))}), each "
             f"rendered with the scenes {', '.join(fz['_scenes'])} and run through `isplat stats --json`, "
             f"{fz['_seconds']} s in all. *error*: one `isplat: error:` line, a non-zero exit, no image; *equal*: the "
             "unmutated images and figures; *unchanged*: the mutation left the bytes as they were; *failure*: "
@@ -361,7 +363,7 @@ def write_hash_cost(out: Path, c: dict, note: str = "") -> Path:
             if cls.startswith("_"):
                 continue
             for target, r in sorted(per.items()):
-                body.append(f"| {cls} | {'augmented' if target == 'aug' else 'index'} | {r.get('error', 0)} | "
+                body.append(f"| {cls} | {FILE_NAMES.get(target, target)} | {r.get('error', 0)} | "
                             f"{r.get('equal', 0)} | {r.get('unchanged', 0)} | {r.get('failure', 0)} |")
         for line in fz.get("_failures", [])[:20]:
             body.append(f"\nFailure: {_md(line)}")
@@ -387,6 +389,13 @@ def _pair_cases(fx: dict) -> list[tuple[str, str, str, str]]:
         ("augmented attribute bytes flipped (spacing)", "aug", "/@spacing_ijk", "flip_header"),
         ("index attribute bytes flipped (n_a)", "idx", "/axes/k@n_a", "flip_header"),
         ("index root attribute bytes flipped (shape)", "idx", "/@shape", "flip_header"),
+        # the index's runs file (formats/runs.md), read by the post scene that does not see code 0
+        ("runs file density chunk byte flipped on disk", "runs", "/runs/density", "flip_chunk"),
+        ("runs file pointer table byte flipped on disk", "runs", "/runs/run_voxel_ptr", "flip_chunk"),
+        ("runs file positions chunk byte flipped on disk", "runs", "/runs/positions", "flip_chunk"),
+        ("runs file attribute bytes flipped (lo_first)", "runs", "/@lo_first", "flip_header"),
+        ("runs file dataset /runs/normal deleted", "runs", "/runs/normal", "delete"),
+        ("runs file dataset /runs/density contiguous", "runs", "/runs/density", "contiguous"),
     ]
     # the layout op breaks the format's rule for the dataset: the index's datasets MUST be chunked, the augmented
     # channels of format 6 (isplat augment's default) MUST be contiguous (formats/augmented.md §2.3)
@@ -455,7 +464,90 @@ def _cli_cases(fx: dict, w: Path) -> list[tuple[str, list]]:
         *_hostile_cases(fx, w, sc),
         ("version-1 augmented file (no checksums)",
          ["stats", str(Path(__file__).resolve().parents[1] / "formats/examples/augmented/invalid-version-1.aug.h5")]),
+        *[(what, argv) for what, argv, _ in runs_cases(fx, w)],
     ]
+
+
+def runs_cases(fx: dict, w: Path) -> list[tuple[str, list, str]]:
+    """(input, argv, words the message must hold): runs files beside an index (formats/runs.md) that a stranger
+    can make, each in a folder of its own with copies of the fixture's index and values file, rendered with the
+    scene that reads the runs file (or run through stats). tests/test_reliability.py checks each."""
+    import shutil
+
+    import h5py
+    import numpy as np
+
+    from isplat.runsfile import build_runs_file, runs_path
+
+    def folder(name, runs=True):
+        d = w / f"runs-{name}"
+        d.mkdir(exist_ok=True)
+        idx = d / fx["idx"].name
+        for src in (fx["idx"], fx.get("values")):
+            if src is not None:
+                shutil.copy(src, d / src.name)
+        if runs:
+            shutil.copy(fx["runs"], runs_path(idx))
+        return idx, runs_path(idx)
+
+    fresh = iter(range(1000))
+
+    def render(idx, aug=None):
+        sets = [f'data.index="{idx}"'] + ([f'data.augmented="{aug}"'] if aug else [])
+        return ["render", str(fx["post_runs"]), "--view", "0", *[a for s in sets for a in ("--set", s)], "-o",
+                str(w / f"r{next(fresh)}.png")]
+
+    cases = []
+    idx, rp = folder("other")                   # the runs of another volume: another density_sha256
+    other = w / "runs-other" / "other.aug.h5"
+    if not other.exists():
+        from isplat.augfile import write_augmented
+        from isplat.augment import augment_array
+        from isplat.samples import make_sample
+
+        from fuzzlab import SHAPE_IJK
+        arr, spacing = make_sample("head", SHAPE_IJK, 0)
+        a = augment_array(np.ascontiguousarray(arr[::-1]), spacing)
+        write_augmented(other, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
+                        a["density_window"], a["gradient_magnitude_scale"])
+    rp.unlink()
+    build_runs_file(other, idx)
+    cases.append(("runs file of another volume beside the index", render(idx), "another volume"))
+    idx, rp = folder("truncated")
+    rp.write_bytes(fx["runs"].read_bytes()[: fx["runs"].stat().st_size // 2])
+    cases.append(("runs file truncated to half its size", render(idx), "truncated"))
+    idx, rp = folder("version")
+    with h5py.File(rp, "r+") as f:
+        f.attrs["format_version"] = np.int64(2)
+    cases.append(("runs file of format version 2", render(idx), "version"))
+    idx, rp = folder("folder", runs=False)
+    rp.mkdir(exist_ok=True)
+    cases.append(("runs file name taken by a folder", render(idx), "folder"))
+    idx, rp = folder("fifo", runs=False)
+    if not rp.exists():
+        os.mkfifo(rp)
+    cases.append(("runs file name taken by a fifo", render(idx), "fifo"))
+    idx, rp = folder("reaugmented")             # isplat augment --force again, other spacing, without --index
+    aug2 = idx.parent / fx["aug"].name
+    if not aug2.exists():
+        from isplat.augfile import open_augmented, write_augmented
+
+        a = open_augmented(fx["aug"])
+        write_augmented(aug2, a.read("density"), a.read("gradient_magnitude"), a.read("normal"),
+                        tuple(2 * x for x in a.spacing_ijk), a.density_window, a.gradient_magnitude_scale)
+    cases.append(("runs file left from before re-augmenting with another spacing (same densities)",
+                  render(idx, aug2), "another augmentation"))
+    idx, rp = folder("stats")
+    with h5py.File(rp, "r+") as f:
+        ds = f["runs/normal"]
+        ds[0] = (int(ds[0]) + 1) % 65536          # a valid HDF5 edit: the chunk hash no longer matches
+    cases.append(("stats: runs file beside the index edited (one normal)", ["stats", str(fx["aug"]), str(idx)],
+                  "runs/normal"))
+    idx, rp = folder("left", runs=True)
+    idx.unlink()
+    cases.append(("index --no-runs with a runs file left beside the new index (no --force)",
+                  ["index", str(fx["aug"]), "-o", str(idx), "--no-runs"], "--force"))
+    return cases
 
 
 def _hostile_cases(fx: dict, w: Path, sc: str) -> list[tuple[str, list]]:
@@ -528,7 +620,9 @@ def catalogue(fx: dict, w: Path) -> list[dict]:
     for what, argv in _cli_cases(fx, w):
         camera._WARNED.clear()      # the empty-frame warning is once per process: each case stands for a process
         code, _, err = run_cli(argv)
-        cmd = " ".join(argv[:1]) + (" (post scene)" if sc in argv or str(orbit) in argv else "")
+        cmd = " ".join(argv[:1]) + (" (post scene)" if sc in argv or str(orbit) in argv else
+                                    " (post scene that reads the runs file)" if str(fx.get("post_runs")) in argv
+                                    else "")
         rows.append({"input": what, "command": cmd, "result": f"exit {code}",
                      "message": clean(err) or "(no message)"})
     root = Path(__file__).resolve().parents[1] / "formats/examples/scene/invalid"
@@ -605,13 +699,14 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict, quick: bool =
         "",
         "## Fuzzing",
         "",
-        "Mutants of a small head's augmented and index files (`SHAPE_IJK` "
-        f"{'x'.join(map(str, SHAPE_IJK))}, alternately): a bit flip (half of them), a random byte, a zeroed run of "
+        "Mutants of a small head's augmented and index files and of the index's values and runs files (`SHAPE_IJK` "
+        f"{'x'.join(map(str, SHAPE_IJK))}, in turn): a bit flip (half of them), a random byte, a zeroed run of "
         "1-64 bytes or a truncation, at a uniformly random position. Each mutant is rendered through the CLI with "
         "the row's technique (three views, one per axis, every density visible, shading and gradient-modulated "
         "opacity, so every dataset is read): *pre*, the paper's pre-classified splatting, with the indexed and the "
         "full method; *post*, post-classification (the default from scene version 4), with the indexed method, "
-        "which reads the index blocks and the whole channels; then `isplat stats AUG IDX --json` runs on it."
+        "once seeing density 0 (which reads the index blocks and the whole channels) and once not (which reads "
+        "the runs file beside the index, formats/runs.md §6); then `isplat stats AUG IDX --json` runs on it."
         " A run passes if it ends in "
         "exactly one `isplat: error:` line, a non-zero exit and no output, or in PNGs byte-equal to the unmutated "
         "ones and the same figures; a failure is anything else (another image or figure, a traceback, a hang of "
@@ -657,8 +752,8 @@ def write_report(out: Path, cat: list[dict], fz: list, cost: dict, quick: bool =
         f"## Catalogue of bad inputs ({len(cat)})",
         "",
         "Each row was run by the command above; `W/` is its temporary folder. Corrupted files are rendered "
-        "(both techniques: pre indexed, pre full, post indexed); the result is `error` when the run ended in one "
-        "error line and a non-zero exit.",
+        "(both techniques: pre indexed, pre full, post indexed, post indexed from the runs file); the result is "
+        "`error` when the run ended in one error line and a non-zero exit.",
         "",
         "| # | input | command | result | message |",
         "|---|---|---|---|---|",

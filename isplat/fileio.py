@@ -51,13 +51,14 @@ def check_regular(path: str | os.PathLike, what: str = "input", max_bytes: int |
 def check_input(path: str | os.PathLike, what: str = "input") -> Path:
     """Return ``path`` as a Path if it is a readable regular file, else raise a one-line error."""
     p = Path(path)
+    named = what if what.endswith(" file") else f"{what} file"      # ("values file", "runs file": not twice)
     if not p.exists():
-        raise IsplatError(f"{p}: {what} file does not exist")
+        raise IsplatError(f"{p}: {named} does not exist")
     if p.is_dir():
         raise IsplatError(f"{p}: {what} is a folder, expected a file")
     check_regular(p, what)
     if not os.access(p, os.R_OK):
-        raise IsplatError(f"{p}: {what} file is not readable")
+        raise IsplatError(f"{p}: {named} is not readable")
     return p
 
 

@@ -6,6 +6,7 @@ array is indexed with what the file holds.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 from typing import NamedTuple
 
@@ -190,6 +191,12 @@ class RunsFile:
             self._f.close()
             self._f = None
 
+    def verify_all(self) -> None:
+        """Check every chunk of every dataset against the file's chunk hashes (``isplat stats``)."""
+        with hdf5_errors(self.path, "datasets"):
+            for d in DATASETS:
+                self.verifier.verify_all(self._f, d)
+
     def runs_for(self, intervals) -> np.ndarray:
         """bool [runs]: the runs whose bin rectangle meets one of the inclusive ``intervals`` (None: every run)."""
         if intervals is None:
@@ -285,7 +292,7 @@ def open_runs(path, shape=None, density_sha256: str | None = None,
                                      ("augmented_chunk_hash_check", augmented_chunk_hash_check, own)):
                 if want is not None and want != have:
                     raise IsplatError(f"{p}: attribute {what!r} is {have}, the augmented file's {want}: the runs of "
-                                      f"another volume; rebuild it: {_hint(p)}")
+                                      f"another volume or of another augmentation of it; rebuild it: {_hint(p)}")
             _check_datasets(p, f, shape_f, R.n_runs(cut))
             verifier = chunkhash.open_verifier(p, f, sha, DATASETS, chunkhash.attributes_of(f, HASHED_ATTRS),
                                                _hint(p), HASH)
@@ -383,3 +390,22 @@ def _check_ptrs(p, f, ptrs, cut: R.Cut) -> None:
             raise IsplatError(f"{p}: dataset 'runs/{name}', run {r}: {int(nv[r])} voxels in {int(nb[r])} bricks "
                               f"with {int(npos[r])} bytes of positions (codes {int(lo_first[r])}..{int(hi_last[r])}),"
                               f" which formats/runs.md §5 does not allow")
+
+
+@contextmanager
+def refusal(path, aug_path, index_path):
+    """Inside the block, a problem with the runs file ``path`` (an :class:`IsplatError`, which names it) ends
+    with the command that rebuilds it from ``aug_path`` beside ``index_path`` (formats/runs.md §6: a bad runs file
+    is refused, never read around)."""
+    try:
+        yield
+    except IsplatError as exc:
+        text, cmd = str(exc), f"isplat index {aug_path} -o {index_path} --force"
+        head, hint, tail = text.partition(f"; rebuild it: {_hint(path)}")
+        if hint:                  # the reader's hint, last and with the files' names (after a read's "(runs a..b)")
+            raise IsplatError(f"{head}{tail}; rebuild it: {cmd}") from None
+        if "rebuild it" in text:
+            raise
+        p = Path(path)
+        fix = f"remove it, then {cmd} writes it" if p.exists() and not p.is_file() else f"rebuild it: {cmd}"
+        raise IsplatError(f"{text}; {fix}") from None

@@ -712,17 +712,18 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
     theirs lies in never written), and per axis read the bits of the quads whose four corners they hold, which
     the sampler tests (isplat.splat.post: a quad with a corner not held is transparent in truth). The runs file
     is checked to be written from ``aug`` (shape, density hash, chunk hash check); any problem is one
-    IsplatError."""
+    IsplatError naming the command that rebuilds it (isplat.runsfile.refusal), never a fall back to bricks."""
     from .chunkhash import CHECK_ATTR
-    from .runsfile import VALUE_CHANNELS, open_runs
+    from .runsfile import VALUE_CHANNELS, open_runs, refusal
     from .splat.post import held_quads
 
     rep = sel.report
     if "density" not in rep.channels:
         rep.channels.insert(0, "density")
     ivs = [tuple(map(int, iv)) for iv in sel.luts.intervals]
-    with open_runs(path, shape=sel.shape, density_sha256=aug.density_sha256,
-                   augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
+    with refusal(path, aug.path, sel.request.index), \
+            open_runs(path, shape=sel.shape, density_sha256=aug.density_sha256,
+                      augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
         got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels], place=True)
         rep.runs_file_bytes = int(rf.counter.bytes)
         rep.runs_file_pages = rf.counter.page_bytes()

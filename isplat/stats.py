@@ -26,7 +26,7 @@ import numpy as np
 from .augfile import CHANNELS, open_augmented
 from .errors import IsplatError
 
-STATS_VERSION = 8
+STATS_VERSION = 9
 
 
 def density_histogram(aug) -> np.ndarray:
@@ -225,6 +225,27 @@ def _values_entry(idx) -> dict | None:
             "bytes": 257 * 8 + 3 * n, "file_bytes": int(Path(vf.path).stat().st_size) if vf is not None else None}
 
 
+def runs_entry(aug, idx_path) -> dict | None:
+    """The runs file beside the index (formats/runs.md), as a render would open it, tied to ``aug`` (shape,
+    density hash, chunk hash check), its pointer tables and every chunk checked against its hash; None when
+    there is none. A runs file that fails is refused with one line naming it and the command that rebuilds it,
+    as a post-classified render reading it would be (it does not fall back to bricks)."""
+    from .chunkhash import CHECK_ATTR
+    from .runsfile import FORMAT_VERSION, open_runs, refusal, runs_path
+
+    path = runs_path(idx_path)
+    if not path.exists():
+        return None
+    with refusal(path, aug.path, idx_path), \
+            open_runs(path, shape=aug.shape, density_sha256=aug.density_sha256,
+                      augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
+        rf.verify_all()
+        per_run = np.diff(rf.ptrs[0])
+        return {"path": str(path), "file_bytes": int(path.stat().st_size), "format_version": FORMAT_VERSION,
+                "runs": int(per_run.size), "runs_with_voxels": int(np.count_nonzero(per_run)),
+                "bins": [int(rf.cut.lo.size), int(rf.cut.hi.size)], "voxels": int(per_run.sum()), "tied": True}
+
+
 def _range_entry(idx, counts, lo, hi, n_voxels) -> dict:
     per_axis = {a: int(idx.nbytes(a, [(int(lo), int(hi))])) for a in idx.axes}
     vox = int(next(iter(counts.values()))[lo:hi + 1].sum())
@@ -378,6 +399,7 @@ def collect(augmented, index=None, scene=None, overrides=(), view: int = 0) -> d
                               f"{idx.density_sha256[:12]}..., {aug_path.name} has {aug.density_sha256[:12]}...); "
                               f"rebuild it with isplat index {aug_path}")
         out["index"] = index_section(idx, aug)
+        out["index"]["runs"] = runs_entry(aug, idx_path)
         hist_from_index = idx.voxel_counts(idx.axes[0])
     if scene is not None:
         out["scene"], _ = scene_section(scene, overrides, aug, aug_path, idx, hist_from_index, view)
@@ -508,6 +530,15 @@ def format_table(s: dict) -> str:
         else:
             row("channel values", "no values file (isplat index --no-values): pre-classification reads them from "
                                   "the augmented file; isplat index AUG.h5 -o IDX.h5 --force writes it")
+        r = ix.get("runs")
+        if r:
+            row("runs file", f"{r['path']}: {_b(r['file_bytes'])} on disk, {r['runs']} runs ({r['bins'][0]} x "
+                             f"{r['bins'][1]} bins, {r['runs_with_voxels']} holding voxels), {r['voxels']:,} voxels; "
+                             f"tied to this augmented file, every chunk checked (read by post-classified scenes "
+                             f"that qualify, formats/runs.md §6)")
+        else:
+            row("runs file", f"none beside the index (isplat index --no-runs): post-classification reads the "
+                             f"augmented file's bricks or channels; isplat index AUG.h5 -o IDX.h5 --force writes it")
     sc = s.get("scene")
     if sc:
         head(f"scene  {sc['path']}  (view {sc['view']}, method {sc['method']}, {sc['projection']}, "

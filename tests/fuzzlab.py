@@ -1,10 +1,11 @@
 """The fuzzer and the corruptions shared by tests/test_fuzz.py, tests/test_integrity.py and the reliability
 benchmark (benchmarks/reliability.py, which writes docs/reliability.md).
 
-The fuzzer mutates the bytes of a small head's augmented and index files (bit flips, random bytes, zeroed runs,
-truncation) and renders each mutant through the CLI, in process, with both techniques (``SCENES``: the paper's
-pre-classified splatting with the indexed and the full method, and the default, post-classification, shaded), and
-runs ``isplat stats --json`` on it: every run must end in one ``isplat: error:`` line with a non-zero exit, or in
+The fuzzer mutates the bytes of a small head's augmented and index files and of the index's values and runs files
+(bit flips, random bytes, zeroed runs, truncation; ``TARGETS``) and renders each mutant through the CLI, in
+process, with both techniques (``SCENES``: the paper's pre-classified splatting with the indexed and the full
+method, and the default, post-classification, shaded, from whole channels and from the runs file), and runs
+``isplat stats --json`` on it: every run must end in one ``isplat: error:`` line with a non-zero exit, or in
 images and figures equal to the unmutated ones. ``make fuzz-boundscheck`` runs the fuzz test with numba bounds
 checking on (a fresh NUMBA_CACHE_DIR).
 """
@@ -32,22 +33,32 @@ IMAGE = 40
 
 # the fixture's scenes: name -> (render.method, render.classification). "pre" is the paper's splatting, "post"
 # the default from scene version 4; the names "indexed" and "full" are the pre-classified scenes of before.
-SCENES = {"indexed": ("indexed", "pre"), "full": ("full", "pre"), "post": ("indexed", "post")}
-TECHNIQUES = {"pre": ("indexed", "full"), "post": ("post",)}
+# "post" sees density code 0, so it reads whole channels; "post_runs" does not (opacity 0 at code 0), so it reads the
+# range-runs file beside the index (formats/runs.md §6), which make_fixture writes as isplat index does.
+SCENES = {"indexed": ("indexed", "pre"), "full": ("full", "pre"), "post": ("indexed", "post"),
+          "post_runs": ("indexed", "post")}
+TECHNIQUES = {"pre": ("indexed", "full"), "post": ("post", "post_runs")}
+RUNS_SCENES = ("post_runs",)         # the scenes that read the runs file (make_fixture checks that they do)
+# the fixture's files: the augmented file, the index, and beside it the index's values file and runs file
+TARGETS = ("idx", "aug", "values", "runs")
 
 
 def scene_label(name: str) -> str:
-    """'pre indexed', 'pre full', 'post indexed': the technique and method of a fixture scene."""
+    """'pre indexed', 'pre full', 'post indexed', 'post indexed (runs file)': the technique and method of a
+    fixture scene."""
     method, technique = SCENES[name]
-    return f"{technique} {method}"
+    return f"{technique} {method}" + (" (runs file)" if name in RUNS_SCENES else "")
 
 
-def scene_toml(aug: Path, idx: Path, method: str = "indexed", technique: str = "pre") -> str:
+def scene_toml(aug: Path, idx: Path, method: str = "indexed", technique: str = "pre", runs: bool = False) -> str:
     """Three views (one per principal axis), every density visible, shading and gradient-modulated opacity:
     a render reads every index axis, every block, and the normal and gradient-magnitude channels. ``technique``
     is written out (render.classification), not left to the scene version's default; the version is the
-    current one (an older one would add its note on the defaults it keeps to every stderr)."""
+    current one (an older one would add its note on the defaults it keeps to every stderr). ``runs``: every
+    density but code 0 visible (a post scene then reads the runs file, every run of it but those of code 0)."""
     from isplat.scene_schema import SCENE_VERSION
+
+    opacity = "[[0, 0.0], [1, 0.02], [255, 0.6]]" if runs else "[[0, 0.02], [255, 0.6]]"
 
     return f"""version = {SCENE_VERSION}
 [data]
@@ -57,7 +68,7 @@ index = "{idx}"
 width = {IMAGE}
 height = {IMAGE}
 [transfer]
-opacity = [[0, 0.02], [255, 0.6]]
+opacity = {opacity}
 gradient_opacity = [[0, 0.5], [255, 1.0]]
 [shading]
 ambient = 0.3
@@ -71,15 +82,18 @@ list = [{{azimuth = 0, elevation = 0}}, {{azimuth = 90, elevation = 0}}, {{azimu
 
 
 def make_fixture(folder: Path, aug: Path | None = None, idx: Path | None = None, scenes=tuple(SCENES)) -> dict:
-    """A small head (or given files): augmented and index files, the ``scenes`` (names of ``SCENES``: both
-    techniques by default) and their reference images; ``fx["scenes"]`` names them."""
+    """A small head (or given files): augmented and index files, the index's values file and its runs file
+    (written from the augmented file as isplat index does, unless one is beside the index), the ``scenes``
+    (names of ``SCENES``: both techniques by default) and their reference images; ``fx["scenes"]`` names them."""
     from isplat.augfile import write_augmented
     from isplat.augment import augment_array
     from isplat.index import build_index_file
+    from isplat.runsfile import build_runs_file, runs_path
     from isplat.samples import make_sample
 
     folder.mkdir(parents=True, exist_ok=True)
-    if aug is None:
+    own = aug is None          # the small head, whose post_runs scene must read the runs file (given files may
+    if aug is None:            # not qualify: a thick axis, formats/runs.md §6)
         arr, spacing = make_sample("head", SHAPE_IJK, 0)
         a = augment_array(arr, spacing)
         aug = folder / "head.aug.h5"
@@ -92,19 +106,33 @@ def make_fixture(folder: Path, aug: Path | None = None, idx: Path | None = None,
     values = Path(str(idx).replace(".idx.h5", ".values.idx.h5"))
     if values.is_file():
         fx["values"] = values               # the index's values file (index format 6)
+    if not runs_path(idx).exists():
+        build_runs_file(aug, idx)
+    fx["runs"] = runs_path(idx)             # the index's runs file (formats/runs.md), read by the "post_runs" scene
     for name in scenes:
         sc = folder / f"{name}.toml"
-        sc.write_text(scene_toml(aug, idx, *SCENES[name]))
+        sc.write_text(scene_toml(aug, idx, *SCENES[name], runs=name in RUNS_SCENES))
         fx[name] = sc
         code, err, images = run_render(sc, folder / f"ref_{name}")
         if code != 0:
             raise RuntimeError(f"reference render failed ({scene_label(name)}): {err}")
         fx[f"ref_{name}"] = images
+        if own and name in RUNS_SCENES and not reads_runs(sc):
+            raise RuntimeError(f"{sc}: the scene {scene_label(name)} does not read the runs file {fx['runs']}")
     code, out, err = run_cli(["stats", str(aug), str(idx), "--json"])
     if code != 0:
         raise RuntimeError(f"reference stats failed: {err}")
     fx["ref_stats"] = out
     return fx
+
+
+def reads_runs(scene: Path) -> bool:
+    """Whether the scene's frames (each axis) read the runs file beside its index (formats/runs.md §6)."""
+    from isplat.scene import load_scene
+    from isplat.selection import select_from_files
+
+    sc = load_scene(scene, [])
+    return all(select_from_files(sc, ax).report.values_from.startswith("runs file") for ax in "ijk")
 
 
 def run_cli(argv) -> tuple[int, str, str]:
@@ -221,15 +249,17 @@ class FuzzReport:
 
 
 def fuzz(fx: dict, seconds: float, seed: int = 0, max_runs: int | None = None, scenes=None) -> FuzzReport:
-    """Mutate the index and augmented files alternately for ``seconds`` (or ``max_runs`` mutants); each mutant
-    is rendered with the fixture's scenes (or ``scenes``)."""
+    """Mutate the fixture's files (``TARGETS``: the index, the augmented file, the values file and the runs file
+    beside the index, those the fixture has) in turn for ``seconds`` (or ``max_runs`` mutants); each mutant is
+    rendered with the fixture's scenes (or ``scenes``)."""
     rng = np.random.default_rng(seed)
-    originals = {t: fx[t].read_bytes() for t in ("idx", "aug")}
+    targets = [t for t in TARGETS if t in fx]
+    originals = {t: fx[t].read_bytes() for t in targets}
     rep = FuzzReport(0.0)
     t0 = time.perf_counter()
     n = 0
     while time.perf_counter() - t0 < seconds and (max_runs is None or n < max_runs):
-        target = ("idx", "aug")[n % 2]
+        target = targets[n % len(targets)]
         data, what = mutate(originals[target], rng)
         rep.outcomes.append(check_mutant(fx, target, data, what, scenes=scenes))
         n += 1
@@ -382,7 +412,12 @@ def rehash(path: Path) -> None:
             del f["brick_hashes"]
         if chunkhash.CHECK_ATTR in f.attrs:
             del f.attrs[chunkhash.CHECK_ATTR]
-        (finish_index if f.attrs["format"] in (b"isplat-index", b"isplat-index-values") else finish_augmented)(f)
+        if f.attrs["format"] == b"isplat-runs":
+            from isplat.runsfile import _finish as finish_runs
+
+            finish_runs(f)
+        else:
+            (finish_index if f.attrs["format"] in (b"isplat-index", b"isplat-index-values") else finish_augmented)(f)
 
 
 # Mutant classes that byte damage below HDF5 does not make, and that Fletcher-32 cannot see (issue 30): each is
@@ -392,12 +427,16 @@ HASHED = {"aug": ("density", "gradient_magnitude", "normal", "brick_range"),
           "idx": ("axes/k/bytes", "axes/k/entry_slice", "axes/k/entry_voxel_count", "axes/k/entry_byte_offset",
                   "axes/i/bytes", "axes/j/density_entry_ptr"),
           # the index's values file (index format 6, formats/index.md §9.1), read by the pre technique
-          "values": ("values/normal", "values/gradient_magnitude", "values/density_voxel_ptr")}
+          "values": ("values/normal", "values/gradient_magnitude", "values/density_voxel_ptr"),
+          # the index's runs file (formats/runs.md), read by the post_runs scene
+          "runs": ("runs/run_voxel_ptr", "runs/brick_number", "runs/brick_voxel_count", "runs/positions",
+                   "runs/density", "runs/normal", "runs/gradient_magnitude")}
 # pairs of same-typed datasets (a swap or a link passes every type and shape check)
 PAIRS = {"aug": (("density", "gradient_magnitude"),),
          "idx": (("axes/k/entry_slice", "axes/k/entry_voxel_count"), ("axes/i/bytes", "axes/j/bytes"),
                  ("axes/i/density_entry_ptr", "axes/k/density_entry_ptr")),
-         "values": ()}          # no two datasets of one type: swaps and links need another file (see the test)
+         "values": (),          # no two datasets of one type: swaps and links need another file (see the test)
+         "runs": (("runs/run_voxel_ptr", "runs/run_position_ptr"), ("runs/density", "runs/gradient_magnitude"))}
 
 
 def _chunks(ds):
@@ -549,17 +588,24 @@ def class_mutant(fx: dict, target: str, cls: str, rng) -> tuple[bytes, str]:
 
 def applies_to_values(cls: str) -> bool:
     """Whether mutant class ``cls`` applies to the values file (swaps and links need two datasets of a type)."""
-    return cls not in ("h5py dataset swap", "h5py link")
+    return applies_to(cls, "values")
+
+
+def applies_to(cls: str, target: str) -> bool:
+    """Whether mutant class ``cls`` applies to the fixture's file ``target`` (swaps and links need two datasets
+    of a type: ``PAIRS``)."""
+    return bool(PAIRS[target]) or cls not in ("h5py dataset swap", "h5py link")
 
 
 def fuzz_classes(fx: dict, per_class: int, seed: int = 0, scenes=None) -> dict:
-    """``per_class`` mutants of each class of MUTANT_CLASSES on each file: {class: [Outcome, ...]}."""
+    """``per_class`` mutants of each class of MUTANT_CLASSES on each file (the augmented file, the index, its
+    values file and its runs file, in turn): {class: [Outcome, ...]}."""
     rng = np.random.default_rng(seed)
     out = {}
     for cls in MUTANT_CLASSES:
         out[cls] = []
         for n in range(per_class):
-            targets = ("aug", "idx") + (("values",) if "values" in fx and applies_to_values(cls) else ())
+            targets = ("aug", "idx") + tuple(t for t in ("values", "runs") if t in fx and applies_to(cls, t))
             target = targets[n % len(targets)]
             data, what = class_mutant(fx, target, cls, rng)
             out[cls].append(check_mutant(fx, target, data, what, scenes=scenes))

@@ -113,7 +113,8 @@ def test_corpus_of_bugs(examples, case):
 
 
 def _target(fx, target):
-    """The file of ``target``: ``aug``, ``idx``, or ``values`` (the index's values file, index format 6)."""
+    """The file of ``target``: ``aug``, ``idx``, ``values`` (the index's values file, index format 6) or ``runs``
+    (the index's runs file, formats/runs.md)."""
     from isplat.index.store import values_path
 
     return values_path(fx["idx"]) if target == "values" else fx[target]
@@ -303,8 +304,8 @@ def head(tmp_path_factory):
 
 
 @pytest.mark.parametrize("seed", range(3))
-@pytest.mark.parametrize("cls, target", [(c, t) for c in sorted(R.MUTANT_CLASSES) for t in ("aug", "idx", "values")
-                                         if t != "values" or R.applies_to_values(c)])
+@pytest.mark.parametrize("cls, target", [(c, t) for c in sorted(R.MUTANT_CLASSES)
+                                         for t in ("aug", "idx", "values", "runs") if R.applies_to(c, t)])
 def test_mutant_classes_are_refused_with_one_line(head, cls, target, seed):
     """Whole chunks copied with their Fletcher-32, Fletcher-blind words, edits through h5py (values, swaps, links):
     every mutant of both files is refused with one line (no image, in any scene; nor stats); the chunk-level ones
@@ -317,6 +318,30 @@ def test_mutant_classes_are_refused_with_one_line(head, cls, target, seed):
         name = what.split(": ")[1]       # (augmented format 6's channels: a brick, formats/augmented.md §2.3)
         assert (f"dataset '{name}', chunk at (" in out.message or f"dataset '{name}', brick " in out.message) and \
             "rebuild it: isplat " in out.message, (what, out)
+
+
+def _runs_walk_cases():
+    return [(obj, op) for kind, obj in R.objects(EXAMPLES / "runs" / "tiny.runs.idx.h5")
+            for op in (R.ATTRIBUTE_OPS if kind == "attribute" else R.DATASET_OPS)]
+
+
+@pytest.mark.parametrize("obj,op", _runs_walk_cases())
+def test_every_corruption_of_the_runs_file(head, obj, op):
+    """Every named corruption of every dataset and attribute of the fixture's runs file (formats/runs.md): one
+    error line naming the file, from the scene that reads it or from stats (which checks every chunk), but the
+    hash tables rewritten in another layout with the same rows (as for the other files, _expect_error)."""
+    path = head["runs"]
+    original = path.read_bytes()
+    try:
+        R.corrupt(path, obj, op)
+        mutant = path.read_bytes()
+    finally:
+        path.write_bytes(original)
+    out = R.check_mutant(head, "runs", mutant, f"{op} {obj}", scenes=R.RUNS_SCENES)
+    if obj.startswith("/chunk_hashes/") and op in ("contiguous", "gzip"):
+        assert out.result in ("error", "equal", "FAIL (stats: other figures)"), out
+    else:
+        assert out.result == "error" and str(path) in out.message and "isplat index " in out.message, out
 
 
 @pytest.mark.parametrize("seed", range(3))

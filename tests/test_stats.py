@@ -187,7 +187,7 @@ def test_json_keys(vol, capsys):
             "bytes", "bytes_per_voxel"} == set(s["augmented"])
     assert {"path", "file_bytes", "file_bytes_per_voxel", "axes", "density_ranges", "voxels_indexed", "bytes",
             "bytes_per_voxel", "bytes_per_volume_voxel", "decoded_bytes", "per_axis", "per_density_range",
-            "format_version", "values"} == set(s["index"])
+            "format_version", "values", "runs"} == set(s["index"])
     assert s["index"]["format_version"] == 7
     vpath = Path(str(idx).replace(".idx.h5", ".values.idx.h5"))
     assert s["index"]["file_bytes_per_voxel"] == pytest.approx(os.path.getsize(idx) / (3 * d.size))
@@ -205,7 +205,7 @@ def test_json_keys(vol, capsys):
             "page_ratio",
             "held_bytes_per_voxel_of_interest", "technique", "needed_voxels", "needed_axis",
             "channel_bytes_per_voxel", "channel_bytes_needed", "index_bytes_needed"} == set(s["scene"]["loaded"])
-    assert s["stats_version"] == 8
+    assert s["stats_version"] == 9
     # the table carries the same figures
     code, table, _ = run(capsys, aug, idx, "--scene", scene, "-q")
     assert code == 0 and f"{s['scene']['voxels_of_interest']:,}" in table and "spatial ratio" in table
@@ -280,6 +280,62 @@ def test_bad_input(vol, capsys):
     one_error(*run(capsys, aug, idx, "--scene", write_scene(folder), "--view", "3", "-q"), "--view")
     bad = write_scene(folder, name="bad.toml", opacity="[[100, 2.0]]")
     one_error(*run(capsys, aug, idx, "--scene", bad, "-q"), "bad.toml", "opacity")
+
+
+def test_runs_file_beside_the_index(vol, capsys):
+    """The runs file beside the index (formats/runs.md): its path, size, runs and voxels, tied to AUG.h5, in the
+    JSON and the table; none beside: null, and the table says how to write it (stats_version 9)."""
+    import h5py
+
+    from isplat.runsfile import build_runs_file, runs_path
+
+    folder, d, aug, idx = vol
+    code, out, err = run(capsys, aug, idx, "--json")
+    assert code == 0 and json.loads(out)["index"]["runs"] is None
+    code, out, _ = run(capsys, aug, idx)
+    assert "runs file" in out and "isplat index --no-runs" in out
+    rp = build_runs_file(aug, idx)
+    code, out, err = run(capsys, aug, idx, "--json")
+    assert code == 0, err
+    r = json.loads(out)["index"]["runs"]
+    with h5py.File(rp, "r") as f:
+        ptr = f["runs/run_voxel_ptr"][()]
+        bins = [len(f.attrs["lo_first"]), len(f.attrs["hi_first"])]
+    assert r == {"path": str(rp), "file_bytes": os.path.getsize(rp), "format_version": 1, "runs": len(ptr) - 1,
+                 "runs_with_voxels": int(np.count_nonzero(np.diff(ptr))), "bins": bins, "voxels": d.size,
+                 "tied": True}
+    assert r["path"] == str(runs_path(idx))
+    code, out, _ = run(capsys, aug, idx)
+    assert code == 0 and f"{rp}: " in out and f"{r['runs']} runs" in out and "tied to this augmented file" in out
+
+
+@pytest.mark.parametrize("what", ["edited", "other volume", "truncated", "folder"])
+def test_bad_runs_file_is_one_line(vol, capsys, what):
+    """A runs file that a render would refuse is refused by stats too, with one line naming it and the command
+    that rebuilds it; stats checks every chunk (a normal no figure reads, edited through HDF5)."""
+    import h5py
+
+    from isplat.runsfile import build_runs_file, runs_path
+
+    folder, d, aug, idx = vol
+    rp = runs_path(idx)
+    if what == "other volume":
+        other = folder / "other"
+        other.mkdir()
+        _, oaug, oidx = make_volume(other, seed=1)
+        build_runs_file(oaug, idx)
+    elif what == "folder":
+        rp.mkdir()
+    else:
+        build_runs_file(aug, idx)
+        if what == "truncated":
+            rp.write_bytes(rp.read_bytes()[:1000])
+        else:
+            with h5py.File(rp, "r+") as f:
+                f["runs/normal"][-1] = (int(f["runs/normal"][-1]) + 1) % 65536
+    word = {"edited": "'runs/normal', chunk at (", "other volume": "another volume", "truncated": "truncated",
+            "folder": "folder"}[what]
+    one_error(*run(capsys, aug, idx, "--json"), str(rp), word, f"isplat index {aug} -o {idx} --force")
 
 
 def test_scene_applied_to_the_command_line_files(vol, capsys):

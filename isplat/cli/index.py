@@ -21,8 +21,8 @@ log = logging.getLogger(__name__)
               help="Do not write OUT.values.idx.h5 (the indexed voxels' normals and gradient magnitudes, read only by "
                    "render.classification = \"pre\"; without it pre gathers them from AUG.h5).")
 @click.option("--no-runs", "no_runs", is_flag=True,
-              help="Do not write OUT.runs.idx.h5 (the channel bytes in range runs, formats/runs.md; not read by "
-                   "the renderer yet).")
+              help="Do not write OUT.runs.idx.h5 (the channel bytes in range runs, formats/runs.md, which "
+                   "post-classified frames read instead of the bricks; with --force, remove one left beside).")
 @force_option
 @quiet_option
 def index(augmented, output, densities, axes, force, no_values, no_runs):

@@ -304,6 +304,16 @@ def _flip_at(path: Path, offset: int) -> None:
     path.write_bytes(bytes(data))
 
 
+def corrupted_bytes(path: Path, obj: str, op: str) -> bytes:
+    """The bytes of ``path`` with :func:`corrupt` ``op`` applied to ``obj``; the file itself left as it was."""
+    original = path.read_bytes()
+    try:
+        corrupt(path, obj, op)
+        return path.read_bytes()
+    finally:
+        path.write_bytes(original)
+
+
 def corrupt(path: Path, obj: str, op: str) -> None:
     """Apply the named corruption ``op`` to attribute ``group@name`` or dataset ``obj`` of ``path``, in place."""
     import h5py

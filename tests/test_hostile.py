@@ -361,18 +361,23 @@ main(sys.argv[1:])
 """
 
 
-SLOW_VALUES = """
+def _slowed(module: str, name: str, word: str) -> str:
+    """A script that runs the CLI with ``module.name`` printing ``word`` and sleeping 30 s before it works."""
+    return f"""
 import sys, time
-import isplat.index.store as st
-real = st.copy_values
+import {module} as m
+real = m.{name}
 def slow(*a, **k):
-    print("values", flush=True)
+    print("{word}", flush=True)
     time.sleep(30)
     return real(*a, **k)
-st.copy_values = slow
+m.{name} = slow
 from isplat.cli.main import main
 main(sys.argv[1:])
 """
+
+
+SLOW_VALUES = _slowed("isplat.index.store", "copy_values", "values")
 
 
 def test_sigint_while_the_values_file_is_written_leaves_neither_file(data, tmp_path):
@@ -386,18 +391,7 @@ def test_sigint_while_the_values_file_is_written_leaves_neither_file(data, tmp_p
     assert sorted(x.name for x in tmp_path.iterdir()) == []
 
 
-SLOW_RUNS = """
-import sys, time
-import isplat.runsfile as rf
-real = rf.write_runs
-def slow(*a, **k):
-    print("runs", flush=True)
-    time.sleep(30)
-    return real(*a, **k)
-rf.write_runs = slow
-from isplat.cli.main import main
-main(sys.argv[1:])
-"""
+SLOW_RUNS = _slowed("isplat.runsfile", "write_runs", "runs")
 
 
 def test_sigint_while_the_runs_file_is_written_leaves_the_index_alone(data, tmp_path):

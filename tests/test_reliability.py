@@ -49,12 +49,7 @@ def test_each_runs_case_is_one_line_naming_file_problem_and_rebuild(cases):
 def test_pair_cases_of_the_runs_file_are_refused(fx, case):
     what, target, obj, op = case
     path = fx[target]
-    original = path.read_bytes()
-    try:
-        R.corrupt(path, obj, op)
-        mutant = path.read_bytes()
-    finally:
-        path.write_bytes(original)
+    mutant = R.corrupted_bytes(path, obj, op)
     out = R.check_mutant(fx, target, mutant, op)
     # the command last, with the files' names (a chunk's "(runs a..b)" before it)
     assert out.result == "error" and str(path) in out.message, out

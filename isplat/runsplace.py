@@ -4,7 +4,7 @@ array is indexed with it, and marks each voxel placed (a voxel placed twice is r
 
 The kernel returns an error record instead of raising (compiled code cannot name the file); :func:`message`
 turns it into the one line :class:`isplat.errors.IsplatError` carries. tests/test_runs.py checks the kernel
-against :func:`isplat.runs.decode_positions` and :func:`isplat.runs.flat_positions`, the slow NumPy reference.
+against tests/runs_reference.py's decoding, the slow NumPy reference.
 """
 
 from __future__ import annotations

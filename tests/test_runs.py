@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
+import runs_reference as RR
 
 from isplat import runs as R
 from isplat.errors import IsplatError
@@ -102,27 +103,27 @@ def test_positions_both_forms_equal_the_reference(groups):
     counts = np.array([len(g) for g in groups])
     group = np.repeat(np.arange(len(groups)), counts)
     local = np.concatenate([np.array(g) for g in groups])
-    enc = R.encode_positions(group, local, counts)
+    enc = RR.encode_positions(group, local, counts)
     assert np.array_equal(enc, reference_encode(groups))
-    assert np.array_equal(R.decode_positions(counts, enc), local)
+    assert np.array_equal(RR.decode_positions(counts, enc), local)
 
 
 def test_positions_refused():
     enc = reference_encode([[3, 7]])
     with pytest.raises(IsplatError, match="4 bytes of positions, the bricks' counts make 6"):
-        R.decode_positions(np.array([3]), enc)
+        RR.decode_positions(np.array([3]), enc)
     with pytest.raises(IsplatError, match="strictly increasing"):
-        R.decode_positions(np.array([2]), reference_encode([[7, 3]]))
+        RR.decode_positions(np.array([2]), reference_encode([[7, 3]]))
     with pytest.raises(IsplatError, match="places below 512"):
-        R.decode_positions(np.array([1]), reference_encode([[600]]))
+        RR.decode_positions(np.array([1]), reference_encode([[600]]))
     bm = reference_encode([list(range(40))]).copy()
     bm[10] = 1
     with pytest.raises(IsplatError, match="its bitmap holds 41 voxels, its count says 40"):
-        R.decode_positions(np.array([40]), bm)
+        RR.decode_positions(np.array([40]), bm)
     with pytest.raises(IsplatError, match="outside the volume"):
-        R.flat_positions(np.array([0]), np.array([1]), np.array([511]), (7, 8, 8))
+        RR.flat_positions(np.array([0]), np.array([1]), np.array([511]), (7, 8, 8))
     with pytest.raises(IsplatError, match="beyond the 1 bricks"):
-        R.flat_positions(np.array([1]), np.array([1]), np.array([0]), (7, 8, 8))
+        RR.flat_positions(np.array([1]), np.array([1]), np.array([0]), (7, 8, 8))
 
 
 @settings(max_examples=25, deadline=None)
@@ -140,9 +141,9 @@ def test_layout_equals_the_reference(d, n_lo, n_hi):
         assert [int(x) for x in runs.density[vp[r]:vp[r + 1]]] == [int(d[v]) for _, _, v in want]
         assert [int(x) for x in runs.normal[vp[r]:vp[r + 1]]] == [int(nrm[v]) for _, _, v in want]
         assert runs.brick_number[bp[r]:bp[r + 1]].tolist() == sorted({b for b, _, _ in want})
-    place = R.decode_positions(runs.brick_voxel_count, runs.positions)
-    flat = R.flat_positions(runs.brick_number, runs.brick_voxel_count, place, d.shape)
-    assert np.array_equal(R.place(d.shape, flat, runs.gradient_magnitude), gm)
+    place = RR.decode_positions(runs.brick_voxel_count, runs.positions)
+    flat = RR.flat_positions(runs.brick_number, runs.brick_voxel_count, place, d.shape)
+    assert np.array_equal(RR.place(d.shape, flat, runs.gradient_magnitude), gm)
 
 
 def test_best_bins_is_the_exhaustive_optimum():
@@ -196,9 +197,9 @@ def test_round_trip(tmp_path_factory, d, intervals):
     pos, dens, n, g, nbytes = read_runs(path, None, shape=d.shape, density_sha256=SHA,
                                         augmented_chunk_hash_check=CHECK)
     assert np.array_equal(np.sort(pos), np.arange(d.size)) and nbytes > 0
-    assert np.array_equal(R.place(d.shape, pos, dens), d)
-    assert np.array_equal(R.place(d.shape, pos, n), nrm)
-    assert np.array_equal(R.place(d.shape, pos, g), gm)
+    assert np.array_equal(RR.place(d.shape, pos, dens), d)
+    assert np.array_equal(RR.place(d.shape, pos, n), nrm)
+    assert np.array_equal(RR.place(d.shape, pos, g), gm)
     pos, dens, n, g, _ = read_runs(path, intervals)
     lo, hi = R.union_key(d)
     meets = np.zeros(d.shape, bool)
@@ -351,8 +352,8 @@ def test_isplat_index_writes_the_runs_file_and_no_runs_leaves_it_out(tmp_path, c
     a = open_augmented(aug)
     pos, d, n, g, _ = read_runs(rp, None, shape=a.shape, density_sha256=a.density_sha256,
                                 augmented_chunk_hash_check=a.attrs["chunk_hash_check"])
-    assert np.array_equal(R.place(dens.shape, pos, d), dens) and np.array_equal(R.place(dens.shape, pos, n), nrm)
-    assert np.array_equal(R.place(dens.shape, pos, g), gm)
+    assert np.array_equal(RR.place(dens.shape, pos, d), dens) and np.array_equal(RR.place(dens.shape, pos, n), nrm)
+    assert np.array_equal(RR.place(dens.shape, pos, g), gm)
     code, err = run("index", aug, "-o", out, "-q")
     assert code != 0 and len(err.strip().splitlines()) == 1
     assert run("index", aug, "-o", out, "-q", "--force", "--no-runs")[0] == 0
@@ -408,8 +409,8 @@ def test_committed_examples_read_back(name):
     path = EXAMPLES / f"{name}.runs.idx.h5"
     pos, dens, nrm, gm, _ = read_runs(path, None, shape=d.shape, density_sha256=density_sha256(d))
     assert pos.tolist() == _flat_of(name, ex, d.shape)
-    assert np.array_equal(R.place(d.shape, pos, dens), d) and np.array_equal(R.place(d.shape, pos, nrm), n)
-    assert np.array_equal(R.place(d.shape, pos, gm), g)
+    assert np.array_equal(RR.place(d.shape, pos, dens), d) and np.array_equal(RR.place(d.shape, pos, nrm), n)
+    assert np.array_equal(RR.place(d.shape, pos, gm), g)
     with h5py.File(path, "r") as f:
         assert f.attrs["lo_first"].tolist() == ex["lo_first"] and f.attrs["hi_first"].tolist() == ex["hi_first"]
         assert f["runs/positions"][...].tobytes().hex() == ex["positions_hex"]
@@ -478,7 +479,7 @@ def reference_layer_runs(run: np.ndarray, k0: int, shape, density: np.ndarray, n
     group = np.cumsum(new) - 1
     firsts = np.flatnonzero(new)
     counts = np.diff(np.append(firsts, r.size))
-    pos = R.encode_positions(group, p, counts)
+    pos = RR.encode_positions(group, p, counts)
     vptr = R._ptr(np.bincount(r, minlength=n_run))
     bptr = R._ptr(np.bincount(r[firsts], minlength=n_run))
     pptr = R._ptr(np.bincount(r[firsts], weights=R.position_bytes(counts), minlength=n_run).astype(np.int64))

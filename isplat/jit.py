@@ -53,9 +53,9 @@ def _announce_compile(cache_path: str) -> None:
 # its own file is unchanged, but a compiled function holds the code of the stages it calls from other files
 # (every technique's kernel inlines traverse.py's occlusion tests): a cached kernel is fresh only while all of
 # them are.
-KERNEL_SOURCES = ("jit.py", "augment.py", "brickstore.py", "normals.py", "samples.py", "index/codec.py",
-                  "splat/composite.py", "splat/labels.py", "splat/mip.py", "splat/post.py", "splat/pre.py",
-                  "splat/select.py", "splat/shade.py", "splat/sheets.py", "splat/traverse.py")
+KERNEL_SOURCES = ("jit.py", "augment.py", "brickstore.py", "normals.py", "runs.py", "runsplace.py", "samples.py",
+                  "index/codec.py", "splat/composite.py", "splat/labels.py", "splat/mip.py", "splat/post.py",
+                  "splat/pre.py", "splat/select.py", "splat/shade.py", "splat/sheets.py", "splat/traverse.py")
 _HERE = os.path.dirname(os.path.abspath(__file__))
 
 

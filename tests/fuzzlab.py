@@ -634,3 +634,97 @@ def brick_hash(data: bytes, row: int, seed: int) -> int:
     h ^= h >> 33
     h = (h * 0xC4CEB9FE1A85EC53) & mask
     return h ^ (h >> 33)
+
+
+# the catalogue's named corruptions of the runs file (benchmarks/reliability.py, tests/test_reliability.py):
+# (input, target, object, op), rendered with the scene that reads the runs file
+RUNS_PAIR_CASES = [
+    ("runs file density chunk byte flipped on disk", "runs", "/runs/density", "flip_chunk"),
+    ("runs file pointer table byte flipped on disk", "runs", "/runs/run_voxel_ptr", "flip_chunk"),
+    ("runs file positions chunk byte flipped on disk", "runs", "/runs/positions", "flip_chunk"),
+    ("runs file attribute bytes flipped (lo_first)", "runs", "/@lo_first", "flip_header"),
+    ("runs file dataset /runs/normal deleted", "runs", "/runs/normal", "delete"),
+    ("runs file dataset /runs/density contiguous", "runs", "/runs/density", "contiguous"),
+]
+
+
+def runs_cases(fx: dict, w: Path) -> list[tuple[str, list, str]]:
+    """(input, argv, words the message must hold): runs files beside an index (formats/runs.md) that a stranger
+    can make, each in a folder of its own with copies of the fixture's index and values file, rendered with the
+    scene that reads the runs file (or run through stats). tests/test_reliability.py checks each; the
+    reliability benchmark's catalogue (benchmarks/reliability.py) lists them."""
+    import shutil
+
+    import h5py
+    import numpy as np
+
+    from isplat.runsfile import build_runs_file, runs_path
+
+    def folder(name, runs=True):
+        d = w / f"runs-{name}"
+        d.mkdir(exist_ok=True)
+        idx = d / fx["idx"].name
+        for src in (fx["idx"], fx.get("values")):
+            if src is not None:
+                shutil.copy(src, d / src.name)
+        if runs:
+            shutil.copy(fx["runs"], runs_path(idx))
+        return idx, runs_path(idx)
+
+    fresh = iter(range(1000))
+
+    def render(idx, aug=None):
+        sets = [f'data.index="{idx}"'] + ([f'data.augmented="{aug}"'] if aug else [])
+        return ["render", str(fx["post_runs"]), "--view", "0", *[a for s in sets for a in ("--set", s)], "-o",
+                str(w / f"r{next(fresh)}.png")]
+
+    cases = []
+    idx, rp = folder("other")                   # the runs of another volume: another density_sha256
+    other = w / "runs-other" / "other.aug.h5"
+    if not other.exists():
+        from isplat.augfile import write_augmented
+        from isplat.augment import augment_array
+        from isplat.samples import make_sample
+
+        arr, spacing = make_sample("head", SHAPE_IJK, 0)
+        a = augment_array(np.ascontiguousarray(arr[::-1]), spacing)
+        write_augmented(other, a["density"], a["gradient_magnitude"], a["normal"], a["spacing_ijk"],
+                        a["density_window"], a["gradient_magnitude_scale"])
+    rp.unlink()
+    build_runs_file(other, idx)
+    cases.append(("runs file of another volume beside the index", render(idx), "another volume"))
+    idx, rp = folder("truncated")
+    rp.write_bytes(fx["runs"].read_bytes()[: fx["runs"].stat().st_size // 2])
+    cases.append(("runs file truncated to half its size", render(idx), "truncated"))
+    idx, rp = folder("version")
+    with h5py.File(rp, "r+") as f:
+        f.attrs["format_version"] = np.int64(2)
+    cases.append(("runs file of format version 2", render(idx), "version"))
+    idx, rp = folder("folder", runs=False)
+    rp.mkdir(exist_ok=True)
+    cases.append(("runs file name taken by a folder", render(idx), "folder"))
+    idx, rp = folder("fifo", runs=False)
+    if not rp.exists():
+        os.mkfifo(rp)
+    cases.append(("runs file name taken by a fifo", render(idx), "fifo"))
+    idx, rp = folder("reaugmented")             # isplat augment --force again, other spacing, without --index
+    aug2 = idx.parent / fx["aug"].name
+    if not aug2.exists():
+        from isplat.augfile import open_augmented, write_augmented
+
+        a = open_augmented(fx["aug"])
+        write_augmented(aug2, a.read("density"), a.read("gradient_magnitude"), a.read("normal"),
+                        tuple(2 * x for x in a.spacing_ijk), a.density_window, a.gradient_magnitude_scale)
+    cases.append(("runs file left from before re-augmenting with another spacing (same densities)",
+                  render(idx, aug2), "another augmentation"))
+    idx, rp = folder("stats")
+    with h5py.File(rp, "r+") as f:
+        ds = f["runs/normal"]
+        ds[0] = (int(ds[0]) + 1) % 65536          # a valid HDF5 edit: the chunk hash no longer matches
+    cases.append(("stats: runs file beside the index edited (one normal)", ["stats", str(fx["aug"]), str(idx)],
+                  "runs/normal"))
+    idx, rp = folder("left", runs=True)
+    idx.unlink()
+    cases.append(("index --no-runs with a runs file left beside the new index (no --force)",
+                  ["index", str(fx["aug"]), "-o", str(idx), "--no-runs"], "--force"))
+    return cases

@@ -1,17 +1,11 @@
-"""The catalogue of bad inputs (benchmarks/reliability.py, docs/reliability.md): the runs files beside an index
-that a stranger can make (formats/runs.md §5, §6) each end in one error line naming the file, the problem and the
-command that rebuilds it; the catalogue's named corruptions of the runs file are refused by the scene that reads
-it."""
-
-import sys
-from pathlib import Path
+"""The catalogue of bad inputs (benchmarks/reliability.py, docs/reliability.md) takes its runs-file cases from
+tests/fuzzlab.py: the runs files beside an index that a stranger can make (formats/runs.md §5, §6) each end in one
+error line naming the file, the problem and the command that rebuilds it; the named corruptions of the runs file
+are refused by the scene that reads it."""
 
 import pytest
 
 import fuzzlab as R
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks import reliability as B  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -22,14 +16,7 @@ def fx(tmp_path_factory):
 @pytest.fixture(scope="module")
 def cases(fx, tmp_path_factory):
     w = tmp_path_factory.mktemp("w")
-    return w, B.runs_cases(fx, w)
-
-
-def test_runs_cases_are_in_the_catalogue(fx, cases):
-    w, got = cases
-    names = [what for what, _ in B._cli_cases(fx, w)]
-    assert all(what in names for what, _, _ in got)
-    assert any(target == "runs" for _, target, _, _ in B._pair_cases(fx))
+    return w, R.runs_cases(fx, w)
 
 
 def test_each_runs_case_is_one_line_naming_file_problem_and_rebuild(cases):
@@ -45,7 +32,7 @@ def test_each_runs_case_is_one_line_naming_file_problem_and_rebuild(cases):
         assert not list(w.glob("r*.png")), what
 
 
-@pytest.mark.parametrize("case", [c for c in B._pair_cases({}) if c[1] == "runs"], ids=lambda c: c[0])
+@pytest.mark.parametrize("case", R.RUNS_PAIR_CASES, ids=lambda c: c[0])
 def test_pair_cases_of_the_runs_file_are_refused(fx, case):
     what, target, obj, op = case
     path = fx[target]

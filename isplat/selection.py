@@ -301,17 +301,17 @@ class Selection:
         steps = grid.flat_strides(shape, axis)
         if self.slab is not None:
             base = -self.slab[1] * int(steps[2])
-        pooled = pool and w.pooled
-        oa, ob, oc = grid.flat_offsets(shape, axis, grid.POOL_EDGE if pooled else 0)
-        if self.slab is not None:
-            oc = np.concatenate([np.zeros(self.slab[1], np.int64), oc])
-        sa = int(oa[1] - oa[0]) if n_a > 1 else 1
-        # voxels along a per prefetch: half a 64-byte line, or a brick's row (a row of 8 along i, of 8 rows along
-        # j: one line; along k, a line per voxel)
-        da = (grid.POOL_EDGE if sa < 64 else 1) if pooled else max(1, 32 // sa)
-        channels = (w.density, w.gradient_magnitude, w.normal) if pooled else w.flat()
-        return WholeVolume(*channels, np.append(steps, base), n_a, n_b, (oa, ob, oc, da),
-                           w.table if pooled else _EMPTY_U32)
+        n_c = grid.slice_shape(self.shape, axis)[0]
+        oc = np.arange(n_c, dtype=np.int64) * int(steps[2]) + base        # each slice's first voxel
+        if pool and w.pooled:           # a pool: brick-major tables and the brick table
+            oa, ob, oc = grid.flat_offsets(shape, axis, grid.POOL_EDGE)
+            # voxels along a per prefetch: a brick's row (8 along i, or 8 rows along j: one line; along k a line
+            # per voxel)
+            da = grid.POOL_EDGE if int(oa[min(1, n_a - 1)] - oa[0]) < 64 else 1
+            return WholeVolume(w.density, w.gradient_magnitude, w.normal, np.append(steps, base), n_a, n_b,
+                               (oa, ob, oc, da), w.table)
+        sa, sb = int(steps[0]), int(steps[1])       # strides: the kernel multiplies (post._at)
+        return WholeVolume(*w.flat(), np.append(steps, base), n_a, n_b, (sa, sb, oc, max(1, 32 // sa)), None)
 
     def held_bytes(self) -> int:
         """Bytes of volume data held for the frames (selection and gathered values, or whole channels)."""

@@ -284,12 +284,11 @@ def _alpha(lo, hi, f, r, persp):
 
 
 def kernel_offsets(strides, n_a: int, n_b: int, c: int) -> tuple:
-    """The sampler's ``voxel[3]`` (isplat.splat.post) for row-major channels of flat steps ``strides`` (along a,
-    b, c and an offset added to every index): ``(oa, ob, base of slice c, voxels along a per prefetch, no brick
-    table)``."""
+    """The sampler's ``voxel[3]`` (isplat.splat.post) for whole channels in C order of flat steps ``strides``
+    (along a, b, c and an offset added to every index), as isplat.selection.Selection.whole_volume gives it:
+    ``(stride along a, along b, slice c's first voxel, voxels along a per prefetch, no brick table)``."""
     sa, sb, sc, off = (int(x) for x in strides)
-    return (np.arange(n_a, dtype=np.int64) * sa, np.arange(n_b, dtype=np.int64) * sb, c * sc + off,
-            max(1, 32 // max(sa, 1)), NO_TABLE)
+    return sa, sb, c * sc + off, max(1, 32 // max(sa, 1)), NO_TABLE
 
 
-NO_TABLE = np.zeros(0, np.uint32)
+NO_TABLE = None          # whole channels: no brick table (isplat.splat.post._phys)

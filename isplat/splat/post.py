@@ -427,9 +427,9 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     elif between[0] == 2:           # along b a row before and one more after
         b0, b1 = max(b0 - 1, 0), min(b1 + 1, n_b - 1)
     for b in range(b0, b1 + 1):
-        row = cbase + ob[b]
+        row = cbase + _at(ob, b)
         for a in range(a0, a1 + da, da):
-            i = _phys(tab, np.uint64(row + oa[min(a, a1)]))
+            i = _phys(tab, np.uint64(row + _at(oa, min(a, a1))))
             prefetch(density, i)
             if use_shade:
                 prefetch(nrm, i)    # 2 bytes a voxel: hence the half lines
@@ -493,9 +493,9 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                 done = sample_label(x, y, fu, fv, qa, qb, c, u, v, lab, n_a, n_b, shade, use_shade, base, geo, img,
                                     sat, tile_sat, et)
             if done < 2:
-                done = max(done, _sample(x, y, fu, fv, cbase + oa[qa] + ob[qb],
-                                         oa[qa + 1] - oa[qa] if qa + 1 < n_a else 0,
-                                         ob[qb + 1] - ob[qb] if qb + 1 < n_b else 0, u, v,
+                done = max(done, _sample(x, y, fu, fv, cbase + _at(oa, qa) + _at(ob, qb),
+                                         _at(oa, qa + 1) - _at(oa, qa) if qa + 1 < n_a else 0,
+                                         _at(ob, qb + 1) - _at(ob, qb) if qb + 1 < n_b else 0, u, v,
                                          density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo, img,
                                          sat, tile_sat, et, _taps(qa, qb, voxel), tab))
             drawn += done > 0
@@ -556,14 +556,36 @@ def _span(o, d, r, a, b, lo, hi):
     return lo, hi
 
 
-@leaf(inline="always")
 def _phys(tab, i):
     """Where the voxel of flat index ``i`` (uint64) is in the channels: ``i`` itself without a brick table
-    (``tab`` empty), else its brick's row in the pool (:data:`isplat.splat.traverse.WholeVolume`). Tried: the
-    four corners of a quad inside one brick translated once (a branch per sample) was slower (docs/design.md)."""
-    if tab.shape[0] == 0:
+    (``tab`` None), else its brick's row in the pool (:data:`isplat.splat.traverse.WholeVolume`). Compiled (the
+    overload below), None is a type of its own: the kernel of whole channels is compiled without the table, the
+    pool's with it. Tried: the four corners of a quad inside one brick translated once (a branch per sample) was
+    slower (docs/design.md)."""
+    if tab is None:
         return i
     return (np.uint64(tab[i >> np.uint64(POOL_SHIFT)]) << np.uint64(POOL_SHIFT)) | (i & np.uint64(POOL_MASK))
+
+
+@overload(_phys, inline="always")
+def _typed_phys(tab, i):
+    if isinstance(tab, types.NoneType):
+        return lambda tab, i: i
+    return lambda tab, i: ((np.uint64(tab[i >> np.uint64(POOL_SHIFT)]) << np.uint64(POOL_SHIFT))
+                           | (i & np.uint64(POOL_MASK)))
+
+
+def _at(o, q):
+    """The flat index's share of place ``q`` along an axis: ``o[q]`` of a table (isplat.grid.flat_offsets), or
+    ``q * o`` of a stride (whole channels in C order: the kernel then multiplies, as before the pools)."""
+    return q * o if isinstance(o, (int, np.integer)) else o[q]
+
+
+@overload(_at, inline="always")
+def _typed_at(o, q):
+    if isinstance(o, types.Integer):
+        return lambda o, q: q * o
+    return lambda o, q: o[q]
 
 
 @leaf(forceinline=True)
@@ -698,7 +720,8 @@ def _thick_taps(qa, qb, voxel):
     if t == 2:
         q, n, s = qb, n_b, offs[1]
     q = min(max(q, 0), n - 1)
-    return t, between[1], s[q] - s[q - 1] if q > 0 else 0, s[min(q + 2, n - 1)] - s[q], between[2], q, n, s
+    return (t, between[1], _at(s, q) - _at(s, q - 1) if q > 0 else 0, _at(s, min(q + 2, n - 1)) - _at(s, q),
+            between[2], q, n, s)
 
 
 @leaf(forceinline=True)
@@ -747,7 +770,7 @@ def _spline_at(density, i0, i1, f, taps, tab):
     v0 = v1 = wsum = 0.0
     for r in range(2 * SPLINE_REACH):
         w = SPLINE_KERNEL[r, 0] + f * SPLINE_KERNEL[r, 1] + f2 * SPLINE_KERNEL[r, 2] + f3 * SPLINE_KERNEL[r, 3]
-        off = s[min(max(q + r + 1 - SPLINE_REACH, 0), n - 1)] - s[q]
+        off = _at(s, min(max(q + r + 1 - SPLINE_REACH, 0), n - 1)) - _at(s, q)
         v0 += w * density[_phys(tab, np.uint64(np.int64(i0) + off))]
         v1 += w * density[_phys(tab, np.uint64(np.int64(i1) + off))]
         wsum += w

@@ -56,7 +56,6 @@ def slice_coefficients(shape_kji, axis: str) -> tuple[int, ...]:
 
 POOL_EDGE = 8                       # voxels a side of a pool's bricks (format 6's bricks): isplat.selection
 POOL_SHIFT = 9                      # log2(POOL_EDGE ** 3): a flat brick-major index >> POOL_SHIFT is its brick
-POOL_MASK = (1 << POOL_SHIFT) - 1   # and & POOL_MASK its place in the brick
 
 
 def flat_offsets(shape_kji, axis: str, edge: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -204,7 +204,8 @@ class WholeChannels:
     """The full method's data: whole channels, flat ``[k, j, i]`` (empty when unused); or, with a brick ``table``
     (post's bricks from a format 6 file), a pool: the channels hold only the bricks read, one row of
     ``POOL_EDGE``^3 voxels each (row 0 zeros), and ``table`` (uint32 per brick of the volume's grid, C order)
-    gives each brick's row, 0 for a brick not read (isplat.grid.flat_offsets: brick-major)."""
+    gives each brick's row, 0 for a brick not read (isplat.grid.flat_offsets: brick-major); the sampler reads
+    through :meth:`deltas`, made from it when a frame first asks."""
 
     density: np.ndarray
     gradient_magnitude: np.ndarray
@@ -227,12 +228,21 @@ class WholeChannels:
                 a.nbytes for a in self._flat.values()))
         return self.held if self.held >= 0 else int(sum(a.nbytes for a in self.arrays()))
 
+    def deltas(self) -> np.ndarray:
+        """uint64 per brick: its pool row's first voxel minus its own first brick-major flat index, modulo 2^64
+        (``(row - brick) << POOL_SHIFT``): post's sampler finds voxel ``i`` at ``i + deltas[i >> POOL_SHIFT]``,
+        one add (post._phys). Made once, held beside the table (8 bytes a brick of the volume's grid)."""
+        if "delta" not in self._flat:
+            n = np.arange(self.table.size, dtype=np.int64)
+            self._flat["delta"] = ((self.table.astype(np.int64) - n) << grid.POOL_SHIFT).view(np.uint64)
+        return self._flat["delta"]
+
     def flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The channels flat ``[k, j, i]``: themselves, or a pool's bricks placed into zeroed whole-shape arrays
         (made once, for the kernels that take strides: MIP)."""
         if not self.pooled:
             return self.density, self.gradient_magnitude, self.normal
-        if not self._flat:
+        if "d" not in self._flat:
             for name, a in zip(("d", "g", "n"), self.arrays()):
                 self._flat[name] = _unpool(a, self.table, self.shape) if a.size else a
         return self._flat["d"], self._flat["g"], self._flat["n"]
@@ -305,11 +315,11 @@ class Selection:
         oc = np.arange(n_c, dtype=np.int64) * int(steps[2]) + base        # each slice's first voxel
         if pool and w.pooled:           # a pool: brick-major tables and the brick table
             oa, ob, oc = grid.flat_offsets(shape, axis, grid.POOL_EDGE)
-            # voxels along a per prefetch: a brick's row (8 along i, or 8 rows along j: one line; along k a line
-            # per voxel)
-            da = grid.POOL_EDGE if int(oa[min(1, n_a - 1)] - oa[0]) < 64 else 1
+            # one entry more, the last repeated: the sampler's step past the edge voxel is 0 (post._step); no
+            # prefetch (post._prefetch_square), so no voxels per prefetch
+            oa, ob = np.append(oa, oa[-1]), np.append(ob, ob[-1])
             return WholeVolume(w.density, w.gradient_magnitude, w.normal, np.append(steps, base), n_a, n_b,
-                               (oa, ob, oc, da), w.table)
+                               (oa, ob, oc, 0), w.deltas())
         sa, sb = int(steps[0]), int(steps[1])       # strides: the kernel multiplies (post._at)
         return WholeVolume(*w.flat(), np.append(steps, base), n_a, n_b, (sa, sb, oc, max(1, 32 // sa)), None)
 

@@ -58,7 +58,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
-from ..grid import POOL_MASK, POOL_SHIFT
+from ..grid import POOL_SHIFT
 from ..jit import leaf, prefetch, stage
 from .composite import TILE
 from .labels import sample_label
@@ -415,11 +415,14 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     (a0, b0) read (its voxels and the next along a and b), in the channels the samples read. A slice's rows
     along b lie a plane or a row of the volume apart, so each row of the square is lines of its own that the
     CPU's own prefetchers do not foresee: without this the samples wait for memory (most of a frame's time on a
-    volume larger than the caches, docs/design.md). Every ``da``-th voxel along a (``voxel[3]``: half a line of
-    row-major channels, a brick's row of a pool's), through the brick table."""
+    volume larger than the caches, docs/design.md). Every ``da``-th voxel along a (``voxel[3]``: half a line).
+    Whole channels only: a pool's bricks hold a square's voxels in a few lines, and fetching them through the
+    brick table cost more than it saved (docs/design.md, "Built on branch pool")."""
     density, gm, nrm, offs, n_a, n_b, c, thick = voxel
     between = _between(thick)
     oa, ob, cbase, da, tab = offs
+    if tab is not None:             # a pool (a type of its own: the test is the compiler's)
+        return
     a1 = min(a0 + unit, n_a - 1)
     b1 = min(b0 + unit, n_b - 1)
     if between[0] == 1:             # the cubic along a reads a voxel before and one more after (_density_at)
@@ -429,7 +432,7 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     for b in range(b0, b1 + 1):
         row = cbase + _at(ob, b)
         for a in range(a0, a1 + da, da):
-            i = _phys(tab, np.uint64(row + _at(oa, min(a, a1))))
+            i = np.uint64(row + _at(oa, min(a, a1)))
             prefetch(density, i)
             if use_shade:
                 prefetch(nrm, i)    # 2 bytes a voxel: hence the half lines
@@ -494,8 +497,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                                     sat, tile_sat, et)
             if done < 2:
                 done = max(done, _sample(x, y, fu, fv, cbase + _at(oa, qa) + _at(ob, qb),
-                                         _at(oa, qa + 1) - _at(oa, qa) if qa + 1 < n_a else 0,
-                                         _at(ob, qb + 1) - _at(ob, qb) if qb + 1 < n_b else 0, u, v,
+                                         _step(oa, qa, n_a), _step(ob, qb, n_b), u, v,
                                          density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo, img,
                                          sat, tile_sat, et, _taps(qa, qb, voxel), tab))
             drawn += done > 0
@@ -558,27 +560,42 @@ def _span(o, d, r, a, b, lo, hi):
 
 def _phys(tab, i):
     """Where the voxel of flat index ``i`` (uint64) is in the channels: ``i`` itself without a brick table
-    (``tab`` None), else its brick's row in the pool (:data:`isplat.splat.traverse.WholeVolume`). Compiled (the
-    overload below), None is a type of its own: the kernel of whole channels is compiled without the table, the
-    pool's with it. Tried: the four corners of a quad inside one brick translated once (a branch per sample) was
-    slower (docs/design.md)."""
+    (``tab`` None), else in its brick's row of the pool: ``i`` plus its brick's entry of the pool's delta table
+    (uint64, modulo 2^64: :meth:`isplat.selection.WholeChannels.deltas`; a shift, a load and an add). Compiled
+    (the overload below), None is a type of its own: the kernel of whole channels is compiled without the table,
+    the pool's with it. Tried, and slower (docs/design.md): a table of rows (two more operations a corner), a
+    branch per quad for the corners in one brick, a quad's corners kept for its next pixels."""
     if tab is None:
         return i
-    return (np.uint64(tab[i >> np.uint64(POOL_SHIFT)]) << np.uint64(POOL_SHIFT)) | (i & np.uint64(POOL_MASK))
+    return np.uint64((int(i) + int(tab[int(i) >> POOL_SHIFT])) % 2 ** 64)
 
 
 @overload(_phys, inline="always")
 def _typed_phys(tab, i):
     if isinstance(tab, types.NoneType):
         return lambda tab, i: i
-    return lambda tab, i: ((np.uint64(tab[i >> np.uint64(POOL_SHIFT)]) << np.uint64(POOL_SHIFT))
-                           | (i & np.uint64(POOL_MASK)))
+    return lambda tab, i: i + tab[i >> np.uint64(POOL_SHIFT)]
 
 
 def _at(o, q):
     """The flat index's share of place ``q`` along an axis: ``o[q]`` of a table (isplat.grid.flat_offsets), or
     ``q * o`` of a stride (whole channels in C order: the kernel then multiplies, as before the pools)."""
     return q * o if isinstance(o, (int, np.integer)) else o[q]
+
+
+def _step(o, q, n):
+    """The flat index's step from place ``q`` to ``q + 1`` along an axis of ``n`` places, 0 at the last (the edge
+    voxel repeated): a table's (isplat.selection's have one more entry, the last repeated) or a stride's."""
+    if isinstance(o, (int, np.integer)):
+        return o if q + 1 < n else 0
+    return o[q + 1] - o[q]
+
+
+@overload(_step, inline="always")
+def _typed_step(o, q, n):
+    if isinstance(o, types.Integer):
+        return lambda o, q, n: o if q + 1 < n else 0
+    return lambda o, q, n: o[q + 1] - o[q]
 
 
 @overload(_at, inline="always")

@@ -66,11 +66,13 @@ codes) per voxel, empty when unused."""
 WholeVolume = namedtuple("WholeVolume", "density gm nrm strides n_a n_b offs table")
 WholeVolume.__doc__ = """Whole channels, flat ``[k, j, i]`` (full method, post-classification); ``strides``: flat
 steps along a, b, c and an offset added to every flat index (post-classification of a slab whose channels hold
-only its slices; 0 otherwise). ``offs``: ``(oa, ob, oc, da)``, the same index as a sum of per-axis tables
-(:func:`isplat.grid.flat_offsets`; ``oc`` with the slab's offset) and the voxels along a per prefetch; ``table``
-(uint32, empty: none): the brick table of a pool (``WholeChannels.table``, :mod:`isplat.selection`): the channels then hold only the pool's
-bricks, and a voxel's flat brick-major index ``i`` is at ``table[i >> POOL_SHIFT]`` (its row) ``<< POOL_SHIFT |
-i & POOL_MASK`` (isplat.splat.post reads them so; ``strides`` then do not apply)."""
+only its slices; 0 otherwise). ``offs``: ``(oa, ob, oc, da)``, the same index as a sum of per-axis terms and
+the voxels along a per prefetch: whole channels give ``oa`` and ``ob`` as strides (ints), ``oc`` as a table;
+a pool gives brick-major tables (:func:`isplat.grid.flat_offsets`, ``oa`` and ``ob`` one entry longer, the last
+repeated). ``table``: None for whole channels; a pool's delta table (``WholeChannels.deltas``,
+:mod:`isplat.selection`): the channels then hold only the pool's bricks, and the voxel of flat brick-major
+index ``i`` is at ``i + table[i >> POOL_SHIFT]`` (isplat.splat.post reads them so; ``strides`` then do not
+apply)."""
 Indexed = namedtuple("Indexed", "vox bins")
 Indexed.__doc__ = """The indexed method's voxels (:data:`IndexedVoxels`) with the regions of each slice that reach
 each band (:data:`Bins`); the full method's are a :data:`WholeVolume` (:func:`slice_regions`)."""

@@ -587,14 +587,14 @@ def _step(o, q, n):
     """The flat index's step from place ``q`` to ``q + 1`` along an axis of ``n`` places, 0 at the last (the edge
     voxel repeated): a table's (isplat.selection's have one more entry, the last repeated) or a stride's."""
     if isinstance(o, (int, np.integer)):
-        return o if q + 1 < n else 0
+        return o * (q + 1 < n)
     return o[q + 1] - o[q]
 
 
 @overload(_step, inline="always")
 def _typed_step(o, q, n):
-    if isinstance(o, types.Integer):
-        return lambda o, q, n: o if q + 1 < n else 0
+    if isinstance(o, types.Integer):        # (no conditional expression: numba's inlined IR warns of its phi)
+        return lambda o, q, n: o * (q + 1 < n)
     return lambda o, q, n: o[q + 1] - o[q]
 
 

@@ -791,7 +791,8 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
             rep.values_from = "slab's channels"
         return replace(sel, whole=whole, slab=slab)
     bricks = np.argwhere(need)
-    if slab is None and getattr(aug, "store", None) is not None and tuple(b) == (grid.POOL_EDGE,) * 3:
+    composite = sel.request is None or sel.request.mode == "composite"     # (MIP reads whole-shape channels)
+    if slab is None and composite and getattr(aug, "store", None) is not None and tuple(b) == (grid.POOL_EDGE,) * 3:
         return replace(sel, whole=_pool(sel, aug, bricks, need.shape))
     out = {ch: aug.read_bricks(ch, bricks, (tuple(lo), tuple(hi))).reshape(-1) for ch in rep.channels}
     rep.values_from = f"bricks ({len(bricks):,} of {int(np.prod(need.shape)):,})"

@@ -574,7 +574,7 @@ def test_a_pool_holds_each_voxel_of_its_bricks_where_the_sampler_looks(shape, ax
     sampler's way, ``_phys(deltas, oa[a] + ob[b] + oc[c])`` with its delta table (WholeChannels.deltas, each
     brick's row minus its place, modulo 2^64) and isplat.grid.flat_offsets' brick-major tables,
     gives every voxel of every brick it holds; and the table-free way, with the row-major tables, every voxel of
-    the flat channel; and the pool made whole again (WholeChannels.flat, for MIP) is the volume where bricks
+    the flat channel; and the pool made whole again (WholeChannels.flat, a strided kernel's) is the volume where bricks
     were held, zero elsewhere."""
     from isplat import grid
     from isplat.selection import WholeChannels
@@ -592,7 +592,8 @@ def test_a_pool_holds_each_voxel_of_its_bricks_where_the_sampler_looks(shape, ax
     table[held.reshape(-1)] = np.arange(1, int(held.sum()) + 1, dtype=np.uint32)
     pool = np.concatenate([np.zeros((1, e ** 3), np.uint8), bricks[held.reshape(-1)]]).reshape(-1)
     phys = post._phys
-    deltas = WholeChannels(pool, pool[:0], pool[:0].view(np.uint16), table=table, shape=shape).deltas()
+    chans = WholeChannels(pool, pool[:0], pool[:0].view(np.uint16), table=table, shape=shape)
+    deltas = chans.deltas()
     dims = grid.SLICE_AXES[axis]                                   # (i, j, k) dims of a, b, c
     oa, ob, oc = grid.flat_offsets(shape, axis, e)
     fa, fb, fc = grid.flat_offsets(shape, axis)
@@ -601,7 +602,7 @@ def test_a_pool_holds_each_voxel_of_its_bricks_where_the_sampler_looks(shape, ax
         assert vol.reshape(-1)[phys(None, np.uint64(fa[a] + fb[b] + fc[c]))] == vol[k, j, i]
         if held[k // e, j // e, i // e]:
             assert pool[phys(deltas, np.uint64(oa[a] + ob[b] + oc[c]))] == vol[k, j, i]
-    flat = WholeChannels(pool, pool[:0], pool[:0].view(np.uint16), table=table, shape=shape).flat()[0]
+    flat = chans.flat()[0]
     keep = np.repeat(np.repeat(np.repeat(held, e, 0), e, 1), e, 2)[:shape[0], :shape[1], :shape[2]]
     assert np.array_equal(flat.reshape(shape), np.where(keep, vol, 0))
 

@@ -144,11 +144,29 @@ class AugmentedVolume:
         self.bytes_read += n * out.itemsize
         return out
 
-    def _read_into(self, f, channel: str, bricks: np.ndarray, out: np.ndarray, lo, bulk: bool = False) -> int:
-        """Bricks ``bricks`` of ``channel`` into ``out`` (the block from element ``lo``), each checked against its
+    def read_pool(self, channel: str, bricks: np.ndarray) -> np.ndarray:
+        """The bricks ``bricks`` (grid indices, int64[n, 3], C order of the grid, unique) of ``channel`` as the rows
+        of a pool (isplat.selection.WholeChannels): flat, ``(n + 1) * edge^3`` elements, row 0 zeros, row ``r + 1``
+        brick ``r`` in C order (its part outside the volume zeros). Checked as :meth:`read_bricks`; version 6
+        only (isplat's brick store). Adds the bricks' bytes to :attr:`bytes_read`."""
+        if channel not in CHANNELS or self.store is None:
+            raise IsplatError(f"{self.path}: a pool of {channel!r} bricks needs a format 6 file with that channel")
+        e, bricks = self.edge, np.asarray(bricks, dtype=np.int64).reshape(-1, 3)
+        out = np.zeros(((bricks.shape[0] + 1) * e, e, e), dtype=CHANNELS[channel])
+        to = np.zeros_like(bricks)
+        to[:, 0] = (np.arange(bricks.shape[0]) + 1) * e        # brick r at row r + 1
+        with hdf5_errors(self.path, f"dataset {channel!r}"):
+            n = self._read_into(None, channel, bricks, out, (0, 0, 0), to=to)
+        self.bytes_read += n * out.itemsize
+        return out.reshape(-1)
+
+    def _read_into(self, f, channel: str, bricks: np.ndarray, out: np.ndarray, lo, bulk: bool = False,
+                   to=None) -> int:
+        """Bricks ``bricks`` of ``channel`` into ``out`` (the block from element ``lo``; ``to``: each brick's
+        first element there, when not its place in the volume: a pool's rows), each checked against its
         chunk hash and, for the density, against ``brick_range``; returns the elements read."""
         if self.store is not None:
-            n, mm = self._read_store(channel, bricks, out, lo)
+            n, mm = self._read_store(channel, bricks, out, lo, to)
         else:
             n, mm = self.verifier.read_bricks_direct(f, channel, bricks, out, tuple(int(x) for x in lo),
                                                      minmax=True, bulk=bulk)
@@ -159,7 +177,7 @@ class AugmentedVolume:
                 self._range_error(bricks[bad[0]], mm[bad[0]], want[bad[0]])
         return n
 
-    def _read_store(self, channel: str, bricks: np.ndarray, out: np.ndarray, lo):
+    def _read_store(self, channel: str, bricks: np.ndarray, out: np.ndarray, lo, to=None):
         """Version 6: bricks ``bricks`` (grid indices) of ``channel`` from the brick store into ``out`` (the block
         from element ``lo``), read from memory maps of the file (offsets checked at open) by one compiled pass per
         window of the store (:func:`isplat.brickstore.check_place`: each brick hashed and compared with its stored
@@ -182,6 +200,7 @@ class AugmentedVolume:
                               f"bricks and hashes (changed since it was opened?); rebuild it: {self.verifier.rebuild}")
         offs = bricks * e
         ext = np.minimum(e, np.asarray(self.shape, dtype=np.int64) - offs)
+        offs = offs if to is None else np.asarray(to, dtype=np.int64)
         mm_ = np.zeros((n if channel == "density" else 0, 2), np.uint8)
         bad, lo = -1, np.asarray(lo, dtype=np.int64)
         for r0, pick, data, stored in _store_windows(self.path, d_off, h_off, size, rows):

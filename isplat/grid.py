@@ -54,6 +54,28 @@ def slice_coefficients(shape_kji, axis: str) -> tuple[int, ...]:
     p[ib] = n[ia]
     return (*s, *p)
 
+POOL_EDGE = 8                       # voxels a side of a pool's bricks (format 6's bricks): isplat.selection
+POOL_SHIFT = 9                      # log2(POOL_EDGE ** 3): a flat brick-major index >> POOL_SHIFT is its brick
+
+
+def flat_offsets(shape_kji, axis: str, edge: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(oa, ob, oc)``: int64 tables of each voxel's share of the flat index along a, b and c of ``axis``'s
+    slices, so that voxel (a, b, c) is at ``oa[a] + ob[b] + oc[c]``. ``edge`` 0: the flat ``[k, j, i]`` (C order,
+    :func:`flat_strides`); else brick-major: bricks of ``edge``^3 voxels in C order of the brick grid (the volume
+    padded to whole bricks), each brick's voxels in C order: the order of formats/augmented.md §2.3's store, in
+    which the index stays a sum of one term per axis."""
+    n_i, n_j, n_k = shape_ijk(shape_kji)
+    ns = (n_i, n_j, n_k)
+    if edge:
+        g_i, g_j = -(-n_i // edge), -(-n_j // edge)
+        per_brick, inner = edge ** 3, (1, edge, edge * edge)
+        outer = (per_brick, g_i * per_brick, g_i * g_j * per_brick)
+        per = [(np.arange(n) // edge) * o + (np.arange(n) % edge) * i for n, o, i in zip(ns, outer, inner)]
+    else:
+        per = [np.arange(n) * s for n, s in zip(ns, (1, n_i, n_i * n_j))]
+    return tuple(per[x].astype(np.int64) for x in SLICE_AXES[axis])
+
+
 def flat_strides(shape_kji, axis: str) -> np.ndarray:
     """int64[3]: steps of the flat ``[k, j, i]`` index along ``a``, ``b`` and ``c`` of ``axis``'s slices."""
     n_i, n_j, _ = shape_ijk(shape_kji)

@@ -148,6 +148,8 @@ def isplat_workload() -> None:
         thick = ['--set=data.augmented="t.aug.h5"', '--set=data.index="t.idx.h5"']
         for i, sets in enumerate(THICK_VARIANTS):
             _run(["-q", "render", "s.toml", "-o", f"t{i}.png", *thick, *[f"--set={s}" for s in sets]])
+        # the bolts alone: few of the bricks, read into a pool (post's kernels with a brick table)
+        _run(["-q", "render", "s.toml", "-o", "pool.png", "--set=transfer.opacity=[[215, 0.0], [255, 1.0]]"])
         _run(["-q", "render", "s.toml", "-o", "slabs.png", "--slabs", "3"])
         _run(["-q", "render", "s.toml", "-o", "dask.png", "--slabs", "2", "--scheduler", "local:2"])
         _run(["-q", "stats", "e.aug.h5", "e.idx.h5", "--scene", "s.toml"])

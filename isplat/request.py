@@ -5,7 +5,8 @@ for arrays in memory, an identity the caller gives, e.g. a hash of their bytes) 
 a :class:`~isplat.selection.Selection` is made from: the transfer function (in density codes, with the units,
 preset and window it was written in, and its unit distance), shading on or off (normals read or not) and the
 gradient modulation the transfer function asks for, method, technique (``render.classification``), spacing,
-the index axes of the views and the slab of slices. What changes only a frame (camera, image size and
+the index axes of the views, the slab of slices and ``render.mode`` (a composite scene's post holds its bricks as a
+pool, an intensity projection whole-shape channels). What changes only a frame (camera, image size and
 background, lights, cuts, threads, early termination, precision, footprint, sheets, supersampling) is not in
 it, so frames that differ only in those reuse a selection. :class:`isplat.renderer.Renderer`,
 :func:`isplat.render` and the Dask workers (:mod:`isplat.distributed`) key their selections by it: a frozen
@@ -71,6 +72,8 @@ class RenderRequest:
     axes: str                        # the index axes of the views, in i, j, k order
     slab: tuple | None = None        # runs of slices of the one axis, or None: every slice
     labels: tuple = ()               # the segmentation labels shown (scene_schema.LabelStyle), () for none
+    mode: str = "composite"          # render.mode: post's bricks are held as a pool for "composite" only (an
+                                     # intensity projection reads whole-shape channels, isplat.splat.mip)
 
     @property
     def unit_distance(self) -> float:
@@ -123,7 +126,7 @@ class RenderRequest:
                    tuple(float(x) for x in spacing), float(gscale), scene.transfer,
                    bool(scene.shading.enabled) and scene.render.mode == "composite",
                    method, scene.render.classification, "".join(sorted(axes)), slab,
-                   tuple(getattr(getattr(scene, "labels", None), "shown", ())))
+                   tuple(getattr(getattr(scene, "labels", None), "shown", ())), scene.render.mode)
 
 
 def _method(method: str) -> str:

@@ -159,9 +159,11 @@ class RunsRead(NamedTuple):
     by brick number, then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
     (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
     (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool);
-    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``);
-    ``placed``: with ``place=True``, the density, normal and gradient magnitude as zeroed flat channels of the volume with the voxels read written in (a channel not read:
-    empty), else None."""
+    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``, or
+    for a pool its place ``row * 512 + place in the brick``); ``placed``: with ``place=True``, the density, normal
+    and gradient magnitude as zeroed flat channels of the volume with the voxels read written in, with ``pool=True``
+    as a pool's rows (a channel not read: empty), else None; ``table``: a pool's brick table (uint32 per brick of
+    the volume's grid, C order: its row, 0 for none), else empty."""
     positions: np.ndarray
     density: np.ndarray
     normal: np.ndarray
@@ -170,6 +172,22 @@ class RunsRead(NamedTuple):
     runs: np.ndarray
     loaded: np.ndarray | None = None
     placed: tuple | None = None
+    table: np.ndarray | None = None
+
+
+def _pool_table(shape, read) -> np.ndarray:
+    """uint32 per brick of ``shape``'s grid of 8^3 bricks (C order): the pool row of each brick the spans
+    ``read`` name (1, 2, ... in brick order), 0 for the others. A number beyond the grid gets no row: the
+    placing refuses it (:func:`isplat.runsplace.place_runs`) before anything is written."""
+    from . import runsplace
+
+    grid = int(np.prod([-(-int(n) // runsplace.BRICK) for n in shape]))
+    nums = np.concatenate([np.asarray(g["brick_number"], dtype=np.int64) for g in read] or [np.zeros(0, np.int64)])
+    used = np.zeros(grid, dtype=bool)
+    used[nums[(nums >= 0) & (nums < grid)]] = True
+    table = np.zeros(grid, dtype=np.uint32)
+    table[used] = np.arange(1, int(used.sum()) + 1, dtype=np.uint32)
+    return table
 
 
 class RunsFile:
@@ -206,12 +224,16 @@ class RunsFile:
             raise IsplatError(f"{self.path}: intervals {ivs}: expected inclusive code intervals within 0..255")
         return R.runs_meeting(ivs, self.cut)
 
-    def read(self, intervals=None, channels=VALUE_CHANNELS, place: bool = False) -> RunsRead:
+    def read(self, intervals=None, channels=VALUE_CHANNELS, place: bool = False, pool: bool = False) -> RunsRead:
         """The runs meeting ``intervals`` (None: all, then every voxel of the volume must be read exactly once),
         each checked against its hashes and formats/runs.md §5 as its voxels are placed
         (:func:`isplat.runsplace.place_runs`). ``channels``: which of the normal and the gradient magnitude to
         read besides the density (the others come back empty, their bytes not read). ``place``: also return the
-        voxels written into zeroed full-shape channels (:class:`RunsRead`)."""
+        voxels written into zeroed full-shape channels (:class:`RunsRead`); ``pool``: into a pool instead, one
+        row of 8^3 voxels per brick the runs read (row 0 zeros), with its brick table."""
+        from . import runsplace
+
+        place = place or pool
         sel = self.runs_for(intervals)
         bad = set(channels) - set(VALUE_CHANNELS)
         if bad:
@@ -220,21 +242,28 @@ class RunsFile:
         n = int(np.prod(self.shape, dtype=np.int64))
         vp = self.ptrs[0]
         pos = np.empty(0 if place else sum(int(vp[b] - vp[a]) for a, b in spans), dtype=np.int64)
+        read = [self._read_span(a, b, tuple(channels)) for a, b in spans] if pool else None
+        table = _pool_table(self.shape, read) if pool else np.zeros(0, dtype=np.uint32)
+        if pool:
+            n = (int(table.max(initial=0)) + 1) * runsplace.BRICK_VOXELS
         loaded = np.zeros(-(-n // 64), dtype=np.uint64)
         outs = tuple(np.zeros(n if place and (name == "density" or name in channels) else 0, dtype=dt)
                      for name, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8)))
         at, kept = 0, []
-        for a, b in spans:                                  # a span read, placed, and (when placing) let go
-            arrays = self._read_span(a, b, tuple(channels))
+        for s, (a, b) in enumerate(spans):                  # a span read, placed, and (when placing) let go
+            arrays = read[s] if pool else self._read_span(a, b, tuple(channels))
             m = int(vp[b] - vp[a])
-            self._place(a, b, arrays, loaded, pos[at:at + m], outs)
+            self._place(a, b, arrays, table, loaded, pos[at:at + m], outs)
             at += m
             kept += [] if place else [arrays]
-        if sel.all() and at != n:
-            raise IsplatError(f"{self.path}: the runs hold {at} voxels, the volume {n}")
+            if pool:
+                read[s] = None
+        voxels = int(np.prod(self.shape, dtype=np.int64))
+        if sel.all() and at != voxels:
+            raise IsplatError(f"{self.path}: the runs hold {at} voxels, the volume {voxels}")
         cat = [np.concatenate([g[k] for g in kept]) if kept else np.zeros(0, dt)
                for k, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8))]
-        return RunsRead(pos, *cat, int(self.counter.bytes), sel, loaded, outs if place else None)
+        return RunsRead(pos, *cat, int(self.counter.bytes), sel, loaded, outs if place else None, table)
 
     def _get(self, name: str, lo: int, hi: int, runs: str) -> np.ndarray:
         with hdf5_errors(self.path, f"dataset 'runs/{name}' [{lo}:{hi}] ({runs})"):
@@ -256,7 +285,7 @@ class RunsFile:
         return {n: self._get(n, int(ptr[a]), int(ptr[b]), where) if n not in VALUE_CHANNELS or n in channels
                 else np.zeros(0, DTYPES[n]) for n, ptr in names}
 
-    def _place(self, a: int, b: int, g: dict, loaded, pos, outs) -> None:
+    def _place(self, a: int, b: int, g: dict, table, loaded, pos, outs) -> None:
         """Runs ``a .. b - 1`` read (``g``) checked and placed (:func:`isplat.runsplace.place_runs`)."""
         from . import runsplace
 
@@ -264,7 +293,7 @@ class RunsFile:
         lo_first, hi_last = (np.ascontiguousarray(x[a:b]) for x in R.run_codes(self.cut))
         err = runsplace.place_runs(bp, pp, vp, lo_first, hi_last, g["brick_number"], g["brick_voxel_count"],
                                    g["positions"], g["density"], g["normal"], g["gradient_magnitude"],
-                                   np.asarray(self.shape, dtype=np.int64), loaded, pos, *outs)
+                                   np.asarray(self.shape, dtype=np.int64), table, loaded, pos, *outs)
         if err[0]:
             name, text = runsplace.message(err, a, self.shape, lo_first, hi_last)
             raise IsplatError(f"{self.path}: dataset 'runs/{name}'{text}")

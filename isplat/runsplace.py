@@ -63,6 +63,13 @@ def _check_run(r, bp, pp, vp, num, cnt, n_bricks, err):
 
 
 @leaf
+def _sizes_differ(n, out_d, out_n, out_g):
+    """Whether an output of a pool (not of size 0) differs from the ``n`` voxels of the loaded bits."""
+    d, m, g = out_d.shape[0], out_n.shape[0], out_g.shape[0]
+    return (d != 0 and d != n) or (m != 0 and m != n) or (g != 0 and g != n)
+
+
+@leaf
 def _places(pdata, q, c, buf):
     """Decode the places of a brick of ``c`` voxels whose positions start at byte ``q`` into ``buf[:c]``: a
     bitmap (more than 32 voxels) or a list of uint16. Returns 0, or -(the places found) for a bitmap whose bit
@@ -107,13 +114,15 @@ def _bricks_of(bp, pp, vp, num, cnt, n_bricks, err):
 
 
 @jit
-def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, loaded, pos, out_d, out_n, out_g):
+def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table, loaded, pos, out_d, out_n, out_g):
     """Runs ``0 .. len(bp) - 2`` of a span (``bp``, ``pp``, ``vp``: int64 pointers into this span's brick, position
     byte and voxel arrays; ``lo``, ``hi``: each run's least and greatest code) placed: for each voxel, its flat
-    position ``i + n_i * (j + n_j * k)`` into ``pos[v]`` (unless ``pos`` is empty), its bit set in ``loaded``
-    (uint64 words: bit ``p % 64`` of word ``p // 64``), and its density, normal and gradient magnitude into
-    ``out_d``, ``out_n``, ``out_g`` (each skipped when of size 0; ``nrm``, ``gm`` of the span's size when their
-    outputs are not). ``shape``: int64 (n_k, n_j, n_i). Returns int64[5]: (0, ...) when every run
+    position ``p = i + n_i * (j + n_j * k)`` into ``pos[v]`` (unless ``pos`` is empty), its bit set in ``loaded``
+    (uint64 words: bit ``q % 64`` of word ``q // 64``), and its density, normal and gradient magnitude into
+    ``out_d[q]``, ``out_n[q]``, ``out_g[q]`` (each skipped when of size 0; ``nrm``, ``gm`` of the span's size when
+    their outputs are not). ``q`` is ``p`` when ``table`` is empty (whole-shape channels), else a pool's place:
+    ``table[brick] * 512 + place`` (``table``: each brick's row, isplat.selection.WholeChannels, filled for
+    every brick of the runs by the caller). ``shape``: int64 (n_k, n_j, n_i). Returns int64[5]: (0, ...) when every run
     checked out, else (code, run, brick of the run, x, y) of a fault (:func:`message`). The bricks are placed
     in the order of their numbers, the runs' entries of one brick together (its cache lines loaded once: 0.90 of
     run order for the 512^3 head's bone). Placing them on two threads measured no faster on this 2-core
@@ -122,6 +131,8 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, loaded
     nk, nj, ni = shape[0], shape[1], shape[2]
     gj, gi = (nj + 7) // 8, (ni + 7) // 8
     if vp[vp.shape[0] - 1] > dens.shape[0] or (pos.shape[0] and pos.shape[0] < vp[vp.shape[0] - 1]) \
+            or (table.shape[0] and (table.shape[0] < (nk + 7) // 8 * gj * gi or _sizes_differ(
+                loaded.shape[0] * 64, out_d, out_n, out_g))) \
             or pp[pp.shape[0] - 1] > pdata.shape[0] \
             or cnt.shape[0] < num.shape[0] or (out_n.shape[0] and nrm.shape[0] < dens.shape[0]) \
             or (out_g.shape[0] and gm.shape[0] < dens.shape[0]):
@@ -135,14 +146,14 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, loaded
     for g in order:
         r = at[0, g]
         if _place_brick(r, g - bp[r], np.int64(num[g]), np.int64(cnt[g]), at[1, g], at[2, g], lo[r], hi[r], pdata,
-                        dens, nrm, gm, nj, ni, nk, gj, gi, buf, loaded, pos, out_d, out_n, out_g, err):
+                        dens, nrm, gm, nj, ni, nk, gj, gi, buf, table, loaded, pos, out_d, out_n, out_g, err):
             break
     return err
 
 
 @leaf
-def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, nj, ni, nk, gj, gi, buf, loaded, pos, out_d,
-                 out_n, out_g, err):
+def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, nj, ni, nk, gj, gi, buf, table, loaded, pos,
+                 out_d, out_n, out_g, err):
     """Brick ``b`` of run ``r`` (brick number ``n``, ``c`` voxels from the span's voxel ``v``, positions from
     byte ``q``) decoded (into ``buf``) and placed (:func:`place_runs`); True on a fault (then in ``err``)."""
     got = _places(pdata, q, c, buf)
@@ -151,27 +162,31 @@ def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, nj, ni, nk,
     if got < 0:
         return _fail(err, BITMAP_COUNT, r, b, -got, c)
     k0, j0, i0 = n // (gj * gi) * BRICK, n // gi % gj * BRICK, n % gi * BRICK
+    row = np.int64(table[n]) * BRICK_VOXELS if table.shape[0] else np.int64(-1)
+    if table.shape[0] and (row == 0 or row + BRICK_VOXELS > loaded.shape[0] * 64):
+        return _fail(err, POINTERS, r, b, 0, 0)             # a pool without this brick's row (the caller's)
     for t in range(c):
         place = buf[t]
         k, j, i = k0 + (place >> 6), j0 + (place >> 3 & 7), i0 + (place & 7)
         if k >= nk or j >= nj or i >= ni:
             return _fail(err, OUTSIDE, r, b, k * 1_000_000_000_000 + j * 1_000_000 + i, 0)     # (k, j, i) in one
         p = i + ni * (j + nj * k)
+        o = row + place if row >= 0 else p                  # where it goes: a pool's row, or its flat place
         d = dens[v + t]
         if d < lo_r or d > hi_r:
             return _fail(err, DENSITY, r, b, d, 0)
-        bit = np.uint64(1) << np.uint64(p & 63)
-        if loaded[p >> 6] & bit:
+        bit = np.uint64(1) << np.uint64(o & 63)
+        if loaded[o >> 6] & bit:
             return _fail(err, TWICE, r, b, p, 0)
-        loaded[p >> 6] |= bit
+        loaded[o >> 6] |= bit
         if pos.shape[0]:
             pos[v + t] = p
         if out_d.shape[0]:
-            out_d[p] = d
+            out_d[o] = d
         if out_n.shape[0]:
-            out_n[p] = nrm[v + t]
+            out_n[o] = nrm[v + t]
         if out_g.shape[0]:
-            out_g[p] = gm[v + t]
+            out_g[o] = gm[v + t]
     return False
 
 

@@ -34,6 +34,7 @@ from .transfer import TransferLUTs, build_luts
 log = logging.getLogger(__name__)
 _EMPTY_U8 = np.zeros(0, dtype=np.uint8)
 _EMPTY_U16 = np.zeros(0, dtype=np.uint16)
+_EMPTY_U32 = np.zeros(0, dtype=np.uint32)
 GATHER_SLAB = 8      # k-slices read at a time when gathering channel values
 MAX_IN_SLICE = 65535  # in-slice coordinates are uint16
 
@@ -203,18 +204,60 @@ class AxisSelection:
 
 @dataclass(frozen=True)
 class WholeChannels:
-    """The full method's data: whole channels, flat ``[k, j, i]`` (empty when unused)."""
+    """The full method's data: whole channels, flat ``[k, j, i]`` (empty when unused); or, with a brick ``table``
+    (post's bricks from a format 6 file), a pool: the channels hold only the bricks read, one row of
+    ``POOL_EDGE``^3 voxels each (row 0 zeros), and ``table`` (uint32 per brick of the volume's grid, C order)
+    gives each brick's row, 0 for a brick not read (isplat.grid.flat_offsets: brick-major); the sampler reads
+    through :meth:`deltas`, made from it when a frame first asks."""
 
     density: np.ndarray
     gradient_magnitude: np.ndarray
     normal: np.ndarray
     held: int = -1          # bricks read (post, version 5): the bytes of the memory pages they filled; -1: nbytes
+    table: np.ndarray = field(default_factory=lambda: _EMPTY_U32)
+    shape: tuple = ()       # the volume's (k, j, i), for a pool
+    _flat: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def pooled(self) -> bool:
+        return self.table.size > 0
 
     def arrays(self) -> list[np.ndarray]:
         return [self.density, self.gradient_magnitude, self.normal]
 
     def held_bytes(self) -> int:
+        if self.pooled:
+            return int(sum(a.nbytes for a in self.arrays()) + self.table.nbytes + sum(
+                a.nbytes for a in self._flat.values()))
         return self.held if self.held >= 0 else int(sum(a.nbytes for a in self.arrays()))
+
+    def deltas(self) -> np.ndarray:
+        """uint64 per brick: its pool row's first voxel minus its own first brick-major flat index, modulo 2^64
+        (``(row - brick) << POOL_SHIFT``): post's sampler finds voxel ``i`` at ``i + deltas[i >> POOL_SHIFT]``,
+        one add (post._phys). Made once, held beside the table (8 bytes a brick of the volume's grid)."""
+        if "delta" not in self._flat:
+            n = np.arange(self.table.size, dtype=np.int64)
+            self._flat["delta"] = ((self.table.astype(np.int64) - n) << grid.POOL_SHIFT).view(np.uint64)
+        return self._flat["delta"]
+
+    def flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The channels flat ``[k, j, i]``: themselves, or a pool's bricks placed into zeroed whole-shape arrays
+        (made once, for the kernels that take strides: MIP)."""
+        if not self.pooled:
+            return self.density, self.gradient_magnitude, self.normal
+        if "d" not in self._flat:
+            for name, a in zip(("d", "g", "n"), self.arrays()):
+                self._flat[name] = _unpool(a, self.table, self.shape) if a.size else a
+        return self._flat["d"], self._flat["g"], self._flat["n"]
+
+
+def _unpool(pool: np.ndarray, table: np.ndarray, shape) -> np.ndarray:
+    """The whole-shape channel ``[k, j, i]`` (flat) of a pool's rows (zeros where no brick was read)."""
+    e = grid.POOL_EDGE
+    g = [-(-int(n) // e) for n in shape]
+    bricks = pool.reshape(-1, e, e, e)[table.reshape(g)]
+    full = bricks.transpose(0, 3, 1, 4, 2, 5).reshape([n * e for n in g])
+    return np.ascontiguousarray(full[:shape[0], :shape[1], :shape[2]]).reshape(-1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,9 +300,11 @@ class Selection:
                               "select the axes of every view to be rendered")
         return self.axes[axis].voxels()
 
-    def whole_volume(self, axis: str) -> WholeVolume:
+    def whole_volume(self, axis: str, pool: bool = False) -> WholeVolume:
         """The whole channels as the kernels take them: the flat steps of ``axis``'s slices, and a fourth entry
-        added to every flat index (not 0 when the channels hold only a slab's slices, ``slab``)."""
+        added to every flat index (not 0 when the channels hold only a slab's slices, ``slab``); the same as
+        per-axis tables (``offs``). ``pool``: the caller reads through a brick table (isplat.splat.post), so a
+        pool is given as it is; else a pool's channels are given flat (:meth:`WholeChannels.flat`)."""
         _, n_a, n_b = grid.slice_shape(self.shape, axis)
         w = self.whole
         shape, base = self.shape, 0
@@ -272,7 +317,17 @@ class Selection:
         steps = grid.flat_strides(shape, axis)
         if self.slab is not None:
             base = -self.slab[1] * int(steps[2])
-        return WholeVolume(w.density, w.gradient_magnitude, w.normal, np.append(steps, base), n_a, n_b)
+        n_c = grid.slice_shape(self.shape, axis)[0]
+        oc = np.arange(n_c, dtype=np.int64) * int(steps[2]) + base        # each slice's first voxel
+        if pool and w.pooled:           # a pool: brick-major tables and the brick table
+            oa, ob, oc = grid.flat_offsets(shape, axis, grid.POOL_EDGE)
+            # one entry more, the last repeated: the sampler's step past the edge voxel is 0 (post._step); no
+            # prefetch (post._prefetch_square), so no voxels per prefetch
+            oa, ob = np.append(oa, oa[-1]), np.append(ob, ob[-1])
+            return WholeVolume(w.density, w.gradient_magnitude, w.normal, np.append(steps, base), n_a, n_b,
+                               (oa, ob, oc, 0), w.deltas())
+        sa, sb = int(steps[0]), int(steps[1])       # strides: the kernel multiplies (post._at)
+        return WholeVolume(*w.flat(), np.append(steps, base), n_a, n_b, (sa, sb, oc, max(1, 32 // sa)), None)
 
     def held_bytes(self) -> int:
         """Bytes of volume data held for the frames (selection and gathered values, or whole channels, and the
@@ -696,8 +751,8 @@ def _runs_file(sel: Selection, aug, slices):
 
     req = sel.request
     if not (sel.post and sel.method == "indexed" and slices is None and not sel.empty and sel.labels is None
-            and req is not None and req.index is not None):
-        return None
+            and req is not None and req.index is not None and req.mode == "composite"):
+        return None         # (MIP reads whole-shape channels)
     if any(int(lo) == 0 for lo, _ in sel.report.intervals):
         return None
     if any(between_slices(sel.spacing_ijk, ax)[0] for ax in req.axes):
@@ -708,14 +763,15 @@ def _runs_file(sel: Selection, aug, slices):
 
 def _read_post_runs(sel: Selection, aug, path) -> Selection:
     """Post from the range runs (formats/runs.md): the runs meeting the intervals of non-zero opacity, of the
-    channels the scene uses (the density always), placed into zeroed full-shape channels (pages no voxel of
-    theirs lies in never written), and per axis read the bits of the quads whose four corners they hold, which
-    the sampler tests (isplat.splat.post: a quad with a corner not held is transparent in truth). The runs file
-    is checked to be written from ``aug`` (shape, density hash, chunk hash check); any problem is one
-    IsplatError naming the command that rebuilds it (isplat.runsfile.refusal), never a fall back to bricks."""
+    channels the scene uses (the density always), placed into a pool (:class:`WholeChannels` with a brick table:
+    a row of 8^3 voxels for each brick the runs read, zeros where no run's voxel lies), and per axis read the bits
+    of the quads whose four corners they hold, in the pool's layout (isplat.splat.post.held_pool), which the
+    sampler tests (a quad with a corner not held is transparent in truth). The runs file is checked to be written
+    from ``aug`` (shape, density hash, chunk hash check); any problem is one IsplatError naming the command that
+    rebuilds it (isplat.runsfile.refusal), never a fall back to bricks."""
     from .chunkhash import CHECK_ATTR
     from .runsfile import VALUE_CHANNELS, open_runs, refusal
-    from .splat.post import held_quads
+    from .splat.post import held_pool
 
     rep = sel.report
     if "density" not in rep.channels:
@@ -724,27 +780,16 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
     with refusal(path, aug.path, sel.request.index), \
             open_runs(path, shape=sel.shape, density_sha256=aug.density_sha256,
                       augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
-        got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels], place=True)
+        got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels], pool=True)
         rep.runs_file_bytes = int(rf.counter.bytes)
         rep.runs_file_pages = rf.counter.page_bytes()
-    loaded = got.loaded
-    out = dict(zip(("density", "normal", "gradient_magnitude"), got.placed))   # pages never written: unallocated
-    held = sum(_pages_of(loaded, out[ch].itemsize) for ch in rep.channels)
-    bits = {ax: held_quads(loaded, sel.shape, ax) for ax in sorted(sel.request.axes)}
+    out = dict(zip(("density", "normal", "gradient_magnitude"), got.placed))
+    bits = {ax: held_pool(got.loaded, got.table, sel.shape, ax) for ax in sorted(sel.request.axes)}
     rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
     rep.values_path = str(path)
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
-                          held)
+                          table=got.table, shape=tuple(sel.shape))
     return replace(sel, whole=whole, held=bits)
-
-
-def _pages_of(loaded: np.ndarray, itemsize: int) -> int:
-    """Bytes of the memory pages of a zeroed array of elements of ``itemsize`` bytes, one per voxel, that writing
-    the voxels of the bit set ``loaded`` (uint64 words, :func:`isplat.splat.post.loaded_bits`) touches (what the
-    operating system then holds of it)."""
-    per = PAGE // itemsize // 64                                 # words of the bit set per page
-    pad = np.concatenate([loaded, np.zeros(-loaded.size % per, dtype=loaded.dtype)])
-    return int(np.count_nonzero(pad.reshape(-1, per).any(axis=1))) * PAGE
 
 
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -819,6 +864,9 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
             rep.values_from = "slab's channels"
         return replace(sel, whole=whole, slab=slab)
     bricks = np.argwhere(need)
+    composite = sel.request is None or sel.request.mode == "composite"     # (MIP reads whole-shape channels)
+    if slab is None and composite and getattr(aug, "store", None) is not None and tuple(b) == (grid.POOL_EDGE,) * 3:
+        return replace(sel, whole=_pool(sel, aug, bricks, need.shape))
     out = {ch: aug.read_bricks(ch, bricks, (tuple(lo), tuple(hi))).reshape(-1) for ch in rep.channels}
     rep.values_from = f"bricks ({len(bricks):,} of {int(np.prod(need.shape)):,})"
     box = tuple(h - l for l, h in zip(lo, hi))
@@ -827,6 +875,20 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
                           held)
     return replace(sel, whole=whole, slab=slab)
+
+
+def _pool(sel: Selection, aug, bricks: np.ndarray, grid_shape) -> WholeChannels:
+    """Post's bricks of a format 6 file held as a pool (:class:`WholeChannels`): the bricks read, one row each,
+    behind a brick table; what is held is what was read (issue 26 item 4), placed by whole bricks."""
+    rep = sel.report
+    out = {ch: aug.read_pool(ch, bricks) for ch in rep.channels}
+    if bricks.shape[0] >= np.iinfo(np.uint32).max:              # (a uint32 row each)
+        raise IsplatError(f"{aug.path}: {bricks.shape[0]:,} bricks do not fit a pool's table")
+    table = np.zeros(grid_shape, dtype=np.uint32)
+    table[tuple(bricks.T)] = np.arange(1, bricks.shape[0] + 1, dtype=np.uint32)
+    rep.values_from = f"bricks ({len(bricks):,} of {table.size:,})"
+    return WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
+                         table=table.reshape(-1), shape=tuple(sel.shape))
 
 
 PAGE_SHIFT = PAGE.bit_length() - 1      # the pages held, as isplat.fileio counts the pages read
@@ -904,7 +966,8 @@ def _footprint(sel: Selection):
     def count():
         from .stats import quad_footprint_per_slice
 
-        vol = density.reshape(shape)
+        w = sel.whole          # a pool's density placed whole for the count alone (not kept)
+        vol = (_unpool(density, w.table, w.shape) if w.pooled else density).reshape(shape)
         per = {ax: int(quad_footprint_per_slice(vol, intervals, ax).sum()) for ax in axes}
         ax = max(per, key=per.get)
         return ax, per[ax]

@@ -1,7 +1,7 @@
 """Frame times of isplat at several git revisions, in one process, frames interleaved (a developer's tool).
 
     python scripts/ab.py REV [REV ...] [--case "head translucent"] [--size 512] [--threads 1] [--rounds 15]
-                         [--set KEY=VALUE ...]
+                         [--set KEY=VALUE ...] [--scene SCENE.toml]
 
 This machine is shared, and the same frame's time differs by up to 1.5x between processes, so A/B runs in
 separate processes cannot show a change of a few percent. Here each revision's ``isplat/`` is extracted
@@ -64,6 +64,8 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("revs", nargs="+", help="git revisions; the first is the calibration copy")
     ap.add_argument("--case", default="head translucent")
+    ap.add_argument("--scene", type=Path, help="a scene file instead of a case (its data as it names them; "
+                    "--size and --threads still apply)")
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--rounds", type=int, default=15)
@@ -76,13 +78,19 @@ def main(argv=None) -> None:
     from benchmarks import peers as P
     from benchmarks import reference as REF
 
-    ov = P.CASES[a.case][3]
-    sample, (aug, idx) = P.case_data(a.case)
-    path, ov0, _ = REF.CASES[sample]
-    sets = [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={a.size}", f"image.height={a.size}",
-            *ov0, *P.UNSHADED, *ov, *REF.render_overrides({"threads": a.threads}), *a.set]
+    size = [f"image.width={a.size}", f"image.height={a.size}"]
+    if a.scene is not None:
+        path, sets = a.scene.resolve(), [*size, f"render.threads={a.threads}", *a.set]
+        a.case = a.scene.name
+    else:
+        ov = P.CASES[a.case][3]
+        sample, (aug, idx) = P.case_data(a.case)
+        rel, ov0, _ = REF.CASES[sample]
+        path = REF.REPO / rel
+        sets = [f'data.augmented="{aug}"', f'data.index="{idx}"', *size, *ov0, *P.UNSHADED, *ov,
+                *REF.render_overrides({"threads": a.threads}), *a.set]
     names = [f"isplat_{i}" for i in range(len(a.revs))]
-    runs = {n: load(n, extract(rev, n), sets, REF.REPO / path) for n, rev in zip(names, a.revs)}
+    runs = {n: load(n, extract(rev, n), sets, path) for n, rev in zip(names, a.revs)}
     clock = time.thread_time if a.threads == 1 else time.perf_counter     # wall time when threads run
     times = {n: [] for n in names}
     for i in range(a.rounds):

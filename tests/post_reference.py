@@ -281,3 +281,14 @@ def _alpha(lo, hi, f, r, persp):
         return -math.expm1(r * (math.log1p(-lo) + f * (math.log1p(-hi) - math.log1p(-lo))))
     lo_r, hi_r = 1 - (1 - lo) ** r, 1 - (1 - hi) ** r
     return lo_r + f * (hi_r - lo_r)
+
+
+def kernel_offsets(strides, n_a: int, n_b: int, c: int) -> tuple:
+    """The sampler's ``voxel[3]`` (isplat.splat.post) for whole channels in C order of flat steps ``strides``
+    (along a, b, c and an offset added to every index), as isplat.selection.Selection.whole_volume gives it:
+    ``(stride along a, along b, slice c's first voxel, voxels along a per prefetch, no brick table)``."""
+    sa, sb, sc, off = (int(x) for x in strides)
+    return sa, sb, c * sc + off, max(1, 32 // max(sa, 1)), NO_TABLE
+
+
+NO_TABLE = None          # whole channels: no brick table (isplat.splat.post._phys)

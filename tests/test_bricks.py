@@ -90,6 +90,30 @@ def test_bricks_render_the_image_of_the_whole_channels(make_scene, files, kind, 
     assert rep.needed_voxels == whole.needed_voxels
 
 
+def test_a_composite_scene_pools_its_bricks_and_an_intensity_projection_does_not(make_scene, files):
+    """Post's bricks from a format 6 file are held as a pool behind a brick table for a composite scene (a third
+    to a quarter of the memory of whole channels, docs/design.md "The brick pool"); an intensity projection of
+    the same file and transfer function reads whole-shape channels, since its kernels index by strides and a pool
+    made whole at its first frame would touch every page of the volume. The mode is in the request, so the two
+    never share a selection; each draws what it drew from whole channels."""
+    from isplat.renderer import Renderer
+
+    aug, old, idx = files["iso"]
+    render = 'method = "indexed"\nthreads = 1\nclassification = "post"'
+    comp, comp_old = (Renderer(_scene(make_scene, a, idx, "orthographic", CAMS[0][1], True)) for a in (aug, old))
+    mip, mip_old = (Renderer(make_scene(a, idx, image="width = 40\nheight = 36", render=render + '\nmode = "mip"',
+                                        transfer="opacity = [[140, 0.0], [150, 0.6], [255, 0.9]]"))
+                    for a in (aug, old))
+    for r, whole in ((comp, comp_old), (mip, mip_old)):
+        got, _ = r.render_view(0)
+        assert np.array_equal(got, whole.render_view(0)[0])
+    assert comp.request != mip.request and comp.request.mode == "composite" and mip.request.mode == "mip"
+    assert comp.selection.whole.pooled and comp.report.values_from.startswith("bricks")
+    assert not mip.selection.whole.pooled and not mip.selection.whole._flat
+    pool = comp.selection.whole
+    assert pool.held_bytes() == sum(a.nbytes for a in pool.arrays()) + pool.table.nbytes + pool.deltas().nbytes
+
+
 def test_thick_scene_uses_the_cubic(files):
     from isplat.splat.post import between_slices
 

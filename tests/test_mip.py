@@ -231,11 +231,13 @@ def test_cubic_bounds_hold_every_sample_of_the_quad(taps, t, g, kind, along, q, 
     density = np.ascontiguousarray(grid if along == 1 else grid.T).ravel()
     strides = np.array([1, n_a, n_a * n_b, 0], np.int64)
     qa, qb = (q, 0) if along == 1 else (0, q)
-    voxel = (density, density, density, strides, n_a, n_b, 0, (along, kind, 0))
+    from post_reference import NO_TABLE, kernel_offsets
+
+    voxel = (density, density, density, kernel_offsets(strides, n_a, n_b, 0), n_a, n_b, 0, (along, kind, 0))
     fu, fv = (t, g) if along == 1 else (g, t)
     sa = strides[0] if qa + 1 < n_a else 0
     sb = strides[1] if qb + 1 < n_b else 0
-    d = _density_at(density, qa * strides[0] + qb * strides[1], sa, sb, fu, fv, _taps(qa, qb, voxel))
+    d = _density_at(density, qa * strides[0] + qb * strides[1], sa, sb, fu, fv, _taps(qa, qb, voxel), NO_TABLE)
     hi, lo = _cubic_bounds(density, 0, strides[0], strides[1], qa, qb, n_a, n_b, along, kind)
     assert lo - 1e-9 <= d <= hi + 1e-9, (d, lo, hi)
 

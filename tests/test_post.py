@@ -310,8 +310,9 @@ def test_prefetch_square_covers_every_line_the_square_reads(unit, n_a, n_b, sa, 
     size = size + offset
     density, gm, nrm = np.zeros(size, np.uint8), np.zeros(size, np.uint8), np.zeros(size, np.uint16)
     asked = {id(density): set(), id(gm): set(), id(nrm): set()}
-    strides = np.array([sa, sb, sc, offset], np.int64)
-    voxel = (density, gm, nrm, strides, n_a, n_b, c, (between, 0, 1))
+    from post_reference import kernel_offsets
+
+    voxel = (density, gm, nrm, kernel_offsets([sa, sb, sc, offset], n_a, n_b, c), n_a, n_b, c, (between, 0, 1))
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(post, "prefetch", lambda arr, i: asked[id(arr)].add(int(i) * arr.itemsize // 64))
         post._prefetch_square.py_func(unit, a0, b0, voxel, True, True)
@@ -431,17 +432,18 @@ def test_the_kernel_density_is_the_voxels_at_voxel_positions():
     between voxels the cubic through the four around it (the neighbours clamped at the row's ends by _taps)."""
     from isplat.splat import post
 
+    from post_reference import NO_TABLE, kernel_offsets
+
     vals = np.array([10, 200, 30, 90, 250, 0, 120], np.uint8)
     density = np.concatenate([vals, vals[::-1]])             # two rows along a (b = 0, 1)
-    strides = np.array([1, 7, 14, 0], np.int64)
     for kind in (0, 1):
-        voxel = (density, density, density, strides, 7, 2, 0, (1, kind, 1))
+        voxel = (density, density, density, kernel_offsets([1, 7, 14, 0], 7, 2, 0), 7, 2, 0, (1, kind, 1))
         for qa in range(7):
             taps = post._taps(qa, 0, voxel)
             sa = 1 if qa + 1 < 7 else 0
-            assert post._density_at(density, qa, sa, 7, 0.0, 0.0, taps) == vals[qa]
+            assert post._density_at(density, qa, sa, 7, 0.0, 0.0, taps, NO_TABLE) == vals[qa]
             f = 0.37
-            d = post._density_at(density, qa, sa, 7, f, 0.0, taps)
+            d = post._density_at(density, qa, sa, 7, f, 0.0, taps, NO_TABLE)
             q = [vals[min(max(qa + k, 0), 6)] for k in (-1, 0, 1, 2)]
             assert d == pytest.approx(post.cubic(*q, f, kind), abs=1e-12)
 
@@ -450,27 +452,27 @@ def test_the_spline_interpolates_the_voxels_and_matches_the_reference_kernel():
     """isplat.splat.post._density_at with the interpolating spline on a row of voxels along a thick axis: the
     voxel itself at f = 0 (exactly up to rounding), between voxels the reference's spline (tests/post_reference.py:
     the kernel summed from the B-spline and the prefilter), within the codes; constant data stay constant."""
-    from post_reference import _cardinal, _spline_taps
+    from post_reference import NO_TABLE, _cardinal, _spline_taps, kernel_offsets
 
     from isplat.splat import post
 
     vals = np.array([10, 200, 30, 90, 250, 0, 120, 7, 60, 255, 255], np.uint8)
     n = vals.size
     density = np.concatenate([vals, vals[::-1]])             # two rows along a (b = 0, 1)
-    strides = np.array([1, n, 2 * n, 0], np.int64)
-    voxel = (density, density, density, strides, n, 2, 0, (1, 2, 1))
+    offs = kernel_offsets([1, n, 2 * n, 0], n, 2, 0)
+    voxel = (density, density, density, offs, n, 2, 0, (1, 2, 1))
     for qa in range(n):
         taps = post._taps(qa, 0, voxel)
         sa = 1 if qa + 1 < n else 0
-        assert post._density_at(density, qa, sa, n, 0.0, 0.0, taps) == pytest.approx(vals[qa], abs=1e-9)
+        assert post._density_at(density, qa, sa, n, 0.0, 0.0, taps, NO_TABLE) == pytest.approx(vals[qa], abs=1e-9)
         for f in (0.13, 0.5, 0.91):
-            d = post._density_at(density, qa, sa, n, f, 0.0, taps)
+            d = post._density_at(density, qa, sa, n, f, 0.0, taps, NO_TABLE)
             p = [vals[min(max(qa + k, 0), n - 1)] for k in _spline_taps()]
             assert d == pytest.approx(_cardinal(p, f), abs=1e-9)
             assert 0.0 <= d <= 255.0
     flat = np.full(2 * n, 77, np.uint8)
-    taps = post._taps(4, 0, (flat, flat, flat, strides, n, 2, 0, (1, 2, 1)))
-    assert post._density_at(flat, 4, 1, n, 0.37, 0.6, taps) == pytest.approx(77.0, abs=1e-9)
+    taps = post._taps(4, 0, (flat, flat, flat, offs, n, 2, 0, (1, 2, 1)))
+    assert post._density_at(flat, 4, 1, n, 0.37, 0.6, taps, NO_TABLE) == pytest.approx(77.0, abs=1e-9)
 
 
 def test_the_spline_kernel_truncation_is_small():
@@ -555,10 +557,54 @@ def test_density_at_is_the_bilinear_density(seed, fu, fv, edge_a, edge_b):
     a1, b1 = a + (sa != 0), b + (sb != 0)
     want = ((1 - fu) * (1 - fv) * float(plane[b, a]) + fu * (1 - fv) * float(plane[b, a1])
             + (1 - fu) * fv * float(plane[b1, a]) + fu * fv * float(plane[b1, a1]))
-    got = post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, (0, 0, 0, 0, 0, 0, 1, 0))
+    from post_reference import NO_TABLE
+
+    got = post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, (0, 0, 0, 0, 0, 0, 1, np.zeros(1, np.int64)),
+                           NO_TABLE)
     assert got == want
     # taps None: the variant a frame without a thick axis compiles (the cubic pruned out), the same value
-    assert post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, None) == want
+    assert post._density_at(plane.ravel(), b * plane.shape[1] + a, sa, sb, fu, fv, None, NO_TABLE) == want
+
+
+@settings(max_examples=60, deadline=None)
+@given(shape=st.tuples(st.integers(1, 20), st.integers(1, 20), st.integers(1, 20)), axis=st.sampled_from("kji"),
+       seed=st.integers(0, 2 ** 16))
+def test_a_pool_holds_each_voxel_of_its_bricks_where_the_sampler_looks(shape, axis, seed):
+    """A pool (isplat.selection.WholeChannels: some bricks of format 6's order, behind a uint32 table) read the
+    sampler's way, ``_phys(deltas, oa[a] + ob[b] + oc[c])`` with its delta table (WholeChannels.deltas, each
+    brick's row minus its place, modulo 2^64) and isplat.grid.flat_offsets' brick-major tables,
+    gives every voxel of every brick it holds; and the table-free way, with the row-major tables, every voxel of
+    the flat channel; and the pool made whole again (WholeChannels.flat, a strided kernel's) is the volume where bricks
+    were held, zero elsewhere."""
+    from isplat import grid
+    from isplat.selection import WholeChannels
+    from isplat.splat import post
+
+    rng = np.random.default_rng(seed)
+    vol = rng.integers(1, 256, shape).astype(np.uint8)            # [k, j, i]
+    e = grid.POOL_EDGE
+    g = [-(-n // e) for n in shape]
+    held = rng.random(g) < 0.5
+    pad = np.zeros([n * e for n in g], np.uint8)
+    pad[:shape[0], :shape[1], :shape[2]] = vol
+    bricks = pad.reshape(g[0], e, g[1], e, g[2], e).transpose(0, 2, 4, 1, 3, 5).reshape(-1, e ** 3)
+    table = np.zeros(held.size, np.uint32)
+    table[held.reshape(-1)] = np.arange(1, int(held.sum()) + 1, dtype=np.uint32)
+    pool = np.concatenate([np.zeros((1, e ** 3), np.uint8), bricks[held.reshape(-1)]]).reshape(-1)
+    phys = post._phys
+    chans = WholeChannels(pool, pool[:0], pool[:0].view(np.uint16), table=table, shape=shape)
+    deltas = chans.deltas()
+    dims = grid.SLICE_AXES[axis]                                   # (i, j, k) dims of a, b, c
+    oa, ob, oc = grid.flat_offsets(shape, axis, e)
+    fa, fb, fc = grid.flat_offsets(shape, axis)
+    for k, j, i in np.ndindex(*shape):
+        a, b, c = ((i, j, k)[d] for d in dims)
+        assert vol.reshape(-1)[phys(None, np.uint64(fa[a] + fb[b] + fc[c]))] == vol[k, j, i]
+        if held[k // e, j // e, i // e]:
+            assert pool[phys(deltas, np.uint64(oa[a] + ob[b] + oc[c]))] == vol[k, j, i]
+    flat = chans.flat()[0]
+    keep = np.repeat(np.repeat(np.repeat(held, e, 0), e, 1), e, 2)[:shape[0], :shape[1], :shape[2]]
+    assert np.array_equal(flat.reshape(shape), np.where(keep, vol, 0))
 
 
 @pytest.mark.parametrize("proj", ["orthographic", "perspective"])
@@ -591,4 +637,8 @@ def test_the_linear_and_the_cubic_sampler_are_two_compiled_kernels(tmp_path, mak
     assert {types["linear"], types["cubic"]} <= {sig[2] for sig in T.render.signatures}
     voxel = (None,) * 7
     assert post._taps(3, 4, voxel + (None,)) is None
-    assert post._taps(3, 4, (None, None, None, np.array([1, 8, 64, 0]), 8, 8, 0, (1, 1, 1))) == (1, 1, 1, 2, 1, 3, 8, 1)
+    from post_reference import kernel_offsets
+
+    offs = kernel_offsets([1, 8, 64, 0], 8, 8, 0)
+    taps = post._taps(3, 4, (None, None, None, offs, 8, 8, 0, (1, 1, 1)))
+    assert taps == (1, 1, 1, 2, 1, 3, 8, 1)                  # (its last: the stride along a, or a pool's table)

@@ -74,25 +74,63 @@ def sparse_volume(seed, shape):
 TF_WINDOW = "opacity = [[100, 0.0], [110, 0.6], [130, 0.6], [140, 0.0]]\ncolor = [[0, 1, 0, 0], [255, 0, 0.5, 1]]"
 
 
-def _render_held(sc, density, held):
+def pool_of(channels, held, extra=0.0, seed=0, zero=True):
+    """A pool (WholeChannels with a brick table, as the runs reader makes) of the whole-shape ``channels``
+    (flat ``[k, j, i]``, any empty) holding the bricks with a voxel in ``held`` (bool ``[k, j, i]``) and, with
+    probability ``extra``, others (all their voxels not loaded), and its loaded bits (uint64, 8 words a row).
+    ``zero``: the voxels not in ``held`` zero (as the runs reader leaves them), else as in ``channels``."""
+    from isplat.selection import WholeChannels
+    shape = held.shape
+    g = [-(-n // 8) for n in shape]
+
+    def bricks(a):
+        pad = np.zeros([n * 8 for n in g], a.dtype)
+        pad[:shape[0], :shape[1], :shape[2]] = a.reshape(shape)
+        return pad.reshape(g[0], 8, g[1], 8, g[2], 8).transpose(0, 2, 4, 1, 3, 5).reshape(-1, 512)
+
+    mask = bricks(held)
+    used = mask.any(axis=1) | (np.random.default_rng(seed).random(mask.shape[0]) < extra)
+    table = np.zeros(mask.shape[0], np.uint32)
+    table[used] = np.arange(1, int(used.sum()) + 1)
+
+    def rows(a):
+        out = np.zeros((int(used.sum()) + 1, 512), a.dtype)
+        out[1:] = np.where(mask[used], bricks(a)[used], 0) if zero else bricks(a)[used]
+        return out.reshape(-1)
+
+    pooled = [rows(a) if a.size else a for a in channels]
+    words = np.packbits(rows(held), bitorder="little").view("<u8")
+    return WholeChannels(pooled[0], pooled[1], pooled[2], table=table, shape=tuple(shape)), words
+
+
+def _render_held(sc, density, held, layout="pool"):
     """The image with the channels zero-filled where ``held`` is False, as a reader of range runs leaves them,
-    and the bits of the quads held made from ``held`` (isplat.splat.post.held_quads)."""
+    and the bits of the quads held made from ``held``: whole-shape channels (isplat.splat.post.held_quads) or,
+    as the runs reader holds them, a pool (held_pool)."""
     from dataclasses import replace
+
+    from isplat.selection import WholeChannels
     r = Renderer(sc)
     sel = r.selection
-    w = sel.whole
+    d, gm, nrm = (a.copy() for a in sel.whole.flat())
     keep = held.reshape(-1)
-    for ch in (w.density, w.gradient_magnitude, w.normal):
+    for ch in (d, gm, nrm):
         if ch.shape[0]:
             ch[~keep] = 0                       # what a reader of the needed voxels leaves in the rest
-    r.selection = replace(sel, held={ax: P.held_quads(held, sel.shape, ax) for ax in sel.request.axes})
+    if layout == "whole":
+        whole, bits = WholeChannels(d, gm, nrm), {ax: P.held_quads(held, sel.shape, ax) for ax in sel.request.axes}
+    else:
+        whole, words = pool_of((d, gm, nrm), held, extra=0.2)
+        bits = {ax: P.held_pool(words, whole.table, sel.shape, ax) for ax in sel.request.axes}
+    r.selection = replace(sel, whole=whole, held=bits)
     return r.render_view(0)[0], r
 
 
 @pytest.mark.parametrize("cam", ["azimuth = 0\nelevation = 0", "azimuth = 90\nelevation = 0",
                                  "azimuth = 0\nelevation = 90", "azimuth = 33\nelevation = 21"])
 @pytest.mark.parametrize("seed", [1, 2])
-def test_only_the_needed_voxels_loaded_give_the_same_image(tmp_path, make_scene, cam, seed):
+@pytest.mark.parametrize("layout", ["pool", "whole"])
+def test_only_the_needed_voxels_loaded_give_the_same_image(tmp_path, make_scene, cam, seed, layout):
     shape = (12, 13, 11)
     dens = sparse_volume(seed, shape)
     aug, idx = write_volume(tmp_path, dens, normal=random_normals(seed, shape))
@@ -101,13 +139,14 @@ def test_only_the_needed_voxels_loaded_give_the_same_image(tmp_path, make_scene,
     full = r0.render_view(0)[0]
     held = needed_by_range(dens, r0.report.intervals)
     assert 0 < held.sum() < held.size
-    img, _ = _render_held(sc, dens, held)
+    img, _ = _render_held(sc, dens, held, layout)
     assert np.array_equal(img, full)
     assert full[..., 3].max() > 0.2
 
 
 def test_without_the_test_the_zeros_show(tmp_path, make_scene):
-    """The channels zero-filled but every voxel marked loaded: quads with a zeroed corner draw wrong densities."""
+    """The pool zero-filled but every quad marked held: quads with a zeroed corner draw wrong densities."""
+    from dataclasses import replace
     shape = (12, 13, 11)
     dens = sparse_volume(1, shape)
     aug, idx = write_volume(tmp_path, dens, normal=random_normals(1, shape))
@@ -115,9 +154,9 @@ def test_without_the_test_the_zeros_show(tmp_path, make_scene):
                     image="width = 40\nheight = 36")
     full = Renderer(sc).render_view(0)[0]
     held = needed_by_range(dens, Renderer(sc).report.intervals)
-    r = Renderer(sc)
-    w = r.selection.whole
-    w.density[~held.reshape(-1)] = 0
+    img, r = _render_held(sc, dens, held)
+    assert np.array_equal(img, full)
+    r.selection = replace(r.selection, held={ax: np.full_like(b, 255) for ax, b in r.selection.held.items()})
     assert not np.array_equal(r.render_view(0)[0], full)
 
 
@@ -154,3 +193,24 @@ def test_held_quads_from_the_bits_equal_the_reference(shape, axis, p, seed):
     loaded = np.random.default_rng(seed).random(shape) < p
     got = np.unpackbits(P.held_quads(P.loaded_bits(loaded), shape, axis), bitorder="little")[:loaded.size]
     assert np.array_equal(got.reshape(shape).astype(bool), reference_held_quads(loaded, axis))
+
+
+EXTENT = st.one_of(st.integers(1, 20), st.sampled_from([8, 16]))     # (edges on a brick's last voxel too)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.tuples(EXTENT, EXTENT, EXTENT), st.sampled_from("ijk"), st.floats(0, 1), st.floats(0, 1),
+       st.integers(0, 10 ** 6))
+def test_held_pool_equals_the_reference(shape, axis, p, extra, seed):
+    """held_pool's bits (a pool's layout, bricks with no voxel loaded pooled too) are the voxel-by-voxel
+    reference's, on shapes whose edges cut the 8^3 bricks anywhere; row 0 (no brick) holds none."""
+    loaded = np.random.default_rng(seed).random(shape) < p
+    whole, words = pool_of([np.zeros(0, np.uint8)] * 3, loaded, extra, seed)
+    got = np.unpackbits(P.held_pool(words, whole.table, shape, axis), bitorder="little").astype(np.uint8)
+    want, _ = pool_of([reference_held_quads(loaded, axis).astype(np.uint8).reshape(-1)] * 3, loaded, extra, seed,
+                      zero=False)
+    inside, _ = pool_of([np.ones(loaded.size, np.uint8)] * 3, loaded, extra, seed, zero=False)   # in the volume
+    keep = inside.density.astype(bool)
+    assert np.array_equal(got[keep], want.density[keep])
+    assert not got[:512].any()
+    assert words.size == 8 * (whole.table.max(initial=0) + 1)

@@ -294,14 +294,6 @@ def test_stats_scene_says_runs(files, tmp_path, capsys):
     assert "the index's runs file" in outs[1] and "loaded: runs file" in outs[1]
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.integers(1, 20000), st.sampled_from([1, 2]), st.integers(0, 10 ** 6), st.floats(0, 0.05))
-def test_pages_of_equal_the_pages_counted_one_by_one(n, itemsize, seed, share):
-    loaded = np.random.default_rng(seed).random(n) < share
-    want = len({int(p) * itemsize // 4096 for p in np.flatnonzero(loaded)}) * 4096
-    assert S._pages_of(P.loaded_bits(loaded), itemsize) == want
-
-
 def test_runs_read_only_the_channels_asked_for(files):
     """RunsFile.read(channels=): the normals and gradient magnitudes not asked for are not read (fewer bytes),
     the density and positions the same."""
@@ -319,3 +311,31 @@ def test_runs_read_only_the_channels_asked_for(files):
     assert none.bytes_read < gm.bytes_read < both.bytes_read
     with open_runs(runs_path(idx)) as rf, pytest.raises(ValueError):
         rf.read(None, ("density",))
+
+
+@pytest.mark.parametrize("ivs", [[(60, 105), (170, 255)], [(1, 255)], [(200, 255)]])
+def test_runs_placed_into_a_pool_equal_the_whole_shape_placing(files, ivs):
+    """RunsFile.read(pool=True): a row for each brick a run read (in brick order, 0 for the others), its voxels
+    where the whole-shape placing puts them, zeros elsewhere; its loaded bits those of the whole-shape read."""
+    from isplat.runsfile import open_runs
+
+    _, idx = files["chest"]
+    with open_runs(runs_path(idx)) as rf:
+        flat = rf.read(ivs, ("normal", "gradient_magnitude"), place=True)
+    with open_runs(runs_path(idx)) as rf:
+        pool = rf.read(ivs, ("normal", "gradient_magnitude"), pool=True)
+    shape = rf.shape
+    w = S.WholeChannels(pool.placed[0], pool.placed[2], pool.placed[1], table=pool.table, shape=tuple(shape))
+    for got, want in zip(w.flat(), (flat.placed[0], flat.placed[2], flat.placed[1])):
+        assert np.array_equal(got, want)
+    loaded = np.unpackbits(flat.loaded.view(np.uint8), bitorder="little")[:int(np.prod(shape))]
+    rows = S.WholeChannels(np.unpackbits(pool.loaded.view(np.uint8), bitorder="little"), S._EMPTY_U8,
+                           S._EMPTY_U16, table=pool.table, shape=tuple(shape))
+    assert np.array_equal(rows.flat()[0], loaded)
+    g = [-(-n // 8) for n in shape]
+    brick_loaded = np.pad(loaded.reshape(shape), [(0, 8 * b - n) for b, n in zip(g, shape)]).reshape(
+        g[0], 8, g[1], 8, g[2], 8).any(axis=(1, 3, 5)).reshape(-1)
+    assert np.array_equal(pool.table > 0, brick_loaded) and brick_loaded.any()
+    assert brick_loaded.all() == (ivs != [(200, 255)])          # (bone alone leaves bricks out)
+    assert np.array_equal(pool.table[brick_loaded], np.arange(1, brick_loaded.sum() + 1))
+    assert pool.placed[0].size == (brick_loaded.sum() + 1) * 512 and not pool.placed[0][:512].any()

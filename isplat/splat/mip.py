@@ -438,7 +438,7 @@ def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b,
     sa, sb = w.strides[0], w.strides[1]
     cbase = c * w.strides[2] + w.strides[3]
     density = w.density
-    voxel = (density, w.gm, w.nrm, w.strides, n_a, n_b, c, between)     # what _taps reads
+    voxel = (density, w.gm, w.nrm, (w.offs[0], w.offs[1], w.offs[2][c], w.offs[3], w.table), n_a, n_b, c, between)
     open_ = False
     n = 0
     for y in range(y0, y1 + 1):
@@ -460,7 +460,7 @@ def _unit(c, a0, b0, owned, ext, bound, w, geo, sign, cs, held, img_w, y0b, y1b,
             fu = max(u - qa, 0.0)
             fv = max(v - qb, 0.0)
             d = _density_at(density, cbase + qa * sa + qb * sb, sa if qa + 1 < n_a else 0,
-                            sb if qb + 1 < n_b else 0, fu, fv, _taps(qa, qb, voxel))
+                            sb if qb + 1 < n_b else 0, fu, fv, _taps(qa, qb, voxel), w.table)
             n += 1
             if sign * d > h:
                 px[np.uint64(y), np.uint64(x)] = sign * d

@@ -60,6 +60,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
+from ..grid import POOL_EDGE, POOL_SHIFT
 from ..jit import jit, leaf, prefetch, stage
 from .composite import TILE
 from .labels import sample_label
@@ -224,6 +225,109 @@ def _held_edges(words, held, n, ia, ib):
                 held[p >> 6] = held[p >> 6] | bit if ok else held[p >> 6] & ~bit
 
 
+def held_pool(loaded: np.ndarray, table: np.ndarray, shape, axis: str) -> np.ndarray:
+    """uint8 [rows * 64]: :func:`held_quads`' bits for a pool (isplat.selection.WholeChannels with a ``table``):
+    bit ``q % 8`` of byte ``q // 8`` for the voxel at the pool's place ``q = row * 512 + place in its brick``, set
+    when the quad whose first corner it is has all four corners loaded (the edge voxel repeated at the volume's
+    edge). ``loaded``: the pool's loaded bits (uint64, 8 words a row, row 0 none: isplat.runsfile's ``pool``);
+    ``table``: each brick's row (0: not in the pool, none of its voxels loaded). A brick's eight words (one per
+    k-layer, bit ``8 jj + ii``) at a time (:func:`_held_rows`); rows never written stay clear."""
+    from ..grid import SLICE_AXES
+
+    ia, ib, _ = SLICE_AXES[axis]
+    g = np.array([-(-int(n) // POOL_EDGE) for n in shape], dtype=np.int64)          # (k, j, i) bricks
+    if table.size != int(np.prod(g)) or loaded.size % 8 or loaded.size < 8 * (int(table.max(initial=0)) + 1):
+        raise ValueError(f"a pool's {loaded.size} words of loaded bits and {table.size} bricks for shape {shape}")
+    held = np.zeros_like(loaded)
+    _held_rows(loaded, table, np.asarray(shape, dtype=np.int64), g, int(ia), int(ib), held)
+    return held.view(np.uint8)
+
+
+M01 = np.uint64(0x0101010101010101)     # bit 0 of every byte: a brick's ii = 0 across its eight jj rows
+M7F = np.uint64(0x7F7F7F7F7F7F7F7F)
+
+
+@jit
+def _held_rows(loaded, table, shape, g, ia, ib, held):
+    """:func:`held_pool`'s bits: for each brick in the pool, its loaded words ANDed with those one step on along
+    a, along b and along both (:func:`_shifted`, the neighbour bricks' words through ``table``)."""
+    w = np.zeros((6, 8), np.uint64)
+    cur, na, sb, nsb, tmp, sab = w[0], w[1], w[2], w[3], w[4], w[5]
+    at = np.zeros(3, np.int64)
+    for n in range(table.shape[0]):
+        r = np.int64(table[n])
+        if r == 0:
+            continue
+        at[2], at[1], at[0] = n // (g[1] * g[2]), n // g[2] % g[1], n % g[2]           # (i, j, k) of the brick
+        _brick_words(loaded, table, at, shape, g, cur)
+        _shifted(loaded, table, at, ib, shape, g, cur, tmp, sb)                   # loaded at p + b
+        at[ia] += 1
+        inside = _brick_words(loaded, table, at, shape, g, na)
+        if inside:
+            _shifted(loaded, table, at, ib, shape, g, na, tmp, nsb)               # the a-neighbour's, at p + b
+        at[ia] -= 1
+        _shift_by(ia, sb, nsb, inside, sab)                                       # loaded at p + a + b
+        _shift_by(ia, cur, na, inside, tmp)                                       # loaded at p + a
+        for kk in range(8):
+            held[8 * r + kk] = cur[kk] & tmp[kk] & sb[kk] & sab[kk]
+
+
+@leaf
+def _brick_words(loaded, table, at, shape, g, out):
+    """The loaded words of the brick at ``at`` (i, j, k brick places) into ``out``, the places past the volume's
+    edge set as the edge voxel (so a step past the edge finds the edge voxel, as the sampler clamps); False (and
+    ``out`` untouched) when the brick lies beyond the grid."""
+    if at[0] >= g[2] or at[1] >= g[1] or at[2] >= g[0]:
+        return False
+    r = np.int64(table[(at[2] * g[1] + at[1]) * g[2] + at[0]])
+    for kk in range(8):
+        out[kk] = loaded[8 * r + kk]
+    ei = min(shape[2] - at[0] * POOL_EDGE, POOL_EDGE)
+    ej = min(shape[1] - at[1] * POOL_EDGE, POOL_EDGE)
+    ek = min(shape[0] - at[2] * POOL_EDGE, POOL_EDGE)
+    if ei < POOL_EDGE:
+        fill = np.uint64((0xFF << ei) & 0xFF) * M01
+        for kk in range(8):
+            edge = (out[kk] >> np.uint64(ei - 1)) & M01
+            out[kk] = (out[kk] & ~fill) | (edge * np.uint64((0xFF << ei) & 0xFF))
+    if ej < POOL_EDGE:
+        keep = (np.uint64(1) << np.uint64(8 * ej)) - np.uint64(1)
+        for kk in range(8):
+            line = (out[kk] >> np.uint64(8 * (ej - 1))) & np.uint64(0xFF)
+            out[kk] = (out[kk] & keep) | (line * (M01 & ~keep))
+    for kk in range(ek, 8):
+        out[kk] = out[ek - 1]
+    return True
+
+
+@leaf
+def _shifted(loaded, table, at, d, shape, g, cur, tmp, out):
+    """The loaded bits one step on along axis ``d`` (0 i, 1 j, 2 k) of every voxel of the brick at ``at``, whose
+    words are ``cur`` (``tmp``: scratch for the neighbour's)."""
+    at[d] += 1
+    inside = _brick_words(loaded, table, at, shape, g, tmp)
+    at[d] -= 1
+    _shift_by(d, cur, tmp, inside, out)
+
+
+@leaf
+def _shift_by(d, cur, nxt, inside, out):
+    """A brick's words ``cur`` one step on along ``d``: within the brick a shift, the last place from the next
+    brick's words ``nxt`` (beyond the grid, ``inside`` False: the brick's own last place, the edge repeated)."""
+    for kk in range(8):
+        w = cur[kk]
+        if d == 0:
+            nb = nxt[kk] if inside else w >> np.uint64(7)
+            out[kk] = ((w >> np.uint64(1)) & M7F) | ((nb & M01) << np.uint64(7))
+        elif d == 1:
+            nb = nxt[kk] if inside else w >> np.uint64(56)
+            out[kk] = (w >> np.uint64(8)) | (nb << np.uint64(56))
+        elif kk < 7:
+            out[kk] = cur[kk + 1]
+        else:
+            out[kk] = nxt[0] if inside else w
+
+
 def reach(coef) -> tuple[float, float]:
     """How far (pixels, x and y) a voxel's tent reaches at perspective scale 1: one step along a and b."""
     return abs(coef[XA]) + abs(coef[XB]), abs(coef[YA]) + abs(coef[YB])
@@ -240,7 +344,7 @@ def plan(tables):
     # the tables with their steps between codes (the full method's search reads the opacities, the first half
     # of the columns)
     alpha, color = lerp_tables(tables.atab, sel.luts.color)
-    whole = sel.whole_volume(tables.axis)
+    whole = sel.whole_volume(tables.axis, pool=True)
     # 2: the corners' Phong factors weighted by their gradient magnitudes too (_sample), when those were read
     shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
     between = between_slices(tables.view.geom.spacing, tables.axis)
@@ -388,7 +492,9 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, b
     nsa = (whole.n_a + unit - 1) // unit
     nm, ns = _mark_cells(cells, nc, nca, unit, nsa, mark, marked, smark, squares)
     nt = _plan_squares(squares, ns, smark, mark, nca, (whole.n_b + CELL - 1) // CELL, unit, todo)
-    voxel = (whole.density, whole.gm, whole.nrm, whole.strides, whole.n_a, whole.n_b, c, cls.between)
+    oa, ob, oc, da = whole.offs
+    tab = whole.table
+    voxel = (whole.density, whole.gm, whole.nrm, (oa, ob, oc[c], da, tab), whole.n_a, whole.n_b, c, cls.between)
     inv = _ortho_inverse(base, geo.coef)
     _sample_squares(todo, nt, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
                     cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts, cls.lab, held)
@@ -490,22 +596,24 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     (a0, b0) read (its voxels and the next along a and b), in the channels the samples read. A slice's rows
     along b lie a plane or a row of the volume apart, so each row of the square is lines of its own that the
     CPU's own prefetchers do not foresee: without this the samples wait for memory (most of a frame's time on a
-    volume larger than the caches, docs/design.md)."""
-    density, gm, nrm, strides, n_a, n_b, c, thick = voxel
+    volume larger than the caches, docs/design.md). Every ``da``-th voxel along a (``voxel[3]``: half a line).
+    Whole channels only: a pool's bricks hold a square's voxels in a few lines, and fetching them through the
+    brick table cost more than it saved (docs/design.md, "Built on branch pool")."""
+    density, gm, nrm, offs, n_a, n_b, c, thick = voxel
     between = _between(thick)
-    sa, sb = strides[0], strides[1]
+    oa, ob, cbase, da, tab = offs
+    if tab is not None:             # a pool (a type of its own: the test is the compiler's)
+        return
     a1 = min(a0 + unit, n_a - 1)
     b1 = min(b0 + unit, n_b - 1)
     if between[0] == 1:             # the cubic along a reads a voxel before and one more after (_density_at)
         a0, a1 = max(a0 - 1, 0), min(a1 + 1, n_a - 1)
     elif between[0] == 2:           # along b a row before and one more after
         b0, b1 = max(b0 - 1, 0), min(b1 + 1, n_b - 1)
-    da = max(1, 32 // sa)           # voxels along a in half a 64-byte line (a slice's a steps 1 or a row)
-    cbase = c * strides[2] + strides[3]
     for b in range(b0, b1 + 1):
-        row = cbase + b * sb
+        row = cbase + _at(ob, b)
         for a in range(a0, a1 + da, da):
-            i = np.uint64(row + min(a, a1) * sa)
+            i = np.uint64(row + _at(oa, min(a, a1)))
             prefetch(density, i)
             if use_shade:
                 prefetch(nrm, i)    # 2 bytes a voxel: hence the half lines
@@ -522,7 +630,8 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     samples front to back. ``inv``: the slice's inverse projection when orthographic (:func:`_ortho_inverse`).
     One function of over 60 lines: its per-pixel loop is the scan's inner loop, inlined by LLVM, with the
     flags' test and the sample (:func:`_sample`) in it."""
-    density, gm, nrm, strides, n_a, n_b, c, _ = voxel
+    density, gm, nrm, offs, n_a, n_b, c, _ = voxel
+    oa, ob, cbase, tab = offs[0], offs[1], offs[2], offs[4]
     bi, y0b, y1b, et, satab, ty0 = band
     coef, persp = geo.coef, geo.persp
     nca = (n_a + CELL - 1) // CELL
@@ -543,7 +652,6 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
     if u0 >= u1 or v0 >= v1:
         return
     x0, x1, y0, y1 = _cell_pixels(u0, u1, v0, v1, base, coef, persp, img.shape[1], y0b, y1b)
-    cbase = c * strides[2] + strides[3]         # strides[3]: the channels may hold a slab's slices only
     drawn = 0
     newly = 0
     for y in range(y0, y1 + 1):
@@ -563,7 +671,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                     continue                # a quad no voxel of interest touches
             if geo.cuts.shape[0] > 0 and cut_away(u, v, geo.cuts, cs):
                 continue
-            if not _corners_held(held, cbase + qa * strides[0] + qb * strides[1]):
+            if not _corners_held(held, _phys(tab, np.uint64(cbase + _at(oa, qa) + _at(ob, qb)))):
                 continue                # a corner not loaded: the quad is transparent in truth
             fu, fv = max(u - qa, 0.0), max(v - qb, 0.0)
             done = 0            # a shown label's sample in front of the density's (isplat.splat.labels)
@@ -571,10 +679,10 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                 done = sample_label(x, y, fu, fv, qa, qb, c, u, v, lab, n_a, n_b, shade, use_shade, base, geo, img,
                                     sat, tile_sat, et)
             if done < 2:
-                done = max(done, _sample(x, y, fu, fv, cbase + qa * strides[0] + qb * strides[1],
-                                         strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v,
+                done = max(done, _sample(x, y, fu, fv, cbase + _at(oa, qa) + _at(ob, qb),
+                                         _step(oa, qa, n_a), _step(ob, qb, n_b), u, v,
                                          density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo, img,
-                                         sat, tile_sat, et, _taps(qa, qb, voxel)))
+                                         sat, tile_sat, et, _taps(qa, qb, voxel), tab))
             drawn += done > 0
             newly += done > 1
     counts[0] += drawn
@@ -656,9 +764,56 @@ def _span(o, d, r, a, b, lo, hi):
     return lo, hi
 
 
+def _phys(tab, i):
+    """Where the voxel of flat index ``i`` (uint64) is in the channels: ``i`` itself without a brick table
+    (``tab`` None), else in its brick's row of the pool: ``i`` plus its brick's entry of the pool's delta table
+    (uint64, modulo 2^64: :meth:`isplat.selection.WholeChannels.deltas`; a shift, a load and an add). Compiled
+    (the overload below), None is a type of its own: the kernel of whole channels is compiled without the table,
+    the pool's with it. Tried, and slower (docs/design.md): a table of rows (two more operations a corner), a
+    branch per quad for the corners in one brick, a quad's corners kept for its next pixels."""
+    if tab is None:
+        return i
+    return np.uint64((int(i) + int(tab[int(i) >> POOL_SHIFT])) % 2 ** 64)
+
+
+@overload(_phys, inline="always")
+def _typed_phys(tab, i):
+    if isinstance(tab, types.NoneType):
+        return lambda tab, i: i
+    return lambda tab, i: i + tab[i >> np.uint64(POOL_SHIFT)]
+
+
+def _at(o, q):
+    """The flat index's share of place ``q`` along an axis: ``o[q]`` of a table (isplat.grid.flat_offsets), or
+    ``q * o`` of a stride (whole channels in C order: the kernel then multiplies, as before the pools)."""
+    return q * o if isinstance(o, (int, np.integer)) else o[q]
+
+
+def _step(o, q, n):
+    """The flat index's step from place ``q`` to ``q + 1`` along an axis of ``n`` places, 0 at the last (the edge
+    voxel repeated): a table's (isplat.selection's have one more entry, the last repeated) or a stride's."""
+    if isinstance(o, (int, np.integer)):
+        return o * (q + 1 < n)
+    return o[q + 1] - o[q]
+
+
+@overload(_step, inline="always")
+def _typed_step(o, q, n):
+    if isinstance(o, types.Integer):        # (no conditional expression: numba's inlined IR warns of its phi)
+        return lambda o, q, n: o * (q + 1 < n)
+    return lambda o, q, n: o[q + 1] - o[q]
+
+
+@overload(_at, inline="always")
+def _typed_at(o, q):
+    if isinstance(o, types.Integer):
+        return lambda o, q: q * o
+    return lambda o, q: o[q]
+
+
 @leaf(forceinline=True)
 def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo,
-            img, sat, tile_sat, et, taps):
+            img, sat, tile_sat, et, taps, tab):
     """One sample: the density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
     volume's edge, which repeats the edge voxel) at (fu, fv) in it (bilinear, or cubic along a thick axis:
     ``taps``, :func:`_taps`, :func:`_density_at`), classified with the tables interpolated
@@ -669,7 +824,16 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
         return 0
     if SAMPLE_STAGES < 4:
         et = 2.0                        # no pixel saturates
-    d = _density_at(density, i00, sa, sb, fu, fv, taps)
+    vi00 = np.uint64(i00)
+    vi10 = vi00 + np.uint64(sa)
+    vi01 = vi00 + np.uint64(sb)
+    vi11 = vi01 + np.uint64(sa)
+    i00, i10, i01, i11 = _phys(tab, vi00), _phys(tab, vi10), _phys(tab, vi01), _phys(tab, vi11)
+    if taps is None:            # _density_at's bilinear, on the corners translated once for every channel
+        d = ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
+             + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
+    else:
+        d = _density_at(density, vi00, sa, sb, fu, fv, taps, tab)
     if SAMPLE_STAGES == 1:
         return 1 if d == 300.5 else 0      # never: keeps the gather without compositing
     # unsigned indices: numba adds no negative-index wrap-around to them (all are >= 0 here)
@@ -677,10 +841,6 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     w10 = fu * (1.0 - fv)
     w01 = (1.0 - fu) * fv
     w11 = fu * fv
-    i00 = np.uint64(i00)
-    i10 = i00 + np.uint64(sa)
-    i01 = i00 + np.uint64(sb)
-    i11 = i01 + np.uint64(sa)
     k = min(int(d), 254)
     f = d - k                   # from the signed code: one conversion (an unsigned one takes five)
     di = np.uint64(k)
@@ -702,7 +862,8 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
     if use_shade and taps is not None and taps[4] != 0:   # a thick axis: the B-spline's weights along it
-        cr, cg, cb = _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade)
+        cr, cg, cb = _shade_between(cr, cg, cb, nrm, gm, shade, vi00, vi10, vi01, vi11, fu, fv, taps, use_shade,
+                                    tab)
     elif use_shade:
         n00, n10, n01, n11 = nrm[i00], nrm[i10], nrm[i01], nrm[i11]
         if use_shade == 2:      # weighted by the gradient magnitudes: a corner off the surface (air, a short
@@ -769,21 +930,25 @@ def _thick_taps(qa, qb, voxel):
     cubic's kind (``voxel[7]``), the steps from the quad's first corner to the voxel before it and to the voxel two
     after it along that axis, clamped to the volume (the edge voxel repeated; 0 steps back at the first voxel),
     whether the shading follows (:func:`_shade_between`), and the quad's place along that axis, the voxels along
-    it and its stride (the spline's wider taps, :func:`_spline_at`). (0, ..., 0): bilinear. The slices of a slab
-    (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
-    strides, n_a, n_b, between = voxel[3], voxel[4], voxel[5], voxel[7]
+    it and its offsets table (``voxel[3]``'s ``oa`` or ``ob``: the spline's wider taps, :func:`_spline_at`). The
+    steps are differences of that table (brick-major channels have no one stride), and hold for any row across:
+    the index is a sum of one term per axis (isplat.grid.flat_offsets). (0, ..., 0): bilinear. The slices of a
+    slab (:mod:`isplat.slabs`) hold whole slices, so a and b reach the volume's edges there too."""
+    offs, n_a, n_b, between = voxel[3], voxel[4], voxel[5], voxel[7]
     t = between[0]
+    s = offs[0]
     if t == 0:
-        return 0, 0, 0, 0, 0, 0, 1, 0
-    q, n, s = qa, n_a, strides[0]
+        return 0, 0, 0, 0, 0, 0, 1, s
+    q, n = qa, n_a
     if t == 2:
-        q, n, s = qb, n_b, strides[1]
+        q, n, s = qb, n_b, offs[1]
     q = min(max(q, 0), n - 1)
-    return t, between[1], s if q > 0 else 0, min(2, n - 1 - q) * s, between[2], q, n, s
+    return (t, between[1], _at(s, q) - _at(s, q - 1) if q > 0 else 0, _at(s, min(q + 2, n - 1)) - _at(s, q),
+            between[2], q, n, s)
 
 
 @leaf(forceinline=True)
-def _density_at(density, i00, sa, sb, fu, fv, taps):
+def _density_at(density, i00, sa, sb, fu, fv, taps, tab):
     """The density of the quad whose first voxel is at ``i00`` of the density channel (its next voxels ``sa``
     and ``sb`` away; 0 at the volume's edge) at (fu, fv) in [0, 1) in it: the one place a sample reads the
     densities. Bilinear when ``taps`` is None or ``taps[0]`` is 0 (isotropic data render bit for bit as
@@ -797,29 +962,30 @@ def _density_at(density, i00, sa, sb, fu, fv, taps):
     i01 = i00 + np.uint64(sb)
     i11 = i01 + np.uint64(sa)
     if taps is None or taps[0] == 0:
-        return ((1.0 - fu) * (1.0 - fv) * density[i00] + fu * (1.0 - fv) * density[i10]
-                + (1.0 - fu) * fv * density[i01] + fu * fv * density[i11])
+        return ((1.0 - fu) * (1.0 - fv) * density[_phys(tab, i00)] + fu * (1.0 - fv) * density[_phys(tab, i10)]
+                + (1.0 - fu) * fv * density[_phys(tab, i01)] + fu * fv * density[_phys(tab, i11)])
     if taps[1] == 2:      # the interpolating spline: the two rows (or columns) across, then linear
         if taps[0] == 1:
-            r0, r1 = _spline_at(density, i00, i01, fu, taps)
+            r0, r1 = _spline_at(density, i00, i01, fu, taps, tab)
             return (1.0 - fv) * r0 + fv * r1
-        c0, c1 = _spline_at(density, i00, i10, fv, taps)
+        c0, c1 = _spline_at(density, i00, i10, fv, taps, tab)
         return (1.0 - fu) * c0 + fu * c1
     back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
     if taps[0] == 1:      # rows along a from i00 and from i01, then linear along b
-        r0 = cubic(density[i00 - back], density[i00], density[i10], density[i00 + fwd], fu, taps[1])
-        r1 = cubic(density[i01 - back], density[i01], density[i11], density[i01 + fwd], fu, taps[1])
+        r0 = cubic(density[_phys(tab, i00 - back)], density[_phys(tab, i00)], density[_phys(tab, i10)], density[_phys(tab, i00 + fwd)], fu, taps[1])
+        r1 = cubic(density[_phys(tab, i01 - back)], density[_phys(tab, i01)], density[_phys(tab, i11)], density[_phys(tab, i01 + fwd)], fu, taps[1])
         return (1.0 - fv) * r0 + fv * r1
-    c0 = cubic(density[i00 - back], density[i00], density[i01], density[i00 + fwd], fv, taps[1])
-    c1 = cubic(density[i10 - back], density[i10], density[i11], density[i10 + fwd], fv, taps[1])
+    c0 = cubic(density[_phys(tab, i00 - back)], density[_phys(tab, i00)], density[_phys(tab, i01)], density[_phys(tab, i00 + fwd)], fv, taps[1])
+    c1 = cubic(density[_phys(tab, i10 - back)], density[_phys(tab, i10)], density[_phys(tab, i11)], density[_phys(tab, i10 + fwd)], fv, taps[1])
     return (1.0 - fu) * c0 + fu * c1
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
-def _spline_at(density, i0, i1, f, taps):
+def _spline_at(density, i0, i1, f, taps, tab):
     """The interpolating cubic spline (:data:`SPLINE_KERNEL`) along the thick axis at fraction ``f`` past the
     voxels at ``i0`` and ``i1`` (two rows, or columns; the quad's place ``taps[5]`` of ``taps[6]`` voxels along
-    it, stride ``taps[7]``): the 2 SPLINE_REACH voxels around each (clamped to the volume, the edge voxel repeated)
+    it, offsets table ``taps[7]``; each voxel through the brick table ``tab``, :func:`_phys`): the 2 SPLINE_REACH
+    voxels around each (clamped to the volume, the edge voxel repeated)
     with the kernel's weights renormalised to sum to 1 (the voxel itself at f = 0), clamped to the codes 0..255."""
     q, n, s = taps[5], taps[6], taps[7]
     f2 = f * f
@@ -827,16 +993,16 @@ def _spline_at(density, i0, i1, f, taps):
     v0 = v1 = wsum = 0.0
     for r in range(2 * SPLINE_REACH):
         w = SPLINE_KERNEL[r, 0] + f * SPLINE_KERNEL[r, 1] + f2 * SPLINE_KERNEL[r, 2] + f3 * SPLINE_KERNEL[r, 3]
-        off = (min(max(q + r + 1 - SPLINE_REACH, 0), n - 1) - q) * s
-        v0 += w * density[np.uint64(np.int64(i0) + off)]
-        v1 += w * density[np.uint64(np.int64(i1) + off)]
+        off = _at(s, min(max(q + r + 1 - SPLINE_REACH, 0), n - 1)) - _at(s, q)
+        v0 += w * density[_phys(tab, np.uint64(np.int64(i0) + off))]
+        v1 += w * density[_phys(tab, np.uint64(np.int64(i1) + off))]
         wsum += w
     r = 1.0 / wsum
     return min(max(v0 * r, 0.0), 255.0), min(max(v1 * r, 0.0), 255.0)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
-def _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade):
+def _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps, use_shade, tab):
     """The colour shaded with the Phong factors of the eight voxels around the sample along a thick axis
     (``taps``, :func:`_taps`): the cubic B-spline's weights along it (positive, C2: the shading has no kink at
     the slices), linear across, each times the voxel's gradient magnitude code when ``use_shade`` is 2
@@ -858,7 +1024,7 @@ def _shade_between(cr, cg, cb, nrm, gm, shade, i00, i10, i01, i11, fu, fv, taps,
         weighted = use_shade == 2 and p == 0
         s0 = s1 = s2 = s3 = s4 = s5 = wsum = 0.0
         for k in range(8):
-            i = idx[k]
+            i = _phys(tab, idx[k])
             w = wts[k] * gm[i] if weighted else wts[k]
             n = nrm[i]
             wsum += w

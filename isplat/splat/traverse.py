@@ -63,10 +63,16 @@ IndexedVoxels = namedtuple("IndexedVoxels", "slice_ptr region_id region_ptr bloc
 IndexedVoxels.__doc__ = """One axis of a selection, in the hierarchy of :mod:`isplat.splat.select` (slices, regions,
 blocks, cells, voxels), with the gathered channel values ``gm`` (gradient magnitude codes) and ``nrm`` (normal
 codes) per voxel, empty when unused."""
-WholeVolume = namedtuple("WholeVolume", "density gm nrm strides n_a n_b")
+WholeVolume = namedtuple("WholeVolume", "density gm nrm strides n_a n_b offs table")
 WholeVolume.__doc__ = """Whole channels, flat ``[k, j, i]`` (full method, post-classification); ``strides``: flat
 steps along a, b, c and an offset added to every flat index (post-classification of a slab whose channels hold
-only its slices; 0 otherwise)."""
+only its slices; 0 otherwise). ``offs``: ``(oa, ob, oc, da)``, the same index as a sum of per-axis terms and
+the voxels along a per prefetch: whole channels give ``oa`` and ``ob`` as strides (ints), ``oc`` as a table;
+a pool gives brick-major tables (:func:`isplat.grid.flat_offsets`, ``oa`` and ``ob`` one entry longer, the last
+repeated). ``table``: None for whole channels; a pool's delta table (``WholeChannels.deltas``,
+:mod:`isplat.selection`): the channels then hold only the pool's bricks, and the voxel of flat brick-major
+index ``i`` is at ``i + table[i >> POOL_SHIFT]`` (isplat.splat.post reads them so; ``strides`` then do not
+apply)."""
 Indexed = namedtuple("Indexed", "vox bins")
 Indexed.__doc__ = """The indexed method's voxels (:data:`IndexedVoxels`) with the regions of each slice that reach
 each band (:data:`Bins`); the full method's are a :data:`WholeVolume` (:func:`slice_regions`)."""

@@ -110,11 +110,23 @@ def write_runs_arrays(f: h5py.File, shape, density_sha256: str, augmented_check:
     _finish(f)
 
 
+def chunk_rows(n: int, itemsize: int) -> int:
+    """Rows per chunk of a dataset of ``/runs`` of ``n`` rows of ``itemsize`` bytes (formats/runs.md §1): the
+    power of two at most 2 sqrt(its bytes), between 256 and 65,536 bytes, at most its rows (at least 1). Four
+    times the index's chunks (formats/index.md §1.1): a post load reads and hashes every chunk of a few long
+    spans, where the chunk hash's per-chunk cost showed (the 512 x 512 x 133 chest's runs: 54 ms against 30 read
+    and hashed, 0.2% more bytes; docs/design.md)."""
+    from .index.store import CHUNK_MAX, CHUNK_MIN
+
+    nbytes = max(1, int(n) * int(itemsize))
+    target = min(CHUNK_MAX, max(CHUNK_MIN, int(2 * nbytes ** 0.5)))
+    target = 1 << (target.bit_length() - 1)
+    return max(1, min(int(n), target // int(itemsize)))
+
+
 def _create(f: h5py.File, shape, sha: str, check: str, cut: R.Cut, ptrs) -> dict:
     """The root attributes and ``/runs`` with its pointer tables written; the other datasets (returned by name)
     made to the lengths the pointers give, to be filled."""
-    from .index.store import chunk_rows
-
     _write_root(f, shape, sha, check, cut)
     g = create_group(f, "runs")
     length = {n: int(ptrs[PTRS.index(R.PTR_OF[n])][-1]) for n in R.RUN_ARRAYS}
@@ -159,11 +171,11 @@ class RunsRead(NamedTuple):
     by brick number, then place in the brick): flat positions ``i + n_i * (j + n_j * k)`` (int64), their density, normal
     (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
     (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool);
-    ``loaded``: the voxels read as a bit set (uint64 words, bit ``p % 64`` of word ``p // 64`` for flat ``p``, or
-    for a pool its place ``row * 512 + place in the brick``); ``placed``: with ``place=True``, the density, normal
-    and gradient magnitude as zeroed flat channels of the volume with the voxels read written in, with ``pool=True``
-    as a pool's rows (a channel not read: empty), else None; ``table``: a pool's brick table (uint32 per brick of
-    the volume's grid, C order: its row, 0 for none), else empty."""
+    ``table``: the pool's brick table (uint32 per brick of the volume's grid, C order: its row, 0 for a brick no
+    run read); ``loaded``: the voxels read as a bit set in the pool's layout (uint64 words, bit ``q % 64`` of word
+    ``q // 64`` for the voxel at ``q = row * 512 + place in the brick``); ``placed``: with ``place=True``, the
+    density, normal and gradient magnitude as the pool's rows (zeros where no voxel was read; a channel not read:
+    empty), else None."""
     positions: np.ndarray
     density: np.ndarray
     normal: np.ndarray
@@ -188,6 +200,22 @@ def _pool_table(shape, read) -> np.ndarray:
     table = np.zeros(grid, dtype=np.uint32)
     table[used] = np.arange(1, int(used.sum()) + 1, dtype=np.uint32)
     return table
+
+
+class Fetched(NamedTuple):
+    """Runs read and checked against their hashes, not yet placed (:meth:`RunsFile.fetch`): the file's path and
+    shape, its pointer tables and runs' codes, the runs read (bool), their spans and per span the arrays read,
+    the channels read besides the density, and the bytes (and 4 KB pages) HDF5 read from the file so far."""
+    path: Path
+    shape: tuple
+    ptrs: tuple
+    codes: tuple
+    runs: np.ndarray
+    spans: list
+    read: list
+    channels: tuple
+    bytes_read: int
+    pages_read: int
 
 
 class RunsFile:
@@ -224,46 +252,54 @@ class RunsFile:
             raise IsplatError(f"{self.path}: intervals {ivs}: expected inclusive code intervals within 0..255")
         return R.runs_meeting(ivs, self.cut)
 
-    def read(self, intervals=None, channels=VALUE_CHANNELS, place: bool = False, pool: bool = False) -> RunsRead:
+    def read(self, intervals=None, channels=VALUE_CHANNELS, place: bool = False) -> RunsRead:
         """The runs meeting ``intervals`` (None: all, then every voxel of the volume must be read exactly once),
         each checked against its hashes and formats/runs.md §5 as its voxels are placed
         (:func:`isplat.runsplace.place_runs`). ``channels``: which of the normal and the gradient magnitude to
-        read besides the density (the others come back empty, their bytes not read). ``place``: also return the
-        voxels written into zeroed full-shape channels (:class:`RunsRead`); ``pool``: into a pool instead, one
-        row of 8^3 voxels per brick the runs read (row 0 zeros), with its brick table."""
-        from . import runsplace
+        read besides the density (the others come back empty, their bytes not read). ``place``: return the voxels
+        written into a pool, one row of 8^3 voxels per brick the runs read (row 0 zeros), with its brick table,
+        instead of their positions and values run after run (:class:`RunsRead`). :meth:`fetch`, then
+        :meth:`place` (which needs no open file: a thread can run it while the caller reads other files)."""
+        return self.place(self.fetch(intervals, channels), place)
 
-        place = place or pool
+    def fetch(self, intervals=None, channels=VALUE_CHANNELS) -> "Fetched":
+        """The runs meeting ``intervals`` read (their chunks checked against their hashes), not yet placed."""
         sel = self.runs_for(intervals)
         bad = set(channels) - set(VALUE_CHANNELS)
         if bad:
             raise ValueError(f"channels {sorted(bad)}: expected some of {VALUE_CHANNELS}")
         spans = _spans(sel & (np.diff(self.ptrs[0]) > 0))
-        n = int(np.prod(self.shape, dtype=np.int64))
-        vp = self.ptrs[0]
-        pos = np.empty(0 if place else sum(int(vp[b] - vp[a]) for a, b in spans), dtype=np.int64)
-        read = [self._read_span(a, b, tuple(channels)) for a, b in spans] if pool else None
-        table = _pool_table(self.shape, read) if pool else np.zeros(0, dtype=np.uint32)
-        if pool:
-            n = (int(table.max(initial=0)) + 1) * runsplace.BRICK_VOXELS
-        loaded = np.zeros(-(-n // 64), dtype=np.uint64)
-        outs = tuple(np.zeros(n if place and (name == "density" or name in channels) else 0, dtype=dt)
+        read = [self._read_span(a, b, tuple(channels)) for a, b in spans]
+        return Fetched(self.path, tuple(self.shape), self.ptrs, R.run_codes(self.cut), sel, spans, read,
+                       tuple(channels), int(self.counter.bytes), self.counter.page_bytes())
+
+    @staticmethod
+    def place(got: "Fetched", place: bool = True) -> RunsRead:
+        """The runs ``got`` (:meth:`fetch`) checked (formats/runs.md §5) and placed into a pool (``place``), or
+        their positions (:meth:`read`)."""
+        from . import runsplace
+
+        vp = got.ptrs[0]
+        table = _pool_table(got.shape, got.read)
+        n = (int(table.max(initial=0)) + 1) * runsplace.BRICK_VOXELS
+        pos = np.empty(0 if place else sum(int(vp[b] - vp[a]) for a, b in got.spans), dtype=np.int64)
+        loaded = np.zeros(n // 64, dtype=np.uint64)
+        outs = tuple(np.zeros(n if place and (name == "density" or name in got.channels) else 0, dtype=dt)
                      for name, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8)))
-        at, kept = 0, []
-        for s, (a, b) in enumerate(spans):                  # a span read, placed, and (when placing) let go
-            arrays = read[s] if pool else self._read_span(a, b, tuple(channels))
+        at = 0
+        for s, (a, b) in enumerate(got.spans):
             m = int(vp[b] - vp[a])
-            self._place(a, b, arrays, table, loaded, pos[at:at + m], outs)
+            _place(got, a, b, got.read[s], table, loaded, pos[at:at + m], outs)
             at += m
-            kept += [] if place else [arrays]
-            if pool:
-                read[s] = None
-        voxels = int(np.prod(self.shape, dtype=np.int64))
-        if sel.all() and at != voxels:
-            raise IsplatError(f"{self.path}: the runs hold {at} voxels, the volume {voxels}")
+        voxels = int(np.prod(got.shape, dtype=np.int64))
+        if got.runs.all() and at != voxels:
+            raise IsplatError(f"{got.path}: the runs hold {at} voxels, the volume {voxels}")
+        kept = [] if place else got.read
+        if place:
+            got.read.clear()                                # (placed: let go)
         cat = [np.concatenate([g[k] for g in kept]) if kept else np.zeros(0, dt)
                for k, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8))]
-        return RunsRead(pos, *cat, int(self.counter.bytes), sel, loaded, outs if place else None, table)
+        return RunsRead(pos, *cat, got.bytes_read, got.runs, loaded, outs if place else None, table)
 
     def _get(self, name: str, lo: int, hi: int, runs: str) -> np.ndarray:
         with hdf5_errors(self.path, f"dataset 'runs/{name}' [{lo}:{hi}] ({runs})"):
@@ -285,18 +321,19 @@ class RunsFile:
         return {n: self._get(n, int(ptr[a]), int(ptr[b]), where) if n not in VALUE_CHANNELS or n in channels
                 else np.zeros(0, DTYPES[n]) for n, ptr in names}
 
-    def _place(self, a: int, b: int, g: dict, table, loaded, pos, outs) -> None:
-        """Runs ``a .. b - 1`` read (``g``) checked and placed (:func:`isplat.runsplace.place_runs`)."""
-        from . import runsplace
 
-        vp, bp, pp = (np.ascontiguousarray(p[a:b + 1] - p[a]) for p in self.ptrs)
-        lo_first, hi_last = (np.ascontiguousarray(x[a:b]) for x in R.run_codes(self.cut))
-        err = runsplace.place_runs(bp, pp, vp, lo_first, hi_last, g["brick_number"], g["brick_voxel_count"],
-                                   g["positions"], g["density"], g["normal"], g["gradient_magnitude"],
-                                   np.asarray(self.shape, dtype=np.int64), table, loaded, pos, *outs)
-        if err[0]:
-            name, text = runsplace.message(err, a, self.shape, lo_first, hi_last)
-            raise IsplatError(f"{self.path}: dataset 'runs/{name}'{text}")
+def _place(got, a: int, b: int, g: dict, table, loaded, pos, outs) -> None:
+    """Runs ``a .. b - 1`` read (``g``) checked and placed (:func:`isplat.runsplace.place_runs`)."""
+    from . import runsplace
+
+    vp, bp, pp = (np.ascontiguousarray(p[a:b + 1] - p[a]) for p in got.ptrs)
+    lo_first, hi_last = (np.ascontiguousarray(x[a:b]) for x in got.codes)
+    err = runsplace.place_runs(bp, pp, vp, lo_first, hi_last, g["brick_number"], g["brick_voxel_count"],
+                               g["positions"], g["density"], g["normal"], g["gradient_magnitude"],
+                               np.asarray(got.shape, dtype=np.int64), table, loaded, pos, *outs)
+    if err[0]:
+        name, text = runsplace.message(err, a, got.shape, lo_first, hi_last)
+        raise IsplatError(f"{got.path}: dataset 'runs/{name}'{text}")
 
 
 def _spans(sel: np.ndarray):

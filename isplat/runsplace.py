@@ -63,13 +63,6 @@ def _check_run(r, bp, pp, vp, num, cnt, n_bricks, err):
 
 
 @leaf
-def _sizes_differ(n, out_d, out_n, out_g):
-    """Whether an output of a pool (not of size 0) differs from the ``n`` voxels of the loaded bits."""
-    d, m, g = out_d.shape[0], out_n.shape[0], out_g.shape[0]
-    return (d != 0 and d != n) or (m != 0 and m != n) or (g != 0 and g != n)
-
-
-@leaf
 def _places(pdata, q, c, buf):
     """Decode the places of a brick of ``c`` voxels whose positions start at byte ``q`` into ``buf[:c]``: a
     bitmap (more than 32 voxels) or a list of uint16. Returns 0, or -(the places found) for a bitmap whose bit
@@ -116,78 +109,128 @@ def _bricks_of(bp, pp, vp, num, cnt, n_bricks, err):
 @jit
 def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table, loaded, pos, out_d, out_n, out_g):
     """Runs ``0 .. len(bp) - 2`` of a span (``bp``, ``pp``, ``vp``: int64 pointers into this span's brick, position
-    byte and voxel arrays; ``lo``, ``hi``: each run's least and greatest code) placed: for each voxel, its flat
-    position ``p = i + n_i * (j + n_j * k)`` into ``pos[v]`` (unless ``pos`` is empty), its bit set in ``loaded``
-    (uint64 words: bit ``q % 64`` of word ``q // 64``), and its density, normal and gradient magnitude into
-    ``out_d[q]``, ``out_n[q]``, ``out_g[q]`` (each skipped when of size 0; ``nrm``, ``gm`` of the span's size when
-    their outputs are not). ``q`` is ``p`` when ``table`` is empty (whole-shape channels), else a pool's place:
-    ``table[brick] * 512 + place`` (``table``: each brick's row, isplat.selection.WholeChannels, filled for
-    every brick of the runs by the caller). ``shape``: int64 (n_k, n_j, n_i). Returns int64[5]: (0, ...) when every run
-    checked out, else (code, run, brick of the run, x, y) of a fault (:func:`message`). The bricks are placed
-    in the order of their numbers, the runs' entries of one brick together (its cache lines loaded once: 0.90 of
-    run order for the 512^3 head's bone). Placing them on two threads measured no faster on this 2-core
-    machine with another process busy (437 against 392 ms): memory-bound."""
+    byte and voxel arrays; ``lo``, ``hi``: each run's least and greatest code) placed into a pool: ``table``
+    (each brick's row, isplat.selection.WholeChannels; the caller gives every brick of the runs one) puts a voxel
+    at ``q = table[brick] * 512 + place``; its bit is set in ``loaded`` (uint64 words: bit ``q % 64`` of word
+    ``q // 64``), its density, normal and gradient magnitude go to ``out_d[q]``, ``out_n[q]``, ``out_g[q]`` (each
+    skipped when of size 0; ``nrm``, ``gm`` of the span's size when their outputs are not), and its flat position
+    ``i + n_i * (j + n_j * k)`` to ``pos[v]`` (unless ``pos`` is empty). ``shape``: int64 (n_k, n_j, n_i).
+    Returns int64[5]: (0, ...) when every run checked out, else (code, run, brick of the run, x, y) of a fault
+    (:func:`message`). Run after run, a brick's checks a word of 64 voxels at a time (:func:`_brick_mask`); the
+    voxel loops then only copy. Placing on two threads measured no faster on this 2-core machine with another
+    process busy (437 against 392 ms, whole-shape channels): memory-bound."""
     err = np.zeros(5, dtype=np.int64)
     nk, nj, ni = shape[0], shape[1], shape[2]
     gj, gi = (nj + 7) // 8, (ni + 7) // 8
     if vp[vp.shape[0] - 1] > dens.shape[0] or (pos.shape[0] and pos.shape[0] < vp[vp.shape[0] - 1]) \
-            or (table.shape[0] and (table.shape[0] < (nk + 7) // 8 * gj * gi or _sizes_differ(
-                loaded.shape[0] * 64, out_d, out_n, out_g))) \
+            or table.shape[0] != (nk + 7) // 8 * gj * gi or loaded.shape[0] % 8 \
+            or _sizes_differ(loaded.shape[0] * 64, out_d, out_n, out_g) \
             or pp[pp.shape[0] - 1] > pdata.shape[0] \
             or cnt.shape[0] < num.shape[0] or (out_n.shape[0] and nrm.shape[0] < dens.shape[0]) \
             or (out_g.shape[0] and gm.shape[0] < dens.shape[0]):
         _fail(err, POINTERS, 0, 0, 0, 0)
         return err
-    at = _bricks_of(bp, pp, vp, num, cnt, (nk + 7) // 8 * gj * gi, err)
+    at = _bricks_of(bp, pp, vp, num, cnt, table.shape[0], err)
     if err[0]:
         return err
     buf = np.empty(BRICK_VOXELS, dtype=np.int64)
-    order = np.argsort(num, kind="mergesort")
-    for g in order:
+    mask = np.empty(8, dtype=np.uint64)
+    for g in range(num.shape[0]):
         r = at[0, g]
         if _place_brick(r, g - bp[r], np.int64(num[g]), np.int64(cnt[g]), at[1, g], at[2, g], lo[r], hi[r], pdata,
-                        dens, nrm, gm, nj, ni, nk, gj, gi, buf, table, loaded, pos, out_d, out_n, out_g, err):
+                        dens, nrm, gm, shape, buf, mask, table, loaded, pos, out_d, out_n, out_g, err):
             break
     return err
 
 
 @leaf
-def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, nj, ni, nk, gj, gi, buf, table, loaded, pos,
-                 out_d, out_n, out_g, err):
+def _sizes_differ(n, out_d, out_n, out_g):
+    """Whether an output (not of size 0) differs from the ``n`` voxels of the loaded bits."""
+    d, m, g = out_d.shape[0], out_n.shape[0], out_g.shape[0]
+    return (d != 0 and d != n) or (m != 0 and m != n) or (g != 0 and g != n)
+
+
+@leaf
+def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, shape, buf, mask, table, loaded, pos, out_d,
+                 out_n, out_g, err):
     """Brick ``b`` of run ``r`` (brick number ``n``, ``c`` voxels from the span's voxel ``v``, positions from
-    byte ``q``) decoded (into ``buf``) and placed (:func:`place_runs`); True on a fault (then in ``err``)."""
+    byte ``q``) decoded (into ``buf``), checked (:func:`_brick_mask`, the densities within the run's codes) and
+    placed (:func:`place_runs`); True on a fault (then in ``err``)."""
     got = _places(pdata, q, c, buf)
     if got < -(1 << 20):
         return _fail(err, PLACE, r, b, -got - 1 - (1 << 20), 0)
     if got < 0:
         return _fail(err, BITMAP_COUNT, r, b, -got, c)
-    k0, j0, i0 = n // (gj * gi) * BRICK, n // gi % gj * BRICK, n % gi * BRICK
-    row = np.int64(table[n]) * BRICK_VOXELS if table.shape[0] else np.int64(-1)
-    if table.shape[0] and (row == 0 or row + BRICK_VOXELS > loaded.shape[0] * 64):
+    row = np.int64(table[n])
+    if row == 0 or 8 * row + 8 > loaded.shape[0]:
         return _fail(err, POINTERS, r, b, 0, 0)             # a pool without this brick's row (the caller's)
+    bad = _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q)
+    if bad >= 0:
+        code = OUTSIDE if bad >> 62 else TWICE
+        k, j, i = _voxel(n, bad & 511, shape)
+        x = k * 1_000_000_000_000 + j * 1_000_000 + i if code == OUTSIDE else i + shape[2] * (j + shape[1] * k)
+        return _fail(err, code, r, b, x, 0)                 # (OUTSIDE: (k, j, i) in one)
     for t in range(c):
-        place = buf[t]
-        k, j, i = k0 + (place >> 6), j0 + (place >> 3 & 7), i0 + (place & 7)
-        if k >= nk or j >= nj or i >= ni:
-            return _fail(err, OUTSIDE, r, b, k * 1_000_000_000_000 + j * 1_000_000 + i, 0)     # (k, j, i) in one
-        p = i + ni * (j + nj * k)
-        o = row + place if row >= 0 else p                  # where it goes: a pool's row, or its flat place
         d = dens[v + t]
         if d < lo_r or d > hi_r:
             return _fail(err, DENSITY, r, b, d, 0)
-        bit = np.uint64(1) << np.uint64(o & 63)
-        if loaded[o >> 6] & bit:
-            return _fail(err, TWICE, r, b, p, 0)
-        loaded[o >> 6] |= bit
-        if pos.shape[0]:
-            pos[v + t] = p
-        if out_d.shape[0]:
-            out_d[o] = d
-        if out_n.shape[0]:
-            out_n[o] = nrm[v + t]
-        if out_g.shape[0]:
-            out_g[o] = gm[v + t]
+    for w in range(8):
+        loaded[8 * row + w] |= mask[w]
+    base = row * BRICK_VOXELS
+    if out_d.shape[0]:
+        for t in range(c):
+            out_d[base + buf[t]] = dens[v + t]
+    if out_n.shape[0]:
+        for t in range(c):
+            out_n[base + buf[t]] = nrm[v + t]
+    if out_g.shape[0]:
+        for t in range(c):
+            out_g[base + buf[t]] = gm[v + t]
+    if pos.shape[0]:
+        for t in range(c):
+            k, j, i = _voxel(n, buf[t], shape)
+            pos[v + t] = i + shape[2] * (j + shape[1] * k)
     return False
+
+
+@leaf
+def _voxel(n, place, shape):
+    """(k, j, i) of place ``place`` of brick ``n`` of ``shape``'s grid of 8^3 bricks."""
+    gj, gi = (shape[1] + 7) // 8, (shape[2] + 7) // 8
+    return (n // (gj * gi) * BRICK + (place >> 6), n // gi % gj * BRICK + (place >> 3 & 7),
+            n % gi * BRICK + (place & 7))
+
+
+@leaf
+def _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q):
+    """The brick's places ``buf[:c]`` as eight words of bits (``mask``: a bitmap's bytes from byte ``q`` of
+    ``pdata``, checked by :func:`_places`); -1 when every place lies in the volume and none is loaded already, else
+    the first place that does not (``| 1 << 62`` when outside the volume)."""
+    if c > LIST_MAX:
+        for w in range(8):
+            m = np.uint64(0)
+            for y in range(8):
+                m |= np.uint64(pdata[q + 8 * w + y]) << np.uint64(8 * y)
+            mask[w] = m
+    else:
+        for w in range(8):
+            mask[w] = 0
+        for t in range(c):
+            mask[buf[t] >> 6] |= np.uint64(1) << np.uint64(buf[t] & 63)
+    k0, j0, i0 = _voxel(n, 0, shape)
+    ek, ej, ei = min(shape[0] - k0, 8), min(shape[1] - j0, 8), min(shape[2] - i0, 8)
+    clash = False
+    for w in range(8):
+        clash = clash or (loaded[8 * row + w] & mask[w]) != 0
+    if not clash and ek == 8 and ej == 8 and ei == 8:
+        return -1
+    for t in range(c):                      # (a fault, or a brick on the volume's edge)
+        p = buf[t]
+        if (p >> 6) >= ek or (p >> 3 & 7) >= ej or (p & 7) >= ei:
+            return p | (1 << 62)
+        if loaded[8 * row + (p >> 6)] >> np.uint64(p & 63) & np.uint64(1):
+            return p
+    return -1
 
 
 def message(err, first_run: int, shape, lo, hi) -> tuple[str, str]:

@@ -636,8 +636,9 @@ def select(request, aug=None, idx=None) -> Selection:
     axes, slices = request.axes, request.slices
     sel.report.axes = sorted(axes)
     rep = sel.report
-    runs = _runs_file(sel, aug, slices)     # post: the range runs its quads can read, after the index
+    runs = _runs_file(sel, aug, slices)     # post: the range runs its quads can read, beside the index's reads
     bricked = runs is None and _reads_bricks(sel, aug)   # post, version 5: the bricks its quads read, after it
+    pending = _start_post_runs(sel, aug, runs) if runs is not None else None
     if runs is None and not bricked:
         sel = _channels(sel, aug, axes, slices)
     if sel.method == "indexed":
@@ -659,8 +660,8 @@ def select(request, aug=None, idx=None) -> Selection:
         rep.values_file_pages = 0 if vio is None else vio.page_bytes(vmark0 if vio is vio0 else None)
     if bricked:
         sel = _read_post_bricks(sel, aug, axes, slices)
-    if runs is not None:
-        sel = _read_post_runs(sel, aug, runs)
+    if pending is not None:
+        sel = _read_post_runs(sel, pending)
     rep.augmented_bytes = int(aug.bytes_read)
     rep.augmented_file_bytes = int(aug.io.bytes)        # everything read through ``aug``, its opening included
     rep.augmented_file_pages = aug.io.page_bytes()
@@ -761,17 +762,18 @@ def _runs_file(sel: Selection, aug, slices):
     return path if path.exists() else None
 
 
-def _read_post_runs(sel: Selection, aug, path) -> Selection:
+def _start_post_runs(sel: Selection, aug, path):
     """Post from the range runs (formats/runs.md): the runs meeting the intervals of non-zero opacity, of the
-    channels the scene uses (the density always), placed into a pool (:class:`WholeChannels` with a brick table:
-    a row of 8^3 voxels for each brick the runs read, zeros where no run's voxel lies), and per axis read the bits
-    of the quads whose four corners they hold, in the pool's layout (isplat.splat.post.held_pool), which the
-    sampler tests (a quad with a corner not held is transparent in truth). The runs file is checked to be written
-    from ``aug`` (shape, density hash, chunk hash check); any problem is one IsplatError naming the command that
-    rebuilds it (isplat.runsfile.refusal), never a fall back to bricks."""
+    channels the scene uses (the density always), read and checked against their hashes here, then placed on a
+    thread of its own (:func:`_place_runs`) while the caller reads and selects the index: the runs depend on the
+    transfer function's intervals only, and placing is compiled code that releases the GIL. The runs file is
+    checked to be written from ``aug`` (shape, density hash, chunk hash check); any problem is one IsplatError
+    naming the command that rebuilds it (isplat.runsfile.refusal), never a fall back to bricks. The future's
+    result goes to :func:`_read_post_runs`."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from .chunkhash import CHECK_ATTR
     from .runsfile import VALUE_CHANNELS, open_runs, refusal
-    from .splat.post import held_pool
 
     rep = sel.report
     if "density" not in rep.channels:
@@ -780,15 +782,39 @@ def _read_post_runs(sel: Selection, aug, path) -> Selection:
     with refusal(path, aug.path, sel.request.index), \
             open_runs(path, shape=sel.shape, density_sha256=aug.density_sha256,
                       augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
-        got = rf.read(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels], pool=True)
-        rep.runs_file_bytes = int(rf.counter.bytes)
-        rep.runs_file_pages = rf.counter.page_bytes()
-    out = dict(zip(("density", "normal", "gradient_magnitude"), got.placed))
-    bits = {ax: held_pool(got.loaded, got.table, sel.shape, ax) for ax in sorted(sel.request.axes)}
-    rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
-    rep.values_path = str(path)
+        got = rf.fetch(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels])
+    pool = ThreadPoolExecutor(1, thread_name_prefix="isplat-runs")
+    future = pool.submit(_place_runs, got, sel.request, aug.path)
+    pool.shutdown(wait=False)                   # (the thread ends with its task)
+    return future
+
+
+def _place_runs(got, request, aug_path):
+    """The runs ``got`` (isplat.runsfile.RunsFile.fetch) checked and placed into a pool (:class:`WholeChannels`
+    with a brick table: a row of 8^3 voxels for each brick the runs read, zeros where no run's voxel lies), and
+    per axis read the bits of the quads whose four corners they hold, in the pool's layout
+    (isplat.splat.post.held_pool), which the sampler tests (a quad with a corner not held is transparent in
+    truth). Returns (whole, bits, fetched)."""
+    from .runsfile import RunsFile, refusal
+    from .splat.post import held_pool
+
+    with refusal(got.path, aug_path, request.index):
+        placed = RunsFile.place(got)
+    out = dict(zip(("density", "normal", "gradient_magnitude"), placed.placed))
+    bits = {ax: held_pool(placed.loaded, placed.table, got.shape, ax) for ax in sorted(request.axes)}
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
-                          table=got.table, shape=tuple(sel.shape))
+                          table=placed.table, shape=got.shape)
+    return whole, bits, got
+
+
+def _read_post_runs(sel: Selection, pending) -> Selection:
+    """The selection with the range runs' pool and quad bits (:func:`_place_runs`, ``pending`` its future), and
+    their reads in the report."""
+    whole, bits, got = pending.result()
+    rep = sel.report
+    rep.runs_file_bytes, rep.runs_file_pages = got.bytes_read, got.pages_read
+    rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
+    rep.values_path = str(got.path)
     return replace(sel, whole=whole, held=bits)
 
 

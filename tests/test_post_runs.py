@@ -314,21 +314,26 @@ def test_runs_read_only_the_channels_asked_for(files):
 
 
 @pytest.mark.parametrize("ivs", [[(60, 105), (170, 255)], [(1, 255)], [(200, 255)]])
-def test_runs_placed_into_a_pool_equal_the_whole_shape_placing(files, ivs):
-    """RunsFile.read(pool=True): a row for each brick a run read (in brick order, 0 for the others), its voxels
-    where the whole-shape placing puts them, zeros elsewhere; its loaded bits those of the whole-shape read."""
+def test_runs_placed_into_a_pool_equal_their_positions_and_values(files, ivs):
+    """RunsFile.read(place=True): a row for each brick a run read (in brick order, 0 for the others), each voxel
+    where its position (read without placing) says, zeros elsewhere; the loaded bits those voxels'."""
     from isplat.runsfile import open_runs
 
     _, idx = files["chest"]
     with open_runs(runs_path(idx)) as rf:
-        flat = rf.read(ivs, ("normal", "gradient_magnitude"), place=True)
+        runs = rf.read(ivs, ("normal", "gradient_magnitude"))
     with open_runs(runs_path(idx)) as rf:
-        pool = rf.read(ivs, ("normal", "gradient_magnitude"), pool=True)
+        pool = rf.read(ivs, ("normal", "gradient_magnitude"), place=True)
     shape = rf.shape
+    n = int(np.prod(shape))
+    want = [np.zeros(n, a.dtype) for a in (runs.density, runs.gradient_magnitude, runs.normal)]
+    for w, a in zip(want, (runs.density, runs.gradient_magnitude, runs.normal)):
+        w[runs.positions] = a
     w = S.WholeChannels(pool.placed[0], pool.placed[2], pool.placed[1], table=pool.table, shape=tuple(shape))
-    for got, want in zip(w.flat(), (flat.placed[0], flat.placed[2], flat.placed[1])):
-        assert np.array_equal(got, want)
-    loaded = np.unpackbits(flat.loaded.view(np.uint8), bitorder="little")[:int(np.prod(shape))]
+    for got, ref in zip(w.flat(), want):
+        assert np.array_equal(got, ref)
+    loaded = np.zeros(n, np.uint8)
+    loaded[runs.positions] = 1
     rows = S.WholeChannels(np.unpackbits(pool.loaded.view(np.uint8), bitorder="little"), S._EMPTY_U8,
                            S._EMPTY_U16, table=pool.table, shape=tuple(shape))
     assert np.array_equal(rows.flat()[0], loaded)

@@ -1,6 +1,7 @@
-"""Placing runs read from a runs file (formats/runs.md §5) into full-shape channels: one compiled pass over a
-span of consecutive runs that checks every brick number, count, position byte, place and density before any
-array is indexed with it, and marks each voxel placed (a voxel placed twice is refused).
+"""Placing runs read from a runs file (formats/runs.md §5) into a pool (a row of 8^3 voxels per brick read,
+isplat.selection.WholeChannels): one compiled pass over a span of consecutive runs that checks every brick number,
+count, position byte, place and density before any array is indexed with it, and marks each voxel placed (a voxel
+placed twice is refused).
 
 The kernel returns an error record instead of raising (compiled code cannot name the file); :func:`message`
 turns it into the one line :class:`isplat.errors.IsplatError` carries. tests/test_runs.py checks the kernel

@@ -242,7 +242,7 @@ class WholeChannels:
 
     def flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The channels flat ``[k, j, i]``: themselves, or a pool's bricks placed into zeroed whole-shape arrays
-        (made once, for the kernels that take strides: MIP)."""
+        (made once: ``isplat stats``' footprint and tests; the frames read the pool, MIP whole channels)."""
         if not self.pooled:
             return self.density, self.gradient_magnitude, self.normal
         if "d" not in self._flat:

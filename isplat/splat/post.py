@@ -19,9 +19,9 @@ bone and air); the reconstruction of such a quad is what a ray caster shows as a
 
 The four voxels' densities come from the whole density channel (one byte per voxel; the normals and gradient codes
 too when the scene uses them): the neighbours of the voxels of interest have any density, and the index does not
-hold them. Read from the range runs (isplat.selection, formats/runs.md) the channels hold only the voxels whose
-neighbourhood can meet an interval, zeros elsewhere; the sampler then skips every quad with a corner not held
-(:data:`PostPlan`'s ``held``, :func:`held_quads`), whose field meets no interval. Classification interpolates the
+hold them. Read from the range runs (isplat.selection, formats/runs.md) the channels (a pool of bricks) hold only
+the voxels whose neighbourhood can meet an interval, zeros elsewhere; the sampler then skips every quad with a
+corner not held (:data:`PostPlan`'s ``held``, :func:`held_pool`), whose field meets no interval. Classification interpolates the
 256-entry tables linearly between codes (the transfer function is applied to the interpolated value, not to a
 truncated code). Shading interpolates the four voxels' Phong factors (the shading of a trilinear ray caster that
 shades its grid points), each weighted by its bilinear weight times its gradient magnitude code (normalised; the
@@ -165,8 +165,8 @@ def loaded_bits(loaded: np.ndarray) -> np.ndarray:
 
 
 def held_quads(loaded: np.ndarray, shape, axis: str) -> np.ndarray:
-    """uint8 [ceil(n / 8)]: the bits (little-endian bit order, one per voxel of the channels' flat ``[k, j, i]``
-    layout) of :data:`PostPlan`'s ``held`` for ``axis``'s slices: set when the quad of the slice whose first corner
+    """uint8 [ceil(n / 8)]: the bits (little-endian bit order, one per voxel of whole-shape channels' flat
+    ``[k, j, i]`` layout; a pool's are :func:`held_pool`'s) of :data:`PostPlan`'s ``held`` for ``axis``'s slices: set when the quad of the slice whose first corner
     the voxel is has all four corners loaded (the edge voxel repeated at the volume's edge, as the sampler
     clamps). ``loaded``: the voxels the channels hold, as :func:`loaded_bits`' words (uint64), or a mask. Whole
     words at a time: the loaded bits and those one step on along a, along b and along both, ANDed
@@ -598,7 +598,7 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
     CPU's own prefetchers do not foresee: without this the samples wait for memory (most of a frame's time on a
     volume larger than the caches, docs/design.md). Every ``da``-th voxel along a (``voxel[3]``: half a line).
     Whole channels only: a pool's bricks hold a square's voxels in a few lines, and fetching them through the
-    brick table cost more than it saved (docs/design.md, "Built on branch pool")."""
+    brick table cost more than it saved (docs/design.md, "The brick pool")."""
     density, gm, nrm, offs, n_a, n_b, c, thick = voxel
     between = _between(thick)
     oa, ob, cbase, da, tab = offs
@@ -690,9 +690,9 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
 
 
 def _corners_held(held, i00):
-    """Whether the four corners of the quad whose first corner is at flat index ``i00`` are loaded: its bit in
-    ``held`` (:func:`held_quads`; one load of 1/8 byte a voxel, tested on every quad sampled: measured 0-3% a
-    frame, docs/design.md "Bins cut by the data, and the sampler's test"). Compiled, the choice is the type's (the
+    """Whether the four corners of the quad whose first corner is at ``i00`` in the channels (a pool's place,
+    :func:`_phys`) are loaded: its bit in ``held`` (:func:`held_pool`, or :func:`held_quads` for whole-shape
+    channels; one load of 1/8 byte a voxel, tested on every quad sampled). Compiled, the choice is the type's (the
     overload below): with ``held`` None (every voxel loaded) the test is the constant True, and the frames' kernel
     is the one without it, bit for bit as before."""
     if held is None:

@@ -158,8 +158,9 @@ each stage a process limited to {LIMIT >> 30} GiB of address space (`setrlimit(R
 `ulimit -v`). Peak RSS from `/usr/bin/time -v` (with the interpreter, numpy, h5py, numba). Scenes:
 examples/head.toml at 512 x 512 (bone), and the same with a faint veil of soft tissue over the bone,
 pre-classified (`render.classification = "pre"`, the paper's splatting) and, in the last two rows,
-post-classified (the default: a slab then also holds its slices' channels, density and normals, 3 bytes a
-voxel, which `isplat render` counts when it chooses the slabs). *Read*: the bytes a render read from the
+post-classified (the default: a frame, or each slab of it, then also holds a pool of the 8^3 bricks its quads
+read, density and normals, 3 bytes a voxel of those bricks, which `isplat render` estimates from the augmented
+file's brick density ranges when it chooses the slabs; `isplat.slabs._post_bytes`). *Read*: the bytes a render read from the
 augmented file ({_aug_format(aug)}) and the index (`isplat render --json`'s `file_bytes_read`, every slab's
 summed), and that over the technique's bytes needed (`bytes_needed`, docs/stats.md).
 

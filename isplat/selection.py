@@ -313,9 +313,10 @@ class Selection:
             if ax != axis:
                 raise IsplatError(f"this selection holds the channels of slices {c0}..{c1 - 1} of axis {ax}, "
                                   f"not of axis {axis}")
-            shape = _slab_shape(self.shape, axis, c1 - c0)
+            if not w.pooled:            # (a pool's table spans the volume's grid, a slab's or not: flat, whole)
+                shape = _slab_shape(self.shape, axis, c1 - c0)
         steps = grid.flat_strides(shape, axis)
-        if self.slab is not None:
+        if self.slab is not None and not w.pooled:
             base = -self.slab[1] * int(steps[2])
         n_c = grid.slice_shape(self.shape, axis)[0]
         oc = np.arange(n_c, dtype=np.int64) * int(steps[2]) + base        # each slice's first voxel
@@ -891,8 +892,8 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
         return replace(sel, whole=whole, slab=slab)
     bricks = np.argwhere(need)
     composite = sel.request is None or sel.request.mode == "composite"     # (MIP reads whole-shape channels)
-    if slab is None and composite and getattr(aug, "store", None) is not None and tuple(b) == (grid.POOL_EDGE,) * 3:
-        return replace(sel, whole=_pool(sel, aug, bricks, need.shape))
+    if composite and getattr(aug, "store", None) is not None and tuple(b) == (grid.POOL_EDGE,) * 3:
+        return replace(sel, whole=_pool(sel, aug, bricks, need.shape), slab=slab)    # (a slab's bricks: its own)
     out = {ch: aug.read_bricks(ch, bricks, (tuple(lo), tuple(hi))).reshape(-1) for ch in rep.channels}
     rep.values_from = f"bricks ({len(bricks):,} of {int(np.prod(need.shape)):,})"
     box = tuple(h - l for l, h in zip(lo, hi))
@@ -993,7 +994,14 @@ def _footprint(sel: Selection):
         from .stats import quad_footprint_per_slice
 
         w = sel.whole          # a pool's density placed whole for the count alone (not kept)
-        vol = (_unpool(density, w.table, w.shape) if w.pooled else density).reshape(shape)
+        if w.pooled:
+            vol = _unpool(density, w.table, w.shape).reshape(sel.shape)
+            if sel.slab is not None:            # (a slab's pool spans the volume's grid: its slices cut out)
+                cut = [slice(None)] * 3
+                cut[2 - grid.AXES.index(sel.slab[0])] = slice(sel.slab[1], sel.slab[2])
+                vol = vol[tuple(cut)]
+        else:
+            vol = density.reshape(shape)
         per = {ax: int(quad_footprint_per_slice(vol, intervals, ax).sum()) for ax in axes}
         ax = max(per, key=per.get)
         return ax, per[ax]

@@ -518,3 +518,77 @@ def test_the_store_is_read_through_windows_of_any_size(tmp_path, window, monkeyp
         for ch, vol in (("density", dens), ("normal", nrm)):
             got = a.read_bricks(ch, np.argwhere(want)[::-1])           # in any order
             assert np.array_equal(got, np.where(mask, vol, 0)), (ch, share)
+
+
+@pytest.mark.parametrize("axis", ["k", "j", "i"])
+def test_a_slab_pools_its_own_bricks(make_scene, files, axis, monkeypatch):
+    """A slab of a composite scene from a format 6 file holds its bricks as a pool too (issue 26 item 5): its
+    rows are bricks that meet its slices, fewer than the one-pass pool's, and the sampler's offsets of a voxel of
+    the slab read the density the one-pass pool reads there."""
+    import dataclasses
+
+    from isplat import grid
+    from isplat import selection as S
+    from isplat.renderer import Renderer
+    from isplat.selection import select
+
+    monkeypatch.setattr(S, "BRICK_SHARE", 1.0)             # (bricks however many: a small volume)
+    from isplat.augfile import open_augmented
+
+    aug, old, idx = files["iso"]
+    r = Renderer(_scene(make_scene, aug, idx, "orthographic", CAMS[0][1], True, lo=215))   # (few bricks show)
+    one = select(dataclasses.replace(r.request, axes=axis))
+    n_c = grid.slice_shape(one.shape, axis)[0]
+    c0, c1 = 3, n_c // 3 + 1                        # (the near edge of the shell: fewer bricks than the whole)
+    slab = select(dataclasses.replace(r.request, axes=axis, slab=((c0, c1),)))
+    assert slab.slab == (axis, c0, c1) and slab.whole.pooled and one.whole.pooled
+    rows = slab.whole.density.size // 512 - 1
+    assert 0 < rows < one.whole.density.size // 512 - 1
+    g = np.argwhere(slab.whole.table.reshape([-(-n // 8) for n in one.shape]) > 0)
+    d = 2 - grid.AXES.index(axis)
+    assert (g[:, d] * 8 < c1).all() and (g[:, d] * 8 + 8 > c0).all()      # bricks that meet the slab's slices
+    ws, wo = slab.whole_volume(axis, pool=True), one.whole_volume(axis, pool=True)
+    (oa, ob, oc, _), (pa, pb, pc, _) = ws.offs, wo.offs
+    true = open_augmented(old).read("density").reshape(-1)           # (format 4: whole channels)
+    held = np.repeat(slab.whole.table > 0, 512)                      # per brick-major place: its brick held
+    flat_s = slab.whole.flat()[0]
+    assert np.array_equal(flat_s[_brick_major_mask(held, one.shape)], true[_brick_major_mask(held, one.shape)])
+    assert not flat_s[~_brick_major_mask(held, one.shape)].any()
+    rng = np.random.default_rng(1)
+    tried = 0
+    for c, a_, b_ in zip(rng.integers(c0, c1, 400), rng.integers(0, ws.n_a, 400), rng.integers(0, ws.n_b, 400)):
+        i = int(oc[c] + oa[a_] + ob[b_])
+        assert i == int(pc[c] + pa[a_] + pb[b_])                     # the volume's brick-major offsets, slab or not
+        if slab.whole.table[i >> 9] and one.whole.table[i >> 9]:
+            si = (i + int(slab.whole.deltas()[i >> 9])) % 2 ** 64
+            oi = (i + int(one.whole.deltas()[i >> 9])) % 2 ** 64
+            assert slab.whole.density[si] == one.whole.density[oi]
+            tried += 1
+    assert tried > 10
+
+
+def _brick_major_mask(held, shape):
+    """bool [k, j, i] flat: ``held`` (per brick-major place of the padded grid of 8^3 bricks) in C order."""
+    g = [-(-n // 8) for n in shape]
+    m = held.reshape(g + [8, 8, 8]).transpose(0, 3, 1, 4, 2, 5).reshape([n * 8 for n in g])
+    return np.ascontiguousarray(m[:shape[0], :shape[1], :shape[2]]).reshape(-1)
+
+
+@pytest.mark.parametrize("lo", [60, 150, 230])
+def test_the_fit_estimate_bounds_the_pool(make_scene, files, lo):
+    """isplat.slabs' estimate of what post holds (``_post_bytes``, which picks the slabs a render needs) is at
+    least what a composite scene's pool holds after a frame, and below whole channels when few bricks show."""
+    from isplat.augfile import open_augmented
+    from isplat.renderer import Renderer
+    from isplat.slabs import _post_bytes
+
+    aug, _, idx = files["iso"]
+    sc = _scene(make_scene, aug, idx, "orthographic", CAMS[1][1], True, lo=lo)
+    r = Renderer(sc)
+    r.render_view(0)
+    a = open_augmented(aug)
+    est = _post_bytes(sc, a, r.selection.luts.intervals)
+    whole = int(np.prod(a.shape)) * 4
+    assert r.selection.held_bytes() <= est <= whole
+    if lo == 230:
+        assert est < 0.8 * whole

@@ -131,9 +131,9 @@ def memory_room() -> int | None:
 def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     """``(K, voxels)``: the slabs each of ``views`` (isplat.frame.View) needs so that one slab's selection takes
     at most ROOM_SHARE of ``room`` (default :func:`memory_room`), from the voxels of interest of the views'
-    principal axes (the index's per-density counts, read from its tables) and, post-classified, the channels it
-    holds (:func:`_post_bytes`: a pool of bricks, or whole channels), which slabs cut too (K = 1 when it fits,
-    and for the full method, whose whole channels a slab does not cut)."""
+    principal axes (the index's per-density counts, read from its tables) and, post-classified, the channels of
+    the volume, which slabs cut too (K = 1 when it fits, and for the full method, whose whole channels a slab
+    does not cut)."""
     from .frame import axes_of
     from .index import open_index
     from .transfer import build_luts
@@ -141,8 +141,8 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     room = memory_room() if room is None else room
     if scene.render.method != "indexed" or room is None or scene.data.index is None:
         return 1, 0
-    ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals
-    whole = _post_bytes(scene, aug, ivs)
+    whole = int(np.prod(aug.shape)) * _channel_bytes(scene)     # (post's pool counted as whole channels: see
+    ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals   # docs/design.md, a slab's bricks)
     idx = open_index(scene.data.index)
     k, most = 1, 0
     for axis in axes_of(views):
@@ -154,39 +154,6 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
         need = -(-(n * PEAK_PER_VOXEL + whole) // max(1, int(room * ROOM_SHARE)))
         k = max(k, min(int(need), idx.n_slices(axis)))
     return k, most
-
-
-def _post_bytes(scene, aug, ivs) -> int:
-    """Bytes of the volume's channels post holds for a frame (slabs cut them too): from an augmented file of 8^3
-    bricks (format 6) in a composite scene, a pool of the bricks it may read (isplat.selection._pool, the runs'
-    pool no larger): those whose density range (``/brick_range``) meets an interval ``ivs`` and their 26
-    neighbours (the quads' corners and the cubic's taps reach at most 2 voxels past a brick), 512 voxels each,
-    with the runs' quad bits (64 B a brick and axis) and the brick and delta tables (12 B a brick of the grid);
-    else, or when post would read whole channels (more than BRICK_SHARE of the bricks), whole channels. 0
-    pre-classified."""
-    per = _channel_bytes(scene)
-    n = int(np.prod(aug.shape))
-    if per == 0 or scene.render.mode != "composite" or getattr(aug, "store", None) is None \
-            or tuple(aug.bricks) != (8, 8, 8):
-        return n * per
-    rng = np.asarray(aug.brick_range)
-    meet = np.zeros(rng.shape[:3], dtype=bool)
-    for lo, hi in ivs:
-        meet |= (rng[..., 0] <= hi) & (rng[..., 1] >= lo)
-    near = meet.copy()
-    for d in range(3):                      # dilated by one brick along each axis in turn: the 26 neighbours
-        grown = near.copy()
-        lead = [slice(None)] * 3
-        lag = [slice(None)] * 3
-        lead[d], lag[d] = slice(1, None), slice(None, -1)
-        grown[tuple(lead)] |= near[tuple(lag)]
-        grown[tuple(lag)] |= near[tuple(lead)]
-        near = grown
-    from .selection import BRICK_SHARE
-
-    if near.sum() > BRICK_SHARE * near.size:    # (post then reads whole channels, isplat.selection)
-        return n * per
-    return int(near.sum()) * (512 * per + 3 * 64) + meet.size * 12
 
 
 def _channel_bytes(scene) -> int:

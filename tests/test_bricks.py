@@ -572,23 +572,3 @@ def _brick_major_mask(held, shape):
     g = [-(-n // 8) for n in shape]
     m = held.reshape(g + [8, 8, 8]).transpose(0, 3, 1, 4, 2, 5).reshape([n * 8 for n in g])
     return np.ascontiguousarray(m[:shape[0], :shape[1], :shape[2]]).reshape(-1)
-
-
-@pytest.mark.parametrize("lo", [60, 150, 230])
-def test_the_fit_estimate_bounds_the_pool(make_scene, files, lo):
-    """isplat.slabs' estimate of what post holds (``_post_bytes``, which picks the slabs a render needs) is at
-    least what a composite scene's pool holds after a frame, and below whole channels when few bricks show."""
-    from isplat.augfile import open_augmented
-    from isplat.renderer import Renderer
-    from isplat.slabs import _post_bytes
-
-    aug, _, idx = files["iso"]
-    sc = _scene(make_scene, aug, idx, "orthographic", CAMS[1][1], True, lo=lo)
-    r = Renderer(sc)
-    r.render_view(0)
-    a = open_augmented(aug)
-    est = _post_bytes(sc, a, r.selection.luts.intervals)
-    whole = int(np.prod(a.shape)) * 4
-    assert r.selection.held_bytes() <= est <= whole
-    if lo == 230:
-        assert est < 0.8 * whole

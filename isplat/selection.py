@@ -994,12 +994,21 @@ def _footprint(sel: Selection):
         from .stats import quad_footprint_per_slice
 
         w = sel.whole          # a pool's density placed whole for the count alone (not kept)
-        if w.pooled:
+        if w.pooled and sel.slab is None:
             vol = _unpool(density, w.table, w.shape).reshape(sel.shape)
-            if sel.slab is not None:            # (a slab's pool spans the volume's grid: its slices cut out)
-                cut = [slice(None)] * 3
-                cut[2 - grid.AXES.index(sel.slab[0])] = slice(sel.slab[1], sel.slab[2])
-                vol = vol[tuple(cut)]
+        elif w.pooled:                          # a slab's pool spans the volume's grid: its bricks' layers alone
+            d, (_, c0, c1) = 2 - grid.AXES.index(sel.slab[0]), sel.slab
+            g = [-(-int(n) // grid.POOL_EDGE) for n in sel.shape]
+            b0, b1 = c0 // grid.POOL_EDGE, -(-c1 // grid.POOL_EDGE)
+            keep = [slice(None)] * 3
+            keep[d] = slice(b0, b1)
+            sub = list(sel.shape)
+            sub[d] = min(int(sel.shape[d]), b1 * grid.POOL_EDGE) - b0 * grid.POOL_EDGE
+            table = np.ascontiguousarray(w.table.reshape(g)[tuple(keep)]).reshape(-1)
+            vol = _unpool(density, table, sub).reshape(sub)
+            cut = [slice(None)] * 3
+            cut[d] = slice(c0 - b0 * grid.POOL_EDGE, c1 - b0 * grid.POOL_EDGE)
+            vol = vol[tuple(cut)]
         else:
             vol = density.reshape(shape)
         per = {ax: int(quad_footprint_per_slice(vol, intervals, ax).sum()) for ax in axes}

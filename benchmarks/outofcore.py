@@ -159,8 +159,8 @@ each stage a process limited to {LIMIT >> 30} GiB of address space (`setrlimit(R
 examples/head.toml at 512 x 512 (bone), and the same with a faint veil of soft tissue over the bone,
 pre-classified (`render.classification = "pre"`, the paper's splatting) and, in the last two rows,
 post-classified (the default: a frame, or each slab of it, then also holds a pool of the 8^3 bricks its quads
-read, density and normals, 3 bytes a voxel of those bricks, which `isplat render` estimates from the augmented
-file's brick density ranges when it chooses the slabs; `isplat.slabs._post_bytes`). *Read*: the bytes a render read from the
+read, density and normals, 3 bytes a voxel of those bricks; when it chooses the slabs, `isplat render` counts
+post's channels whole, 3 bytes a voxel of the volume, `isplat.slabs.slabs_needed`). *Read*: the bytes a render read from the
 augmented file ({_aug_format(aug)}) and the index (`isplat render --json`'s `file_bytes_read`, every slab's
 summed), and that over the technique's bytes needed (`bytes_needed`, docs/stats.md).
 
@@ -183,6 +183,6 @@ summed), and that over the technique's bytes needed (`bytes_needed`, docs/stats.
              f"included: tests/test_slabs.py. The veil's one-pass selection would take well over 10 GiB, so it is "
              f"not rendered here.)\n")
     if not quick:
-        for big in (npy, aug, idx):                    # ~12 GB at 1024^3: made again by the next run
-            big.unlink(missing_ok=True)
+        for big in (npy, aug, idx, *work.glob("head.*.idx.h5")):   # ~20 GB at 1024^3 with the index's values
+            big.unlink(missing_ok=True)                               # and runs files: made again by the next run
     return _doc.update_section(Path(out_dir) / "scale.md", "outofcore", body, title="isplat at scale: Dask")

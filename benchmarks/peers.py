@@ -1141,6 +1141,14 @@ def run(out_dir: Path, quick: bool, required: bool = False, command: str | None 
     return _doc.put_stamp(doc, _doc.stamp(SECTION, command, TECHNIQUES, SOURCES), SECTION)
 
 
+def _make_command(args: list[str]) -> str:
+    """The stamp's rerun command: ``make bench-peers PEERS='...'`` runnable as it stands (docs_check runs it), what
+    make runs in the remark in parentheses, which docs_check's ``runnable`` drops."""
+    peers = " ".join(args)
+    return ("make bench-peers" + (f" PEERS={shlex.quote(peers)}" if args else "") +
+            f" (= pip install vtk; python -m benchmarks.peers {peers})".replace(" )", ")"))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.peers", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="docs", type=Path, help="folder of performance.md (images under OUT/img)")
@@ -1164,12 +1172,13 @@ def main(argv=None) -> int:
             os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", offscreen_window_class())
         print(json.dumps(memory_child(who, name, int(size), a.quick)))
         return 0
-    cmd = "make bench-peers   # = pip install vtk; python -m benchmarks.peers" + (" --quick" if a.quick else "")
+    cmd = _make_command(["--quick"] if a.quick else [])
     try:
         if not a.mip_only:
             some = a.cases.split(",") if a.cases else None
-            path = run(a.out, a.quick, required=True, command=cmd + (f" --cases '{a.cases}'" if some else "") +
-                       (" --load" if a.load else ""), report_only=a.report_only, reuse_frames=a.reuse_frames,
+            path = run(a.out, a.quick, required=True, command=_make_command(
+                           (["--quick"] if a.quick else []) + (["--cases", a.cases] if some else []) +
+                           (["--load"] if a.load else [])), report_only=a.report_only, reuse_frames=a.reuse_frames,
                        cases=some, load=a.load)
             print(f"[peers] wrote {path}", file=sys.stderr)
         if not (a.report_only or a.reuse_frames or (a.cases and not a.mip_only)):        # the MIP page: benchmarks/peers_mip.py

@@ -193,7 +193,7 @@ def body(results, command, vtk_ver, window_cls, not_run) -> str:
                  + ".")
     for name in not_run:
         sample, shape, *_ = CASES[name]
-        L.append(f"Not run in this page's run: {CASES[name][6]} (`{command.split('#')[0].strip()} --cases {name}`"
+        L.append(f"Not run in this page's run: {CASES[name][6]} (`python -m benchmarks.peers --mip-only --cases {name}`"
                  " measures it; it was left out for the time it takes on this machine).")
     for r in results:
         L += ["", f"![{r['case']} {r['size']} px: isplat mip | VTK MIP step 1 | reference | 16 x |isplat - "

@@ -29,8 +29,9 @@ import numpy as np
 
 from . import chunkhash
 from .errors import IsplatError
-from .fileio import (ReadCounter, attr_array, attr_string, attr_values, check_checked_dataset, check_string_attrs,
-                     create_checked_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5, set_string_attr)
+from .fileio import (ReadAttrs, ReadCounter, attr_array, attr_string, attr_values, check_checked_dataset,
+                     check_string_attrs, create_checked_dataset, create_hdf5, hdf5_errors, open_counted, open_hdf5,
+                     set_string_attr)
 from .orientation import check_axes_lps
 
 FORMAT_NAME = "isplat-augmented"
@@ -424,7 +425,7 @@ def open_augmented(path) -> AugmentedVolume:
     p, f = open_hdf5(path, "augmented volume", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint,
                      older=OLDER_VERSIONS, counter=counter)
     with f, hdf5_errors(p, "attributes and datasets"):
-        a = f.attrs
+        a = ReadAttrs(f.attrs)
         shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
         spacing = tuple(float(x) for x in attr_array(p, a, "spacing_ijk", "f", (3,)))
         window = tuple(float(x) for x in attr_array(p, a, "density_window", "f", (2,)))
@@ -463,7 +464,8 @@ def open_augmented(path) -> AugmentedVolume:
         attrs = attr_values(a)
         has_labels = version >= 4 and (LABELS in f or LABEL_VOXELS in f)
         verifier = chunkhash.open_verifier(p, f, sha, hashed_datasets(has_labels, version),
-                                           chunkhash.attributes_of(f, hashed_attributes(version)), _rebuild_hint(p, f))
+                                           chunkhash.attributes_of(f, hashed_attributes(version), a),
+                                           _rebuild_hint(p, f), root_attrs=a)
         store, edge = _check_store(p, f, shape, verifier.key, has_labels) if version >= 6 else (None, 0)
         grid = _check_bricks(p, f, shape, has_labels, edge) if version >= 5 else None
         counts = _check_labels(p, f, shape, verifier, version) if has_labels else None

@@ -212,12 +212,15 @@ class Verifier:
         self._tables_checked = set()         # datasets whose table's presence and shape were checked
         self._places = {}                    # dataset -> int64[chunks]: each stored chunk's file offset (bulk reads)
         self._table_chunk_rows = {}          # dataset -> rows per chunk of its table (read in those units)
+        self._handles = {}                   # object path -> (file, h5py object): looked up once per open file
 
     def __getstate__(self):                  # picklable (a hashlib state is not): rebuilt from the key
-        return {k: (v if k != "_places" else {}) for k, v in self.__dict__.items() if k != "_base"}
+        return {k: (v if k not in ("_places", "_handles") else {}) for k, v in self.__dict__.items()
+                if k != "_base"}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
+        self.__dict__.setdefault("_handles", {})
         self._base = hasher(self.key, self.__dict__.get("algorithm", "blake2b"))
 
     def fail(self, dataset: str, offset, why: str = "its content does not match its hash"):
@@ -226,11 +229,23 @@ class Verifier:
                           f"{table_name(dataset)} (changed, moved or copied from elsewhere); rebuild it: "
                           f"{self.rebuild}")
 
+    def _obj(self, f, name: str):
+        """``f[name]``, looked up once per open file ``f`` (an h5py lookup costs about 50 us; an opener's checks
+        and first reads ask for the same datasets and tables several times)."""
+        got = self._handles.get(name)
+        if got is None or got[0] is not f:
+            got = self._handles[name] = (f, f[name])
+        return got[1]
+
+    def remember(self, f, objects: dict) -> None:
+        """Take ``{path: h5py object}`` of open file ``f`` as already looked up (an opener's checks did)."""
+        self._handles.update((name, (f, obj)) for name, obj in objects.items())
+
     def _rows_per_chunk(self, f, dataset: str) -> int:
         """Rows per stored chunk of the dataset's table (256 as isplat writes them before index format 7)."""
         n = self._table_chunk_rows.get(dataset)
         if n is None:
-            chunks = f[f"{GROUP}/{table_name(dataset)}"].chunks
+            chunks = self._obj(f, f"{GROUP}/{table_name(dataset)}").chunks
             n = self._table_chunk_rows[dataset] = int(chunks[0]) if chunks else TABLE_CHUNK_ROWS
         return n
 
@@ -239,7 +254,7 @@ class Verifier:
         rows = self._rows.get((dataset, c))
         if rows is None:
             n = self._rows_per_chunk(f, dataset)
-            t = f[f"{GROUP}/{table_name(dataset)}"]     # (a lookup per 256 rows: about 1% of their bricks' read)
+            t = self._obj(f, f"{GROUP}/{table_name(dataset)}")
             rows = np.ascontiguousarray(t[c * n:(c + 1) * n], dtype=np.uint8).tobytes()
             self._rows[(dataset, c)] = rows
         return rows
@@ -251,7 +266,7 @@ class Verifier:
         missing = [c for c in range(r0 // n, (r1 - 1) // n + 1) if (dataset, c) not in self._rows]
         if len(missing) > 1:
             a, b = missing[0], missing[-1] + 1
-            got = np.ascontiguousarray(f[f"{GROUP}/{table_name(dataset)}"][a * n:b * n], dtype=np.uint8)
+            got = np.ascontiguousarray(self._obj(f, f"{GROUP}/{table_name(dataset)}")[a * n:b * n], dtype=np.uint8)
             for c in range(a, b):
                 self._rows.setdefault((dataset, c), got[(c - a) * n:(c - a + 1) * n].tobytes())
         out = [self._table_chunk(f, dataset, c) for c in range(r0 // n, (r1 - 1) // n + 1)]
@@ -272,9 +287,9 @@ class Verifier:
         every chunk it touches: whole chunks are read (HDF5 reads them whole anyway) and hashed; the selection
         is returned (a copy for 3-D datasets, a view of the chunk-aligned read for 1-D ones). ``fetch(ds, lo,
         hi)``: 1-D only, the chunk-aligned rows ``lo:hi`` read otherwise than through HDF5 (or None: HDF5 reads)."""
-        ds = f[dataset]
+        ds = self._obj(f, dataset)
         if dataset not in self._tables_checked:
-            _check_table(self.path, f, dataset, ds, self.rebuild)
+            _check_table(self.path, f, dataset, ds, self.rebuild, self._obj)
             self._tables_checked.add(dataset)
         shape, chunks = tuple(int(n) for n in ds.shape), tuple(int(c) for c in ds.chunks)
         sel = tuple(sel or ()) + (slice(None),) * (len(shape) - len(sel or ()))
@@ -362,9 +377,9 @@ class Verifier:
         one per brick. ``bricks`` must lie in the chunk grid (the caller's own computation; checked). ``bulk``
         (whole reads): the chunks' file offsets taken once from HDF5's chunk index (:meth:`_chunk_places`) and
         the chunks read from the file by run of neighbouring chunks (:meth:`_bulk_chunks`)."""
-        ds = f[dataset]
+        ds = self._obj(f, dataset)
         if dataset not in self._tables_checked:
-            _check_table(self.path, f, dataset, ds, self.rebuild)
+            _check_table(self.path, f, dataset, ds, self.rebuild, self._obj)
             self._tables_checked.add(dataset)
         shape, chunks = tuple(int(n) for n in ds.shape), tuple(int(c) for c in ds.chunks)
         grid = grid_shape(shape, chunks)
@@ -473,14 +488,15 @@ class Verifier:
             self.read(f, dataset)
 
 
-def _check_table(path, f, dataset: str, ds, rebuild: str) -> None:
+def _check_table(path, f, dataset: str, ds, rebuild: str, lookup=None) -> None:
     """The table of ``dataset`` exists with one 16-byte row per chunk of ``ds`` (its layout is not checked: each
-    row is keyed, so a table damaged or replaced fails when its rows are compared)."""
+    row is keyed, so a table damaged or replaced fails when its rows are compared). ``lookup(f, name)``: how
+    objects are looked up (default ``f[name]``)."""
     import h5py
 
     name = table_name(dataset)
     try:
-        t = f[f"{GROUP}/{name}"]
+        t = lookup(f, f"{GROUP}/{name}") if lookup is not None else f[f"{GROUP}/{name}"]
     except KeyError:
         t = None
     if not isinstance(t, h5py.Dataset):
@@ -493,17 +509,19 @@ def _check_table(path, f, dataset: str, ds, rebuild: str) -> None:
 
 
 def open_verifier(path, f, density_sha256: str, datasets, attributes, rebuild: str,
-                  algorithm: str = "blake2b") -> Verifier:
+                  algorithm: str = "blake2b", root_attrs=None) -> Verifier:
     """At open: the file key from the file's attributes and datasets, checked against ``chunk_hash_check``, and
     the table group's presence (each table's shape is checked on the first read of its dataset). Refuses with one
-    line naming the command that rebuilds the file."""
+    line naming the command that rebuilds the file. ``root_attrs``: the root's attributes if already read
+    (:class:`isplat.fileio.ReadAttrs`), else ``f.attrs``."""
     from .fileio import attr_string, check_string_attrs
 
     key = file_key(density_sha256, datasets, attributes)
-    if CHECK_ATTR not in f.attrs:
+    a = f.attrs if root_attrs is None else root_attrs
+    if CHECK_ATTR not in a:
         raise IsplatError(f"{path}: attribute '{CHECK_ATTR}' is missing; rebuild it: {rebuild}")
-    check_string_attrs(path, f.attrs, (CHECK_ATTR,))
-    if attr_string(f.attrs, CHECK_ATTR) != check_value(key):
+    check_string_attrs(path, a, (CHECK_ATTR,))
+    if attr_string(a, CHECK_ATTR) != check_value(key):
         raise IsplatError(f"{path}: attribute '{CHECK_ATTR}' does not match the file's attributes and datasets "
                           f"(an attribute that steers reading was changed, a dataset added or removed, or the "
                           f"hashes come from another file); rebuild it: {rebuild}")
@@ -514,13 +532,15 @@ def open_verifier(path, f, density_sha256: str, datasets, attributes, rebuild: s
     return Verifier(path, key, rebuild, algorithm)
 
 
-def attributes_of(f, spec) -> list:
+def attributes_of(f, spec, root_attrs=None) -> list:
     """``(where, name, value or None)`` for each ``(where, name)`` of ``spec`` (``where``: a group path, "" the
-    root), read from open file ``f`` as stored (strings as their bytes, numbers little-endian)."""
+    root), read from open file ``f`` as stored (strings as their bytes, numbers little-endian). ``root_attrs``:
+    the root's attributes if already read (:class:`isplat.fileio.ReadAttrs`)."""
     groups, out = {}, []
     for where, name in spec:
         if where not in groups:          # each group's attributes read once
-            groups[where] = dict((f[where] if where else f).attrs.items())
+            a = root_attrs if not where and root_attrs is not None else (f[where] if where else f).attrs
+            groups[where] = dict(a.items())
         v = groups[where].get(name)
         out.append((where, name, None if v is None else np.asarray(v)))
     return out

@@ -15,7 +15,7 @@ import numpy as np
 
 from . import chunkhash, runs as R
 from .errors import IsplatError
-from .fileio import (ReadCounter, attr_array, attr_string, check_hashed_dataset, check_string_attrs,
+from .fileio import (ReadAttrs, ReadCounter, attr_array, attr_string, check_hashed_dataset, check_string_attrs,
                      create_group, create_hashed_dataset, hdf5_errors, open_hdf5, read_chunk_span,
                      set_string_attr)
 
@@ -351,19 +351,21 @@ def open_runs(path, shape=None, density_sha256: str | None = None,
     p, f = open_hdf5(path, "runs file", FORMAT_NAME, FORMAT_VERSION, counter=counter)
     try:
         with hdf5_errors(p, "attributes and pointer tables"):
-            shape_f, sha, cut = _check_root(p, f.attrs)
-            own = attr_string(f.attrs, "augmented_chunk_hash_check")
+            a = ReadAttrs(f.attrs)
+            shape_f, sha, cut = _check_root(p, a)
+            own = attr_string(a, "augmented_chunk_hash_check")
             for what, want, have in (("shape", None if shape is None else tuple(int(n) for n in shape), shape_f),
                                      ("density_sha256", density_sha256, sha),
                                      ("augmented_chunk_hash_check", augmented_chunk_hash_check, own)):
                 if want is not None and want != have:
                     raise IsplatError(f"{p}: attribute {what!r} is {have}, the augmented file's {want}: the runs of "
                                       f"another volume or of another augmentation of it; rebuild it: {_hint(p)}")
-            _check_datasets(p, f, shape_f, R.n_runs(cut))
-            verifier = chunkhash.open_verifier(p, f, sha, DATASETS, chunkhash.attributes_of(f, HASHED_ATTRS),
-                                               _hint(p), HASH)
+            dsets = _check_datasets(p, f, shape_f, R.n_runs(cut))
+            verifier = chunkhash.open_verifier(p, f, sha, DATASETS, chunkhash.attributes_of(f, HASHED_ATTRS, a),
+                                               _hint(p), HASH, root_attrs=a)
+            verifier.remember(f, {f"runs/{n}": ds for n, ds in dsets.items()})
             ptrs = tuple(_read_ptr(verifier, f, n) for n in PTRS)
-            _check_ptrs(p, f, ptrs, cut)
+            _check_ptrs(p, dsets, ptrs, cut)
     except BaseException:
         f.close()
         raise
@@ -414,32 +416,36 @@ def _check_root(p, a):
     return shape, sha, R.Cut(firsts[0], firsts[1], f"{firsts[0].size}x{firsts[1].size}")
 
 
-def _check_datasets(p, f, shape, n_run: int) -> None:
-    if not isinstance(f.get("runs"), h5py.Group):
+def _check_datasets(p, f, shape, n_run: int) -> dict:
+    """``/runs``' datasets (formats/runs.md §4): present, 1-D, of their types, chunked without filters, of the
+    lengths the shape and the runs give; returns ``{name: dataset}``."""
+    g = f.get("runs")
+    if not isinstance(g, h5py.Group):
         raise IsplatError(f"{p}: group '/runs' is missing; rebuild it: {_hint(p)}")
-    g = f["runs"]
+    dsets = {}
     for name, dt in DTYPES.items():
-        ds = g.get(name)
+        ds = dsets[name] = g.get(name)
         if not isinstance(ds, h5py.Dataset):
             raise IsplatError(f"{p}: dataset 'runs/{name}' is missing; rebuild it: {_hint(p)}")
         if ds.ndim != 1 or ds.dtype != np.dtype(dt):
             raise IsplatError(f"{p}: dataset 'runs/{name}' is {ds.dtype} {ds.shape}, expected 1-D {np.dtype(dt)}")
         check_hashed_dataset(f"{p}: dataset 'runs/{name}'", ds)
-    n = {name: int(g[name].shape[0]) for name in DTYPES}
+    n = {name: int(ds.shape[0]) for name, ds in dsets.items()}
     want = dict.fromkeys(PTRS, n_run + 1)
     want.update(density=int(np.prod(shape, dtype=np.int64)), normal=n["density"], gradient_magnitude=n["density"],
                 brick_voxel_count=n["brick_number"])
     for name, m in want.items():
         if n[name] != m:
             raise IsplatError(f"{p}: dataset 'runs/{name}' has {n[name]} rows, expected {m}")
+    return dsets
 
 
-def _check_ptrs(p, f, ptrs, cut: R.Cut) -> None:
+def _check_ptrs(p, dsets: dict, ptrs, cut: R.Cut) -> None:
     """Each pointer table: from 0, non-decreasing, ending at its datasets' length (so every run's counts and
     offsets are non-negative, in bounds, not overlapping, summing to the length); a run that cannot hold a voxel
     (lo bin above hi bin) empty; a run's bricks at least one and at most its voxels, 512 voxels a brick at most."""
-    lengths = {"run_voxel_ptr": f["runs/density"].shape[0], "run_brick_ptr": f["runs/brick_number"].shape[0],
-               "run_position_ptr": f["runs/positions"].shape[0]}
+    lengths = {"run_voxel_ptr": dsets["density"].shape[0], "run_brick_ptr": dsets["brick_number"].shape[0],
+               "run_position_ptr": dsets["positions"].shape[0]}
     for name, ptr in zip(PTRS, ptrs):
         step = np.diff(ptr)
         if ptr[0] != 0 or ptr[-1] != lengths[name] or (step < 0).any():

@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import chunkhash, progress
 from ..errors import IsplatError
-from ..fileio import (ReadCounter, attr_array, attr_string, attr_values, atomic_output,
+from ..fileio import (ReadAttrs, ReadCounter, attr_array, attr_string, attr_values, atomic_output,
                       check_checked_dataset, check_hashed_dataset, check_output, check_string_attrs,
                       create_checked_dataset, create_group, create_hashed_dataset, create_hdf5, hdf5_errors,
                       open_counted, open_hdf5, read_chunk_span, set_string_attr)
@@ -966,8 +966,8 @@ def open_index(path, keep_open: bool = False) -> IndexFile:
     p, f = open_hdf5(path, "index", FORMAT_NAME, FORMAT_VERSION, rebuild=_rebuild_hint, older=OLDER_VERSIONS,
                      counter=counter)
     with _validating(f, keep_open), hdf5_errors(p, "attributes and tables"):
-        version = int(f.attrs["format_version"])
-        a = f.attrs
+        a = ReadAttrs(f.attrs)
+        version = int(a["format_version"])
         shape = tuple(int(x) for x in attr_array(p, a, "shape", "i", (3,)))
         check_string_attrs(p, a, ("density_sha256", "created_by"))
         sha = attr_string(a, "density_sha256")
@@ -990,8 +990,8 @@ def open_index(path, keep_open: bool = False) -> IndexFile:
         attrs = attr_values(a)
         channel = _check_channel(p, a, version, values)
         datasets, hashed = hashed_layout(f)
-        verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed),
-                                           _rebuild_hint(p, f))
+        verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed, a),
+                                           _rebuild_hint(p, f), root_attrs=a)
     idx = IndexFile(p, shape, sha, ranges, meta, attrs, version, values, counter, verifier)
     idx.channel = channel
     idx._kept, idx.keep_open = (f if keep_open else None), keep_open
@@ -1008,7 +1008,7 @@ def open_values(path, idx: IndexFile, keep_open: bool = False) -> IndexFile:
     p, f = open_hdf5(path, "values file", VALUES_FORMAT_NAME, VALUES_FORMAT_VERSION, rebuild=lambda p, f: hint,
                      older=(FORMAT_VERSION_VALUES_FILE,), counter=counter)
     with _validating(f, keep_open), hdf5_errors(p, "attributes"):
-        a = f.attrs
+        a = ReadAttrs(f.attrs)
         version = int(a["format_version"])
         if version != idx.version:
             raise IsplatError(f"{p}: format version {version} beside an index of version {idx.version}; rebuild "
@@ -1025,7 +1025,8 @@ def open_values(path, idx: IndexFile, keep_open: bool = False) -> IndexFile:
             raise IsplatError(f"{p}: group '/values' is missing; rebuild it: {hint}")
         values = _check_values_group(p, f, ranges, version, shape)
         datasets, hashed = hashed_layout(f)
-        verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed), hint)
+        verifier = chunkhash.open_verifier(p, f, sha, datasets, chunkhash.attributes_of(f, hashed, a), hint,
+                                           root_attrs=a)
         attrs = attr_values(a)
     vf = IndexFile(p, shape, sha, ranges, {}, attrs, version, values, counter, verifier)
     vf._kept = f if keep_open else None
@@ -1104,15 +1105,16 @@ def _check_axis_group(p, g, axis, shape, version: int) -> _AxisMeta:
         raise IsplatError(f"{where}: {exc}") from None
     expect = {"axis": axis, "n_slices": n_slices, "in_slice_axes": IN_SLICE_AXES[axis], "n_a": n_a, "n_b": n_b,
               "escape_width": ew_expected}
+    ga = ReadAttrs(g.attrs)
     for key, want in expect.items():
-        if key not in g.attrs:
+        if key not in ga:
             raise IsplatError(f"{where}: missing attribute {key!r}")
         if isinstance(want, str):
-            check_string_attrs(where, g.attrs, (key,))
-            got = attr_string(g.attrs, key)
+            check_string_attrs(where, ga, (key,))
+            got = attr_string(ga, key)
             ok = got == want
         else:
-            got = int(attr_array(where, g.attrs, key, "i"))
+            got = int(attr_array(where, ga, key, "i"))
             ok = got == want
         if not ok:
             raise IsplatError(f"{where}: attribute {key!r} is {got!r}, expected {want!r} for shape {shape}")

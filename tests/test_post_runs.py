@@ -294,6 +294,40 @@ def test_stats_scene_says_runs(files, tmp_path, capsys):
     assert "the index's runs file" in outs[1] and "loaded: runs file" in outs[1]
 
 
+def test_render_json_holds_what_stats_holds(files, tmp_path, capsys):
+    """isplat render --json: the bytes held for the frames (and per voxel of interest) as isplat stats --scene
+    counts them, for the runs file's pool and for whole channels (the runs file moved away)."""
+    import json
+
+    from conftest import scene_text
+
+    from isplat.cli.main import main
+    aug, idx = files["head"]
+    scene = tmp_path / "s.toml"
+    scene.write_text(scene_text(aug, idx, transfer=TFS["veil+bone"], render='classification = "post"',
+                                image="width = 32\nheight = 32"))
+    got = []
+    for moved in (False, True):
+        if moved:
+            runs_path(idx).rename(tmp_path / "away.h5")
+        try:
+            for cmd in (["render", str(scene), "-o", str(tmp_path / "o.png"), "--force", "--json", "-q"],
+                        ["stats", str(aug), str(idx), "--scene", str(scene), "--json", "-q"]):
+                with pytest.raises(SystemExit) as ex:
+                    main(cmd)
+                assert ex.value.code in (0, None)
+                got.append(json.loads(capsys.readouterr().out))
+        finally:
+            if moved:
+                (tmp_path / "away.h5").rename(runs_path(idx))
+    for r, st in (got[:2], got[2:]):
+        ld = st["scene"]["loaded"]
+        assert r["held_bytes"] == ld["held_bytes"] > 0 and r["voxels_of_interest"] == st["scene"]["voxels_of_interest"]
+        assert r["held_bytes_per_voxel_of_interest"] == pytest.approx(ld["held_bytes_per_voxel_of_interest"])
+    assert got[0]["values_from"].startswith("runs file (") and not got[2]["values_from"].startswith("runs file")
+    assert got[0]["held_bytes"] != got[2]["held_bytes"]
+
+
 def test_runs_read_only_the_channels_asked_for(files):
     """RunsFile.read(channels=): the normals and gradient magnitudes not asked for are not read (fewer bytes),
     the density and positions the same."""

@@ -98,11 +98,12 @@ def render(scene_file, out, preset, index, size, overrides, print_scene, view, a
             plan.add(n, rgba)
     plan.finish()
     if as_json or log.isEnabledFor(logging.DEBUG):   # the bytes needed take a pass over the selection: only
-        report = _report(scene_file, renderer.method, plan.out, rep, per_view)   # when printed
+        held = renderer.held_bytes()                  # when printed
+        report = _report(scene_file, renderer.method, plan.out, rep, per_view, held)
         if as_json:
             json.dump(report, sys.stdout, allow_nan=False)
             sys.stdout.write("\n")
-        _log_report(report, rep, renderer.held_bytes())
+        _log_report(report, rep, held)
     log.info(_summary(plan.out, scene, renderer, per_view, time.perf_counter() - t0))
 
 
@@ -181,7 +182,9 @@ def _view_row(n: int, st) -> dict:
             **({"voxels_visited": st.voxels_tested} if st.classification in ("mip", "minip") else {})}
 
 
-def _report(scene_file, method, out, rep, per_view) -> dict:
+def _report(scene_file, method, out, rep, per_view, held) -> dict:
+    """``--json``'s report; ``held``: the bytes the renderer holds for its frames (None when workers or one slab at
+    a time hold them), as ``isplat stats --scene`` counts them (docs/stats.md)."""
     return {"scene": str(scene_file), "method": method, "output": out,
             "axes_loaded": rep.axes, "channels_loaded": rep.channels, "intervals": rep.intervals,
             "augmented_bytes_read": rep.augmented_bytes, "index_bytes_read": rep.index_bytes,
@@ -189,7 +192,9 @@ def _report(scene_file, method, out, rep, per_view) -> dict:
             "file_bytes_read": rep.file_bytes, "file_pages_read": rep.file_pages, "technique": rep.technique,
             "needed_voxels": rep.needed_voxels,
             "needed_axis": rep.needed_axis, "bytes_needed": rep.bytes_needed, "values_from": rep.values_from,
-            "runs_file_bytes_read": rep.runs_file_bytes,
+            "runs_file_bytes_read": rep.runs_file_bytes, "voxels_of_interest": rep.voxels_of_interest,
+            "held_bytes": held, "held_bytes_per_voxel_of_interest":
+                None if held is None else round(held / max(1, rep.voxels_of_interest), 4),
             "views": per_view}
 
 

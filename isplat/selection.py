@@ -771,8 +771,6 @@ def _start_post_runs(sel: Selection, aug, path):
     checked to be written from ``aug`` (shape, density hash, chunk hash check); any problem is one IsplatError
     naming the command that rebuilds it (isplat.runsfile.refusal), never a fall back to bricks. The future's
     result goes to :func:`_read_post_runs`."""
-    from concurrent.futures import ThreadPoolExecutor
-
     from .chunkhash import CHECK_ATTR
     from .runsfile import VALUE_CHANNELS, open_runs, refusal
 
@@ -784,9 +782,25 @@ def _start_post_runs(sel: Selection, aug, path):
             open_runs(path, shape=sel.shape, density_sha256=aug.density_sha256,
                       augmented_chunk_hash_check=str(aug.attrs.get(CHECK_ATTR, ""))) as rf:
         got = rf.fetch(ivs, [ch for ch in VALUE_CHANNELS if ch in rep.channels])
-    pool = ThreadPoolExecutor(1, thread_name_prefix="isplat-runs")
-    future = pool.submit(_place_runs, got, sel.request, aug.path)
-    pool.shutdown(wait=False)                   # (the thread ends with its task)
+    return _in_daemon_thread(_place_runs, got, sel.request, aug.path)
+
+
+def _in_daemon_thread(fn, *args):
+    """A Future of ``fn(*args)`` run on a daemon thread of its own: an interrupted load (Ctrl-C) exits at once, where
+    a ThreadPoolExecutor's thread would be joined at exit, after its task (the placing: seconds at 1024^3)."""
+    import threading
+    from concurrent.futures import Future
+
+    future = Future()
+
+    def run():
+        if future.set_running_or_notify_cancel():
+            try:
+                future.set_result(fn(*args))
+            except BaseException as exc:            # (the caller's result() raises it)
+                future.set_exception(exc)
+
+    threading.Thread(target=run, name="isplat-runs", daemon=True).start()
     return future
 
 

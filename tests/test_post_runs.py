@@ -378,3 +378,22 @@ def test_runs_placed_into_a_pool_equal_their_positions_and_values(files, ivs):
     assert brick_loaded.all() == (ivs != [(200, 255)])          # (bone alone leaves bricks out)
     assert np.array_equal(pool.table[brick_loaded], np.arange(1, brick_loaded.sum() + 1))
     assert pool.placed[0].size == (brick_loaded.sum() + 1) * 512 and not pool.placed[0][:512].any()
+
+
+def test_runs_placed_on_a_daemon_thread():
+    """The placing's thread (selection._in_daemon_thread) is a daemon, so an interrupted load exits without
+    waiting for it; its result and its exception reach the caller through the future."""
+    import threading
+
+    from isplat.selection import _in_daemon_thread
+
+    seen = {}
+
+    def twice(x):
+        seen["daemon"], seen["name"] = threading.current_thread().daemon, threading.current_thread().name
+        return 2 * x
+
+    assert _in_daemon_thread(twice, 21).result(timeout=60) == 42
+    assert seen == {"daemon": True, "name": "isplat-runs"}
+    with pytest.raises(ZeroDivisionError):
+        _in_daemon_thread(lambda: 1 / 0).result(timeout=60)

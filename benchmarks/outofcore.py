@@ -159,8 +159,10 @@ each stage a process limited to {LIMIT >> 30} GiB of address space (`setrlimit(R
 examples/head.toml at 512 x 512 (bone), and the same with a faint veil of soft tissue over the bone,
 pre-classified (`render.classification = "pre"`, the paper's splatting) and, in the last two rows,
 post-classified (the default: a frame, or each slab of it, then also holds a pool of the 8^3 bricks its quads
-read, density and normals, 3 bytes a voxel of those bricks; when it chooses the slabs, `isplat render` counts
-post's channels whole, 3 bytes a voxel of the volume, `isplat.slabs.slabs_needed`). *Read*: the bytes a render read from the
+read, density, normals and gradient magnitudes, 4 bytes a voxel of those bricks; when it chooses the slabs,
+`isplat render` counts what a one-pass frame from the index's runs file holds, from the runs file's tables
+(`isplat.selection.post_runs_bytes`), and else post's channels whole, 4 bytes a voxel of the volume, in slabs
+that read bricks, `isplat.slabs.slabs_needed`). *Read*: the bytes a render read from the
 augmented file ({_aug_format(aug)}) and the index (`isplat render --json`'s `file_bytes_read`, every slab's
 summed), and that over the technique's bytes needed (`bytes_needed`, docs/stats.md).
 

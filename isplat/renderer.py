@@ -107,7 +107,7 @@ class Renderer:
         room = memory_room()
         if room is None or self.method != "indexed" or fits_anyway(self.scene, self.data, room):
             return 1                # (the index is then opened once, by the selection)
-        k, voxels = slabs_needed(self.scene, self.views, self.data, room)
+        k, voxels = slabs_needed(self.scene, self.views, self.data, room, self.request)
         if k > 1:
             log.info(f"isplat render: the selection ({voxels:,} voxels of interest, about "
                      f"{voxels * PEAK_PER_VOXEL / 2**30:.2f} GiB while it is made) does not fit the "

@@ -252,6 +252,16 @@ class RunsFile:
             raise IsplatError(f"{self.path}: intervals {ivs}: expected inclusive code intervals within 0..255")
         return R.runs_meeting(ivs, self.cut)
 
+    def bricks_of(self, intervals=None) -> int:
+        """How many distinct 8^3 bricks the runs meeting ``intervals`` hold voxels of (the rows of the pool
+        :meth:`read` would place them in, row 0 aside): their ``brick_number`` rows read, checked against their
+        hashes (4 bytes a brick of each run)."""
+        sel = self.runs_for(intervals)
+        bp = self.ptrs[1]
+        nums = [self._get("brick_number", int(bp[a]), int(bp[b]), f"runs {a}..{b - 1}")
+                for a, b in _spans(sel & (np.diff(bp) > 0))]
+        return int(np.unique(np.concatenate(nums)).size) if nums else 0
+
     def read(self, intervals=None, channels=VALUE_CHANNELS, place: bool = False) -> RunsRead:
         """The runs meeting ``intervals`` (None: all, then every voxel of the volume must be read exactly once),
         each checked against its hashes and formats/runs.md §5 as its voxels are placed

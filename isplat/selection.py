@@ -253,11 +253,35 @@ class WholeChannels:
 
 def _unpool(pool: np.ndarray, table: np.ndarray, shape) -> np.ndarray:
     """The whole-shape channel ``[k, j, i]`` (flat) of a pool's rows (zeros where no brick was read)."""
+    return np.ascontiguousarray(_unpool_k(pool, table, shape, 0, int(shape[0]))).reshape(-1)
+
+
+def _unpool_k(pool: np.ndarray, table: np.ndarray, shape, k0: int, k1: int) -> np.ndarray:
+    """Planes ``k0:k1`` of a pool's channel as ``[k1 - k0, j, i]`` (zeros where no brick was read): only the
+    brick layers that hold them are gathered."""
     e = grid.POOL_EDGE
     g = [-(-int(n) // e) for n in shape]
-    bricks = pool.reshape(-1, e, e, e)[table.reshape(g)]
-    full = bricks.transpose(0, 3, 1, 4, 2, 5).reshape([n * e for n in g])
-    return np.ascontiguousarray(full[:shape[0], :shape[1], :shape[2]]).reshape(-1)
+    b0, b1 = k0 // e, -(-k1 // e)
+    bricks = pool.reshape(-1, e, e, e)[table.reshape(g)[b0:b1]]
+    full = bricks.transpose(0, 3, 1, 4, 2, 5).reshape((b1 - b0) * e, g[1] * e, g[2] * e)
+    return full[k0 - b0 * e:k1 - b0 * e, :shape[1], :shape[2]]
+
+
+class _PoolVolume:
+    """A pool's channel seen as the ``[k, j, i]`` volume of ``shape`` cut to ``box`` (a (lo, hi) per dimension),
+    unpooled a few planes at a time as it is sliced along k: what isplat.stats.quad_footprint_per_slice reads, so
+    the footprint is counted without the whole volume in memory (1 GiB a channel at 1024^3)."""
+
+    def __init__(self, pool, table, shape, box):
+        self._args, self.box = (pool, table, tuple(int(n) for n in shape)), [tuple(map(int, b)) for b in box]
+        self.shape = tuple(b - a for a, b in self.box)
+
+    def __getitem__(self, ks: slice) -> np.ndarray:
+        k0, k1, step = ks.indices(self.shape[0])
+        if step != 1:
+            raise ValueError("a pool volume is read in planes k0:k1")
+        (a, _), (j0, j1), (i0, i1) = self.box
+        return _unpool_k(*self._args, a + k0, a + max(k0, k1))[:, j0:j1, i0:i1]
 
 
 @dataclass(frozen=True, eq=False)
@@ -763,6 +787,30 @@ def _runs_file(sel: Selection, aug, slices):
     return path if path.exists() else None
 
 
+def post_runs_bytes(request, aug) -> int | None:
+    """At most the bytes a one-pass post frame from the runs file holds while it loads (isplat.slabs counts it
+    before the load), from the runs file's pointer tables: the runs the intervals meet, read (their voxels'
+    channels, positions and brick rows) and placed (a pool row for each brick they hold voxels of, with the loaded
+    bits and each axis' quad bits: their ``brick_number`` rows read to count them), and the brick table with the
+    sampler's deltas; None when the frame would not read the runs file (:func:`_runs_file`)."""
+    from .runsfile import open_runs
+
+    if _shows_labels(request):
+        return None
+    sel = _empty_selection(request)
+    path = _runs_file(sel, aug, None)
+    if path is None:
+        return None
+    with open_runs(path) as rf:
+        runs = rf.runs_for(sel.luts.intervals)
+        nv, nb, npos = (int(np.diff(p)[runs].sum()) for p in rf.ptrs)
+        rows = rf.bricks_of(sel.luts.intervals) + 1
+    chan = 1 + sum(2 if ch == "normal" else 1 for ch in sel.report.channels if ch != "density")
+    bricks = int(np.prod([-(-int(n) // grid.POOL_EDGE) for n in sel.shape]))
+    voxels = rows * grid.POOL_EDGE ** 3
+    return nv * chan + npos + 6 * nb + voxels * chan + voxels // 8 * (1 + len(request.axes)) + 12 * bricks
+
+
 def _start_post_runs(sel: Selection, aug, path):
     """Post from the range runs (formats/runs.md): the runs meeting the intervals of non-zero opacity, of the
     channels the scene uses (the density always), read and checked against their hashes here, then placed on a
@@ -1007,22 +1055,12 @@ def _footprint(sel: Selection):
     def count():
         from .stats import quad_footprint_per_slice
 
-        w = sel.whole          # a pool's density placed whole for the count alone (not kept)
-        if w.pooled and sel.slab is None:
-            vol = _unpool(density, w.table, w.shape).reshape(sel.shape)
-        elif w.pooled:                          # a slab's pool spans the volume's grid: its bricks' layers alone
-            d, (_, c0, c1) = 2 - grid.AXES.index(sel.slab[0]), sel.slab
-            g = [-(-int(n) // grid.POOL_EDGE) for n in sel.shape]
-            b0, b1 = c0 // grid.POOL_EDGE, -(-c1 // grid.POOL_EDGE)
-            keep = [slice(None)] * 3
-            keep[d] = slice(b0, b1)
-            sub = list(sel.shape)
-            sub[d] = min(int(sel.shape[d]), b1 * grid.POOL_EDGE) - b0 * grid.POOL_EDGE
-            table = np.ascontiguousarray(w.table.reshape(g)[tuple(keep)]).reshape(-1)
-            vol = _unpool(density, table, sub).reshape(sub)
-            cut = [slice(None)] * 3
-            cut[d] = slice(c0 - b0 * grid.POOL_EDGE, c1 - b0 * grid.POOL_EDGE)
-            vol = vol[tuple(cut)]
+        w = sel.whole          # a pool read a few planes at a time (a slab's pool spans the volume's grid:
+        if w.pooled:           # its slices alone)
+            box = [(0, int(n)) for n in sel.shape]
+            if sel.slab is not None:
+                box[2 - grid.AXES.index(sel.slab[0])] = sel.slab[1:]
+            vol = _PoolVolume(density, w.table, sel.shape, box)
         else:
             vol = density.reshape(shape)
         per = {ax: int(quad_footprint_per_slice(vol, intervals, ax).sum()) for ax in axes}

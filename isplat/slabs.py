@@ -128,12 +128,16 @@ def memory_room() -> int | None:
     return room
 
 
-def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
+def slabs_needed(scene, views, aug, room: int | None = None, request=None) -> tuple[int, int]:
     """``(K, voxels)``: the slabs each of ``views`` (isplat.frame.View) needs so that one slab's selection takes
     at most ROOM_SHARE of ``room`` (default :func:`memory_room`), from the voxels of interest of the views'
     principal axes (the index's per-density counts, read from its tables) and, post-classified, the channels of
     the volume, which slabs cut too (K = 1 when it fits, and for the full method, whose whole channels a slab
-    does not cut)."""
+    does not cut). With ``request`` (the frames' :class:`~isplat.request.RenderRequest`), a post frame that reads
+    the runs file in one pass counts what it holds (:func:`isplat.selection.post_runs_bytes`) instead of whole
+    channels: K = 1 when that fits."""
+    from .selection import post_runs_bytes
+
     from .frame import axes_of
     from .index import open_index
     from .transfer import build_luts
@@ -144,24 +148,32 @@ def slabs_needed(scene, views, aug, room: int | None = None) -> tuple[int, int]:
     whole = int(np.prod(aug.shape)) * _channel_bytes(scene)     # (post's pool counted as whole channels: see
     ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals   # docs/design.md, a slab's bricks)
     idx = open_index(scene.data.index)
-    k, most = 1, 0
+    runs = post_runs_bytes(request, aug) if request is not None and whole else None
+    share = max(1, int(room * ROOM_SHARE))
+    k, most, counted = 1, 0, []
     for axis in axes_of(views):
         if axis not in idx.axes:
             continue                                # the render names the missing axis
         counts = idx.voxel_counts(axis)
         n = int(sum(int(counts[lo:hi + 1].sum()) for lo, hi in ivs))
         most = max(most, n)
-        need = -(-(n * PEAK_PER_VOXEL + whole) // max(1, int(room * ROOM_SHARE)))
+        counted.append(n)
+        need = -(-(n * PEAK_PER_VOXEL + whole) // share)
         k = max(k, min(int(need), idx.n_slices(axis)))
+    if runs is not None and sum(counted) * PEAK_PER_VOXEL + runs <= share:
+        return 1, most                              # one pass from the runs file fits (every axis selected)
     return k, most
 
 
 def _channel_bytes(scene) -> int:
     """Bytes per voxel of the volume a post-classified slab holds besides its selection: its slices' channels,
-    density, and normals (2 B) when shaded, gradient magnitudes when used; 0 pre-classified."""
+    density, and normals (2 B) when shaded, gradient magnitudes when used (by the transfer function, or by the
+    shading, which weights the corners' Phong factors by them: isplat.selection._empty_selection); 0
+    pre-classified."""
     if scene.render.classification != "post":
         return 0
-    return 1 + (2 if scene.shading.enabled else 0) + (1 if scene.transfer.gradient_opacity else 0)
+    shaded = bool(scene.shading.enabled)
+    return 1 + (2 if shaded else 0) + (1 if scene.transfer.gradient_opacity or shaded else 0)
 
 
 def fits_anyway(scene, aug, room: int) -> bool:

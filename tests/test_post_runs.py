@@ -397,3 +397,52 @@ def test_runs_placed_on_a_daemon_thread():
     assert seen == {"daemon": True, "name": "isplat-runs"}
     with pytest.raises(ZeroDivisionError):
         _in_daemon_thread(lambda: 1 / 0).result(timeout=60)
+
+
+@pytest.fixture(scope="module")
+def larger_head(tmp_path_factory):
+    """A head-like volume large enough that its runs' pool is well below whole channels."""
+    shape = (64, 72, 80)
+    dens = head_like(5, shape)
+    gm = np.clip(np.abs(np.gradient(dens.astype(float))[0]) * 4, 0, 255).astype(np.uint8)
+    aug, idx = write_volume(tmp_path_factory.mktemp("larger"), dens, normal=random_normals(3, shape), gm=gm,
+                            gscale=1.0)
+    build_runs_file(aug, idx)
+    return aug, idx
+
+
+@pytest.mark.parametrize("tf", list(TFS))
+@pytest.mark.parametrize("shaded", [True, False])
+def test_one_pass_from_the_runs_file_counted_before_the_load(larger_head, make_scene, tf, shaded):
+    """selection.post_runs_bytes bounds what the one-pass frame from the runs file holds (its pool, table, deltas and
+    quad bits; at most a few times it: the runs read are counted too, freed once placed), and slabs_needed takes
+    one pass when that fits where whole channels would not; pre-classified there is no such count."""
+    import dataclasses
+
+    from isplat import frame as F
+    from isplat import slabs as S
+    from isplat.augfile import open_augmented
+    from isplat.request import RenderRequest
+    from isplat.selection import post_runs_bytes, select
+
+    aug, idx = larger_head
+    sc = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0", transfer=TFS[tf],
+                    shading=f"enabled = {'true' if shaded else 'false'}", render='classification = "post"')
+    a = open_augmented(aug)
+    views = F.views_for(sc, a)
+    req = RenderRequest.from_files(sc, a, F.axes_of(views))
+    est = post_runs_bytes(req, a)
+    sel = select(req, a)
+    assert sel.report.values_from.startswith("runs file (")
+    sel.whole.deltas()                                          # (made at the first frame)
+    held = sel.whole.held_bytes() + sum(b.nbytes for b in sel.held.values())
+    assert held <= est <= 3 * held
+    n = sel.report.voxels_of_interest
+    whole = int(np.prod(a.shape)) * (4 if shaded else 1)
+    assert est < whole or not shaded          # shaded, the pool is well below whole channels (4 B a voxel) here;
+    room = 2 * (n * S.PEAK_PER_VOXEL + est)   # unshaded, a density channel (1 B a voxel) may be below the pool
+    assert S.slabs_needed(sc, views, a, room=room, request=req)[0] == 1     # (a slab may take half of the room)
+    assert (S.slabs_needed(sc, views, a, room=room)[0] == 1) == (whole <= est)   # whole channels counted
+    if whole > est:
+        assert S.slabs_needed(sc, views, a, room=room - 2, request=req)[0] > 1     # (just too little: slabs)
+    assert post_runs_bytes(dataclasses.replace(req, classification="pre"), a) is None

@@ -212,7 +212,7 @@ def test_a_selection_that_does_not_fit_is_streamed_by_itself(volume, tmp_path, m
     post = load_scene(tmp_path / "s.toml", ['render.classification="post"'])
     assert S.slabs_needed(post, views, a, room=10 ** 12)[0] == 1
     assert S.slabs_needed(post, views, a, room=1)[0] == len(views[0].order)
-    whole = int(np.prod(a.shape)) * (3 if post.shading.enabled else 1)
+    whole = int(np.prod(a.shape)) * (4 if post.shading.enabled else 1)   # (shaded: gradient magnitudes too)
     room_post = 2 * (voxels * S.PEAK_PER_VOXEL + whole) // 3 + 6
     assert S.slabs_needed(post, views, a, room=room_post)[0] == 3
 

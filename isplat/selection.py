@@ -253,18 +253,19 @@ class WholeChannels:
 
 def _unpool(pool: np.ndarray, table: np.ndarray, shape) -> np.ndarray:
     """The whole-shape channel ``[k, j, i]`` (flat) of a pool's rows (zeros where no brick was read)."""
-    return np.ascontiguousarray(_unpool_k(pool, table, shape, 0, int(shape[0]))).reshape(-1)
+    return np.ascontiguousarray(_unpool_box(pool, table, shape, [(0, int(n)) for n in shape])).reshape(-1)
 
 
-def _unpool_k(pool: np.ndarray, table: np.ndarray, shape, k0: int, k1: int) -> np.ndarray:
-    """Planes ``k0:k1`` of a pool's channel as ``[k1 - k0, j, i]`` (zeros where no brick was read): only the
-    brick layers that hold them are gathered."""
+def _unpool_box(pool: np.ndarray, table: np.ndarray, shape, box) -> np.ndarray:
+    """The box ``[k0:k1, j0:j1, i0:i1]`` (``box``: a (lo, hi) per dimension) of a pool's channel (zeros where no
+    brick was read): only the bricks that meet it are gathered."""
     e = grid.POOL_EDGE
     g = [-(-int(n) // e) for n in shape]
-    b0, b1 = k0 // e, -(-k1 // e)
-    bricks = pool.reshape(-1, e, e, e)[table.reshape(g)[b0:b1]]
-    full = bricks.transpose(0, 3, 1, 4, 2, 5).reshape((b1 - b0) * e, g[1] * e, g[2] * e)
-    return full[k0 - b0 * e:k1 - b0 * e, :shape[1], :shape[2]]
+    cut = tuple(slice(lo // e, -(-hi // e)) for lo, hi in box)
+    t = table.reshape(g)[cut]
+    bricks = pool.reshape(-1, e, e, e)[t]
+    full = bricks.transpose(0, 3, 1, 4, 2, 5).reshape([n * e for n in t.shape])
+    return full[tuple(slice(lo - c.start * e, hi - c.start * e) for (lo, hi), c in zip(box, cut))]
 
 
 class _PoolVolume:
@@ -280,8 +281,8 @@ class _PoolVolume:
         k0, k1, step = ks.indices(self.shape[0])
         if step != 1:
             raise ValueError("a pool volume is read in planes k0:k1")
-        (a, _), (j0, j1), (i0, i1) = self.box
-        return _unpool_k(*self._args, a + k0, a + max(k0, k1))[:, j0:j1, i0:i1]
+        a = self.box[0][0]
+        return _unpool_box(*self._args, [(a + k0, a + max(k0, k1)), *self.box[1:]])
 
 
 @dataclass(frozen=True, eq=False)

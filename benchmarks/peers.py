@@ -1172,8 +1172,8 @@ def main(argv=None) -> int:
             os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", offscreen_window_class())
         print(json.dumps(memory_child(who, name, int(size), a.quick)))
         return 0
-    cmd = _make_command(["--quick"] if a.quick else [])
-    try:
+    cmd = _make_command((["--quick"] if a.quick else []) + (["--load"] if a.load else []))   # (both pages' stamp:
+    try:                                                                     # one rerun command for both)
         if not a.mip_only:
             some = a.cases.split(",") if a.cases else None
             path = run(a.out, a.quick, required=True, command=_make_command(

@@ -488,15 +488,15 @@ class Verifier:
             self.read(f, dataset)
 
 
-def _check_table(path, f, dataset: str, ds, rebuild: str, lookup=None) -> None:
+def _check_table(path, f, dataset: str, ds, rebuild: str, lookup) -> None:
     """The table of ``dataset`` exists with one 16-byte row per chunk of ``ds`` (its layout is not checked: each
-    row is keyed, so a table damaged or replaced fails when its rows are compared). ``lookup(f, name)``: how
-    objects are looked up (default ``f[name]``)."""
+    row is keyed, so a table damaged or replaced fails when its rows are compared); ``lookup(f, name)`` looks it
+    up (:meth:`Verifier._obj`)."""
     import h5py
 
     name = table_name(dataset)
     try:
-        t = lookup(f, f"{GROUP}/{name}") if lookup is not None else f[f"{GROUP}/{name}"]
+        t = lookup(f, f"{GROUP}/{name}")
     except KeyError:
         t = None
     if not isinstance(t, h5py.Dataset):

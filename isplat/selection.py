@@ -795,6 +795,7 @@ def post_runs_bytes(request, aug) -> int | None:
     bits and each axis' quad bits: their ``brick_number`` rows read to count them), and the brick table with the
     sampler's deltas; None when the frame would not read the runs file (:func:`_runs_file`)."""
     from .runsfile import open_runs
+    from .stats import bytes_per_voxel
 
     if _shows_labels(request):
         return None
@@ -806,7 +807,7 @@ def post_runs_bytes(request, aug) -> int | None:
         runs = rf.runs_for(sel.luts.intervals)
         nv, nb, npos = (int(np.diff(p)[runs].sum()) for p in rf.ptrs)
         rows = rf.bricks_of(sel.luts.intervals) + 1
-    chan = 1 + sum(2 if ch == "normal" else 1 for ch in sel.report.channels if ch != "density")
+    chan = bytes_per_voxel({"density", *sel.report.channels})
     bricks = int(np.prod([-(-int(n) // grid.POOL_EDGE) for n in sel.shape]))
     voxels = rows * grid.POOL_EDGE ** 3
     return nv * chan + npos + 6 * nb + voxels * chan + voxels // 8 * (1 + len(request.axes)) + 12 * bricks

@@ -136,10 +136,9 @@ def slabs_needed(scene, views, aug, room: int | None = None, request=None) -> tu
     does not cut). With ``request`` (the frames' :class:`~isplat.request.RenderRequest`), a post frame that reads
     the runs file in one pass counts what it holds (:func:`isplat.selection.post_runs_bytes`) instead of whole
     channels: K = 1 when that fits."""
-    from .selection import post_runs_bytes
-
     from .frame import axes_of
     from .index import open_index
+    from .selection import post_runs_bytes
     from .transfer import build_luts
 
     room = memory_room() if room is None else room
@@ -148,7 +147,6 @@ def slabs_needed(scene, views, aug, room: int | None = None, request=None) -> tu
     whole = int(np.prod(aug.shape)) * _channel_bytes(scene)     # (post's pool counted as whole channels: see
     ivs = build_luts(scene.transfer, aug.gradient_magnitude_scale).intervals   # docs/design.md, a slab's bricks)
     idx = open_index(scene.data.index)
-    runs = post_runs_bytes(request, aug) if request is not None and whole else None
     share = max(1, int(room * ROOM_SHARE))
     k, most, counted = 1, 0, []
     for axis in axes_of(views):
@@ -160,8 +158,10 @@ def slabs_needed(scene, views, aug, room: int | None = None, request=None) -> tu
         counted.append(n)
         need = -(-(n * PEAK_PER_VOXEL + whole) // share)
         k = max(k, min(int(need), idx.n_slices(axis)))
-    if runs is not None and sum(counted) * PEAK_PER_VOXEL + runs <= share:
-        return 1, most                              # one pass from the runs file fits (every axis selected)
+    if k > 1 and whole and request is not None:    # (the runs file opened only when whole channels do not fit)
+        runs = post_runs_bytes(request, aug)
+        if runs is not None and sum(counted) * PEAK_PER_VOXEL + runs <= share:
+            return 1, most                          # one pass from the runs file fits (every axis selected)
     return k, most
 
 

@@ -468,9 +468,7 @@ def _even_bands(height: int, threads: int, tile: int, per_thread: int, least: in
     n_tiles = -(-height // tile)
     per = max(least, -(-n_tiles // (1 if threads <= 1 else threads * per_thread)))
     y0 = np.arange(0, n_tiles, per) * tile
-    out = np.stack([y0, np.minimum(y0 + per * tile, height)], axis=1).astype(np.int64)
-    out.flags.writeable = False
-    return out
+    return read_only(np.stack([y0, np.minimum(y0 + per * tile, height)], axis=1))
 
 
 def band_rows(bands: "BandLearning | None", view: View, threads: int) -> np.ndarray:
@@ -505,6 +503,21 @@ class Learned:
     rows: np.ndarray
     tried: dict
     queue: np.ndarray | None = None
+
+    def __post_init__(self):
+        # read-only, as image_bands' rows: the kernels take them (bin_regions, traverse.render's Bands), and
+        # numba types a read-only array apart from a writable one, so writable learned rows compiled those
+        # kernels a second time (seconds, in the fourth frame of a run; not among the prebuilt kernels)
+        self.rows = read_only(self.rows)
+
+
+def read_only(a: np.ndarray) -> np.ndarray:
+    """``a`` as a read-only C-contiguous int64 array (itself when it is one already, else a copy)."""
+    a = np.ascontiguousarray(a, dtype=np.int64)
+    if a.flags.writeable:
+        a = a.copy()
+        a.flags.writeable = False
+    return a
 
 
 BALANCE_SLACK = 0.03    # bands are kept while the busiest thread's work is at most this much above the mean

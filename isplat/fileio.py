@@ -626,13 +626,13 @@ def h5_type_name(attrs, name: str) -> str:
     import h5py
 
     tid = attrs.get_id(name).get_type()
+    if not isinstance(tid, (h5py.h5t.TypeIntegerID, h5py.h5t.TypeFloatID)):     # (no byte order: strings, ...)
+        return f"an HDF5 type of class {tid.get_class()}"
     order = "BE" if tid.get_order() == h5py.h5t.ORDER_BE else "LE"
     if isinstance(tid, h5py.h5t.TypeIntegerID):
         sign = "I" if tid.get_sign() == h5py.h5t.SGN_2 else "U"
         return f"H5T_STD_{sign}{8 * tid.get_size()}{order}"
-    if isinstance(tid, h5py.h5t.TypeFloatID):
-        return f"H5T_IEEE_F{8 * tid.get_size()}{order}"
-    return f"an HDF5 type of class {tid.get_class()}"
+    return f"H5T_IEEE_F{8 * tid.get_size()}{order}"
 
 
 def check_string_attrs(path, attrs, required=(), optional=(), ascii_ok: bool = False) -> None:

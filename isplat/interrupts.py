@@ -61,9 +61,14 @@ def _unraisable(args) -> None:
     """``sys.unraisablehook`` while the handlers are installed: a :class:`Terminated` raised where Python cannot
     raise (a callback of the garbage collector) is not printed; its signal is sent again a moment later from
     another thread (sent from here, it would be raised in this hook and printed after all), and the handler
-    raises it at the main thread's next bytecode, or a deferral holds it. Anything else goes to Python's hook."""
+    raises it at the main thread's next bytecode, or a deferral holds it. Anything else goes to Python's hook,
+    unless a signal has been received."""
     if not isinstance(args.exc_value, Terminated):
-        sys.__unraisablehook__(args)
+        if _state["received"] is None:
+            sys.__unraisablehook__(args)
+        # else the run is ending on a signal, and an object it cut off half made fails in its finalizer
+        # (llvmlite's OutputString, when the signal came inside its __init__ during a compile: "no attribute
+        # '_ptr'"); not printed after the run's one line, which says why it ended
         return
     with _LOCK:                     # a signal meanwhile is only recorded: the one sent again stands for it
         _state["depth"] += 1

@@ -1039,25 +1039,39 @@ def test_visible_cells_against_a_test_per_cell(seed, n_a, n_b, scale, turn, p, e
     assert cells[:nc].tolist() == want
 
 
-def test_frames_on_learned_bands_run_the_kernels_of_the_first_frame(make_scene, volume, monkeypatch):
-    """The bands a run of frames learns have the type of the first frame's (read-only int64 rows), so a learned
-    frame compiles nothing: numba types a writable array apart from a read-only one, and learned rows that were
-    writable compiled bin_regions and the frame's kernel again (seconds, in the fourth frame of a run of
-    2-thread frames on a machine with only the prebuilt kernels)."""
+def _signatures() -> int:
+    """The compiled signatures of every numba function of isplat's kernel modules (isplat.jit.KERNEL_SOURCES)."""
+    import importlib
+
+    from numba.core.dispatcher import Dispatcher
+
+    from isplat.jit import KERNEL_SOURCES
+
+    mods = [importlib.import_module("isplat." + f[:-3].replace("/", ".")) for f in KERNEL_SOURCES]
+    return sum(len(v.signatures) for m in mods for v in vars(m).values() if isinstance(v, Dispatcher))
+
+
+@pytest.mark.parametrize("classification", ["pre", "post"])
+def test_a_run_of_frames_compiles_nothing_after_its_first_frames(make_scene, volume, monkeypatch, classification):
+    """Views of an orbit, each rendered several times on 2 threads, on even bands, then on bands cut by what
+    was learned, compile nothing after the first frames: every frame of a run gives the kernels the types the
+    first gave (learned bands' rows were writable, and compiled the kernels again)."""
     monkeypatch.setattr(F, "MIN_BAND_TILES", 1)
     *_, aug, idx = volume
-    sel, views = from_files(make_scene(aug, idx, image="width = 40\nheight = 62", render="threads = 2",
-                                       transfer="opacity = [[50, 0.0], [60, 0.5], [200, 0.95]]"))
+    sel, views = from_files(make_scene(aug, idx, image="width = 40\nheight = 62",
+                                       views="orbit_steps = 3",
+                                       transfer="opacity = [[50, 0.0], [60, 0.5], [200, 0.95]]",
+                                       render=f'threads = 2\nclassification = "{classification}"'))
     bands = F.BandLearning()
-    F.render_frame(sel, views[0], None, bands)
-    kernels = (F.T.bin_regions, F.T.render)
-    before = [list(k.signatures) for k in kernels]
-    key = F._balance_key(views[0], 2)
-    for _ in range(4):
-        F.render_frame(sel, views[0], None, bands)
-    skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])
-    bands.costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {}, F.band_layout(4, 2)[1])
-    assert not bands.costs[key].rows.flags.writeable
-    assert F.prepare(sel, views[0], None, bands).rows.tolist() != F.image_bands(62, 2).tolist()
-    F.render_frame(sel, views[0], None, bands)          # (on those bands: the frame learns after its prepare)
-    assert [list(k.signatures) for k in kernels] == before
+    for _ in range(2):
+        for v in views:
+            F.render_frame(sel, v, None, bands)
+    first = _signatures()
+    skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])       # bands cut by a skewed cost
+    for key in bands.costs:
+        bands.costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {}, F.band_layout(4, 2)[1])
+    for _ in range(3):
+        for v in views:
+            F.render_frame(sel, v, None, bands)
+    assert len(bands.costs) == len({F._balance_key(v, 2) for v in views}) == 3
+    assert _signatures() == first

@@ -29,13 +29,19 @@ def test_read_attrs_answers_as_h5py_does(attrs):
     assert a.get("missing") is None and a.get("missing", 3) == 3
     for k, v in attrs.items():
         assert np.array_equal(np.asarray(a[k]), np.asarray(v)) and np.asarray(a[k]).dtype == np.asarray(v).dtype
-        if k in ("shape", "big", "scale"):                      # (numbers only: a string has no byte order)
-            assert h5_type_name(a, k) == h5_type_name(attrs, k)
+        assert h5_type_name(a, k) == h5_type_name(attrs, k)
         assert attr_string(a, k) == attr_string(attrs, k)
     assert [k for k, _ in a.items()] == list(attrs.keys())
     assert attr_values(a).keys() == attr_values(attrs).keys()
     with pytest.raises(KeyError):
         a["missing"]
+
+
+def test_h5_type_name_names_numbers_by_their_stored_type_and_other_classes_by_class(attrs):
+    assert [h5_type_name(attrs, k) for k in ("shape", "big", "scale")] == [
+        "H5T_STD_I64LE", "H5T_STD_I64BE", "H5T_IEEE_F64LE"]
+    assert h5_type_name(attrs, "text") == h5_type_name(attrs, "vlen") == \
+        f"an HDF5 type of class {h5py.h5t.STRING}"        # (a string has no byte order: named, not raised)
 
 
 def test_read_attrs_refuses_as_h5py_does(attrs):

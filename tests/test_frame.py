@@ -503,6 +503,13 @@ def test_bands_learned_from_the_frames_times_balance_the_threads(threads, profil
     assert sum(abs(a - b) > 1e-3 for a, b in zip(last, last[1:])) <= 2     # settled (a cut tried at most once)
 
 
+def _skewed_bands() -> "F.Learned":
+    """What 2 threads would learn of a 62-row image (8 tile rows) whose work is nearly all in its 7th tile row:
+    4 bands cut there (not the even bands), the large middle ones first."""
+    skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])
+    return F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {}, F.band_layout(4, 2)[1])
+
+
 @pytest.mark.parametrize("classification", ["pre", "post"])
 @pytest.mark.parametrize("method", ["indexed", "full"])
 def test_frames_on_learned_or_any_bands_give_the_one_thread_image(make_scene, volume, monkeypatch, classification,
@@ -527,8 +534,7 @@ def test_frames_on_learned_or_any_bands_give_the_one_thread_image(make_scene, vo
         assert np.array_equal(F.render_frame(sel, views[0], None, bands)[0], one)
     learned = bands.costs[key]
     assert learned.est.shape == (8,) and (learned.est > 0).all()       # (frame 2's, learned during frame 3)
-    skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])
-    bands.costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {}, F.band_layout(4, 2)[1])
+    bands.costs[key] = _skewed_bands()
     setup = F.prepare(sel, views[0], None, bands)
     assert setup.rows.tolist() == bands.costs[key].rows.tolist() != F.image_bands(62, 2).tolist()
     assert setup.queue.tolist() == [1, 2, 0, 3]         # the large middle bands first
@@ -1067,9 +1073,8 @@ def test_a_run_of_frames_compiles_nothing_after_its_first_frames(make_scene, vol
         for v in views:
             F.render_frame(sel, v, None, bands)
     first = _signatures()
-    skewed = np.array([0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 5.0, 0.01])       # bands cut by a skewed cost
     for key in bands.costs:
-        bands.costs[key] = F.Learned(skewed, F.balanced_bands(skewed, 4, 2, 62), {}, F.band_layout(4, 2)[1])
+        bands.costs[key] = _skewed_bands()
     for _ in range(3):
         for v in views:
             F.render_frame(sel, v, None, bands)

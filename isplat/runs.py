@@ -9,7 +9,8 @@ Kernels (arrays in, arrays out; numpy, nothing compiled indexes with what a file
 - :func:`dp_cut`: the bins (first codes of 8 lo bins and 8 hi bins by default) of least mean voxels read over every
   interval, from the (lo, hi) histogram of the volume alone;
 - :func:`layer_runs` / :func:`build_runs`: the layout (runs hi bin major; inside a run by brick number, then by
-  place in the brick), the positions per (run, brick) the cheaper of a 64-byte bitmap and 2 B a voxel;
+  place in the brick), the positions per (run, brick) as nested masks: a byte of the brick's 8 planes (dk) that
+  hold a voxel of the run, a byte of rows (dj) per plane held, a byte of voxels (di) per row held;
 - the inverse: :func:`isplat.runsplace.place_runs` (tests/runs_reference.py: the slow NumPy decoding).
 
 The file (write, open, read, validate) is :mod:`isplat.runsfile`.
@@ -26,8 +27,9 @@ from .jit import jit, leaf
 
 BRICK = 8                       # bricks of 8^3 voxels, numbered in C order over the brick grid (bk, bj, bi)
 BRICK_VOXELS = BRICK ** 3       # a voxel's place in its brick: (dk * 8 + dj) * 8 + di
-BITMAP_BYTES = BRICK_VOXELS // 8
-LIST_MAX = BITMAP_BYTES // 2    # a (run, brick) of at most 32 voxels: 2 B a voxel; of more: a 64-byte bitmap
+MOST_POSITION_BYTES = 1 + BRICK + BRICK * BRICK    # a (run, brick)'s masks: of its planes, rows and voxels
+BITMAP_BYTES = BRICK_VOXELS // 8    # format version 1 (read only): a 64-byte bitmap above V1_LIST_MAX voxels,
+V1_LIST_MAX = BITMAP_BYTES // 2     # else 2 B a voxel
 IN_SLICE_DIMS = {"k": (1, 2), "j": (0, 2), "i": (0, 1)}     # as isplat.stats.IN_SLICE_DIMS
 DEFAULT_BINS = (8, 8)
 
@@ -211,7 +213,7 @@ class Runs(NamedTuple):
     """The runs of a volume or of one layer of bricks (formats/runs.md §3): per run ``r`` its voxels
     ``run_voxel_ptr[r] .. [r + 1]`` of ``density``, ``normal``, ``gradient_magnitude``; its bricks
     ``run_brick_ptr[r] .. [r + 1]`` of ``brick_number`` (increasing) and ``brick_voxel_count``; its positions'
-    bytes ``run_position_ptr[r] .. [r + 1]`` of ``positions`` (per brick a 64-byte bitmap or 2 B a voxel)."""
+    bytes ``run_position_ptr[r] .. [r + 1]`` of ``positions`` (per brick its nested masks)."""
     run_voxel_ptr: np.ndarray
     run_brick_ptr: np.ndarray
     run_position_ptr: np.ndarray
@@ -232,11 +234,15 @@ def brick_grid(shape) -> tuple[int, int, int]:
     return tuple(-(-int(n) // BRICK) for n in shape)
 
 
-def position_bytes(count: np.ndarray) -> np.ndarray:
-    """int64: bytes of the positions of (run, brick)s of ``count`` voxels: 2 B a voxel up to LIST_MAX, else a
-    64-byte bitmap."""
-    c = np.asarray(count, dtype=np.int64)
-    return np.where(c > LIST_MAX, BITMAP_BYTES, 2 * c)
+def position_bytes(planes: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """int64: bytes of the positions of (run, brick)s whose voxels lie in ``planes`` of the brick's planes (dk)
+    and ``rows`` of its rows (dk, dj) (formats/runs.md §4): the plane mask, a row mask per plane, a voxel mask per
+    row.
+
+    >>> position_bytes([1, 2, 8], [1, 3, 64]).tolist()
+    [3, 6, 73]
+    """
+    return 1 + np.asarray(planes, dtype=np.int64) + np.asarray(rows, dtype=np.int64)
 
 
 def layer_runs(run: np.ndarray, k0: int, shape, density: np.ndarray, normal: np.ndarray,
@@ -265,35 +271,56 @@ def _layer_sizes(run, n_run):
     """Per run: its voxels, its bricks and its position bytes in the layer ``run`` (int64 [3, n_run])."""
     nl, nj, ni = run.shape
     size = np.zeros((3, n_run), dtype=np.int64)
-    tally = np.zeros(n_run, dtype=np.int64)
+    tally = np.empty((5, n_run), dtype=np.int64)
+    _new_tally(tally)
     touched = np.empty(BRICK_VOXELS, dtype=np.int64)
     for j0 in range(0, nj, BRICK):
         for i0 in range(0, ni, BRICK):
             nt = _tally(run, j0, i0, tally, touched)
             for t in range(nt):
                 r = touched[t]
-                c = tally[r]
-                size[0, r] += c
+                size[0, r] += tally[0, r]
                 size[1, r] += 1
-                size[2, r] += BITMAP_BYTES if c > LIST_MAX else 2 * c
-                tally[r] = 0
+                size[2, r] += 1 + tally[1, r] + tally[2, r]
+                _reset(tally, r)
     return size
 
 
 @leaf
+def _new_tally(tally):
+    """Per run (columns of ``tally``, int64 [5, runs]): voxels, planes and rows met in a brick, the last plane and
+    row met (-1: none yet); all reset."""
+    for r in range(tally.shape[1]):
+        _reset(tally, r)
+
+
+@leaf
+def _reset(tally, r):
+    tally[0, r], tally[1, r], tally[2, r], tally[3, r], tally[4, r] = 0, 0, 0, -1, -1
+
+
+@leaf
 def _tally(run, j0, i0, tally, touched):
-    """The voxels of each run in the brick at (j0, i0) of the layer into ``tally``, the runs met (first met first)
-    into ``touched``; returns how many."""
+    """Per run, in the brick at (j0, i0) of the layer: its voxels into ``tally[0]``, the brick's planes (dk) and
+    rows (dk, dj) that hold them into ``tally[1]`` and ``tally[2]`` (``tally[3]``, ``tally[4]``: the last plane
+    and row met, :func:`_new_tally`); the runs met (first met first) into ``touched``; returns how many."""
     nl, nj, ni = run.shape
     nt = 0
     for dk in range(nl):
         for j in range(j0, min(nj, j0 + BRICK)):
+            row = dk * BRICK + j - j0
             for i in range(i0, min(ni, i0 + BRICK)):
                 r = run[dk, j, i]
-                if tally[r] == 0:
+                if tally[0, r] == 0:
                     touched[nt] = r
                     nt += 1
-                tally[r] += 1
+                tally[0, r] += 1
+                if tally[4, r] != row:
+                    tally[2, r] += 1
+                    tally[4, r] = row
+                    if tally[3, r] != dk:
+                        tally[1, r] += 1
+                        tally[3, r] = dk
     return nt
 
 
@@ -314,9 +341,10 @@ def _layer_runs(run, n_run, first_brick, density, normal, gm):
     nrm = np.empty(ptr[0, n_run], dtype=normal.dtype)
     g = np.empty(ptr[0, n_run], dtype=gm.dtype)
     cur = ptr[:, :n_run].copy()
-    tally = np.zeros(n_run, dtype=np.int64)
+    tally = np.empty((5, n_run), dtype=np.int64)
+    _new_tally(tally)
     touched = np.empty(BRICK_VOXELS, dtype=np.int64)
-    base = np.zeros(n_run, dtype=np.int64)
+    at = np.zeros((3, n_run), dtype=np.int64)       # the brick's plane mask; its plane's row mask, row's voxel mask
     gi = (ni + BRICK - 1) // BRICK
     for j0 in range(0, nj, BRICK):
         for i0 in range(0, ni, BRICK):
@@ -324,26 +352,30 @@ def _layer_runs(run, n_run, first_brick, density, normal, gm):
             for t in range(nt):
                 r = touched[t]
                 number[cur[1, r]] = first_brick + j0 // BRICK * gi + i0 // BRICK
-                count[cur[1, r]] = tally[r]
+                count[cur[1, r]] = tally[0, r]
                 cur[1, r] += 1
-                base[r] = cur[2, r]
-                cur[2, r] += BITMAP_BYTES if tally[r] > LIST_MAX else 2 * tally[r]
+                at[0, r], at[1, r], at[2, r] = cur[2, r], cur[2, r], cur[2, r] + tally[1, r]
+                cur[2, r] += 1 + tally[1, r] + tally[2, r]
+                tally[3, r], tally[4, r] = -1, -1
             for dk in range(nl):
                 for j in range(j0, min(nj, j0 + BRICK)):
+                    row = dk * BRICK + j - j0
                     for i in range(i0, min(ni, i0 + BRICK)):
                         r = run[dk, j, i]
                         v = cur[0, r]
                         d[v], nrm[v], g[v] = density[dk, j, i], normal[dk, j, i], gm[dk, j, i]
                         cur[0, r] += 1
-                        place = (dk * BRICK + j - j0) * BRICK + i - i0
-                        if tally[r] > LIST_MAX:
-                            pos[base[r] + (place >> 3)] |= np.uint8(1 << (place & 7))
-                        else:
-                            pos[base[r]] = place & 255
-                            pos[base[r] + 1] = place >> 8
-                            base[r] += 2
+                        if tally[4, r] != row:          # a row (and perhaps a plane) new to this run's brick
+                            tally[4, r] = row
+                            at[2, r] += 1
+                            if tally[3, r] != dk:
+                                tally[3, r] = dk
+                                at[1, r] += 1
+                                pos[at[0, r]] |= np.uint8(1 << dk)
+                            pos[at[1, r]] |= np.uint8(1 << (j - j0))
+                        pos[at[2, r]] |= np.uint8(1 << (i - i0))
             for t in range(nt):
-                tally[touched[t]] = 0
+                _reset(tally, touched[t])
     return ptr[0], ptr[1], ptr[2], number, count, pos, d, nrm, g
 
 

@@ -20,7 +20,8 @@ from .fileio import (ReadAttrs, ReadCounter, attr_array, attr_string, check_hash
                      set_string_attr)
 
 FORMAT_NAME = "isplat-runs"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+OLDER_VERSIONS = (1,)       # read too: version 1's positions (lists, 64-byte bitmaps above 32 voxels; formats/runs.md §7)
 KEY = "union"
 PTRS = ("run_voxel_ptr", "run_brick_ptr", "run_position_ptr")
 DTYPES = {
@@ -216,15 +217,16 @@ class Fetched(NamedTuple):
     channels: tuple
     bytes_read: int
     pages_read: int
+    version: int = FORMAT_VERSION
 
 
 class RunsFile:
     """An open, validated runs file (:func:`open_runs`); :meth:`read` reads runs; close it (or use ``with``)."""
 
-    def __init__(self, path, f, counter, shape, sha, cut, ptrs, verifier):
+    def __init__(self, path, f, counter, shape, sha, cut, ptrs, verifier, version=FORMAT_VERSION):
         self.path, self._f, self.counter = path, f, counter
         self.shape, self.density_sha256, self.cut = shape, sha, cut
-        self.ptrs, self.verifier = ptrs, verifier
+        self.ptrs, self.verifier, self.version = ptrs, verifier, version
 
     def __enter__(self):
         return self
@@ -281,7 +283,7 @@ class RunsFile:
         spans = _spans(sel & (np.diff(self.ptrs[0]) > 0))
         read = [self._read_span(a, b, tuple(channels)) for a, b in spans]
         return Fetched(self.path, tuple(self.shape), self.ptrs, R.run_codes(self.cut), sel, spans, read,
-                       tuple(channels), int(self.counter.bytes), self.counter.page_bytes())
+                       tuple(channels), int(self.counter.bytes), self.counter.page_bytes(), self.version)
 
     @staticmethod
     def place(got: "Fetched", place: bool = True) -> RunsRead:
@@ -340,9 +342,9 @@ def _place(got, a: int, b: int, g: dict, table, loaded, pos, outs) -> None:
     lo_first, hi_last = (np.ascontiguousarray(x[a:b]) for x in got.codes)
     err = runsplace.place_runs(bp, pp, vp, lo_first, hi_last, g["brick_number"], g["brick_voxel_count"],
                                g["positions"], g["density"], g["normal"], g["gradient_magnitude"],
-                               np.asarray(got.shape, dtype=np.int64), table, loaded, pos, *outs)
+                               np.asarray(got.shape, dtype=np.int64), table, loaded, pos, *outs, got.version)
     if err[0]:
-        name, text = runsplace.message(err, a, got.shape, lo_first, hi_last)
+        name, text = runsplace.message(err, a, got.shape, lo_first, hi_last, got.version)
         raise IsplatError(f"{got.path}: dataset 'runs/{name}'{text}")
 
 
@@ -358,7 +360,7 @@ def open_runs(path, shape=None, density_sha256: str | None = None,
     pointer tables; with ``shape``, ``density_sha256``, ``augmented_chunk_hash_check`` (those of the augmented
     file it is read with), that it was written from that file. Every problem is one :class:`IsplatError`."""
     counter = ReadCounter()
-    p, f = open_hdf5(path, "runs file", FORMAT_NAME, FORMAT_VERSION, counter=counter)
+    p, f = open_hdf5(path, "runs file", FORMAT_NAME, FORMAT_VERSION, older=OLDER_VERSIONS, counter=counter)
     try:
         with hdf5_errors(p, "attributes and pointer tables"):
             a = ReadAttrs(f.attrs)
@@ -375,11 +377,12 @@ def open_runs(path, shape=None, density_sha256: str | None = None,
                                                _hint(p), HASH, root_attrs=a)
             verifier.remember(f, {f"runs/{n}": ds for n, ds in dsets.items()})
             ptrs = tuple(_read_ptr(verifier, f, n) for n in PTRS)
-            _check_ptrs(p, dsets, ptrs, cut)
+            version = int(a["format_version"])
+            _check_ptrs(p, dsets, ptrs, cut, version)
     except BaseException:
         f.close()
         raise
-    return RunsFile(p, f, counter, shape_f, sha, cut, ptrs, verifier)
+    return RunsFile(p, f, counter, shape_f, sha, cut, ptrs, verifier, version)
 
 
 def _read_ptr(verifier, f, name: str) -> np.ndarray:
@@ -450,10 +453,11 @@ def _check_datasets(p, f, shape, n_run: int) -> dict:
     return dsets
 
 
-def _check_ptrs(p, dsets: dict, ptrs, cut: R.Cut) -> None:
+def _check_ptrs(p, dsets: dict, ptrs, cut: R.Cut, version: int = FORMAT_VERSION) -> None:
     """Each pointer table: from 0, non-decreasing, ending at its datasets' length (so every run's counts and
     offsets are non-negative, in bounds, not overlapping, summing to the length); a run that cannot hold a voxel
-    (lo bin above hi bin) empty; a run's bricks at least one and at most its voxels, 512 voxels a brick at most."""
+    (lo bin above hi bin) empty; a run's bricks at least one and at most its voxels, 512 voxels a brick at most;
+    its position bytes 3 to 73 a brick (version 1: 2 to 64)."""
     lengths = {"run_voxel_ptr": dsets["density"].shape[0], "run_brick_ptr": dsets["brick_number"].shape[0],
                "run_position_ptr": dsets["positions"].shape[0]}
     for name, ptr in zip(PTRS, ptrs):
@@ -464,9 +468,10 @@ def _check_ptrs(p, dsets: dict, ptrs, cut: R.Cut) -> None:
                               f"expected from 0, non-decreasing, to the {lengths[name]} rows they point into")
     nv, nb, npos = (np.diff(x) for x in ptrs)
     lo_first, hi_last = R.run_codes(cut)
+    least, most = (2, R.BITMAP_BYTES) if version == 1 else (3, R.MOST_POSITION_BYTES)
     for name, bad in (("run_voxel_ptr", (nv > 0) & (lo_first > hi_last)),
                       ("run_brick_ptr", ((nv > 0) != (nb > 0)) | (nb > nv) | (nv > R.BRICK_VOXELS * nb)),
-                      ("run_position_ptr", (npos < R.position_bytes(1) * nb) | (npos > R.BITMAP_BYTES * nb))):
+                      ("run_position_ptr", (npos < least * nb) | (npos > most * nb))):
         if bad.any():
             r = int(np.flatnonzero(bad)[0])
             raise IsplatError(f"{p}: dataset 'runs/{name}', run {r}: {int(nv[r])} voxels in {int(nb[r])} bricks "

@@ -16,16 +16,17 @@ from .jit import jit, leaf, stage
 
 BRICK = 8
 BRICK_VOXELS = 512
-BITMAP_BYTES = 64
-LIST_MAX = 32
+BITMAP_BYTES = 64       # version 1: above V1_LIST_MAX voxels, a 64-byte bitmap, else 2 B a voxel (version 2: masks)
+V1_LIST_MAX = 32
 
-# a byte of a bitmap: how many bits it has set, and which (least significant first)
+# a byte of a mask or a bitmap: how many bits it has set, and which (least significant first)
 BIT_COUNT = np.array([bin(m).count("1") for m in range(256)], dtype=np.int64)
 BIT_PLACES = np.array([[t for t in range(8) if m >> t & 1] + [0] * (8 - bin(m).count("1")) for m in range(256)],
                       dtype=np.int64)
 
 OK, NOT_INCREASING, BEYOND_GRID, COUNT_RANGE, COUNT_SUM, POSITION_BYTES, BITMAP_COUNT, PLACE, OUTSIDE, DENSITY, \
-    TWICE, POINTERS = range(12)
+    TWICE, POINTERS, EMPTY_MASK = range(13)
+PLACE_FAULT, MASK_FAULT = 1 << 20, 1 << 21      # :func:`_places`' faults below these
 
 
 @leaf
@@ -35,13 +36,34 @@ def _fail(err, code, r, b, x, y):
 
 
 @leaf
-def _check_run(r, bp, pp, vp, num, cnt, n_bricks, err):
+def _brick_bytes(pdata, q, end, c, version):
+    """Bytes of the positions of a brick of ``c`` voxels from byte ``q`` (formats/runs.md §4; ``version`` the
+    file's), or -1 when they would pass byte ``end`` (its run's end): version 2's masks, 1 + a byte per plane set
+    in the plane mask + a byte per row set in those planes' row masks (each mask read only once it is known to
+    lie before ``end``); version 1's from ``c``, a bitmap's 64 or a list's 2 a voxel."""
+    if version == 1:
+        n = BITMAP_BYTES if c > V1_LIST_MAX else 2 * c
+        return n if q + n <= end else -1
+    if q >= end:
+        return -1
+    planes = BIT_COUNT[pdata[q]]
+    if q + 1 + planes > end:
+        return -1
+    n = 1 + planes
+    for y in range(planes):
+        n += BIT_COUNT[pdata[q + 1 + y]]
+    return n if q + n <= end else -1
+
+
+@leaf
+def _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
     """Run ``r``'s bricks before any is placed: pointers in bounds, brick numbers strictly increasing and within
-    the grid, counts 1..512 summing to the run's voxels, position bytes summing to the run's."""
-    if not (0 <= bp[r] <= bp[r + 1] <= num.shape[0] and 0 <= pp[r] <= pp[r + 1]
+    the grid, counts 1..512 summing to the run's voxels, its bricks' position bytes (:func:`_brick_bytes`) as
+    many as the run's."""
+    if not (0 <= bp[r] <= bp[r + 1] <= num.shape[0] and 0 <= pp[r] <= pp[r + 1] <= pdata.shape[0]
             and 0 <= vp[r] <= vp[r + 1]):
         return _fail(err, POINTERS, r, 0, 0, 0)
-    voxels, nbytes, bad_range, beyond = 0, 0, -1, -1
+    voxels, q, bad_range, beyond = 0, pp[r], -1, -1
     for g in range(bp[r], bp[r + 1]):
         if g > bp[r] and num[g] <= num[g - 1]:
             return _fail(err, NOT_INCREASING, r, g - bp[r], 0, 0)
@@ -51,25 +73,31 @@ def _check_run(r, bp, pp, vp, num, cnt, n_bricks, err):
         if beyond < 0 and np.int64(num[g]) >= n_bricks:
             beyond = g
         voxels += c
-        nbytes += BITMAP_BYTES if c > LIST_MAX else 2 * c
+        if q >= 0:
+            n = _brick_bytes(pdata, q, pp[r + 1], c, version)
+            q = q + n if n >= 0 else -1
     if voxels != vp[r + 1] - vp[r]:
         return _fail(err, COUNT_SUM, r, 0, voxels, vp[r + 1] - vp[r])
     if bad_range >= 0:
         return _fail(err, COUNT_RANGE, r, bad_range - bp[r], cnt[bad_range], 0)
-    if nbytes != pp[r + 1] - pp[r]:
-        return _fail(err, POSITION_BYTES, r, 0, pp[r + 1] - pp[r], nbytes)
+    if q != pp[r + 1]:
+        return _fail(err, POSITION_BYTES, r, 0, pp[r + 1] - pp[r], q - pp[r] if q >= 0 else -1)
     if beyond >= 0:
         return _fail(err, BEYOND_GRID, r, beyond - bp[r], num[beyond], n_bricks)
     return False
 
 
 @leaf
-def _places(pdata, q, c, buf):
-    """Decode the places of a brick of ``c`` voxels whose positions start at byte ``q`` into ``buf[:c]``: a
-    bitmap (more than 32 voxels) or a list of uint16. Returns 0, or -(the places found) for a bitmap whose bit
-    count is not ``c`` (the count found so far when it is above), or -(1 + 2^20 + place) for a list's place not
-    below 512 or not above the one before it."""
-    if c > LIST_MAX:
+def _places(pdata, q, c, buf, version):
+    """Decode the places of a brick of ``c`` voxels whose positions start at byte ``q`` into ``buf[:c]``
+    (increasing): its masks (:func:`_mask_places`); version 1: a bitmap (more than V1_LIST_MAX voxels) or a
+    list of uint16. Returns 0, or -(the places found) for masks or a bitmap whose voxels are not ``c`` (the count
+    found so far when it is above), -(1 + PLACE_FAULT + place) for a list's place not below 512 or not above the
+    one before it, -(1 + MASK_FAULT + m) for a plane (m = dk) or row (m = 8 + dk * 8 + dj) set without a bit
+    below it."""
+    if version != 1:
+        return _mask_places(pdata, q, c, buf)
+    if c > V1_LIST_MAX:
         have = 0
         for byte in range(BITMAP_BYTES):
             m = pdata[q + byte]
@@ -85,30 +113,61 @@ def _places(pdata, q, c, buf):
     for t in range(c):
         place = np.int64(pdata[q + 2 * t]) | np.int64(pdata[q + 2 * t + 1]) << 8
         if place >= BRICK_VOXELS or place <= last:
-            return -(1 + (1 << 20) + place)
+            return -(1 + PLACE_FAULT + place)
         buf[t] = last = place
     return 0
 
 
+@leaf
+def _mask_places(pdata, q, c, buf):
+    """:func:`_places` of version 2's masks from byte ``q``: the plane mask (bit dk: plane dk holds a voxel),
+    then a row mask for each plane set (bit dj: row (dk, dj) holds one), then a voxel mask for each row set (bit
+    di: the voxel at place (dk * 8 + dj) * 8 + di), each in order (:func:`_brick_bytes` has checked that they lie
+    in the run's bytes)."""
+    planes = pdata[q]
+    row_at = q + 1
+    at = q + 1 + BIT_COUNT[planes]
+    have = 0
+    for s in range(BIT_COUNT[planes]):
+        dk = BIT_PLACES[planes, s]
+        rows = pdata[row_at]
+        row_at += 1
+        if rows == 0:
+            return -(1 + MASK_FAULT + dk)
+        for u in range(BIT_COUNT[rows]):
+            row = dk * 8 + BIT_PLACES[rows, u]
+            m = pdata[at]
+            at += 1
+            if m == 0:
+                return -(1 + MASK_FAULT + 8 + row)
+            if have + BIT_COUNT[m] > c:
+                return -(have + BIT_COUNT[m])
+            for t in range(BIT_COUNT[m]):
+                buf[have + t] = 8 * row + BIT_PLACES[m, t]
+            have += BIT_COUNT[m]
+    return 0 if have == c else -have
+
+
 @stage
-def _bricks_of(bp, pp, vp, num, cnt, n_bricks, err):
+def _bricks_of(bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
     """Every run's bricks checked (:func:`_check_run`) and, per brick of the span, its run and its first voxel
     and position byte (int64[3, bricks]); on a fault, ``err`` set and an empty table."""
     at = np.zeros((3, num.shape[0]), dtype=np.int64)
     for r in range(bp.shape[0] - 1):
-        if _check_run(r, bp, pp, vp, num, cnt, n_bricks, err):
+        if _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
             return at[:, :0]
         v, q = vp[r], pp[r]
         for g in range(bp[r], bp[r + 1]):
             c = np.int64(cnt[g])
             at[0, g], at[1, g], at[2, g] = r, v, q
             v += c
-            q += BITMAP_BYTES if c > LIST_MAX else 2 * c
+            q += _brick_bytes(pdata, q, pp[r + 1], c, version)
     return at
 
 
 @jit
-def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table, loaded, pos, out_d, out_n, out_g):
+def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table, loaded, pos, out_d, out_n, out_g,
+               version):
     """Runs ``0 .. len(bp) - 2`` of a span (``bp``, ``pp``, ``vp``: int64 pointers into this span's brick, position
     byte and voxel arrays; ``lo``, ``hi``: each run's least and greatest code) placed into a pool: ``table``
     (each brick's row, isplat.selection.WholeChannels; the caller gives every brick of the runs one) puts a voxel
@@ -116,6 +175,7 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table,
     ``q // 64``), its density, normal and gradient magnitude go to ``out_d[q]``, ``out_n[q]``, ``out_g[q]`` (each
     skipped when of size 0; ``nrm``, ``gm`` of the span's size when their outputs are not), and its flat position
     ``i + n_i * (j + n_j * k)`` to ``pos[v]`` (unless ``pos`` is empty). ``shape``: int64 (n_k, n_j, n_i).
+    ``version``: the file's format version (the positions' forms, formats/runs.md §4).
     Returns int64[5]: (0, ...) when every run checked out, else (code, run, brick of the run, x, y) of a fault
     (:func:`message`). Run after run, a brick's checks a word of 64 voxels at a time (:func:`_brick_mask`); the
     voxel loops then only copy. Placing on two threads measured no faster on this 2-core machine with another
@@ -131,7 +191,7 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table,
             or (out_g.shape[0] and gm.shape[0] < dens.shape[0]):
         _fail(err, POINTERS, 0, 0, 0, 0)
         return err
-    at = _bricks_of(bp, pp, vp, num, cnt, table.shape[0], err)
+    at = _bricks_of(bp, pp, vp, num, cnt, pdata, table.shape[0], version, err)
     if err[0]:
         return err
     buf = np.empty(BRICK_VOXELS, dtype=np.int64)
@@ -139,7 +199,7 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table,
     for g in range(num.shape[0]):
         r = at[0, g]
         if _place_brick(r, g - bp[r], np.int64(num[g]), np.int64(cnt[g]), at[1, g], at[2, g], lo[r], hi[r], pdata,
-                        dens, nrm, gm, shape, buf, mask, table, loaded, pos, out_d, out_n, out_g, err):
+                        dens, nrm, gm, shape, buf, mask, table, loaded, pos, out_d, out_n, out_g, version, err):
             break
     return err
 
@@ -153,19 +213,21 @@ def _sizes_differ(n, out_d, out_n, out_g):
 
 @leaf
 def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, shape, buf, mask, table, loaded, pos, out_d,
-                 out_n, out_g, err):
+                 out_n, out_g, version, err):
     """Brick ``b`` of run ``r`` (brick number ``n``, ``c`` voxels from the span's voxel ``v``, positions from
     byte ``q``) decoded (into ``buf``), checked (:func:`_brick_mask`, the densities within the run's codes) and
     placed (:func:`place_runs`); True on a fault (then in ``err``)."""
-    got = _places(pdata, q, c, buf)
-    if got < -(1 << 20):
-        return _fail(err, PLACE, r, b, -got - 1 - (1 << 20), 0)
+    got = _places(pdata, q, c, buf, version)
+    if got < -MASK_FAULT:
+        return _fail(err, EMPTY_MASK, r, b, -got - 1 - MASK_FAULT, 0)
+    if got < -PLACE_FAULT:
+        return _fail(err, PLACE, r, b, -got - 1 - PLACE_FAULT, 0)
     if got < 0:
         return _fail(err, BITMAP_COUNT, r, b, -got, c)
     row = np.int64(table[n])
     if row == 0 or 8 * row + 8 > loaded.shape[0]:
         return _fail(err, POINTERS, r, b, 0, 0)             # a pool without this brick's row (the caller's)
-    bad = _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q)
+    bad = _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q, version == 1 and c > V1_LIST_MAX)
     if bad >= 0:
         code = OUTSIDE if bad >> 62 else TWICE
         k, j, i = _voxel(n, bad & 511, shape)
@@ -203,11 +265,11 @@ def _voxel(n, place, shape):
 
 
 @leaf
-def _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q):
-    """The brick's places ``buf[:c]`` as eight words of bits (``mask``: a bitmap's bytes from byte ``q`` of
-    ``pdata``, checked by :func:`_places`); -1 when every place lies in the volume and none is loaded already, else
-    the first place that does not (``| 1 << 62`` when outside the volume)."""
-    if c > LIST_MAX:
+def _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q, bitmap):
+    """The brick's places ``buf[:c]`` as eight words of bits (``mask``; ``bitmap``: a version-1 bitmap's bytes
+    from byte ``q`` of ``pdata``, checked by :func:`_places`); -1 when every place lies in the volume and none is
+    loaded already, else the first place that does not (``| 1 << 62`` when outside the volume)."""
+    if bitmap:
         for w in range(8):
             m = np.uint64(0)
             for y in range(8):
@@ -234,12 +296,18 @@ def _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q):
     return -1
 
 
-def message(err, first_run: int, shape, lo, hi) -> tuple[str, str]:
+def _mask_name(m: int) -> str:
+    """Plane dk (m = dk) or row (dk, dj) (m = 8 + dk * 8 + dj) of :func:`_mask_places`' fault."""
+    return f"plane {m}" if m < 8 else f"row ({(m - 8) // 8}, {(m - 8) % 8}) (dk, dj)"
+
+
+def message(err, first_run: int, shape, lo, hi, version: int = 2) -> tuple[str, str]:
     """``(dataset, text)`` (text from its separator on) of :func:`place_runs`' error record ``err`` (runs numbered
     from ``first_run``; ``lo``, ``hi`` the span's runs' codes): the dataset at fault and what is wrong, for one
     line of IsplatError."""
     code, r, b, x, y = (int(e) for e in err)
     run = f", run {first_run + r}"
+    forms = "counts" if version == 1 else "masks"
     grid = int(np.prod([-(-int(n) // BRICK) for n in shape]))
     if code == OUTSIDE:
         x = f"({x // 10 ** 12}, {x // 10 ** 6 % 10 ** 6}, {x % 10 ** 6})"
@@ -249,8 +317,12 @@ def message(err, first_run: int, shape, lo, hi) -> tuple[str, str]:
         BEYOND_GRID: ("brick_number", f"{run}: brick number {x}, beyond the {grid} bricks of shape {tuple(shape)}"),
         COUNT_RANGE: ("positions", f"{run}: brick {b} of the run has {x} voxels, expected 1 to 512"),
         COUNT_SUM: ("brick_voxel_count", f"{run}: the bricks hold {x} voxels, 'runs/run_voxel_ptr' gives the run {y}"),
-        POSITION_BYTES: ("positions", f"{run}: {x} bytes of positions, the bricks' counts make {y}"),
-        BITMAP_COUNT: ("positions", f"{run}: brick {b} of the run: its bitmap holds {x} voxels, its count says {y}"),
+        POSITION_BYTES: ("positions", f"{run}: {x} bytes of positions, the bricks' {forms} make "
+                                      f"{y if y >= 0 else 'more'}"),
+        BITMAP_COUNT: ("positions", f"{run}: brick {b} of the run: its positions hold {x} voxels, its count says "
+                                    f"{y}"),
+        EMPTY_MASK: ("positions", f"{run}: brick {b} of the run: {_mask_name(x)} is set in its masks but holds "
+                                  f"no voxel"),
         PLACE: ("positions", f"{run}: brick {b} of the run: place {x}, expected places below 512, strictly "
                              f"increasing within the brick"),
         OUTSIDE: ("brick_number", f"{run}: voxel {x} (k, j, i) of brick {b} of the run lies outside the volume of "

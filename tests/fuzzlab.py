@@ -658,7 +658,7 @@ def runs_cases(fx: dict, w: Path) -> list[tuple[str, list, str]]:
     import h5py
     import numpy as np
 
-    from isplat.runsfile import build_runs_file, runs_path
+    from isplat.runsfile import FORMAT_VERSION as RUNS_FORMAT_VERSION, build_runs_file, runs_path
 
     def folder(name, runs=True):
         d = w / f"runs-{name}"
@@ -698,8 +698,8 @@ def runs_cases(fx: dict, w: Path) -> list[tuple[str, list, str]]:
     cases.append(("runs file truncated to half its size", render(idx), "truncated"))
     idx, rp = folder("version")
     with h5py.File(rp, "r+") as f:
-        f.attrs["format_version"] = np.int64(2)
-    cases.append(("runs file of format version 2", render(idx), "version"))
+        f.attrs["format_version"] = np.int64(RUNS_FORMAT_VERSION + 1)
+    cases.append((f"runs file of format version {RUNS_FORMAT_VERSION + 1}", render(idx), "version"))
     idx, rp = folder("folder", runs=False)
     rp.mkdir(exist_ok=True)
     cases.append(("runs file name taken by a folder", render(idx), "folder"))

@@ -6,78 +6,107 @@ from __future__ import annotations
 import numpy as np
 
 from isplat.errors import IsplatError
-from isplat.runs import BITMAP_BYTES, BRICK, BRICK_VOXELS, LIST_MAX, brick_grid, position_bytes
+from isplat.runs import BITMAP_BYTES, BRICK, BRICK_VOXELS, V1_LIST_MAX, brick_grid
 
 
-def encode_positions(group: np.ndarray, local: np.ndarray, counts: np.ndarray) -> np.ndarray:
+def encode_group(places, version: int = 2) -> bytes:
+    """The positions of one (run, brick) of increasing ``places`` (formats/runs.md §4). Version 2: the plane mask
+    (bit dk set when plane dk = p // 64 holds a place), then for each plane set, in order, its row mask (bit dj =
+    p // 8 % 8), then for each row set, in order (plane by plane), its voxel mask (bit di = p % 8). Version 1: at
+    most V1_LIST_MAX places as uint16 little-endian, more as a bitmap of 64 bytes (place p at bit p % 8 of byte
+    p // 8)."""
+    places = [int(p) for p in places]
+    if version == 1:
+        if len(places) <= V1_LIST_MAX:
+            return b"".join(p.to_bytes(2, "little") for p in places)
+        bm = bytearray(BITMAP_BYTES)
+        for p in places:
+            bm[p // 8] |= 1 << (p % 8)
+        return bytes(bm)
+    plane_mask, rows, voxels = 0, {}, {}
+    for p in places:
+        plane_mask |= 1 << (p // 64)
+        rows[p // 64] = rows.get(p // 64, 0) | 1 << (p // 8 % 8)
+        voxels[p // 8] = voxels.get(p // 8, 0) | 1 << (p % 8)
+    return bytes([plane_mask] + [rows[k] for k in sorted(rows)] + [voxels[r] for r in sorted(voxels)])
+
+
+def encode_positions(group: np.ndarray, local: np.ndarray, counts: np.ndarray, version: int = 2) -> np.ndarray:
     """uint8: the positions of consecutive groups (each a (run, brick)): ``group`` [n] each voxel's group
     (0 .. len(counts) - 1, non-decreasing), ``local`` [n] its place in the brick (increasing within a group),
-    ``counts`` each group's voxels. A group of at most LIST_MAX voxels: its places as uint16 little-endian; of more:
-    a bitmap of 64 bytes, place p at bit p % 8 (least significant first) of byte p // 8."""
-    size = position_bytes(counts)
-    start = np.concatenate([[0], np.cumsum(size)])
-    out = np.zeros(int(start[-1]), dtype=np.uint8)
-    is_map = counts > LIST_MAX
-    vmap = is_map[group]
-    if vmap.any():
-        maps = np.flatnonzero(is_map)
-        row = np.searchsorted(maps, group[vmap])
-        bits = np.zeros((maps.size, BRICK_VOXELS), dtype=bool)
-        bits[row, local[vmap]] = True
-        packed = np.packbits(bits, axis=1, bitorder="little")
-        out[(start[maps][:, None] + np.arange(BITMAP_BYTES)).ravel()] = packed.ravel()
-    if (~vmap).any():
-        g = group[~vmap]
-        first = np.concatenate([[0], np.cumsum(counts)])[:-1]
-        rank = np.arange(group.size)[~vmap] - first[g]
-        at = start[g] + 2 * rank
-        v = local[~vmap].astype("<u2").view(np.uint8).reshape(-1, 2)
-        out[at], out[at + 1] = v[:, 0], v[:, 1]
-    return out
+    ``counts`` each group's voxels; each group as :func:`encode_group`."""
+    first = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    out = b"".join(encode_group(local[first[g]:first[g + 1]], version) for g in range(len(counts)))
+    return np.frombuffer(out, dtype=np.uint8).copy()
 
 
-def decode_positions(counts: np.ndarray, data: np.ndarray, where: str = "positions") -> np.ndarray:
+def _bits(byte) -> list:
+    return [t for t in range(8) if int(byte) >> t & 1]
+
+
+def decode_positions(counts: np.ndarray, data: np.ndarray, where: str = "positions", version: int = 2) -> np.ndarray:
     """int64: each voxel's place in its brick, group after group, from ``counts`` (each group's voxels) and
-    ``data`` (:func:`encode_positions`' bytes). Refuses (IsplatError naming ``where``) a length that does not
-    match, a bitmap whose bits are not its count, and places not strictly increasing within a group or not
-    below 512."""
+    ``data`` (:func:`encode_positions`' bytes), one group after the other. Refuses (IsplatError naming ``where``)
+    counts not 1..512, a length that does not match, masks or a bitmap whose voxels are not its count, a plane or
+    row set without a bit below it, and a list's places not strictly increasing or not below 512."""
     counts = np.asarray(counts, dtype=np.int64)
-    size = position_bytes(counts)
+    data = np.asarray(data, dtype=np.uint8)
     if (counts < 1).any() or (counts > BRICK_VOXELS).any():
         bad = int(np.flatnonzero((counts < 1) | (counts > BRICK_VOXELS))[0])
         raise IsplatError(f"{where}: brick {bad} of the run has {int(counts[bad])} voxels, expected 1 to 512")
-    if int(size.sum()) != data.size:
-        raise IsplatError(f"{where}: {data.size} bytes of positions, the bricks' counts make {int(size.sum())}")
-    start = np.concatenate([[0], np.cumsum(size)])
-    vfirst = np.concatenate([[0], np.cumsum(counts)])
-    out = np.empty(int(vfirst[-1]), dtype=np.int64)
-    is_map = counts > LIST_MAX
-    if is_map.any():
-        maps = np.flatnonzero(is_map)
-        raw = data[(start[maps][:, None] + np.arange(BITMAP_BYTES)).ravel()].reshape(-1, BITMAP_BYTES)
-        bits = np.unpackbits(raw, axis=1, bitorder="little").astype(bool)
-        have = bits.sum(axis=1)
-        if (have != counts[maps]).any():
-            bad = int(np.flatnonzero(have != counts[maps])[0])
-            raise IsplatError(f"{where}: brick {int(maps[bad])} of the run: its bitmap holds {int(have[bad])} "
-                              f"voxels, its count says {int(counts[maps[bad]])}")
-        _, place = np.nonzero(bits)                     # row-major: group after group, places increasing
-        out[_ranges(vfirst[maps], counts[maps])] = place
-    if (~is_map).any():
-        lists = np.flatnonzero(~is_map)
-        at = _ranges(start[lists], 2 * counts[lists])
-        place = data[at].view("<u2").astype(np.int64)
-        dest = _ranges(vfirst[lists], counts[lists])
-        grp = np.repeat(np.arange(lists.size), counts[lists])
-        bad = place >= BRICK_VOXELS
-        step = np.ones(place.size, dtype=bool)
-        step[1:] = (grp[1:] != grp[:-1]) | (place[1:] > place[:-1])
-        if bad.any() or not step.all():
-            n = int(np.flatnonzero(bad | ~step)[0])
-            raise IsplatError(f"{where}: brick {int(lists[grp[n]])} of the run: place {int(place[n])}, expected "
-                              f"places below 512, strictly increasing within the brick")
-        out[dest] = place
-    return out
+    forms = "counts" if version == 1 else "masks"
+    starts = [0]
+    for c in counts.tolist():                   # first every brick's bytes, as the compiled reader checks them
+        n = _group_bytes(data, starts[-1], c, version)
+        if n is None:
+            raise IsplatError(f"{where}: {data.size} bytes of positions, the bricks' {forms} make more")
+        starts.append(starts[-1] + n)
+    if starts[-1] != data.size:
+        raise IsplatError(f"{where}: {data.size} bytes of positions, the bricks' {forms} make {starts[-1]}")
+    out = [_decode_group(data[starts[b]:starts[b + 1]], c, version, f"{where}: brick {b} of the run")
+           for b, c in enumerate(counts.tolist())]
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+
+
+def _group_bytes(data, q: int, c: int, version: int):
+    """Bytes of the group from byte ``q``, or None when they pass the end of ``data``."""
+    if version == 1:
+        n = 2 * c if c <= V1_LIST_MAX else BITMAP_BYTES
+    elif q >= data.size or q + 1 + len(_bits(data[q])) > data.size:
+        return None
+    else:
+        planes = len(_bits(data[q]))
+        n = 1 + planes + sum(len(_bits(x)) for x in data[q + 1:q + 1 + planes])
+    return n if q + n <= data.size else None
+
+
+def _decode_group(raw: np.ndarray, c: int, version: int, where: str) -> np.ndarray:
+    if version == 1 and c <= V1_LIST_MAX:
+        place = raw.view("<u2").astype(np.int64)
+        if (place >= BRICK_VOXELS).any() or (np.diff(place) <= 0).any():
+            n = int(np.flatnonzero((place >= BRICK_VOXELS) | np.r_[False, np.diff(place) <= 0])[0])
+            raise IsplatError(f"{where}: place {int(place[n])}, expected places below 512, strictly increasing "
+                              f"within the brick")
+        return place
+    if version == 1:
+        places = [8 * y + t for y in range(BITMAP_BYTES) for t in _bits(raw[y])]
+    else:
+        planes = _bits(raw[0])
+        row_masks, voxel_masks = list(raw[1:1 + len(planes)]), list(raw[1 + len(planes):])
+        rows = []
+        for dk, m in zip(planes, row_masks):
+            if m == 0:
+                raise IsplatError(f"{where}: plane {dk} is set in its masks but holds no voxel")
+            rows += [dk * 8 + dj for dj in _bits(m)]
+        places = []
+        for row, m in zip(rows, voxel_masks):
+            if m == 0:
+                raise IsplatError(f"{where}: row ({row // 8}, {row % 8}) (dk, dj) is set in its masks but holds "
+                                  f"no voxel")
+            places += [row * 8 + di for di in _bits(m)]
+    if len(places) != c:
+        raise IsplatError(f"{where}: its positions hold {len(places)} voxels, its count says {c}")
+    return np.array(places, dtype=np.int64)
 
 
 def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:

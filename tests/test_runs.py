@@ -1,4 +1,4 @@
-"""isplat.runs and the runs file (formats/runs.md): the keys, the positions' two forms and the layout against slow,
+"""isplat.runs and the runs file (formats/runs.md): the keys, the positions' forms and the layout against slow,
 obvious references; the file's round trip; the reader refuses corrupted bytes and bad tables, naming the file, the
 dataset and the run; ``isplat index`` writes the file unless ``--no-runs``."""
 
@@ -42,19 +42,26 @@ def reference_key(density):
     return lo, hi
 
 
-def reference_encode(groups):
-    """``groups``: a list of sorted place lists; bytes of each in turn: <= 32 places as uint16 LE, else a
-    64-byte bitmap (bit p % 8 of byte p // 8)."""
+def reference_encode(groups, version=2):
+    """``groups``: a list of sorted place lists; bytes of each in turn (formats/runs.md §4), from a brick's bits
+    as an array [dk, dj, di]: version 2, the planes' any() packed least significant first, then the rows' any()
+    of the planes that have one, then the voxel bits of the rows that have one; version 1, <= 32 places as
+    uint16 LE, else all 64 rows' bytes."""
     out = bytearray()
     for places in groups:
-        if len(places) <= 32:
-            for p in places:
-                out += int(p).to_bytes(2, "little")
-        else:
-            bm = bytearray(64)
-            for p in places:
-                bm[p // 8] |= 1 << (p % 8)
-            out += bm
+        if version == 1 and len(places) <= 32:
+            out += b"".join(int(x).to_bytes(2, "little") for x in places)
+            continue
+        bits = np.zeros((8, 8, 8), dtype=np.uint8)
+        p = np.asarray(places)
+        bits[p // 64, p // 8 % 8, p % 8] = 1
+        voxels = np.packbits(bits, axis=2, bitorder="little")[:, :, 0]          # [dk, dj]
+        if version == 1:
+            out += voxels.tobytes()
+            continue
+        rows = np.packbits(voxels != 0, axis=1, bitorder="little")[:, 0]        # [dk]
+        out += np.packbits(rows != 0, bitorder="little").tobytes() + rows[rows != 0].tobytes() \
+            + voxels[voxels != 0].tobytes()
     return np.frombuffer(bytes(out), dtype=np.uint8)
 
 
@@ -96,30 +103,61 @@ def test_union_key_equals_the_reference(d):
         assert np.array_equal(llo, lo[k0:k1]) and np.array_equal(lhi, hi[k0:k1])
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.lists(st.sets(st.integers(0, 511), min_size=1, max_size=512), min_size=1, max_size=6))
-def test_positions_both_forms_equal_the_reference(groups):
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.one_of(st.sets(st.integers(0, 511), min_size=1, max_size=512),
+                          st.sets(st.integers(0, 511), min_size=1, max_size=12),
+                          st.sets(st.sampled_from([3, 4, 70, 75, 77, 200, 511]), min_size=1)),
+                min_size=1, max_size=6), st.sampled_from([1, 2]))
+def test_positions_all_forms_equal_the_reference(groups, version):
+    """Masks (version 2), lists and bitmaps (version 1): the reference encoding, its decoding and the compiled
+    decoding (:func:`isplat.runsplace._places`), with the bytes a brick takes (:func:`_brick_bytes`)."""
+    from isplat import runsplace
+
     groups = [sorted(g) for g in groups]
     counts = np.array([len(g) for g in groups])
     group = np.repeat(np.arange(len(groups)), counts)
     local = np.concatenate([np.array(g) for g in groups])
-    enc = RR.encode_positions(group, local, counts)
-    assert np.array_equal(enc, reference_encode(groups))
-    assert np.array_equal(RR.decode_positions(counts, enc), local)
+    enc = RR.encode_positions(group, local, counts, version=version)
+    assert np.array_equal(enc, reference_encode(groups, version))
+    assert np.array_equal(RR.decode_positions(counts, enc, version=version), local)
+    if version == 2:
+        planes, rows = ([len({p // n for p in g}) for g in groups] for n in (64, 8))
+        assert R.position_bytes(planes, rows).sum() == enc.size
+    q, buf = 0, np.empty(512, np.int64)
+    for c, g in zip(counts.tolist(), groups):
+        n = runsplace._brick_bytes(enc, q, enc.size, c, version)
+        assert n == len(reference_encode([g], version))
+        assert runsplace._places(enc, q, c, buf, version) == 0 and buf[:c].tolist() == g
+        q += n
 
 
 def test_positions_refused():
-    enc = reference_encode([[3, 7]])
-    with pytest.raises(IsplatError, match="4 bytes of positions, the bricks' counts make 6"):
-        RR.decode_positions(np.array([3]), enc)
+    enc = reference_encode([[3, 7]], version=1)
+    with pytest.raises(IsplatError, match="4 bytes of positions, the bricks' counts make more"):
+        RR.decode_positions(np.array([3]), enc, version=1)
+    with pytest.raises(IsplatError, match="4 bytes of positions, the bricks' counts make 2"):
+        RR.decode_positions(np.array([1]), enc, version=1)
     with pytest.raises(IsplatError, match="strictly increasing"):
-        RR.decode_positions(np.array([2]), reference_encode([[7, 3]]))
+        RR.decode_positions(np.array([2]), reference_encode([[7, 3]], version=1), version=1)
     with pytest.raises(IsplatError, match="places below 512"):
-        RR.decode_positions(np.array([1]), reference_encode([[600]]))
-    bm = reference_encode([list(range(40))]).copy()
+        RR.decode_positions(np.array([1]), reference_encode([[600]], version=1), version=1)
+    bm = reference_encode([list(range(40))], version=1).copy()
     bm[10] = 1
-    with pytest.raises(IsplatError, match="its bitmap holds 41 voxels, its count says 40"):
-        RR.decode_positions(np.array([40]), bm)
+    with pytest.raises(IsplatError, match="its positions hold 41 voxels, its count says 40"):
+        RR.decode_positions(np.array([40]), bm, version=1)
+    masks = reference_encode([list(range(40))]).copy()     # plane 0: rows 0..4 each of 8 voxels
+    assert masks.tolist() == [0x01, 0x1F] + [0xFF] * 5
+    for at, byte, match in ((6, 0x7F, "its positions hold 39 voxels, its count says 40"),
+                            (6, 0x00, r"row \(0, 4\) \(dk, dj\) is set in its masks but holds no voxel"),
+                            (1, 0x0F, "7 bytes of positions, the bricks' masks make 6"),
+                            (1, 0x3F, "7 bytes of positions, the bricks' masks make more"),
+                            (0, 0x03, "7 bytes of positions, the bricks' masks make more")):
+        bad = masks.copy()
+        bad[at] = byte
+        with pytest.raises(IsplatError, match=match):
+            RR.decode_positions(np.array([40]), bad)
+    with pytest.raises(IsplatError, match="plane 1 is set in its masks but holds no voxel"):
+        RR.decode_positions(np.array([8]), np.array([0x03, 0x01, 0x00, 0xFF], np.uint8))
     with pytest.raises(IsplatError, match="outside the volume"):
         RR.flat_positions(np.array([0]), np.array([1]), np.array([511]), (7, 8, 8))
     with pytest.raises(IsplatError, match="beyond the 1 bricks"):
@@ -282,21 +320,42 @@ def test_bad_tables_are_refused_naming_dataset_and_run(tmp_path, change, match):
 def test_a_voxel_in_two_runs_or_missing_is_refused(tmp_path):
     d = np.zeros((1, 1, 2), np.uint8)
     cut = R.Cut(np.array([0]), np.array([0]), "")
-    one = R.Runs(np.array([0, 2]), np.array([0, 1]), np.array([0, 4]), np.array([0], np.uint32),
+    one = R.Runs(np.array([0, 2]), np.array([0, 1]), np.array([0, 3]), np.array([0], np.uint32),
                  np.array([2], np.uint16), reference_encode([[0, 0]]).copy(), np.zeros(2, np.uint8),
-                 np.zeros(2, np.uint16), np.zeros(2, np.uint8))
+                 np.zeros(2, np.uint16), np.zeros(2, np.uint8))      # (masks cannot hold a place twice)
     with create_hdf5(tmp_path / "a.h5") as f:
         write_runs_arrays(f, d.shape, SHA, CHECK, cut, one)
-    with pytest.raises(IsplatError, match="strictly increasing"):
+    with pytest.raises(IsplatError, match="its positions hold 1 voxels, its count says 2"):
         read_runs(tmp_path / "a.h5")
     cut2 = R.Cut(np.array([0]), np.array([0, 100]), "")
-    two = R.Runs(np.array([0, 1, 2]), np.array([0, 1, 2]), np.array([0, 2, 4]), np.array([0, 0], np.uint32),
+    two = R.Runs(np.array([0, 1, 2]), np.array([0, 1, 2]), np.array([0, 3, 6]), np.array([0, 0], np.uint32),
                  np.array([1, 1], np.uint16), reference_encode([[0], [0]]).copy(), np.array([0, 100], np.uint8),
                  np.zeros(2, np.uint16), np.zeros(2, np.uint8))
     with create_hdf5(tmp_path / "b.h5") as f:
         write_runs_arrays(f, d.shape, SHA, CHECK, cut2, two)
     with pytest.raises(IsplatError, match="voxel 0 \\(flat\\) lies in two runs"):
         read_runs(tmp_path / "b.h5")
+
+
+@pytest.mark.parametrize("masks, match", [
+    ([0x01, 0x03, 0xFF, 0x00], "brick 0 of the run: row (0, 1) (dk, dj) is set in its masks but holds no voxel"),
+    ([0x01, 0x03, 0xFF, 0x7F], "brick 0 of the run: its positions hold 15 voxels, its count says 16"),
+    ([0x01, 0x07, 0xFF, 0xFF], "4 bytes of positions, the bricks' masks make more"),
+    ([0x01, 0x01, 0xFF, 0xFF], "4 bytes of positions, the bricks' masks make 3"),
+    ([0x03, 0x03, 0xFF, 0xFF], "4 bytes of positions, the bricks' masks make more"),
+])
+def test_bad_masks_are_refused_by_the_compiled_reader(tmp_path, masks, match):
+    """A brick of 16 voxels (rows 0 and 1 of shape (1, 2, 8)) whose masks are wrong, with valid hashes: the
+    compiled placing (isplat.runsplace) refuses it, naming the dataset and the run, before it places anything."""
+    good = reference_encode([list(range(16))])
+    assert good.tolist() == [0x01, 0x03, 0xFF, 0xFF]
+    runs = R.Runs(np.array([0, 16]), np.array([0, 1]), np.array([0, 4]), np.array([0], np.uint32),
+                  np.array([16], np.uint16), np.array(masks, np.uint8), np.zeros(16, np.uint8),
+                  np.zeros(16, np.uint16), np.zeros(16, np.uint8))
+    with create_hdf5(tmp_path / "a.h5") as f:
+        write_runs_arrays(f, (1, 2, 8), SHA, CHECK, R.Cut(np.array([0]), np.array([0]), ""), runs)
+    with pytest.raises(IsplatError, match=r"a.h5: dataset 'runs/positions', run 0: " + re.escape(match)):
+        read_runs(tmp_path / "a.h5")
 
 
 def test_runs_tables_that_cannot_be_are_refused(tmp_path):
@@ -306,12 +365,12 @@ def test_runs_tables_that_cannot_be_are_refused(tmp_path):
     one = dict(brick_number=np.array([0], np.uint32), brick_voxel_count=np.array([1], np.uint16),
                positions=reference_encode([[0]]).copy(), density=np.array([200], np.uint8),
                normal=np.zeros(1, np.uint16), gradient_magnitude=np.zeros(1, np.uint8))
-    for ptrs, match in ((([0, 0, 1, 1, 1], [0, 0, 1, 1, 1], [0, 0, 2, 2, 2]), r"'runs/run_voxel_ptr', run 1: 1 "),
-                        (([0, 0, 0, 0, 1], [0, 0, 0, 0, 1], [0, 0, 0, 0, 1]), r"'runs/run_position_ptr', run 3"),
-                        (([0, 0, 0, 0, 1], [0, 0, 0, 1, 1], [0, 0, 0, 2, 2]), r"'runs/run_brick_ptr', run 2")):
+    for ptrs, match in ((([0, 0, 1, 1, 1], [0, 0, 1, 1, 1], [0, 0, 3, 3, 3]), r"'runs/run_voxel_ptr', run 1: 1 "),
+                        (([0, 0, 0, 0, 1], [0, 0, 0, 0, 1], [0, 0, 0, 0, 2]), r"'runs/run_position_ptr', run 3"),
+                        (([0, 0, 0, 0, 1], [0, 0, 0, 1, 1], [0, 0, 0, 3, 3]), r"'runs/run_brick_ptr', run 2")):
         runs = R.Runs(*(np.array(x) for x in ptrs), **one)
-        if ptrs[2][-1] == 1:
-            runs = runs._replace(positions=np.zeros(1, np.uint8))
+        if ptrs[2][-1] == 2:
+            runs = runs._replace(positions=np.zeros(2, np.uint8))
         with create_hdf5(tmp_path / "x.h5") as f:
             write_runs_arrays(f, (1, 1, 1), SHA, CHECK, cut, runs)
         with pytest.raises(IsplatError, match=match):
@@ -366,6 +425,7 @@ def test_isplat_index_writes_the_runs_file_and_no_runs_leaves_it_out(tmp_path, c
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "formats" / "examples" / "runs"
 NAMES = sorted(p.stem for p in EXAMPLES.glob("*.json"))
+WRITTEN = [n for n in NAMES if json.loads((EXAMPLES / f"{n}.json").read_text()).get("format_version", 2) == 2]
 
 
 def _example(name):
@@ -380,12 +440,21 @@ def _example(name):
 def _flat_of(name, ex, shape):
     if "flat_positions" in ex:
         return ex["flat_positions"]
-    nk, nj, ni = shape          # bitmap.json's rule: brick 0 (i 0..7), then brick 1 (i 8..9), each k, j, i nested
+    nk, nj, ni = shape          # masks.json's rule: brick 0 (i 0..7), then brick 1 (i 8..9), each k, j, i nested
     return [i + ni * (j + nj * k) for lo, hi in ((0, 8), (8, ni)) for k in range(nk) for j in range(nj)
             for i in range(lo, hi)]
 
 
-@pytest.mark.parametrize("name", NAMES)
+def test_examples_cover_every_form_and_the_older_version():
+    assert set(WRITTEN) == {"tiny", "masks"} and set(NAMES) - set(WRITTEN) == {"v1-bitmap"}
+    with h5py.File(EXAMPLES / "v1-bitmap.runs.idx.h5", "r") as f:
+        assert int(f.attrs["format_version"]) == 1
+    for name in WRITTEN:
+        with h5py.File(EXAMPLES / f"{name}.runs.idx.h5", "r") as f:
+            assert int(f.attrs["format_version"]) == 2
+
+
+@pytest.mark.parametrize("name", WRITTEN)
 def test_examples_writer_reproduces_the_json(name):
     gen, ex = _example(name)
     d, n, g = gen.channels(ex)
@@ -482,7 +551,8 @@ def reference_layer_runs(run: np.ndarray, k0: int, shape, density: np.ndarray, n
     pos = RR.encode_positions(group, p, counts)
     vptr = R._ptr(np.bincount(r, minlength=n_run))
     bptr = R._ptr(np.bincount(r[firsts], minlength=n_run))
-    pptr = R._ptr(np.bincount(r[firsts], weights=R.position_bytes(counts), minlength=n_run).astype(np.int64))
+    planes, rows = (np.array([len(np.unique(p[at:at + c] // n)) for at, c in zip(firsts, counts)]) for n in (64, 8))
+    pptr = R._ptr(np.bincount(r[firsts], weights=R.position_bytes(planes, rows), minlength=n_run).astype(np.int64))
     return R.Runs(vptr, bptr, pptr, b[firsts].astype(np.uint32), counts.astype(np.uint16), pos,
                 density.ravel()[order], normal.ravel()[order], gradient_magnitude.ravel()[order])
 
@@ -492,7 +562,7 @@ def reference_layer_runs(run: np.ndarray, k0: int, shape, density: np.ndarray, n
        st.integers(0, 10 ** 6))
 def test_layer_runs_equal_the_sorting_reference(nl, nj, ni, n_run, share, seed):
     """The counting sort against the stable sort, field by field, on layers of any shape (edge bricks cut),
-    lists and bitmaps both (a run holding most of a brick)."""
+    a brick's voxels of a run few or most (a run holding most of a brick)."""
     rng = np.random.default_rng(seed)
     run = np.where(rng.random((nl, nj, ni)) < share, 0, rng.integers(0, n_run, (nl, nj, ni))).astype(np.int32)
     d, g = (rng.integers(0, 256, run.shape).astype(np.uint8) for _ in range(2))

@@ -301,7 +301,7 @@ def test_runs_file_beside_the_index(vol, capsys):
     with h5py.File(rp, "r") as f:
         ptr = f["runs/run_voxel_ptr"][()]
         bins = [len(f.attrs["lo_first"]), len(f.attrs["hi_first"])]
-    assert r == {"path": str(rp), "file_bytes": os.path.getsize(rp), "format_version": 1, "runs": len(ptr) - 1,
+    assert r == {"path": str(rp), "file_bytes": os.path.getsize(rp), "format_version": 2, "runs": len(ptr) - 1,
                  "runs_with_voxels": int(np.count_nonzero(np.diff(ptr))), "bins": bins, "voxels": d.size,
                  "tied": True}
     assert r["path"] == str(runs_path(idx))

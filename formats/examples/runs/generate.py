@@ -4,10 +4,12 @@
 
 The JSON files are the specification (their tables and position bytes were derived by hand from formats/runs.md);
 this script only writes the binary companions with the isplat writer under test: NAME.runs.idx.h5 (format
-version 1; ``density_sha256`` that of the example's density as isplat.augfile computes it, no augmented file, so
+version 2; ``density_sha256`` that of the example's density as isplat.augfile computes it, no augmented file, so
 ``augmented_chunk_hash_check`` is empty), and invalid-flipped-byte.runs.idx.h5 (tiny's file with one byte of
 ``runs/density`` changed), which readers refuse. tests/test_runs.py checks that the writer reproduces the JSON
-tables and bytes and that the committed files read back.
+tables and bytes and that the committed files read back. An example whose JSON says ``"format_version": 1``
+(v1-bitmap) is of the version before (formats/runs.md §7): its file was written by that version's writer and is
+kept, not written here; readers still read it.
 """
 
 import json
@@ -60,7 +62,7 @@ def flip(path: Path, dataset: str) -> None:
 
 def main() -> int:
     sys.path.insert(0, str(HERE.parents[2]))
-    for name in ("tiny", "bitmap"):
+    for name in ("tiny", "masks"):
         write(json.loads((HERE / f"{name}.json").read_text()), HERE / f"{name}.runs.idx.h5")
     bad = HERE / "invalid-flipped-byte.runs.idx.h5"
     bad.write_bytes((HERE / "tiny.runs.idx.h5").read_bytes())

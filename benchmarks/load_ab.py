@@ -5,8 +5,10 @@
 
 Cases (benchmarks/selective_read.py makes the same volumes): H1, the head sample at 256 x 256 x 225 with the bone
 scene; C1, the ``ct-chest`` sample at 512 x 512 x 133 (spacing 0.703125, 0.703125, 2.5; window -1000..2000) with
-its fat/skin veil and bone; H1-512, the head at 512^3, bone. Each is augmented (format 6, 8^3 bricks) and indexed
-once into ``--work`` (kept for later runs). *Load*: constructing ``isplat.renderer.Renderer`` for the scene's first
+its fat/skin veil and bone; H1-512, the head at 512^3, bone. Each is augmented (format 6, 8^3 bricks) once into
+``--work`` (kept for later runs) and indexed by each version (``isplat index``, its index and runs file in a folder
+of its own: the old commit's kept under its sha, the working tree's written again each run), so that each reads
+the files its own writer makes (the runs file's format changed at version 2). *Load*: constructing ``isplat.renderer.Renderer`` for the scene's first
 view (open both files, read the index blocks, select, read the bricks post needs), as ``isplat render`` does before
 its first frame; then one frame is rendered (its thread CPU time measured too: the frame code is the same, so its
 ratio shows the noise) and its image compared between the versions, bit for bit. *whole-X*:
@@ -71,20 +73,24 @@ for line in sys.stdin:
 """
 
 
-def make_case(name: str, work: Path) -> tuple[Path, Path, Path]:
-    """Case ``name``'s augmented file, index and post scene in ``work`` (made once, in subprocesses)."""
+def make_case(name: str, work: Path, root: Path = ROOT, again: bool = False) -> tuple[Path, Path, Path]:
+    """Case ``name``'s augmented file (in ``work``), and its index and post scene (in ``work``/``root``'s folder
+    name) as ``root``'s ``isplat index`` writes them (made once, in subprocesses; ``again``: the index written
+    again)."""
     from .paper import _COMMON, TF_BONE
     from .selective_read import TF_CHEST
 
     sample, shape, tf, kw = CASES[name]
-    aug, idx, scene = work / f"{name}.aug.h5", work / f"{name}.idx.h5", work / f"{name}-post.toml"
+    own = work / ("new" if root == ROOT else root.name)
+    own.mkdir(parents=True, exist_ok=True)
+    aug, idx, scene = work / f"{name}.aug.h5", own / f"{name}.idx.h5", own / f"{name}-post.toml"
     if not aug.exists():
         subprocess.run([sys.executable, "-c", "from benchmarks.selective_read import augment_sample; from pathlib "
                         f"import Path; augment_sample({sample!r}, {shape!r}, Path({str(aug)!r}), **{kw!r})"],
                        check=True, cwd=ROOT)
-    if not idx.exists():
+    if again or not idx.exists():
         subprocess.run([sys.executable, "-m", "isplat", "index", str(aug), "-o", str(idx), "-q", "--force"],
-                       check=True, cwd=ROOT)
+                       check=True, cwd=root)
     view = dict(azimuth=0, elevation=10)
     scene.write_text(f'version = 4\n\n[data]\naugmented = "{aug}"\nindex = "{idx}"\n'
                      + _COMMON.format(size=256, threads=1, technique="post", **view) + "\n"
@@ -118,7 +124,8 @@ class Worker:
 
 
 def cli_rounds(cases, trees: dict, rounds: int, work: Path) -> None:
-    """``--cli``: one ``isplat render`` process per picture, per version, alternating; prints medians and ratios."""
+    """``--cli``: one ``isplat render`` process per picture, per version (``cases``: per case, each version's
+    scene), alternating; prints medians and ratios."""
     import time
 
     times = {(c, v): [] for c in cases for v in trees}
@@ -129,7 +136,7 @@ def cli_rounds(cases, trees: dict, rounds: int, work: Path) -> None:
             for v in (("old", "new") if n % 2 else ("new", "old")):
                 png[v] = work / f"cli-{c}-{v}.png"
                 t = time.perf_counter()
-                subprocess.run([sys.executable, "-m", "isplat", "render", str(scene), "-o", str(png[v]), "-q",
+                subprocess.run([sys.executable, "-m", "isplat", "render", str(scene[v]), "-o", str(png[v]), "-q",
                                 "--force"], check=True, cwd=str(trees[v]))
                 if n:
                     times[(c, v)].append(time.perf_counter() - t)
@@ -152,25 +159,27 @@ def main(argv=None) -> None:
     ap.add_argument("--cli", action="store_true", help="time `isplat render` processes, one per picture")
     a = ap.parse_args(argv)
     a.work.mkdir(parents=True, exist_ok=True)
+    roots = {"old": tree(a.old, a.work), "new": ROOT}
+    bases = {c.removeprefix("whole-") for c in a.cases.split(",")}
+    per = {(b, v): make_case(b, a.work, root, again=v == "new") for b in sorted(bases) for v, root in roots.items()}
+    made = {(c, v): per[(c.removeprefix("whole-"), v)] for c in a.cases.split(",") for v in roots}
     if a.cli:
-        cases = {c: make_case(c, a.work)[2] for c in a.cases.split(",") if not c.startswith("whole-")}
-        cli_rounds(cases, {"old": tree(a.old, a.work), "new": ROOT}, a.rounds, a.work)
+        cases = {c: {v: made[(c, v)][2] for v in roots} for c in a.cases.split(",") if not c.startswith("whole-")}
+        cli_rounds(cases, roots, a.rounds, a.work)
         return
-    jobs = {}
-    for c in a.cases.split(","):
-        base = c.removeprefix("whole-")
-        aug, _, scene = make_case(base, a.work)
-        jobs[c] = ["whole", str(aug)] if c.startswith("whole-") else ["load", str(scene)]
-    workers = {"old": Worker(tree(a.old, a.work)), "new": Worker(ROOT)}
-    times = {(c, v): [] for c in jobs for v in workers}
-    frames = {(c, v): [] for c in jobs for v in workers}
-    same = {c: True for c in jobs}
+    jobs = {(c, v): ["whole", str(made[(c, v)][0])] if c.startswith("whole-") else ["load", str(made[(c, v)][2])]
+            for c, v in made}
+    workers = {v: Worker(root) for v, root in roots.items()}
+    times = {cv: [] for cv in jobs}
+    frames = {cv: [] for cv in jobs}
+    kinds = {c: job[0] for (c, _), job in jobs.items()}
+    same = dict.fromkeys(kinds, True)
     try:
         for n in range(a.rounds + 1):                   # round 0 warms up (compiles, page cache)
-            for c, job in jobs.items():
+            for c in kinds:
                 got = {}
                 for v in (("old", "new") if n % 2 else ("new", "old")):
-                    got[v] = workers[v].run(job)
+                    got[v] = workers[v].run(jobs[(c, v)])
                     if n:
                         times[(c, v)].append(got[v][0])
                         frames[(c, v)].append(got[v][2])
@@ -180,15 +189,15 @@ def main(argv=None) -> None:
         for w in workers.values():
             w.close()
     print(f"old {a.old} against the working tree, {a.rounds} rounds (median; ratio: median of per-round new / old):")
-    for c in jobs:
+    for c in kinds:
         old, new = times[(c, "old")], times[(c, "new")]
         ratio = statistics.median(x / y for x, y in zip(new, old))
         frame = ""
-        if jobs[c][0] == "load":
+        if kinds[c] == "load":
             fo, fn = frames[(c, "old")], frames[(c, "new")]
             frame = (f"  frame old {1000 * statistics.median(fo):.1f} ms new {1000 * statistics.median(fn):.1f} ms "
                      f"x{statistics.median(x / y for x, y in zip(fn, fo)):.3f}")
-        same_text = ("same " + ("image" if jobs[c][0] == "load" else "arrays")) if same[c] else "DIFFERENT"
+        same_text = ("same " + ("image" if kinds[c] == "load" else "arrays")) if same[c] else "DIFFERENT"
         print(f"  {c:>9}: load old {1000 * statistics.median(old):7.1f} ms  new {1000 * statistics.median(new):7.1f} "
               f"ms  new / old x{ratio:.3f}  {same_text}{frame}")
 

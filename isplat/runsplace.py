@@ -56,10 +56,11 @@ def _brick_bytes(pdata, q, end, c, version):
 
 
 @leaf
-def _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
+def _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, at, err):
     """Run ``r``'s bricks before any is placed: pointers in bounds, brick numbers strictly increasing and within
     the grid, counts 1..512 summing to the run's voxels, its bricks' position bytes (:func:`_brick_bytes`) as
-    many as the run's."""
+    many as the run's; per brick ``g``, its run, first voxel and first position byte into ``at[:, g]`` (valid
+    when the run checks out)."""
     if not (0 <= bp[r] <= bp[r + 1] <= num.shape[0] and 0 <= pp[r] <= pp[r + 1] <= pdata.shape[0]
             and 0 <= vp[r] <= vp[r + 1]):
         return _fail(err, POINTERS, r, 0, 0, 0)
@@ -72,6 +73,7 @@ def _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
             bad_range = g
         if beyond < 0 and np.int64(num[g]) >= n_bricks:
             beyond = g
+        at[0, g], at[1, g], at[2, g] = r, vp[r] + voxels, q
         voxels += c
         if q >= 0:
             n = _brick_bytes(pdata, q, pp[r + 1], c, version)
@@ -88,21 +90,24 @@ def _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
 
 
 @leaf
-def _places(pdata, q, c, buf, version):
+def _places(pdata, q, c, buf, mask, version):
     """Decode the places of a brick of ``c`` voxels whose positions start at byte ``q`` into ``buf[:c]``
-    (increasing): its masks (:func:`_mask_places`); version 1: a bitmap (more than V1_LIST_MAX voxels) or a
-    list of uint16. Returns 0, or -(the places found) for masks or a bitmap whose voxels are not ``c`` (the count
+    (increasing) and, but for a list, into the eight words of bits ``mask`` (:func:`_brick_mask`): its masks
+    (:func:`_mask_places`); version 1: a bitmap (more than V1_LIST_MAX voxels) or a list of uint16. Returns 0, or -(the places found) for masks or a bitmap whose voxels are not ``c`` (the count
     found so far when it is above), -(1 + PLACE_FAULT + place) for a list's place not below 512 or not above the
     one before it, -(1 + MASK_FAULT + m) for a plane (m = dk) or row (m = 8 + dk * 8 + dj) set without a bit
     below it."""
     if version != 1:
-        return _mask_places(pdata, q, c, buf)
+        return _mask_places(pdata, q, c, buf, mask)
     if c > V1_LIST_MAX:
         have = 0
+        for w in range(8):
+            mask[w] = 0
         for byte in range(BITMAP_BYTES):
             m = pdata[q + byte]
             if m == 0:
                 continue
+            mask[byte >> 3] |= np.uint64(m) << np.uint64(8 * (byte & 7))
             if have + BIT_COUNT[m] > c:
                 return -(have + BIT_COUNT[m])
             for t in range(BIT_COUNT[m]):
@@ -119,11 +124,15 @@ def _places(pdata, q, c, buf, version):
 
 
 @leaf
-def _mask_places(pdata, q, c, buf):
+def _mask_places(pdata, q, c, buf, mask):
     """:func:`_places` of version 2's masks from byte ``q``: the plane mask (bit dk: plane dk holds a voxel),
     then a row mask for each plane set (bit dj: row (dk, dj) holds one), then a voxel mask for each row set (bit
     di: the voxel at place (dk * 8 + dj) * 8 + di), each in order (:func:`_brick_bytes` has checked that they lie
-    in the run's bytes)."""
+    in the run's bytes); each voxel mask is also the byte ``row % 8`` of word ``row // 8`` of ``mask``. At most
+    64 rows of 8 voxels: ``buf`` holds 512 + 8 places (the last row writes eight), the count is checked at the
+    end (the places found when it is not ``c``)."""
+    for w in range(8):
+        mask[w] = 0
     planes = pdata[q]
     row_at = q + 1
     at = q + 1 + BIT_COUNT[planes]
@@ -140,10 +149,9 @@ def _mask_places(pdata, q, c, buf):
             at += 1
             if m == 0:
                 return -(1 + MASK_FAULT + 8 + row)
-            if have + BIT_COUNT[m] > c:
-                return -(have + BIT_COUNT[m])
-            for t in range(BIT_COUNT[m]):
-                buf[have + t] = 8 * row + BIT_PLACES[m, t]
+            mask[row >> 3] |= np.uint64(m) << np.uint64(8 * (row & 7))
+            for t in range(8):              # all eight (a fixed count, no branch): those past the row's are
+                buf[have + t] = 8 * row + BIT_PLACES[m, t]      # written over by the next row's, or unused
             have += BIT_COUNT[m]
     return 0 if have == c else -have
 
@@ -154,14 +162,8 @@ def _bricks_of(bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
     and position byte (int64[3, bricks]); on a fault, ``err`` set and an empty table."""
     at = np.zeros((3, num.shape[0]), dtype=np.int64)
     for r in range(bp.shape[0] - 1):
-        if _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
+        if _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, at, err):
             return at[:, :0]
-        v, q = vp[r], pp[r]
-        for g in range(bp[r], bp[r + 1]):
-            c = np.int64(cnt[g])
-            at[0, g], at[1, g], at[2, g] = r, v, q
-            v += c
-            q += _brick_bytes(pdata, q, pp[r + 1], c, version)
     return at
 
 
@@ -194,7 +196,7 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table,
     at = _bricks_of(bp, pp, vp, num, cnt, pdata, table.shape[0], version, err)
     if err[0]:
         return err
-    buf = np.empty(BRICK_VOXELS, dtype=np.int64)
+    buf = np.empty(BRICK_VOXELS + 8, dtype=np.int64)         # (_mask_places writes eight past the last place)
     mask = np.empty(8, dtype=np.uint64)
     for g in range(num.shape[0]):
         r = at[0, g]
@@ -217,7 +219,7 @@ def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, shape, buf,
     """Brick ``b`` of run ``r`` (brick number ``n``, ``c`` voxels from the span's voxel ``v``, positions from
     byte ``q``) decoded (into ``buf``), checked (:func:`_brick_mask`, the densities within the run's codes) and
     placed (:func:`place_runs`); True on a fault (then in ``err``)."""
-    got = _places(pdata, q, c, buf, version)
+    got = _places(pdata, q, c, buf, mask, version)
     if got < -MASK_FAULT:
         return _fail(err, EMPTY_MASK, r, b, -got - 1 - MASK_FAULT, 0)
     if got < -PLACE_FAULT:
@@ -227,7 +229,7 @@ def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, shape, buf,
     row = np.int64(table[n])
     if row == 0 or 8 * row + 8 > loaded.shape[0]:
         return _fail(err, POINTERS, r, b, 0, 0)             # a pool without this brick's row (the caller's)
-    bad = _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q, version == 1 and c > V1_LIST_MAX)
+    bad = _brick_mask(buf, c, n, shape, row, loaded, mask, version == 1 and c <= V1_LIST_MAX)
     if bad >= 0:
         code = OUTSIDE if bad >> 62 else TWICE
         k, j, i = _voxel(n, bad & 511, shape)
@@ -265,17 +267,11 @@ def _voxel(n, place, shape):
 
 
 @leaf
-def _brick_mask(buf, c, n, shape, row, loaded, mask, pdata, q, bitmap):
-    """The brick's places ``buf[:c]`` as eight words of bits (``mask``; ``bitmap``: a version-1 bitmap's bytes
-    from byte ``q`` of ``pdata``, checked by :func:`_places`); -1 when every place lies in the volume and none is
-    loaded already, else the first place that does not (``| 1 << 62`` when outside the volume)."""
-    if bitmap:
-        for w in range(8):
-            m = np.uint64(0)
-            for y in range(8):
-                m |= np.uint64(pdata[q + 8 * w + y]) << np.uint64(8 * y)
-            mask[w] = m
-    else:
+def _brick_mask(buf, c, n, shape, row, loaded, mask, from_list):
+    """The brick's places ``buf[:c]`` as eight words of bits (``mask``, made by :func:`_places` but for a list:
+    ``from_list``, made here); -1 when every place lies in the volume and none is loaded already, else the first
+    place that does not (``| 1 << 62`` when outside the volume)."""
+    if from_list:
         for w in range(8):
             mask[w] = 0
         for t in range(c):

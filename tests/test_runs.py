@@ -123,11 +123,16 @@ def test_positions_all_forms_equal_the_reference(groups, version):
     if version == 2:
         planes, rows = ([len({p // n for p in g}) for g in groups] for n in (64, 8))
         assert R.position_bytes(planes, rows).sum() == enc.size
-    q, buf = 0, np.empty(512, np.int64)
+    q, buf, mask = 0, np.empty(520, np.int64), np.empty(8, np.uint64)
     for c, g in zip(counts.tolist(), groups):
         n = runsplace._brick_bytes(enc, q, enc.size, c, version)
         assert n == len(reference_encode([g], version))
-        assert runsplace._places(enc, q, c, buf, version) == 0 and buf[:c].tolist() == g
+        mask[:] = 12345
+        assert runsplace._places(enc, q, c, buf, mask, version) == 0 and buf[:c].tolist() == g
+        if version == 2 or c > 32:              # the places' bits, word p // 64, bit p % 64 (a list's: not made)
+            bits = np.zeros(512, bool)
+            bits[g] = True
+            assert np.array_equal(mask, np.packbits(bits, bitorder="little").view("<u8"))
         q += n
 
 

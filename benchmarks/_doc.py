@@ -28,7 +28,8 @@ STAMP_TAG = "isplat-stamp"
 
 # Source globs (git pathspec globs, relative to the repository root) shared by the benchmarks' SOURCES: what a
 # measurement of reading, of rendering or of augmenting depends on.
-READ = ("isplat/index/**", "isplat/augfile.py", "isplat/fileio.py", "isplat/selection.py")
+READ = ("isplat/index/**", "isplat/augfile.py", "isplat/fileio.py", "isplat/selection.py", "isplat/runs.py",
+        "isplat/runsfile.py", "isplat/runsplace.py")      # (post reads the runs file beside the index)
 RENDER = ("isplat/frame.py", "isplat/renderer.py", "isplat/selection.py", "isplat/splat/**", "isplat/camera.py",
           "isplat/transfer.py", "isplat/scene.py", "isplat/jit.py", "isplat/threads.py", "isplat/normals.py")
 AUGMENT = ("isplat/augment.py", "isplat/augfile.py", "isplat/normals.py", "isplat/volume_io.py", "isplat/fileio.py")

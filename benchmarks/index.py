@@ -19,7 +19,8 @@ import numpy as np
 from . import _doc
 
 TECHNIQUES = []     # render.classification of its rows (the page's stamp)
-SOURCES = _doc.sources(("isplat/index/**", "isplat/augfile.py", "isplat/fileio.py", "isplat/augment.py"),
+SOURCES = _doc.sources(("isplat/index/**", "isplat/augfile.py", "isplat/fileio.py", "isplat/augment.py",
+                        "isplat/runs.py", "isplat/runsfile.py"),     # (`isplat index` writes the runs file too)
                        _doc.SAMPLES, ("benchmarks/index.py",))
 
 

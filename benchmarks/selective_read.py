@@ -338,6 +338,8 @@ def _table(rows) -> list[str]:
         ivs = ", ".join(f"{lo}..{hi}" for lo, hi in r["intervals"])
         tech = LABELS[r["variant"]]
         ok = "met" if r["ratio"] <= BAR[r["technique"]] else "**not met**"
+        if f"{r['ratio']:.2f}" == f"{BAR[r['technique']]:.2f}":        # on the bar at two decimals: say which side
+            ok += f" ({r['ratio']:.4f})"
         axis = f" ({r['axis']})" if r["axis"] else ""
         L.append(f"| {r['name']}: {r['what']} | {tech} | {r['shape']} | {ivs} | {r['voi']:,} | "
                  f"{r['needed_voxels']:,}{axis} | {', '.join(r['channels']) or '-'} ({r['per_voxel']} B) | "

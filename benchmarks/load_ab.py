@@ -8,10 +8,11 @@ scene; C1, the ``ct-chest`` sample at 512 x 512 x 133 (spacing 0.703125, 0.70312
 its fat/skin veil and bone; H1-512, the head at 512^3, bone. Each is augmented (format 6, 8^3 bricks) once into
 ``--work`` (kept for later runs) and indexed by each version (``isplat index``, its index and runs file in a folder
 of its own: the old commit's kept under its sha, the working tree's written again each run), so that each reads
-the files its own writer makes (the runs file's format changed at version 2). *Load*: constructing ``isplat.renderer.Renderer`` for the scene's first
-view (open both files, read the index blocks, select, read the bricks post needs), as ``isplat render`` does before
-its first frame; then one frame is rendered (its thread CPU time measured too: the frame code is the same, so its
-ratio shows the noise) and its image compared between the versions, bit for bit. *whole-X*:
+the files its own writer makes (the runs file's format changed at version 2). *Load*: constructing
+``isplat.renderer.Renderer`` for the scene's first view (open both files, read the index blocks, select, read the
+bricks post needs), as ``isplat render`` does before its first frame; then one frame is rendered (its thread CPU
+time measured too: the frame code is the same, so its ratio shows the noise) and its image compared between the
+versions, bit for bit. *whole-X*:
 ``open_augmented`` and ``read`` of the three whole channels of case X's file (the arrays compared).
 
 ``--cli``: instead, ``python -m isplat render SCENE -o PNG`` of each case's scene, one process per picture as users
@@ -73,7 +74,7 @@ for line in sys.stdin:
 """
 
 
-def make_case(name: str, work: Path, root: Path = ROOT, again: bool = False) -> tuple[Path, Path, Path]:
+def make_case(name: str, work: Path, root: Path, again: bool) -> tuple[Path, Path, Path]:
     """Case ``name``'s augmented file (in ``work``), and its index and post scene (in ``work``/``root``'s folder
     name) as ``root``'s ``isplat index`` writes them (made once, in subprocesses; ``again``: the index written
     again)."""

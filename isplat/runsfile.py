@@ -173,10 +173,11 @@ class RunsRead(NamedTuple):
     (oct16) and gradient magnitude; ``bytes_read``: what HDF5 read from the file since it was opened
     (attributes, pointer tables, hash-table rows and the runs' chunks); ``runs``: the runs read (bool);
     ``table``: the pool's brick table (uint32 per brick of the volume's grid, C order: its row, 0 for a brick no
-    run read); ``loaded``: the voxels read as a bit set in the pool's layout (uint64 words, bit ``q % 64`` of word
-    ``q // 64`` for the voxel at ``q = row * 512 + place in the brick``); ``placed``: with ``place=True``, the
-    density, normal and gradient magnitude as the pool's rows (zeros where no voxel was read; a channel not read:
-    empty), else None."""
+    run read); ``loaded``: the voxels read as a bit set in the rows' layout (uint64 words, bit ``s % 64`` of word
+    ``s // 64`` for the voxel at ``s = row * 512 + place in the brick``); ``placed``: with ``place=True``, the
+    density, normal and gradient magnitude as a packed pool (isplat.runsplace.pack_rows: the voxel at place ``p``
+    of row ``r`` at ``bases[r] + p``; a place no voxel read takes holds zero; a channel not read: empty), else
+    None; ``bases``: each row's first place (``row * 512`` when not placed)."""
     positions: np.ndarray
     density: np.ndarray
     normal: np.ndarray
@@ -186,6 +187,7 @@ class RunsRead(NamedTuple):
     loaded: np.ndarray | None = None
     placed: tuple | None = None
     table: np.ndarray | None = None
+    bases: np.ndarray | None = None
 
 
 def _pool_table(shape, read) -> np.ndarray:
@@ -287,21 +289,29 @@ class RunsFile:
 
     @staticmethod
     def place(got: "Fetched", place: bool = True) -> RunsRead:
-        """The runs ``got`` (:meth:`fetch`) checked (formats/runs.md §5) and placed into a pool (``place``), or
-        their positions (:meth:`read`)."""
+        """The runs ``got`` (:meth:`fetch`) checked (formats/runs.md §5) and placed into a packed pool
+        (``place``: the bricks' masks first, :func:`isplat.runsplace.mask_runs`, the rows packed by them,
+        :func:`isplat.runsplace.pack_rows`, then the voxels placed), or their positions (:meth:`read`)."""
         from . import runsplace
 
         vp = got.ptrs[0]
         table = _pool_table(got.shape, got.read)
-        n = (int(table.max(initial=0)) + 1) * runsplace.BRICK_VOXELS
+        rows = int(table.max(initial=0)) + 1
         pos = np.empty(0 if place else sum(int(vp[b] - vp[a]) for a, b in got.spans), dtype=np.int64)
-        loaded = np.zeros(n // 64, dtype=np.uint64)
+        loaded = np.zeros(8 * rows, dtype=np.uint64)
+        bases, n = np.arange(rows, dtype=np.int64) * runsplace.BRICK_VOXELS, 0
+        if place:
+            for s, (a, b) in enumerate(got.spans):
+                _check(got, a, b, runsplace.mask_runs(*_span_args(got, a, b, got.read[s]), np.asarray(
+                    got.shape, dtype=np.int64), table, loaded, got.version))
+            bases, n = runsplace.pack_rows(loaded)
+            loaded[:] = 0                                   # (the placing's own: a voxel placed twice refused)
         outs = tuple(np.zeros(n if place and (name == "density" or name in got.channels) else 0, dtype=dt)
                      for name, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8)))
         at = 0
         for s, (a, b) in enumerate(got.spans):
             m = int(vp[b] - vp[a])
-            _place(got, a, b, got.read[s], table, loaded, pos[at:at + m], outs)
+            _place(got, a, b, got.read[s], table, loaded, bases, pos[at:at + m], outs)
             at += m
         voxels = int(np.prod(got.shape, dtype=np.int64))
         if got.runs.all() and at != voxels:
@@ -311,7 +321,7 @@ class RunsFile:
             got.read.clear()                                # (placed: let go)
         cat = [np.concatenate([g[k] for g in kept]) if kept else np.zeros(0, dt)
                for k, dt in (("density", np.uint8), ("normal", np.uint16), ("gradient_magnitude", np.uint8))]
-        return RunsRead(pos, *cat, got.bytes_read, got.runs, loaded, outs if place else None, table)
+        return RunsRead(pos, *cat, got.bytes_read, got.runs, loaded, outs if place else None, table, bases)
 
     def _get(self, name: str, lo: int, hi: int, runs: str) -> np.ndarray:
         with hdf5_errors(self.path, f"dataset 'runs/{name}' [{lo}:{hi}] ({runs})"):
@@ -334,16 +344,30 @@ class RunsFile:
                 else np.zeros(0, DTYPES[n]) for n, ptr in names}
 
 
-def _place(got, a: int, b: int, g: dict, table, loaded, pos, outs) -> None:
+def _span_args(got, a: int, b: int, g: dict) -> tuple:
+    """Runs ``a .. b - 1``'s pointers (from 0) and their bricks' numbers, counts and position bytes (``g``)."""
+    vp, bp, pp = (np.ascontiguousarray(p[a:b + 1] - p[a]) for p in got.ptrs)
+    return bp, pp, vp, g["brick_number"], g["brick_voxel_count"], g["positions"]
+
+
+def _place(got, a: int, b: int, g: dict, table, loaded, bases, pos, outs) -> None:
     """Runs ``a .. b - 1`` read (``g``) checked and placed (:func:`isplat.runsplace.place_runs`)."""
     from . import runsplace
 
-    vp, bp, pp = (np.ascontiguousarray(p[a:b + 1] - p[a]) for p in got.ptrs)
+    bp, pp, vp, num, cnt, pdata = _span_args(got, a, b, g)
     lo_first, hi_last = (np.ascontiguousarray(x[a:b]) for x in got.codes)
-    err = runsplace.place_runs(bp, pp, vp, lo_first, hi_last, g["brick_number"], g["brick_voxel_count"],
-                               g["positions"], g["density"], g["normal"], g["gradient_magnitude"],
-                               np.asarray(got.shape, dtype=np.int64), table, loaded, pos, *outs, got.version)
+    _check(got, a, b, runsplace.place_runs(bp, pp, vp, lo_first, hi_last, num, cnt, pdata, g["density"], g["normal"],
+                                           g["gradient_magnitude"], np.asarray(got.shape, dtype=np.int64), table,
+                                           loaded, bases, pos, *outs, got.version))
+
+
+def _check(got, a: int, b: int, err) -> None:
+    """One line naming the file, the dataset and the fault of runs ``a .. b - 1``' error record ``err``, if any
+    (:func:`isplat.runsplace.message`)."""
+    from . import runsplace
+
     if err[0]:
+        lo_first, hi_last = (np.ascontiguousarray(x[a:b]) for x in got.codes)
         name, text = runsplace.message(err, a, got.shape, lo_first, hi_last, got.version)
         raise IsplatError(f"{got.path}: dataset 'runs/{name}'{text}")
 

@@ -168,16 +168,77 @@ def _bricks_of(bp, pp, vp, num, cnt, pdata, n_bricks, version, err):
 
 
 @jit
-def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table, loaded, pos, out_d, out_n, out_g,
-               version):
+def mask_runs(bp, pp, vp, num, cnt, pdata, shape, table, loaded, version):
+    """The first pass of placing a span of runs (arguments as :func:`place_runs`'): every run checked
+    (:func:`_check_run`) and each brick's mask ORed into ``loaded`` (the rows' layout), nothing placed: the bits
+    :func:`pack_rows` packs the rows by before :func:`place_runs` places the voxels at the packed rows' bases. A
+    brick's own faults (its places, a voxel outside the volume or in two runs, a density) are
+    :func:`place_runs`' to find (its masks may set such bits here; the file is then refused there). Returns
+    :func:`place_runs`' error record."""
+    err = np.zeros(5, dtype=np.int64)
+    gj, gi = (shape[1] + 7) // 8, (shape[2] + 7) // 8
+    if table.shape[0] != (shape[0] + 7) // 8 * gj * gi or loaded.shape[0] % 8 \
+            or pp[pp.shape[0] - 1] > pdata.shape[0] or cnt.shape[0] < num.shape[0]:
+        _fail(err, POINTERS, 0, 0, 0, 0)
+        return err
+    at = _bricks_of(bp, pp, vp, num, cnt, pdata, table.shape[0], version, err)
+    if err[0]:
+        return err
+    buf = np.empty(BRICK_VOXELS + 8, dtype=np.int64)
+    mask = np.empty(8, dtype=np.uint64)
+    for g in range(num.shape[0]):
+        row = np.int64(table[np.int64(num[g])])
+        if row == 0 or 8 * row + 8 > loaded.shape[0]:
+            _fail(err, POINTERS, at[0, g], g - bp[at[0, g]], 0, 0)     # a pool without this brick's row
+            return err
+        if version != 1:
+            _mask_words(pdata, at[2, g], mask)
+        else:
+            c = np.int64(cnt[g])
+            if _places(pdata, at[2, g], c, buf, mask, version) < 0:
+                continue                                    # (place_runs refuses it)
+            if c <= V1_LIST_MAX:
+                for w in range(8):
+                    mask[w] = 0
+                for t in range(c):
+                    mask[buf[t] >> 6] |= np.uint64(1) << np.uint64(buf[t] & 63)
+        for w in range(8):
+            loaded[8 * row + w] |= mask[w]
+    return err
+
+
+@leaf
+def _mask_words(pdata, q, mask):
+    """Version 2's masks of the brick whose positions start at byte ``q`` as eight words of bits (``mask``, as
+    :func:`_mask_places` makes them, without the places; :func:`_check_run` has checked that they lie in the
+    run's bytes)."""
+    for w in range(8):
+        mask[w] = 0
+    planes = pdata[q]
+    row_at = q + 1
+    at = q + 1 + BIT_COUNT[planes]
+    for s in range(BIT_COUNT[planes]):
+        rows = pdata[row_at]
+        row_at += 1
+        for u in range(BIT_COUNT[rows]):
+            row = BIT_PLACES[planes, s] * 8 + BIT_PLACES[rows, u]
+            mask[row >> 3] |= np.uint64(pdata[at]) << np.uint64(8 * (row & 7))
+            at += 1
+
+
+@jit
+def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table, loaded, bases, pos, out_d, out_n,
+               out_g, version):
     """Runs ``0 .. len(bp) - 2`` of a span (``bp``, ``pp``, ``vp``: int64 pointers into this span's brick, position
     byte and voxel arrays; ``lo``, ``hi``: each run's least and greatest code) placed into a pool: ``table``
-    (each brick's row, isplat.selection.WholeChannels; the caller gives every brick of the runs one) puts a voxel
-    at ``q = table[brick] * 512 + place``; its bit is set in ``loaded`` (uint64 words: bit ``q % 64`` of word
-    ``q // 64``), its density, normal and gradient magnitude go to ``out_d[q]``, ``out_n[q]``, ``out_g[q]`` (each
-    skipped when of size 0; ``nrm``, ``gm`` of the span's size when their outputs are not), and its flat position
-    ``i + n_i * (j + n_j * k)`` to ``pos[v]`` (unless ``pos`` is empty). ``shape``: int64 (n_k, n_j, n_i).
-    ``version``: the file's format version (the positions' forms, formats/runs.md §4).
+    (each brick's row, isplat.selection.WholeChannels; the caller gives every brick of the runs one) and
+    ``bases`` (int64, each row's first place: ``row * 512``, or a packed pool's, :func:`pack_rows`) put the
+    voxel at place ``p`` of its brick at ``q = bases[row] + p``; its bit is set in ``loaded`` (the rows' layout:
+    uint64 words, bit ``s % 64`` of word ``s // 64`` for ``s = row * 512 + p``), its density, normal and
+    gradient magnitude go to ``out_d[q]``, ``out_n[q]``, ``out_g[q]`` (each skipped when of size 0; ``nrm``,
+    ``gm`` of the span's size when their outputs are not), and its flat position ``i + n_i * (j + n_j * k)`` to
+    ``pos[v]`` (unless ``pos`` is empty). ``shape``: int64 (n_k, n_j, n_i). ``version``: the file's format
+    version (the positions' forms, formats/runs.md §4).
     Returns int64[5]: (0, ...) when every run checked out, else (code, run, brick of the run, x, y) of a fault
     (:func:`message`). Run after run, a brick's checks a word of 64 voxels at a time (:func:`_brick_mask`); the
     voxel loops then only copy. Placing on two threads measured no faster on this 2-core machine with another
@@ -185,9 +246,10 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table,
     err = np.zeros(5, dtype=np.int64)
     nk, nj, ni = shape[0], shape[1], shape[2]
     gj, gi = (nj + 7) // 8, (ni + 7) // 8
+    nout = max(out_d.shape[0], out_n.shape[0], out_g.shape[0])
     if vp[vp.shape[0] - 1] > dens.shape[0] or (pos.shape[0] and pos.shape[0] < vp[vp.shape[0] - 1]) \
             or table.shape[0] != (nk + 7) // 8 * gj * gi or loaded.shape[0] % 8 \
-            or _sizes_differ(loaded.shape[0] * 64, out_d, out_n, out_g) \
+            or bases.shape[0] * 8 != loaded.shape[0] or _sizes_differ(nout, out_d, out_n, out_g) \
             or pp[pp.shape[0] - 1] > pdata.shape[0] \
             or cnt.shape[0] < num.shape[0] or (out_n.shape[0] and nrm.shape[0] < dens.shape[0]) \
             or (out_g.shape[0] and gm.shape[0] < dens.shape[0]):
@@ -201,21 +263,22 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table,
     for g in range(num.shape[0]):
         r = at[0, g]
         if _place_brick(r, g - bp[r], np.int64(num[g]), np.int64(cnt[g]), at[1, g], at[2, g], lo[r], hi[r], pdata,
-                        dens, nrm, gm, shape, buf, mask, table, loaded, pos, out_d, out_n, out_g, version, err):
+                        dens, nrm, gm, shape, buf, mask, table, loaded, bases, nout, pos, out_d, out_n, out_g,
+                        version, err):
             break
     return err
 
 
 @leaf
 def _sizes_differ(n, out_d, out_n, out_g):
-    """Whether an output (not of size 0) differs from the ``n`` voxels of the loaded bits."""
+    """Whether an output (not of size 0) differs from ``n`` places (the largest output's)."""
     d, m, g = out_d.shape[0], out_n.shape[0], out_g.shape[0]
     return (d != 0 and d != n) or (m != 0 and m != n) or (g != 0 and g != n)
 
 
 @leaf
-def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, shape, buf, mask, table, loaded, pos, out_d,
-                 out_n, out_g, version, err):
+def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, shape, buf, mask, table, loaded, bases, nout,
+                 pos, out_d, out_n, out_g, version, err):
     """Brick ``b`` of run ``r`` (brick number ``n``, ``c`` voxels from the span's voxel ``v``, positions from
     byte ``q``) decoded (into ``buf``), checked (:func:`_brick_mask`, the densities within the run's codes) and
     placed (:func:`place_runs`); True on a fault (then in ``err``)."""
@@ -227,7 +290,7 @@ def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, shape, buf,
     if got < 0:
         return _fail(err, BITMAP_COUNT, r, b, -got, c)
     row = np.int64(table[n])
-    if row == 0 or 8 * row + 8 > loaded.shape[0]:
+    if row == 0 or 8 * row + 8 > loaded.shape[0] or bases[row] < 0 or (nout and bases[row] + BRICK_VOXELS > nout):
         return _fail(err, POINTERS, r, b, 0, 0)             # a pool without this brick's row (the caller's)
     bad = _brick_mask(buf, c, n, shape, row, loaded, mask, version == 1 and c <= V1_LIST_MAX)
     if bad >= 0:
@@ -241,7 +304,7 @@ def _place_brick(r, b, n, c, v, q, lo_r, hi_r, pdata, dens, nrm, gm, shape, buf,
             return _fail(err, DENSITY, r, b, d, 0)
     for w in range(8):
         loaded[8 * row + w] |= mask[w]
-    base = row * BRICK_VOXELS
+    base = bases[row]
     if out_d.shape[0]:
         for t in range(c):
             out_d[base + buf[t]] = dens[v + t]
@@ -290,6 +353,62 @@ def _brick_mask(buf, c, n, shape, row, loaded, mask, from_list):
         if loaded[8 * row + (p >> 6)] >> np.uint64(p & 63) & np.uint64(1):
             return p
     return -1
+
+
+# ---- packing a pool's rows -------------------------------------------------------------------------------------
+# How far back from the packed pool's top, in words of 64 places, a row's first fit is sought (:func:`pack_rows`):
+# on the head's bone (H1) 256 packs the rows into 1.58 places a voxel of interest (a row each: 2.45; a search of
+# the whole pool: 1.49, 15-35x the time) in about 1 ms (docs/design.md, "A packed pool").
+PACK_WINDOW = 256
+FULL_WORD = np.uint64(0xFFFFFFFFFFFFFFFF)
+
+
+def pack_rows(loaded: np.ndarray, window: int = PACK_WINDOW) -> tuple[np.ndarray, int]:
+    """Where each row of a pool goes in a packed pool whose rows share places: ``(bases, places)``, int64 per
+    row (its first place; row 0, which holds no voxel, 0) and the packed pool's length (at least a row's). Rows
+    are laid in order, each at the first place, a multiple of 64 from ``window`` words below the pool's top on,
+    where none of its loaded voxels (``loaded``: uint64 words, 8 a row, bit ``q % 64`` of word ``q // 64`` for
+    place ``q`` of the rows' layout, :meth:`isplat.runsfile.RunsFile.place`) meets another row's. A row keeps
+    its eight words' order, so the voxel at place ``p`` of row ``r`` is at ``bases[r] + p``."""
+    if loaded.dtype != np.uint64 or loaded.ndim != 1 or loaded.size % 8:
+        raise ValueError(f"loaded bits: expected uint64 words, 8 a row, got {loaded.dtype} {loaded.shape}")
+    bases = np.zeros(loaded.size // 8, dtype=np.int64)
+    top = _pack(loaded, max(int(window), 0), bases)
+    return bases, max(64 * top, BRICK_VOXELS)
+
+
+@jit
+def _pack(loaded, window, bases):
+    """:func:`pack_rows`' first fit, the pool's occupied places as words of bits; returns the words used."""
+    n = loaded.shape[0] // 8
+    occ = np.zeros(8 * n + 8, dtype=np.uint64)
+    first = 0                   # the first word with a free place
+    top = 0
+    for r in range(1, n):
+        f0 = 0
+        while f0 < 8 and loaded[8 * r + f0] == 0:
+            f0 += 1
+        if f0 == 8:
+            continue
+        d = max(first - f0, top - window, 0)
+        while not _fits(occ, loaded, r, d, f0):
+            d += 1
+        for u in range(f0, 8):
+            occ[d + u] |= loaded[8 * r + u]
+        bases[r] = 64 * d
+        top = max(top, d + 8)
+        while occ[first] == FULL_WORD:
+            first += 1
+    return top
+
+
+@leaf
+def _fits(occ, loaded, r, d, f0):
+    """Whether row ``r``'s words from ``f0`` on, laid from word ``d``, meet no occupied place."""
+    for u in range(f0, 8):
+        if occ[d + u] & loaded[8 * r + u]:
+            return False
+    return True
 
 
 def _mask_name(m: int) -> str:

@@ -35,6 +35,8 @@ log = logging.getLogger(__name__)
 _EMPTY_U8 = np.zeros(0, dtype=np.uint8)
 _EMPTY_U16 = np.zeros(0, dtype=np.uint16)
 _EMPTY_U32 = np.zeros(0, dtype=np.uint32)
+_EMPTY_U64 = np.zeros(0, dtype=np.uint64)
+_EMPTY_I64 = np.zeros(0, dtype=np.int64)
 GATHER_SLAB = 8      # k-slices read at a time when gathering channel values
 MAX_IN_SLICE = 65535  # in-slice coordinates are uint16
 
@@ -155,7 +157,9 @@ class AxisSelection:
     """The selected voxels of one index axis, in traversal order: slices, regions, blocks, cells (see
     :mod:`isplat.splat.select`), and their gathered channel values (empty arrays for channels the scene does
     not use). A voxel costs 2 bytes (its square in its cell, its density) plus its channel values, and
-    2 bytes per cell and 17 per block of 16 x 16 voxels."""
+    2 bytes per cell and 17 per block of 16 x 16 voxels. A post-classified composite selection holds no
+    ``offset`` and ``density`` (empty): its frames sample the channels at the cells' quads, and its voxels are
+    counted by ``block_voxel``."""
 
     axis: str
     n_slices: int
@@ -176,7 +180,7 @@ class AxisSelection:
 
     @property
     def n_voxels(self) -> int:
-        return int(self.offset.shape[0])
+        return int(self.block_voxel[-1]) if self.block_voxel.size else int(self.offset.shape[0])
 
     def voxels(self) -> IndexedVoxels:
         """The arrays as the frame kernel takes them."""
@@ -208,7 +212,10 @@ class WholeChannels:
     (post's bricks from a format 6 file), a pool: the channels hold only the bricks read, one row of
     ``POOL_EDGE``^3 voxels each (row 0 zeros), and ``table`` (uint32 per brick of the volume's grid, C order)
     gives each brick's row, 0 for a brick not read (isplat.grid.flat_offsets: brick-major); the sampler reads
-    through :meth:`deltas`, made from it when a frame first asks."""
+    through :meth:`value_deltas`, made from it when a frame first asks. A packed pool (the range runs' reader,
+    isplat.runsplace.pack_rows): the rows share places, row ``r``'s place ``p`` at ``bases[r] + p``, and
+    ``loaded`` (uint64, 8 words a row, the rows' layout) says which of a row's places it holds; post's bits of
+    the quads held keep the rows' layout (isplat.splat.post._row_place)."""
 
     density: np.ndarray
     gradient_magnitude: np.ndarray
@@ -216,6 +223,8 @@ class WholeChannels:
     held: int = -1          # bricks read (post, version 5): the bytes of the memory pages they filled; -1: nbytes
     table: np.ndarray = field(default_factory=lambda: _EMPTY_U32)
     shape: tuple = ()       # the volume's (k, j, i), for a pool
+    bases: np.ndarray = field(default_factory=lambda: _EMPTY_I64)      # a packed pool: each row's first place
+    loaded: np.ndarray = field(default_factory=lambda: _EMPTY_U64)     # a packed pool: its rows' loaded bits
     _flat: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -227,8 +236,8 @@ class WholeChannels:
 
     def held_bytes(self) -> int:
         if self.pooled:
-            return int(sum(a.nbytes for a in self.arrays()) + self.table.nbytes + sum(
-                a.nbytes for a in self._flat.values()))
+            return int(sum(a.nbytes for a in self.arrays()) + self.table.nbytes + self.bases.nbytes
+                       + self.loaded.nbytes + sum(a.nbytes for a in self._flat.values()))
         return self.held if self.held >= 0 else int(sum(a.nbytes for a in self.arrays()))
 
     def deltas(self) -> np.ndarray:
@@ -240,6 +249,21 @@ class WholeChannels:
             self._flat["delta"] = ((self.table.astype(np.int64) - n) << grid.POOL_SHIFT).view(np.uint64)
         return self._flat["delta"]
 
+    def value_deltas(self) -> np.ndarray:
+        """:meth:`deltas` of the channels' places: the same for rows laid one after the other; a packed pool's
+        ``bases[row] - (brick << POOL_SHIFT)`` (modulo 2^64; a brick not in the pool: ``bases[0]`` = 0, so its
+        places fall in the pool's first 512, which no frame reads: its quads are not held)."""
+        if not self.bases.size:
+            return self.deltas()
+        if "value_delta" not in self._flat:
+            n = np.arange(self.table.size, dtype=np.int64)
+            self._flat["value_delta"] = (self.bases[self.table] - (n << grid.POOL_SHIFT)).view(np.uint64)
+        return self._flat["value_delta"]
+
+    @property
+    def _packing(self):
+        return (self.bases, self.loaded) if self.bases.size else None
+
     def flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The channels flat ``[k, j, i]``: themselves, or a pool's bricks placed into zeroed whole-shape arrays
         (made once: ``isplat stats``' footprint and tests; the frames read the pool, MIP whole channels)."""
@@ -247,23 +271,31 @@ class WholeChannels:
             return self.density, self.gradient_magnitude, self.normal
         if "d" not in self._flat:
             for name, a in zip(("d", "g", "n"), self.arrays()):
-                self._flat[name] = _unpool(a, self.table, self.shape) if a.size else a
+                self._flat[name] = _unpool(a, self.table, self.shape, self._packing) if a.size else a
         return self._flat["d"], self._flat["g"], self._flat["n"]
 
 
-def _unpool(pool: np.ndarray, table: np.ndarray, shape) -> np.ndarray:
+def _unpool(pool: np.ndarray, table: np.ndarray, shape, packing=None) -> np.ndarray:
     """The whole-shape channel ``[k, j, i]`` (flat) of a pool's rows (zeros where no brick was read)."""
-    return np.ascontiguousarray(_unpool_box(pool, table, shape, [(0, int(n)) for n in shape])).reshape(-1)
+    return np.ascontiguousarray(_unpool_box(pool, table, shape, [(0, int(n)) for n in shape], packing)).reshape(-1)
 
 
-def _unpool_box(pool: np.ndarray, table: np.ndarray, shape, box) -> np.ndarray:
+def _unpool_box(pool: np.ndarray, table: np.ndarray, shape, box, packing=None) -> np.ndarray:
     """The box ``[k0:k1, j0:j1, i0:i1]`` (``box``: a (lo, hi) per dimension) of a pool's channel (zeros where no
-    brick was read): only the bricks that meet it are gathered."""
+    brick was read): only the bricks that meet it are gathered. ``packing``: a packed pool's ``(bases, loaded)``
+    (:class:`WholeChannels`), its rows' places not loaded zero."""
     e = grid.POOL_EDGE
     g = [-(-int(n) // e) for n in shape]
     cut = tuple(slice(lo // e, -(-hi // e)) for lo, hi in box)
     t = table.reshape(g)[cut]
-    bricks = pool.reshape(-1, e, e, e)[t]
+    if packing is None:
+        bricks = pool.reshape(-1, e, e, e)[t]
+    else:
+        bases, loaded = packing
+        rows = t.reshape(-1).astype(np.int64)
+        bits = np.unpackbits(loaded.view(np.uint8), bitorder="little").reshape(-1, e ** 3)[rows].astype(bool)
+        vals = pool[bases[rows][:, None] + np.arange(e ** 3)]
+        bricks = np.where(bits, vals, 0).astype(pool.dtype).reshape(*t.shape, e, e, e)
     full = bricks.transpose(0, 3, 1, 4, 2, 5).reshape([n * e for n in t.shape])
     return full[tuple(slice(lo - c.start * e, hi - c.start * e) for (lo, hi), c in zip(box, cut))]
 
@@ -273,8 +305,9 @@ class _PoolVolume:
     unpooled a few planes at a time as it is sliced along k: what isplat.stats.quad_footprint_per_slice reads, so
     the footprint is counted without the whole volume in memory (1 GiB a channel at 1024^3)."""
 
-    def __init__(self, pool, table, shape, box):
+    def __init__(self, pool, table, shape, box, packing=None):
         self._args, self.box = (pool, table, tuple(int(n) for n in shape)), [tuple(map(int, b)) for b in box]
+        self._packing = packing
         self.shape = tuple(b - a for a, b in self.box)
 
     def __getitem__(self, ks: slice) -> np.ndarray:
@@ -282,7 +315,7 @@ class _PoolVolume:
         if step != 1:
             raise ValueError("a pool volume is read in planes k0:k1")
         a = self.box[0][0]
-        return _unpool_box(*self._args, [(a + k0, a + max(k0, k1)), *self.box[1:]])
+        return _unpool_box(*self._args, [(a + k0, a + max(k0, k1)), *self.box[1:]], self._packing)
 
 
 @dataclass(frozen=True, eq=False)
@@ -351,7 +384,7 @@ class Selection:
             # prefetch (post._prefetch_square), so no voxels per prefetch
             oa, ob = np.append(oa, oa[-1]), np.append(ob, ob[-1])
             return WholeVolume(w.density, w.gradient_magnitude, w.normal, np.append(steps, base), n_a, n_b,
-                               (oa, ob, oc, 0), w.deltas())
+                               (oa, ob, oc, 0), w.value_deltas())
         sa, sb = int(steps[0]), int(steps[1])       # strides: the kernel multiplies (post._at)
         return WholeVolume(*w.flat(), np.append(steps, base), n_a, n_b, (sa, sb, oc, max(1, 32 // sa)), None)
 
@@ -456,6 +489,9 @@ def _select(sel: Selection, loaded: dict, gather, source: str, intervals=None) -
     from .splat.select import select_voxels
 
     channels = [] if sel.post else [ch for ch in sel.report.channels if ch != "density"]
+    # post's composite frames read the cells alone (isplat.splat.post: the quads of the cells' voxels, sampled
+    # from the channels), not each voxel's square and density: 2 bytes a voxel of interest not held
+    cells_only = sel.post and intervals is None and getattr(sel.request, "mode", "") == "composite"
     ivs = (sel.luts.intervals if intervals is None else np.asarray(intervals)).astype(np.int64).reshape(-1, 2)
     picked = {}
     for ax, la in loaded.items():
@@ -474,6 +510,8 @@ def _select(sel: Selection, loaded: dict, gather, source: str, intervals=None) -
         gm = g["gradient_magnitude"][src] if "gradient_magnitude" in g else _EMPTY_U8
         nrm = g["normal"][src] if "normal" in g else _EMPTY_U16
         la = loaded[ax]
+        if cells_only:
+            hier[-2:] = _EMPTY_U8, _EMPTY_U8
         sel.axes[ax] = AxisSelection(ax, la.n_slices, la.n_a, la.n_b, *hier, gm, nrm)
     # the decoded blocks have served: frames need only the selection and the gathered values
     sel.report.index_decoded_bytes = int(sum(
@@ -792,8 +830,9 @@ def post_runs_bytes(request, aug) -> int | None:
     """At most the bytes a one-pass post frame from the runs file holds while it loads (isplat.slabs counts it
     before the load), from the runs file's pointer tables: the runs the intervals meet, read (their voxels'
     channels, positions and brick rows) and placed (a pool row for each brick they hold voxels of, with the loaded
-    bits and each axis' quad bits: their ``brick_number`` rows read to count them), and the brick table with the
-    sampler's deltas; None when the frame would not read the runs file (:func:`_runs_file`)."""
+    bits and each axis' quad bits: their ``brick_number`` rows read to count them; the pool packed, its rows'
+    places at most), and the brick table with the sampler's deltas; None when the frame would not read the runs
+    file (:func:`_runs_file`)."""
     from .runsfile import open_runs
     from .stats import bytes_per_voxel
 
@@ -810,7 +849,7 @@ def post_runs_bytes(request, aug) -> int | None:
     chan = bytes_per_voxel({"density", *sel.report.channels})
     bricks = int(np.prod([-(-int(n) // grid.POOL_EDGE) for n in sel.shape]))
     voxels = rows * grid.POOL_EDGE ** 3
-    return nv * chan + npos + 6 * nb + voxels * chan + voxels // 8 * (1 + len(request.axes)) + 12 * bricks
+    return nv * chan + npos + 6 * nb + voxels * chan + voxels // 8 * (1 + len(request.axes)) + 8 * rows + 12 * bricks
 
 
 def _start_post_runs(sel: Selection, aug, path):
@@ -856,19 +895,19 @@ def _in_daemon_thread(fn, *args):
 
 def _place_runs(got, request, aug_path):
     """The runs ``got`` (isplat.runsfile.RunsFile.fetch) checked and placed into a pool (:class:`WholeChannels`
-    with a brick table: a row of 8^3 voxels for each brick the runs read, zeros where no run's voxel lies), and
-    per axis read the bits of the quads whose four corners they hold, in the pool's layout
-    (isplat.splat.post.held_pool), which the sampler tests (a quad with a corner not held is transparent in
-    truth). Returns (whole, bits, fetched)."""
+    with a brick table: a row of 8^3 places for each brick the runs read, the rows packed so that they share
+    places, isplat.runsfile.RunsFile.place), and per axis read the bits of the quads whose four corners they
+    hold, in the rows' layout (isplat.splat.post.held_pool), which the sampler tests (a quad with a corner not
+    held is transparent in truth; its places may hold another row's voxels). Returns (whole, bits, fetched)."""
     from .runsfile import RunsFile, refusal
     from .splat.post import held_pool
 
     with refusal(got.path, aug_path, request.index):
         placed = RunsFile.place(got)
-    out = dict(zip(("density", "normal", "gradient_magnitude"), placed.placed))
     bits = {ax: held_pool(placed.loaded, placed.table, got.shape, ax) for ax in sorted(request.axes)}
+    out = dict(zip(("density", "normal", "gradient_magnitude"), placed.placed))
     whole = WholeChannels(out["density"], out.get("gradient_magnitude", _EMPTY_U8), out.get("normal", _EMPTY_U16),
-                          table=placed.table, shape=got.shape)
+                          table=placed.table, shape=got.shape, bases=placed.bases, loaded=placed.loaded)
     return whole, bits, got
 
 
@@ -1062,7 +1101,7 @@ def _footprint(sel: Selection):
             box = [(0, int(n)) for n in sel.shape]
             if sel.slab is not None:
                 box[2 - grid.AXES.index(sel.slab[0])] = sel.slab[1:]
-            vol = _PoolVolume(density, w.table, sel.shape, box)
+            vol = _PoolVolume(density, w.table, sel.shape, box, w._packing)
         else:
             vol = density.reshape(shape)
         per = {ax: int(quad_footprint_per_slice(vol, intervals, ax).sum()) for ax in axes}

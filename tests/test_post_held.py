@@ -120,8 +120,15 @@ def _render_held(sc, density, held, layout="pool"):
     if layout == "whole":
         whole, bits = WholeChannels(d, gm, nrm), {ax: P.held_quads(held, sel.shape, ax) for ax in sel.request.axes}
     else:
-        whole, words = pool_of((d, gm, nrm), held, extra=0.2)
+        whole, words = pool_of((d, gm, nrm), held, extra=0.2, zero=layout == "pool")
         bits = {ax: P.held_pool(words, whole.table, sel.shape, ax) for ax in sel.request.axes}
+        if layout == "packed":          # the rows sharing places, as the runs reader packs them (a voxel not
+            from test_pool_pack import packed_channel                  # loaded: another row's, or zero)
+            from isplat.runsplace import pack_rows
+            bases, n = pack_rows(words)
+            whole = replace(whole, density=packed_channel(whole.density, words, bases, n),
+                            gradient_magnitude=packed_channel(whole.gradient_magnitude, words, bases, n),
+                            normal=packed_channel(whole.normal, words, bases, n), bases=bases, loaded=words)
     r.selection = replace(sel, whole=whole, held=bits)
     return r.render_view(0)[0], r
 
@@ -129,7 +136,7 @@ def _render_held(sc, density, held, layout="pool"):
 @pytest.mark.parametrize("cam", ["azimuth = 0\nelevation = 0", "azimuth = 90\nelevation = 0",
                                  "azimuth = 0\nelevation = 90", "azimuth = 33\nelevation = 21"])
 @pytest.mark.parametrize("seed", [1, 2])
-@pytest.mark.parametrize("layout", ["pool", "whole"])
+@pytest.mark.parametrize("layout", ["pool", "whole", "packed"])
 def test_only_the_needed_voxels_loaded_give_the_same_image(tmp_path, make_scene, cam, seed, layout):
     shape = (12, 13, 11)
     dens = sparse_volume(seed, shape)
@@ -162,8 +169,9 @@ def test_without_the_test_the_zeros_show(tmp_path, make_scene):
 
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10 ** 6), az=st.floats(0, 360), el=st.floats(-80, 80), zoom=st.floats(0.5, 3.0),
-       proj=st.sampled_from(["orthographic", "perspective"]), unit=st.sampled_from([4, 8, 16]))
-def test_property_only_the_needed_voxels_loaded(tmp_path_factory, seed, az, el, zoom, proj, unit):
+       proj=st.sampled_from(["orthographic", "perspective"]), unit=st.sampled_from([4, 8, 16]),
+       layout=st.sampled_from(["pool", "packed"]))
+def test_property_only_the_needed_voxels_loaded(tmp_path_factory, seed, az, el, zoom, proj, unit, layout):
     from conftest import scene_text
     from isplat.scene import parse_scene
     tmp = tmp_path_factory.mktemp("held")
@@ -179,7 +187,7 @@ def test_property_only_the_needed_voxels_loaded(tmp_path_factory, seed, az, el, 
     try:
         r0 = Renderer(sc)
         full = r0.render_view(0)[0]
-        img, _ = _render_held(sc, dens, needed_by_range(dens, r0.report.intervals))
+        img, _ = _render_held(sc, dens, needed_by_range(dens, r0.report.intervals), layout)
     finally:
         P.scan_unit = old
     assert np.array_equal(img, full)

@@ -150,10 +150,11 @@ the squares scanned together (:func:`scan_unit`); ``cls`` :data:`PostClassify`; 
 :data:`isplat.splat.traverse.SliceGeometry`; ``reach`` the tent's reach in pixels (:func:`reach`), which the
 occlusion tests and the bins take; ``stride`` ``render.slice_stride``: only the slices whose index is a multiple of
 it are sampled (:func:`_slice`; ``cls`` and ``geo`` corrected for the path of that many slices); ``held`` None when
-the channels hold every voxel the quads read (whole channels, bricks), else the bits of :func:`held_quads`: a
-reader of range runs (isplat.selection, formats/runs.md) loads only the voxels whose neighbourhood can meet an
-interval and zero-fills the rest, so a quad with a corner not loaded is skipped (its field is transparent in
-truth, the zeros would interpolate to wrong densities; :func:`_corners_held`). A thread's scratch
+the channels hold every voxel the quads read (whole channels, bricks), else ``(bits, table)``, the bits of
+:func:`held_quads` (or :func:`held_pool`, with a pool's brick table as ``table``): a reader of range runs
+(isplat.selection, formats/runs.md) loads only the voxels whose neighbourhood can meet an interval, so a quad
+with a corner not loaded is skipped (its field is transparent in truth; the places of the voxels not loaded
+hold zeros, or another row's voxels in a packed pool; :func:`_corners_held`). A thread's scratch
 is its list of a slice's visible cells (int64[C, 4])."""
 
 
@@ -358,6 +359,8 @@ def plan(tables):
     lists = [np.empty((n_cells, 4), np.int64) for _ in range(tables.threads)]
     stride = int(tables.view.render.slice_stride)
     held = sel.held_quads(tables.axis)
+    if held is not None:        # the bits, and a pool's brick table: the bits keep the rows' layout (_row_place)
+        held = (held, sel.whole.table if sel.whole.pooled else None)
     if held is not None and cls.between is not None:
         raise IsplatError("a selection holding only some voxels (range runs) cannot take the cubic between thick "
                           "slices, whose taps reach beyond the quad")
@@ -671,7 +674,7 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
                     continue                # a quad no voxel of interest touches
             if geo.cuts.shape[0] > 0 and cut_away(u, v, geo.cuts, cs):
                 continue
-            if not _corners_held(held, _phys(tab, np.uint64(cbase + _at(oa, qa) + _at(ob, qb)))):
+            if not _corners_held(held, np.uint64(cbase + _at(oa, qa) + _at(ob, qb))):
                 continue                # a corner not loaded: the quad is transparent in truth
             fu, fv = max(u - qa, 0.0), max(v - qb, 0.0)
             done = 0            # a shown label's sample in front of the density's (isplat.splat.labels)
@@ -690,15 +693,17 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
 
 
 def _corners_held(held, i00):
-    """Whether the four corners of the quad whose first corner is at ``i00`` in the channels (a pool's place,
-    :func:`_phys`) are loaded: its bit in ``held`` (:func:`held_pool`, or :func:`held_quads` for whole-shape
-    channels; one load of 1/8 byte a voxel, tested on every quad sampled). Compiled, the choice is the type's (the
-    overload below): with ``held`` None (every voxel loaded) the test is the constant True, and the frames' kernel
-    is the one without it, bit for bit as before."""
+    """Whether the four corners of the quad whose first corner is the voxel of flat index ``i00`` (brick-major
+    for a pool) are loaded: its bit in ``held = (bits, table)``, at the voxel's place in the bits' layout
+    (:func:`_row_place`; ``table`` a pool's brick table, None for whole-shape channels); the bits
+    :func:`held_pool`'s (the rows' layout, also when the channels' rows are packed) or :func:`held_quads`'; one
+    load of 1/8 byte a voxel, tested on every quad sampled. Compiled, the choice is the type's (the overload
+    below): with ``held`` None (every voxel loaded) the test is the constant True, and the frames' kernel is the
+    one without it, bit for bit as before."""
     if held is None:
         return True
-    i = np.uint64(i00)
-    return (held[i >> np.uint64(3)] >> (i & np.uint64(7))) & np.uint8(1) != 0
+    i = _row_place(held[1], np.uint64(i00))
+    return (held[0][i >> np.uint64(3)] >> (i & np.uint64(7))) & np.uint8(1) != 0
 
 
 @overload(_corners_held, inline="always")
@@ -707,9 +712,27 @@ def _typed_corners_held(held, i00):
         return lambda held, i00: True
 
     def test(held, i00):
-        i = np.uint64(i00)
-        return (held[i >> np.uint64(3)] >> (i & np.uint64(7))) & np.uint8(1) != 0
+        i = _row_place(held[1], np.uint64(i00))
+        return (held[0][i >> np.uint64(3)] >> (i & np.uint64(7))) & np.uint8(1) != 0
     return test
+
+
+def _row_place(table, i):
+    """The place of the voxel of flat index ``i`` (uint64) in a pool's rows' layout: its brick's row
+    (``table``, uint32 per brick, isplat.selection.WholeChannels) times 512 plus its place in the brick; ``i``
+    itself without a table (None, whole-shape channels). (A table rather than :meth:`deltas`: 4 bytes a brick
+    held, not 8, for one shift and an or more.)"""
+    if table is None:
+        return i
+    return np.uint64(int(table[int(i) >> POOL_SHIFT]) << POOL_SHIFT | (int(i) & (POOL_EDGE ** 3 - 1)))
+
+
+@overload(_row_place, inline="always")
+def _typed_row_place(table, i):
+    if isinstance(table, types.NoneType):
+        return lambda table, i: i
+    return lambda table, i: (np.uint64(table[i >> np.uint64(POOL_SHIFT)]) << np.uint64(POOL_SHIFT)) | (
+        i & np.uint64(POOL_EDGE ** 3 - 1))
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf

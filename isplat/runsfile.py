@@ -300,10 +300,12 @@ class RunsFile:
         pos = np.empty(0 if place else sum(int(vp[b] - vp[a]) for a, b in got.spans), dtype=np.int64)
         loaded = np.zeros(8 * rows, dtype=np.uint64)
         bases, n = np.arange(rows, dtype=np.int64) * runsplace.BRICK_VOXELS, 0
+        checked = [np.zeros((3, 0), dtype=np.int64)] * len(got.spans)
         if place:
             for s, (a, b) in enumerate(got.spans):
-                _check(got, a, b, runsplace.mask_runs(*_span_args(got, a, b, got.read[s]), np.asarray(
-                    got.shape, dtype=np.int64), table, loaded, got.version))
+                err, checked[s] = runsplace.mask_runs(*_span_args(got, a, b, got.read[s]), np.asarray(
+                    got.shape, dtype=np.int64), table, loaded, got.version)
+                _check(got, a, b, err)
             bases, n = runsplace.pack_rows(loaded)
             loaded[:] = 0                                   # (the placing's own: a voxel placed twice refused)
         outs = tuple(np.zeros(n if place and (name == "density" or name in got.channels) else 0, dtype=dt)
@@ -311,7 +313,7 @@ class RunsFile:
         at = 0
         for s, (a, b) in enumerate(got.spans):
             m = int(vp[b] - vp[a])
-            _place(got, a, b, got.read[s], table, loaded, bases, pos[at:at + m], outs)
+            _place(got, a, b, got.read[s], table, loaded, bases, pos[at:at + m], outs, checked[s])
             at += m
         voxels = int(np.prod(got.shape, dtype=np.int64))
         if got.runs.all() and at != voxels:
@@ -350,15 +352,16 @@ def _span_args(got, a: int, b: int, g: dict) -> tuple:
     return bp, pp, vp, g["brick_number"], g["brick_voxel_count"], g["positions"]
 
 
-def _place(got, a: int, b: int, g: dict, table, loaded, bases, pos, outs) -> None:
-    """Runs ``a .. b - 1`` read (``g``) checked and placed (:func:`isplat.runsplace.place_runs`)."""
+def _place(got, a: int, b: int, g: dict, table, loaded, bases, pos, outs, checked) -> None:
+    """Runs ``a .. b - 1`` read (``g``) checked (``checked``: their bricks' table from the masks' pass, or empty)
+    and placed (:func:`isplat.runsplace.place_runs`)."""
     from . import runsplace
 
     bp, pp, vp, num, cnt, pdata = _span_args(got, a, b, g)
     lo_first, hi_last = (np.ascontiguousarray(x[a:b]) for x in got.codes)
     _check(got, a, b, runsplace.place_runs(bp, pp, vp, lo_first, hi_last, num, cnt, pdata, g["density"], g["normal"],
                                            g["gradient_magnitude"], np.asarray(got.shape, dtype=np.int64), table,
-                                           loaded, bases, pos, *outs, got.version))
+                                           loaded, bases, pos, *outs, got.version, checked))
 
 
 def _check(got, a: int, b: int, err) -> None:

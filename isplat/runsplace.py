@@ -174,23 +174,24 @@ def mask_runs(bp, pp, vp, num, cnt, pdata, shape, table, loaded, version):
     :func:`pack_rows` packs the rows by before :func:`place_runs` places the voxels at the packed rows' bases. A
     brick's own faults (its places, a voxel outside the volume or in two runs, a density) are
     :func:`place_runs`' to find (its masks may set such bits here; the file is then refused there). Returns
-    :func:`place_runs`' error record."""
+    :func:`place_runs`' error record and the checked bricks' table (:func:`_bricks_of`; :func:`place_runs` takes
+    it for the same arrays instead of checking them again)."""
     err = np.zeros(5, dtype=np.int64)
     gj, gi = (shape[1] + 7) // 8, (shape[2] + 7) // 8
     if table.shape[0] != (shape[0] + 7) // 8 * gj * gi or loaded.shape[0] % 8 \
             or pp[pp.shape[0] - 1] > pdata.shape[0] or cnt.shape[0] < num.shape[0]:
         _fail(err, POINTERS, 0, 0, 0, 0)
-        return err
+        return err, np.zeros((3, 0), dtype=np.int64)
     at = _bricks_of(bp, pp, vp, num, cnt, pdata, table.shape[0], version, err)
     if err[0]:
-        return err
+        return err, at
     buf = np.empty(BRICK_VOXELS + 8, dtype=np.int64)
     mask = np.empty(8, dtype=np.uint64)
     for g in range(num.shape[0]):
         row = np.int64(table[np.int64(num[g])])
         if row == 0 or 8 * row + 8 > loaded.shape[0]:
             _fail(err, POINTERS, at[0, g], g - bp[at[0, g]], 0, 0)     # a pool without this brick's row
-            return err
+            return err, at
         if version != 1:
             _mask_words(pdata, at[2, g], mask)
         else:
@@ -204,7 +205,7 @@ def mask_runs(bp, pp, vp, num, cnt, pdata, shape, table, loaded, version):
                     mask[buf[t] >> 6] |= np.uint64(1) << np.uint64(buf[t] & 63)
         for w in range(8):
             loaded[8 * row + w] |= mask[w]
-    return err
+    return err, at
 
 
 @leaf
@@ -228,7 +229,7 @@ def _mask_words(pdata, q, mask):
 
 @jit
 def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table, loaded, bases, pos, out_d, out_n,
-               out_g, version):
+               out_g, version, checked):
     """Runs ``0 .. len(bp) - 2`` of a span (``bp``, ``pp``, ``vp``: int64 pointers into this span's brick, position
     byte and voxel arrays; ``lo``, ``hi``: each run's least and greatest code) placed into a pool: ``table``
     (each brick's row, isplat.selection.WholeChannels; the caller gives every brick of the runs one) and
@@ -238,7 +239,8 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table,
     gradient magnitude go to ``out_d[q]``, ``out_n[q]``, ``out_g[q]`` (each skipped when of size 0; ``nrm``,
     ``gm`` of the span's size when their outputs are not), and its flat position ``i + n_i * (j + n_j * k)`` to
     ``pos[v]`` (unless ``pos`` is empty). ``shape``: int64 (n_k, n_j, n_i). ``version``: the file's format
-    version (the positions' forms, formats/runs.md §4).
+    version (the positions' forms, formats/runs.md §4). ``checked``: :func:`mask_runs`' table of these same
+    arrays' bricks, or int64[3, 0] to check them here (:func:`_bricks_of`).
     Returns int64[5]: (0, ...) when every run checked out, else (code, run, brick of the run, x, y) of a fault
     (:func:`message`). Run after run, a brick's checks a word of 64 voxels at a time (:func:`_brick_mask`); the
     voxel loops then only copy. Placing on two threads measured no faster on this 2-core machine with another
@@ -255,7 +257,9 @@ def place_runs(bp, pp, vp, lo, hi, num, cnt, pdata, dens, nrm, gm, shape, table,
             or (out_g.shape[0] and gm.shape[0] < dens.shape[0]):
         _fail(err, POINTERS, 0, 0, 0, 0)
         return err
-    at = _bricks_of(bp, pp, vp, num, cnt, pdata, table.shape[0], version, err)
+    at = checked
+    if checked.shape[1] != num.shape[0] or num.shape[0] == 0:
+        at = _bricks_of(bp, pp, vp, num, cnt, pdata, table.shape[0], version, err)
     if err[0]:
         return err
     buf = np.empty(BRICK_VOXELS + 8, dtype=np.int64)         # (_mask_places writes eight past the last place)

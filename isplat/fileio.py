@@ -242,8 +242,9 @@ def open_hdf5(path, what: str, format_name: str, version: int, rebuild=None, old
         if int(ver_arr) != version and int(ver_arr) not in older:
             old = f"; files of version {int(ver_arr)} lack this version's checksums, rebuild it: {rebuild(p, f)}" \
                 if 0 < int(ver_arr) < version and rebuild else ""
-            raise IsplatError(f"{p}: attribute 'format_version' is {int(ver_arr)}, this isplat reads version "
-                              f"{version}{old}")
+            reads = ", ".join(str(v) for v in sorted({version, *older}))
+            raise IsplatError(f"{p}: attribute 'format_version' is {int(ver_arr)}, this isplat reads version"
+                              f"{'s' if older else ''} {reads}{old}")
         with hdf5_errors(p, "root attributes"):
             check_string_attrs(p, f.attrs, ("format",))
         if superblock < 2:

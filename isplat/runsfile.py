@@ -21,7 +21,8 @@ from .fileio import (ReadAttrs, ReadCounter, attr_array, attr_string, check_hash
 
 FORMAT_NAME = "isplat-runs"
 FORMAT_VERSION = 2
-OLDER_VERSIONS = (1,)       # read too: version 1's positions (lists, 64-byte bitmaps above 32 voxels; formats/runs.md §7)
+# read too: version 1's positions (lists, 64-byte bitmaps above 32 voxels; formats/runs.md §7)
+OLDER_VERSIONS = (1,)
 KEY = "union"
 PTRS = ("run_voxel_ptr", "run_brick_ptr", "run_position_ptr")
 DTYPES = {
@@ -219,13 +220,13 @@ class Fetched(NamedTuple):
     channels: tuple
     bytes_read: int
     pages_read: int
-    version: int = FORMAT_VERSION
+    version: int
 
 
 class RunsFile:
     """An open, validated runs file (:func:`open_runs`); :meth:`read` reads runs; close it (or use ``with``)."""
 
-    def __init__(self, path, f, counter, shape, sha, cut, ptrs, verifier, version=FORMAT_VERSION):
+    def __init__(self, path, f, counter, shape, sha, cut, ptrs, verifier, version):
         self.path, self._f, self.counter = path, f, counter
         self.shape, self.density_sha256, self.cut = shape, sha, cut
         self.ptrs, self.verifier, self.version = ptrs, verifier, version
@@ -480,7 +481,7 @@ def _check_datasets(p, f, shape, n_run: int) -> dict:
     return dsets
 
 
-def _check_ptrs(p, dsets: dict, ptrs, cut: R.Cut, version: int = FORMAT_VERSION) -> None:
+def _check_ptrs(p, dsets: dict, ptrs, cut: R.Cut, version: int) -> None:
     """Each pointer table: from 0, non-decreasing, ending at its datasets' length (so every run's counts and
     offsets are non-negative, in bounds, not overlapping, summing to the length); a run that cannot hold a voxel
     (lo bin above hi bin) empty; a run's bricks at least one and at most its voxels, 512 voxels a brick at most;

@@ -93,10 +93,10 @@ def _check_run(r, bp, pp, vp, num, cnt, pdata, n_bricks, version, at, err):
 def _places(pdata, q, c, buf, mask, version):
     """Decode the places of a brick of ``c`` voxels whose positions start at byte ``q`` into ``buf[:c]``
     (increasing) and, but for a list, into the eight words of bits ``mask`` (:func:`_brick_mask`): its masks
-    (:func:`_mask_places`); version 1: a bitmap (more than V1_LIST_MAX voxels) or a list of uint16. Returns 0, or -(the places found) for masks or a bitmap whose voxels are not ``c`` (the count
-    found so far when it is above), -(1 + PLACE_FAULT + place) for a list's place not below 512 or not above the
-    one before it, -(1 + MASK_FAULT + m) for a plane (m = dk) or row (m = 8 + dk * 8 + dj) set without a bit
-    below it."""
+    (:func:`_mask_places`); version 1: a bitmap (more than V1_LIST_MAX voxels) or a list of uint16. Returns 0,
+    or -(the places found) for masks or a bitmap whose voxels are not ``c`` (the count found so far when it is
+    above), -(1 + PLACE_FAULT + place) for a list's place not below 512 or not above the one before it,
+    -(1 + MASK_FAULT + m) for a plane (m = dk) or row (m = 8 + dk * 8 + dj) set without a bit below it."""
     if version != 1:
         return _mask_places(pdata, q, c, buf, mask)
     if c > V1_LIST_MAX:
@@ -420,7 +420,7 @@ def _mask_name(m: int) -> str:
     return f"plane {m}" if m < 8 else f"row ({(m - 8) // 8}, {(m - 8) % 8}) (dk, dj)"
 
 
-def message(err, first_run: int, shape, lo, hi, version: int = 2) -> tuple[str, str]:
+def message(err, first_run: int, shape, lo, hi, version: int) -> tuple[str, str]:
     """``(dataset, text)`` (text from its separator on) of :func:`place_runs`' error record ``err`` (runs numbered
     from ``first_run``; ``lo``, ``hi`` the span's runs' codes): the dataset at fault and what is wrong, for one
     line of IsplatError."""

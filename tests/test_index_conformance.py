@@ -257,6 +257,7 @@ def test_old_versions_are_refused_with_the_rebuild_command(name, version):
     """Files of versions 2 and 3 (no chunk hashes) are refused, naming the command that rebuilds them."""
     from isplat.errors import IsplatError
 
-    with pytest.raises(IsplatError, match=rf"'format_version' is {version}, this isplat reads version 7; files of "
-                                          rf"version {version} lack this version's checksums, rebuild it: isplat index"):
+    with pytest.raises(IsplatError, match=rf"'format_version' is {version}, this isplat reads versions 4, 5, 6, 7; "
+                                          rf"files of version {version} lack this version's checksums, rebuild it: "
+                                          r"isplat index"):
         open_index(EXAMPLES / name)

@@ -593,10 +593,8 @@ def measure(name: str, size: int, frames: int, quick: bool, load: bool = False) 
     ref, ref_s, cached = REF.reference(scene)
     r0 = Renderer(scene)
     # the knobs act per frame (View.render): one selection serves every isplat point of a classification (a
-    # shaded pre-classified frame needs its voxels' normals, which a post-classified selection leaves out)
-    sels = {"post": r0.selection}
-    if r0.selection.use_shade:
-        sels["pre"] = Renderer(peer_scene(name, size, quick, {"classification": "pre"})).selection
+    # pre-classified frame needs its voxels and their normals, which a post-classified selection leaves out)
+    sels = {"post": r0.selection, "pre": Renderer(peer_scene(name, size, quick, {"classification": "pre"})).selection}
     knobs_of = [knobs for _, knobs in ISPLAT_POINTS]
     sel_of = [sels.get(k.get("classification", "post"), r0.selection) for k in knobs_of]
     views = [views_for(peer_scene(name, size, quick, k), s)[0] for k, s in zip(knobs_of, sel_of)]

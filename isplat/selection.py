@@ -182,6 +182,12 @@ class AxisSelection:
     def n_voxels(self) -> int:
         return int(self.block_voxel[-1]) if self.block_voxel.size else int(self.offset.shape[0])
 
+    @property
+    def cells_only(self) -> bool:
+        """True when the voxels' squares and densities are not held (a post-classified composite selection):
+        pre-classified and intensity-projection frames, which read them, refuse it."""
+        return self.offset.shape[0] != self.n_voxels
+
     def voxels(self) -> IndexedVoxels:
         """The arrays as the frame kernel takes them."""
         return IndexedVoxels(*self.arrays(), self.n_a, self.n_b)
@@ -199,7 +205,10 @@ class AxisSelection:
 
     def coordinates(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every voxel's slice and in-slice coordinates ``(c, a, b)`` (int64, in traversal order): for tests and
-        tools, not for frames."""
+        tools, not for frames; refused for a selection of the cells alone (:attr:`cells_only`)."""
+        if self.cells_only:
+            raise IsplatError(f"axis {self.axis}: this selection holds the cells alone (made for a post-classified "
+                              "composite frame), not the voxels' coordinates")
         from .splat.select import expand_coordinates
 
         return expand_coordinates(self.slice_ptr, self.region_id, self.region_ptr, self.block_pos, self.block_ptr,

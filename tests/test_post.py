@@ -247,6 +247,32 @@ def test_a_post_selection_is_refused_by_the_pre_kernel_when_it_lacks_values(tmp_
         render_frame(r.selection, views_for(pre, r.selection)[0])
 
 
+def test_a_post_selection_holds_the_cells_alone_and_pre_and_mip_frames_refuse_it(tmp_path, make_scene):
+    """A post-classified composite selection holds no voxel's square and density (its frames sample the channels
+    at the cells' quads): a pre-classified frame (unshaded too) and an intensity projection, whose kernels read
+    them, are refused instead of indexing the empty arrays; the voxels are still counted."""
+    from isplat.errors import IsplatError
+    from isplat.frame import render_frame, views_for
+    shape = (5, 6, 7)
+    dens = rng_volume(1, shape)
+    aug, idx = write_volume(tmp_path, dens)
+    post = post_scene(make_scene, aug, idx, "azimuth = 10", shading="enabled = false")
+    pre = make_scene(aug, idx, transfer=TF, render='classification = "pre"')
+    r = Renderer(post)
+    ax = r.selection.axes["j"]
+    assert ax.cells_only and ax.offset.size == 0 and ax.density.size == 0
+    assert ax.n_voxels == Renderer(pre).selection.axes["j"].n_voxels == r.report.voxels_of_interest > 0
+    assert not Renderer(pre).selection.axes["j"].cells_only
+    with pytest.raises(IsplatError, match="needs the voxels of interest"):
+        render_frame(r.selection, views_for(pre, r.selection)[0])
+    mip = post_scene(make_scene, aug, idx, "azimuth = 10", shading="enabled = false", render='mode = "mip"')
+    assert not Renderer(mip).selection.axes["j"].cells_only
+    with pytest.raises(IsplatError, match="needs a selection made for it"):
+        render_frame(r.selection, views_for(mip, r.selection)[0])
+    with pytest.raises(IsplatError, match="cells alone"):
+        ax.coordinates()
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10 ** 6), levels=st.sampled_from([1, 2, 7, 256]), k=st.integers(0, 254),
        f=st.floats(0.0, 1.0))

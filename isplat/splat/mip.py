@@ -257,8 +257,9 @@ def plan(tables):
 
     sel, view = tables.sel, tables.view
     ro = view.render
-    if not sel.post or sel.whole is None:
-        raise IsplatError(f"render.mode = {ro.mode!r} needs a selection made for it (the whole density channel)")
+    if not sel.post or sel.whole is None or any(s.cells_only for s in sel.axes.values()):
+        raise IsplatError(f"render.mode = {ro.mode!r} needs a selection made for it (the whole density channel "
+                          "and the voxels of interest)")
     sign = 1.0 if ro.mode == "mip" else -1.0
     between = between_slices(view.geom.spacing, tables.axis)
     units = units_of(sel, tables.axis, sign, between[0], between[1])

@@ -78,6 +78,10 @@ def plan(tables):
     if sel.post and sel.method == "indexed" and (sel.use_shade or sel.use_gm):
         raise IsplatError("render.classification = 'pre' needs the channel values of the voxels of interest; this "
                           "selection was made for 'post' (make it with the pre-classified scene)")
+    if any(s.cells_only for s in sel.axes.values()):    # (the kernel would index the voxels' empty arrays)
+        raise IsplatError("render.classification = 'pre' needs the voxels of interest; this selection was made for "
+                          "a post-classified composite frame, which holds the cells alone (make it with the "
+                          "pre-classified scene)")
     cls = Classify(tables.atab, sel.luts.color, tables.shade, sel.use_gm, sel.use_shade)
     fp = make_footprint(tables.proj.jac, ro.footprint_sigma, ro.footprint_radius, ro.footprint_table, tables.dtype)
     reach = (float(fp.params[EX]), float(fp.params[EY]))

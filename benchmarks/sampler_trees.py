@@ -5,10 +5,11 @@ root): each PATCH (a unified diff of isplat/, paths from the repository root, e.
 benchmarks/table_layouts/A.patch) is applied with ``patch -p1`` to ``git archive REV isplat`` under
 out/bench-sampler/trees/<patch name>/, and its frames are taken in
 turn with REV's, round after round (the order reversed every other round), in worker processes of
-:mod:`benchmarks.sampler` (its data, cases and worker; one more case here, 4: the shaded chest with a coloured
-light, whose Phong table has 6 columns). Per case and patch: ns per sample of both, the median of the
-per-round ratios, in how many rounds the patch was faster and the ratios' range, and whether the images are
-bit for bit REV's (else the largest difference and the RMSE). Not part of ``python -m benchmarks all``.
+:mod:`benchmarks.sampler` (its data, cases and worker; two more cases here, 4: the shaded chest with a coloured
+light, whose Phong table has 6 columns, and 5: benchmarks/peers.py's translucent head at 256 px, unshaded, where
+isplat's default was slower than VTK). Per case and patch: ns per sample of both, the median of the per-round
+ratios, in how many rounds the patch was faster and the ratios' range, and whether the images are bit for bit
+REV's (else the largest difference and the RMSE). Not part of ``python -m benchmarks all``.
 """
 
 from __future__ import annotations
@@ -21,10 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import peers as P
 from benchmarks import sampler as S
 
 COLOURED = ("chest veil + bone, shaded, coloured light", "chest",
             [*S.CHEST_TF, "shading.light=[{direction=[-0.4, 0.6, 1.0], color=[1.0, 0.85, 0.7]}]"])
+# benchmarks/peers.py's "head translucent" case at 256 px, the one where isplat's default was slower than VTK
+HEAD_TRANSLUCENT_256 = ("head translucent, unshaded, 256 px (benchmarks/peers.py's case)", "head",
+                        [*P.UNSHADED, *P.HEAD_TRANSLUCENT, "image.width=256", "image.height=256"])
+EXTRA = [COLOURED, HEAD_TRANSLUCENT_256]
 
 
 def tree(rev: str, patch: Path) -> Path:
@@ -42,9 +48,10 @@ def main(argv=None):
     ap.add_argument("patches", nargs="+", type=Path)
     ap.add_argument("--old", default="HEAD", help="the commit the patches apply to and are measured against")
     ap.add_argument("--rounds", type=int, default=11)
-    ap.add_argument("--cases", default="0,1,2,3", help="indices of benchmarks.sampler.CASES, 4: coloured light")
+    ap.add_argument("--cases", default="0,1,2,3", help="indices of benchmarks.sampler.CASES, 4: coloured light, "
+                    "5: peers' head translucent at 256 px")
     a = ap.parse_args(argv)
-    cases = [[*S.CASES, COLOURED][int(i)] for i in a.cases.split(",")]
+    cases = [[*S.CASES, *EXTRA][int(i)] for i in a.cases.split(",")]
     old = S.old_tree(a.old)
     files = S.data(False, old)
     workers = {"old": S.Worker(old)}

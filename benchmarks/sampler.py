@@ -7,7 +7,9 @@ Issue 27's scene: the ``ct-chest`` sample made at 512 x 512 x 133 voxels, augmen
 0.703125, 2.5 mm with ``--window=-1000,2000``, a semi-transparent veil (opacity 0.03 from code 62 to 78) and
 opaque bone (opacity 1 from code 140), orthographic from -y, 512 px, unshaded and shaded; the head sample's
 bone scene (examples/head.toml), shaded; and the same chest made with 48 slices 7 mm thick, shaded, whose view
-from -y takes the cubic between slices (:data:`isplat.splat.post.THICK_RATIO`). ``render.threads = 1``.
+from -y takes the cubic between slices (:data:`isplat.splat.post.THICK_RATIO`); and benchmarks/peers.py's
+translucent head at 256 px, unshaded (the one case where isplat's default was slower than VTK at step 1).
+``render.threads = 1``.
 
 Each version runs in a worker process of its own (the old one from ``git archive`` of its ``isplat/`` under
 out/bench-sampler/, its kernels compiled there once); the frames go in turn, old and new, round after round, so
@@ -35,13 +37,14 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import _doc
+from benchmarks.peers import HEAD_TRANSLUCENT
 
 TECHNIQUES = ["post"]
-SOURCES = _doc.sources(_doc.RENDER, ("benchmarks/sampler.py", "isplat/augment.py", "isplat/samples.py",
-                                     "examples/head.toml"))
+SOURCES = _doc.sources(_doc.RENDER, ("benchmarks/sampler.py", "benchmarks/peers.py", "isplat/augment.py",
+                                     "isplat/samples.py", "examples/head.toml"))
 REPO = Path(__file__).resolve().parents[1]
 WORK = REPO / "out" / "bench-sampler"
-BASELINE = os.environ.get("ISPLAT_SAMPLER_OLD", "2e683d4")      # main before the vectorised sampler
+BASELINE = os.environ.get("ISPLAT_SAMPLER_OLD", "1e1b519")      # main before the compositing in lanes (jit.over4)
 PAGE, SECTION = "design.md", "sampler"
 ROUNDS = int(os.environ.get("ISPLAT_SAMPLER_ROUNDS", "15"))
 
@@ -56,6 +59,10 @@ CASES = [
     ("head bone (examples/head.toml), shaded", "head", []),
     # 7 mm slices seen from the side: the cubic between slices (isplat.splat.post.THICK_RATIO)
     ("chest 7 mm slices, veil + bone, shaded (cubic)", "chest7", CHEST_TF),
+    # benchmarks/peers.py's "head translucent" at 256 px, where isplat's default was slower than VTK at step 1
+    ("head translucent, unshaded, 256 px (benchmarks/peers.py's case)", "head",
+     ["shading.enabled=false", "image.background=[0.0, 0.0, 0.0]", *HEAD_TRANSLUCENT, "image.width=256",
+      "image.height=256"]),
 ]
 
 WORKER = r"""

@@ -22,15 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks import peers as P
 from benchmarks import sampler as S
 
 COLOURED = ("chest veil + bone, shaded, coloured light", "chest",
             [*S.CHEST_TF, "shading.light=[{direction=[-0.4, 0.6, 1.0], color=[1.0, 0.85, 0.7]}]"])
-# benchmarks/peers.py's "head translucent" case at 256 px, the one where isplat's default was slower than VTK
-HEAD_TRANSLUCENT_256 = ("head translucent, unshaded, 256 px (benchmarks/peers.py's case)", "head",
-                        [*P.UNSHADED, *P.HEAD_TRANSLUCENT, "image.width=256", "image.height=256"])
-EXTRA = [COLOURED, HEAD_TRANSLUCENT_256]
+# indices of --cases: benchmarks.sampler.CASES' first four, the coloured light, then the rest (5: benchmarks/peers.py's
+# translucent head at 256 px)
+ALL_CASES = [*S.CASES[:4], COLOURED, *S.CASES[4:]]
 
 
 def tree(rev: str, patch: Path) -> Path:
@@ -51,7 +49,7 @@ def main(argv=None):
     ap.add_argument("--cases", default="0,1,2,3", help="indices of benchmarks.sampler.CASES, 4: coloured light, "
                     "5: peers' head translucent at 256 px")
     a = ap.parse_args(argv)
-    cases = [[*S.CASES, *EXTRA][int(i)] for i in a.cases.split(",")]
+    cases = [ALL_CASES[int(i)] for i in a.cases.split(",")]
     old = S.old_tree(a.old)
     files = S.data(False, old)
     workers = {"old": S.Worker(old)}

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import _doc
-from benchmarks.peers import HEAD_TRANSLUCENT
+from benchmarks.peers import HEAD_TRANSLUCENT, UNSHADED
 
 TECHNIQUES = ["post"]
 SOURCES = _doc.sources(_doc.RENDER, ("benchmarks/sampler.py", "benchmarks/peers.py", "isplat/augment.py",
@@ -61,8 +61,7 @@ CASES = [
     ("chest 7 mm slices, veil + bone, shaded (cubic)", "chest7", CHEST_TF),
     # benchmarks/peers.py's "head translucent" at 256 px, where isplat's default was slower than VTK at step 1
     ("head translucent, unshaded, 256 px (benchmarks/peers.py's case)", "head",
-     ["shading.enabled=false", "image.background=[0.0, 0.0, 0.0]", *HEAD_TRANSLUCENT, "image.width=256",
-      "image.height=256"]),
+     [*UNSHADED, *HEAD_TRANSLUCENT, "image.width=256", "image.height=256"]),
 ]
 
 WORKER = r"""

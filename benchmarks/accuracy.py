@@ -43,7 +43,8 @@ from . import reference as REF
 from .reference import errors, make_scene
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULTS = {"method": "indexed", "classification": "post", "early_termination": 0.99, "footprint_radius": 2.5,
+DEFAULTS = {"method": "indexed", "classification": "post", "early_termination": 0.99, "termination": "fill",
+            "footprint_radius": 2.5,
             "footprint_sigma": 0.7, "footprint_table": 1024, "precision": "float32", "threads": 0}
 KNOBS = [                    # knobs of the default, post-classified, renderer
     ("early_termination", [1.0, 0.999, 0.98, 0.95]),
@@ -51,11 +52,8 @@ KNOBS = [                    # knobs of the default, post-classified, renderer
     ("threads", [1]),
     ("method", ["full"]),
     ("slice_stride", [2, 3, 4]),      # every n-th slice, the opacity corrected for n slices (issue 27 item 3)
+    ("termination", ["stop"]),        # a pixel that reaches early termination as it is, not filled (scene version 6)
 ]
-# knobs of a newer scene version than the cases' scene files say (examples/*.toml: version 4): their settings say
-# version = 6, whose other new defaults (camera.view, volume.axes) change nothing on the samples, which record no
-# orientation
-NEWER_KEYS = ("slice_stride",)
 PRE_KNOBS = [                # the footprint's knobs, which act on pre-classified splatting only
     ("footprint_radius", [1.5, 2.0, 3.0, 4.0]),
     ("footprint_table", [32, 128, 65536]),
@@ -90,8 +88,7 @@ def settings(sheets):
     """(knob, value, overrides) of every setting measured; the defaults first."""
     out = [("defaults", "", [])]
     for knob, values in KNOBS:
-        since = ["version=6"] if knob in NEWER_KEYS else []     # the case's scene may say an older version
-        out += [(knob, v, since + REF.render_overrides({knob: v})) for v in values]
+        out += [(knob, v, REF.render_overrides({knob: v})) for v in values]   # make_scene: the current version
     out.append(("classification", "pre", REF.render_overrides(PRE)))
     for knob, values in PRE_KNOBS:
         out += [(knob, v, REF.render_overrides({**PRE, knob: v})) for v in values]
@@ -199,7 +196,7 @@ def _label(row):
         return f"VTK {row['value']:g}"
     short = {"early_termination": "ET", "footprint_radius": "pre, radius", "footprint_table": "pre, table",
              "footprint_sigma": "pre, sigma", "precision": "", "threads": "threads", "method": "",
-             "sheets": "pre, sheets", "classification": "", "slice_stride": "stride"}
+             "sheets": "pre, sheets", "classification": "", "slice_stride": "stride", "termination": "termination"}
     label = f"{short[row['knob']]} {row['value']}".strip()
     return label if label.startswith("pre") else "post, " + label
 
@@ -473,6 +470,7 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
          "footprint, whose blur of sharp transfer-function edges is most of their error.\n",
          f"Every image is {size}x{size}, orthographic, one view per case. Each setting is the format defaults "
          "(`method = \"indexed\"`, `classification = \"post\"`, `early_termination = 0.99`, "
+         "`termination = \"fill\"` (scene version 7: a pixel that stops is filled with its last sample's colour), "
          "`precision = \"float32\"`, `threads = 0` = all cores) with one knob changed; the footprint's knobs "
          "(`footprint_radius = 2.5`, `footprint_sigma = 0.7`, `footprint_table = 1024` by default) act on "
          "pre-classified splatting only, so their rows change one of them with `classification = \"pre\"`. "

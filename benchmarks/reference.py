@@ -148,12 +148,15 @@ def render_overrides(render: dict) -> list[str]:
 
 
 def make_scene(case: str, size: int, render: dict | None = None, extra=(), shape=None, data=None):
-    """The scene of ``case`` at ``size`` x ``size`` on its sample (``data``: (aug, idx) to use instead)."""
-    from isplat.scene import load_scene, parse_scene
+    """The scene of ``case`` at ``size`` x ``size`` on its sample (``data``: (aug, idx) to use instead), as a
+    scene of the current version, so that its defaults are the current ones, with the case's own orbit camera
+    (``camera.view = "none"``: version 5's anatomical default would turn the engine, whose file says version 4)."""
+    from isplat.scene import SCENE_VERSION, load_scene, parse_scene
 
     path, ov0, _ = CASES[case]
     aug, idx = data or sample_data(case, shape)
-    ov = [f'data.augmented="{aug}"', f'data.index="{idx}"', f"image.width={size}", f"image.height={size}",
+    ov = [f"version={SCENE_VERSION}", 'camera.view="none"', f'data.augmented="{aug}"', f'data.index="{idx}"',
+          f"image.width={size}", f"image.height={size}",
           *ov0, *extra, *render_overrides(render or {})]
     if path is None:
         return parse_scene(ML_SCENE, REPO, "marschner-lobb scene", ov)

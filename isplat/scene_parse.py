@@ -475,7 +475,21 @@ def _render(ctx: Ctx, tree: dict) -> RenderOptions:
                             "and height, box-filtered down; 1 = off)", 1, SUPERSAMPLE_MAX)
     mode, color = _mode(ctx, t, classification, sheets)
     return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets, classification,
-                         supersample, mode, None, color, _slice_stride(t, classification, mode))
+                         supersample, mode, None, color, _slice_stride(t, classification, mode),
+                         _termination(t, tree.get("version"), classification, mode))
+
+
+def _termination(t: Table, version, classification: str, mode: str) -> str:
+    """``render.termination``: "fill" (the default of version >= 7) or "stop"; the fill takes the colour of a
+    post-classified composite sample, so "fill" is refused in one line with "pre" and with an intensity
+    projection, whose default is "stop"."""
+    post = classification == "post" and mode == "composite"
+    default = default_for(version, RenderOptions, "render", "termination") if post else "stop"
+    term = t.choice("termination", ("fill", "stop"), default=default)
+    if term == "fill" and not post:
+        t.fail("termination", 'render.termination = "fill" fills a pixel with the colour of its post-classified '
+               'sample; it takes render.classification = "post" and render.mode = "composite"')
+    return term
 
 
 def _slice_stride(t: Table, classification: str, mode: str) -> int:
@@ -518,14 +532,14 @@ def _mode(ctx: Ctx, t: Table, classification: str, sheets: str) -> tuple[str, st
 
 def _not_applied(ctx: Ctx, tree: dict, render: RenderOptions) -> None:
     """One warning line per key the scene gives that an intensity projection does not use (shading's lights and
-    terms, early termination, the footprint's keys: it reconstructs with the tent and finishes pixels by their
-    bound). ``shading.enabled`` alone says nothing (shading is on by default; isplat.render always writes it)."""
+    terms, early termination and what it does to a pixel, the footprint's keys: it reconstructs with the tent and
+    finishes pixels by their bound). ``shading.enabled`` alone says nothing (shading is on by default; isplat.render always writes it)."""
     if render.mode == "composite":
         return
     shading = tree.get("shading") if isinstance(tree.get("shading"), dict) else {}
     given = [("shading", k) for k in shading if k != "enabled"]
-    given += [("render", k) for k in ("early_termination", "footprint_radius", "footprint_sigma", "footprint_table")
-              if k in (tree.get("render") or {})]
+    given += [("render", k) for k in ("early_termination", "termination", "footprint_radius", "footprint_sigma",
+                                      "footprint_table") if k in (tree.get("render") or {})]
     for path in given:
         log.warning(f"isplat: warning: {ctx.where(path)}: {dotted(path)} does not apply to render.mode = "
                     f'"{render.mode}" (ignored)')
@@ -648,9 +662,13 @@ def old_defaults_note(tree: dict, source_name: str) -> str | None:
     >>> print(old_defaults_note({"version": 1}, "head.toml"))   # doctest: +NORMALIZE_WHITESPACE
     head.toml: version = 1 keeps version-1 defaults: render.classification = "pre" (the paper's splatting),
     camera.view = "none" (the orbit about camera.up, not the anatomical front), volume.axes = identity (grid
-    space, not the file's patient orientation); say version = 6 for the current defaults
-    >>> old_defaults_note({"version": 4, "camera": {"up": [0, 0, 1]}, "volume": {"axes": [[1, 0, 0]] * 3}}, "s")
-    >>> old_defaults_note({}, "s") is None and old_defaults_note({"version": 5}, "s") is None
+    space, not the file's patient orientation); say version = 7 for the current defaults
+    >>> print(old_defaults_note({"version": 6}, "s"))   # doctest: +NORMALIZE_WHITESPACE
+    s: version = 6 keeps version-6 defaults: render.termination = "stop" (a pixel that reaches
+    render.early_termination keeps its opacity, the background showing through the rest); say version = 7 for the
+    current defaults
+    >>> old_defaults_note({"version": 6, "render": {"classification": "pre"}}, "s")
+    >>> old_defaults_note({}, "s") is None and old_defaults_note({"version": 7}, "s") is None
     True
     """
     v = tree.get("version")
@@ -666,12 +684,21 @@ def old_defaults_note(tree: dict, source_name: str) -> str | None:
             continue                                  # image-aligned sheets splat pre-classified in every version
         if (table, key) == ("camera", "view") and "up" in t:
             continue                                  # camera.up means "none" in every version
+        if (table, key) == ("render", "termination") and not _post_composite(v, t):
+            continue                                  # pre-classified and intensity frames stop in every version
         shown = "identity" if older == IDENTITY_AXES else f'"{older}"' if isinstance(older, str) else str(older)
         kept.append(f"{table}.{key} = {shown} ({OLD_DEFAULT_MEANING[table, key]})")
     if not kept:
         return None
     return (f"{source_name}: version = {v} keeps version-{v} defaults: {', '.join(kept)}; say version = "
             f"{SCENE_VERSION} for the current defaults")
+
+
+def _post_composite(version: int, render: dict) -> bool:
+    """Whether a scene of ``version`` whose ``[render]`` table is ``render`` composites post-classified samples
+    (the frames that ``render.termination`` applies to)."""
+    pre = render.get("classification", "pre" if version < 4 else "post") == "pre" or render.get("sheets") == "image"
+    return not pre and render.get("mode", "composite") == "composite"
 
 
 def build_scene(ctx: Ctx, tree: dict, data_required: bool = True, density_window: WindowArg = None) -> Scene:

@@ -27,7 +27,7 @@ __all__ = [
     "Shading", "Light", "Cut", "RenderOptions", "Labels", "LabelStyle", "defaults", "default_for", "spacing_problem",
 ]
 
-SCENE_VERSION = 6
+SCENE_VERSION = 7
 IDENTITY_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 # keys added by each version after 1: a file that says an older version must not use them
 KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
@@ -35,16 +35,18 @@ KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "pa
               ("render", "classification"): 4, ("render", "supersample"): 4, ("camera", "view"): 5,
               ("render", "mode"): 6, ("render", "window"): 6, ("render", "intensity_color"): 6,
               ("labels", "names"): 6, ("labels", "show"): 6, ("labels", "opacity"): 6,
-              ("render", "slice_stride"): 6}
+              ("render", "slice_stride"): 6, ("render", "termination"): 7}
 # tables added by a version after 1 (the whole table is new)
 TABLES_SINCE = {"labels": 6}
 # defaults a version changed: (table, key) -> (that version, the default of a file that says an older one)
 DEFAULTS_BEFORE = {("render", "classification"): (4, "pre"), ("camera", "view"): (5, "none"),
-                   ("volume", "axes"): (5, IDENTITY_AXES)}
+                   ("volume", "axes"): (5, IDENTITY_AXES), ("render", "termination"): (7, "stop")}
 # what each of those older defaults means, for the note a scene of an older version gets (old_defaults_note)
 OLD_DEFAULT_MEANING = {("render", "classification"): "the paper's splatting",
                        ("camera", "view"): "the orbit about camera.up, not the anatomical front",
-                       ("volume", "axes"): "grid space, not the file's patient orientation"}
+                       ("volume", "axes"): "grid space, not the file's patient orientation",
+                       ("render", "termination"): "a pixel that reaches render.early_termination keeps its opacity, "
+                                                  "the background showing through the rest"}
 # camera.view: a named anatomical view (isplat.camera.NAMED_VIEWS), "auto" or "none" (class Camera)
 NAMED_VIEW_NAMES = ("anterior", "posterior", "left", "right", "superior", "inferior")
 VIEW_CHOICES = NAMED_VIEW_NAMES + ("auto", "none")
@@ -174,6 +176,10 @@ class RenderOptions:
     intensity_color: str = "grey" # mip/minip: "grey" (the window's ramp) or "transfer" (the transfer's colour)
     slice_stride: int = 1         # post: sample every n-th slice of the principal axis (c % n == 0), each sample's
                                   # opacity corrected for the n slices' path (isplat.splat.post), version 6
+    termination: str = "fill"     # post composite: "fill" a pixel that reaches early_termination takes the colour of
+                                  # the sample that took it there for the rest of its transmittance, "stop" keeps
+                                  # the opacity it reached (isplat.splat.composite.saturated), version 7; "stop"
+                                  # for "pre", an intensity projection and files that say version < 7
 
 
 @dataclass(frozen=True)
@@ -252,7 +258,7 @@ LIGHT_KEYS = ("direction", "intensity", "color")
 CUT_KEYS = ("point", "normal")
 RENDER_KEYS = ("method", "early_termination", "footprint_radius", "footprint_sigma", "footprint_table",
                "precision", "threads", "sheets", "classification", "supersample", "mode", "window",
-               "intensity_color", "slice_stride")
+               "intensity_color", "slice_stride", "termination")
 VIEWS_KEYS = ("orbit_steps", "list", "path", "frames", "fps")
 DEFAULT_ORBIT_STEPS = 0      # views.orbit_steps: 0 = no orbit
 DEFAULT_PATH_FRAMES = 60     # views.frames of a views.path

@@ -39,8 +39,11 @@ ALPHA_MAX = 1 - 2.0 ** -40
 def post_reference(scene, view=0, et=1.0, weighted=True, between=None, stride=None):
     """Straight RGBA (H, W, 4) over the scene's background. ``between``: "linear", "monotone", "catmull-rom" or
     "b-spline"
-    (None: isplat.splat.post.BETWEEN_SLICES); ``stride``: every n-th slice (None: render.slice_stride)."""
+    (None: isplat.splat.post.BETWEEN_SLICES); ``stride``: every n-th slice (None: render.slice_stride). A pixel
+    that reaches ``et`` stops; with ``render.termination = "fill"`` the rest of its transmittance takes the colour
+    of the sample that took it there."""
     stride = scene.render.slice_stride if stride is None else stride
+    fill = scene.render.termination == "fill"
     aug = open_augmented(scene.data.augmented)
     dens = aug.read("density").astype(np.float64)
     nrm = aug.read("normal")
@@ -98,6 +101,9 @@ def post_reference(scene, view=0, et=1.0, weighted=True, between=None, stride=No
                 a = _alpha(lo, hi, f, thick / cos / unit, persp)
                 acc[:3] += (1 - acc[3]) * rgb * a
                 acc[3] += (1 - acc[3]) * a
+                if fill and acc[3] >= et:       # render.termination = "fill": the rest takes this sample's colour
+                    acc[:3] += (1 - acc[3]) * rgb
+                    acc[3] = 1.0
             img[y, x] = acc
     bg = np.asarray(scene.image.background, float)
     A = img[..., 3:4]

@@ -19,14 +19,15 @@ def test_render_equals_the_file_pipeline(tmp_path, ct):
     from isplat.augment import augment_file
     from isplat.index import build_index_file
     from isplat.renderer import Renderer
-    from isplat.scene import load_scene
+    from isplat.scene import SCENE_VERSION, load_scene
 
     vol, spacing = ct
     rgba = isplat.render(vol, preset="ct-bone", azimuth=40, elevation=10, spacing=spacing, size=(48, 40))
     np.save(tmp_path / "ct.npy", vol)
     augment_file(tmp_path / "ct.npy", tmp_path / "ct.aug.h5", spacing=spacing)
     build_index_file(tmp_path / "ct.aug.h5", tmp_path / "ct.idx.h5")
-    (tmp_path / "s.toml").write_text('version = 4\n[data]\naugmented = "ct.aug.h5"\nindex = "ct.idx.h5"\n'
+    (tmp_path / "s.toml").write_text(f'version = {SCENE_VERSION}\n[data]\naugmented = "ct.aug.h5"\n'
+                                     'index = "ct.idx.h5"\n'
                                      '[image]\nwidth = 48\nheight = 40\n[camera]\nazimuth = 40\nelevation = 10\n'
                                      '[transfer]\npreset = "ct-bone"\n')
     ref, _ = Renderer(load_scene(tmp_path / "s.toml")).render_view(0)

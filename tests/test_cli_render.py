@@ -163,8 +163,16 @@ def test_an_old_version_says_once_which_defaults_it_keeps(data):
     assert res.returncode == 0, res.stderr
     notes = [ln for ln in res.stderr.decode().splitlines() if "keeps version-1 defaults" in ln]
     assert len(notes) == 1 and json.loads(res.stdout)["scene"] is not None, res.stderr
-    res = run("render", "orbit_v1.toml", "-o", "v4.gif", "--set", "version=4", "--set", "camera.up=[0,0,1]", "--set", "volume.axes=[[1,0,0],[0,1,0],[0,0,1]]", cwd=data)
-    assert res.returncode == 0 and b"keeps version-" not in res.stderr and b"post-classified" in res.stderr, \
+    res = run("render", "orbit_v1.toml", "-o", "v4.gif", "--set", "version=4", "--set", "camera.up=[0,0,1]",
+              "--set", "volume.axes=[[1,0,0],[0,1,0],[0,0,1]]", cwd=data)
+    assert res.returncode == 0 and b"post-classified" in res.stderr, res.stderr
+    notes = [ln for ln in res.stderr.decode().splitlines() if "keeps version-4 defaults" in ln]
+    # camera and axes set: only version 7's termination is kept (a version-4 file cannot set it)
+    assert len(notes) == 1 and "render.termination" in notes[0] and "camera.view" not in notes[0] \
+        and "volume.axes" not in notes[0], notes
+    res = run("render", "orbit_v1.toml", "-o", "v6.gif", "--set", "version=6", "--set", "camera.up=[0,0,1]",
+              "--set", "volume.axes=[[1,0,0],[0,1,0],[0,0,1]]", "--set", 'render.classification="pre"', cwd=data)
+    assert res.returncode == 0 and b"keeps version-" not in res.stderr and b"pre-classified" in res.stderr, \
         res.stderr
 
 

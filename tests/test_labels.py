@@ -16,6 +16,7 @@ from isplat import normals as N
 from isplat.augfile import label_counts, open_augmented, write_augmented
 from isplat.cli.main import main
 from isplat.errors import IsplatError
+from isplat.renderer import Renderer
 
 COLORS = {1: (1.0, 0.0, 0.0), 2: (0.0, 1.0, 0.0), 3: (0.0, 0.0, 1.0)}
 
@@ -53,7 +54,7 @@ def write_labelled(path, lab, density=None):
 
 
 def label_scene(tmp_path, aug, shown=(1, 2, 3), extra="", size=96):
-    text = (f'version = 6\n[data]\naugmented = "{aug}"\n[render]\nmethod = "full"\n[image]\nwidth = {size}\n'
+    text = (f'version = 7\n[data]\naugmented = "{aug}"\n[render]\nmethod = "full"\n[image]\nwidth = {size}\n'
             f'height = {size}\n[camera]\nelevation = 90\n[transfer]\nopacity = [[0, 0], [255, 0]]\n'
             f'[shading]\nenabled = false\n{extra}')
     for i in shown:
@@ -247,6 +248,31 @@ def test_three_labels_render_in_their_colours(capsys, tmp_path):
     assert (lit & ~pure).sum() < 0.05 * lit.sum()
 
 
+
+def test_a_label_that_stops_a_pixel_fills_it_with_its_colour(tmp_path):
+    """A shown label's sample that takes a pixel to the early-termination opacity fills the rest of its
+    transmittance with the label's colour (render.termination = "fill", scene version 7): seen through a label's
+    box, a pixel is opaque in exactly that colour; with "stop" it keeps the opacity it reached."""
+    from isplat.scene import load_scene
+
+    aug = write_labelled(tmp_path / "v.aug.h5", three_boxes())
+    out = {}
+    for term in ("fill", "stop"):
+        p = label_scene(tmp_path, aug, size=48)
+        text = p.read_text().replace('method = "full"', f'method = "full"\ntermination = "{term}"')
+        text = text.replace("height = 48\n", "height = 48\nbackground = [0.0, 0.0, 0.0, 0.0]\n", 1)
+        text = text.replace("opacity = 1.0\n", "opacity = 0.6\n")     # 6 voxels deep: 1 - 0.4^6 > 0.99
+        p.write_text(text)
+        img, _ = Renderer(load_scene(p)).render_view(0)
+        out[term] = img
+    fill, stop = out["fill"], out["stop"]
+    seen = stop[..., 3] >= 0.99           # through a box: its voxels stop the pixel
+    assert seen.sum() > 100
+    assert np.all(fill[seen, 3] == 1.0) and np.all(stop[seen, 3] < 1.0)
+    red = fill[seen][np.argmax(fill[seen][:, 0])]
+    assert np.allclose(red[:3], COLORS[1], atol=1e-5)            # straight colour: the label's own
+    assert np.array_equal(fill[~seen], stop[~seen])
+
 def test_a_scene_showing_one_label_selects_only_its_voxels(capsys, tmp_path):
     lab = three_boxes()
     aug = write_labelled(tmp_path / "v.aug.h5", lab)
@@ -340,7 +366,7 @@ def test_names_map(capsys, tmp_path):
 def test_labels_need_scene_version_6(capsys, tmp_path):
     aug = write_labelled(tmp_path / "v.aug.h5", three_boxes())
     scene = label_scene(tmp_path, aug)
-    scene.write_text(scene.read_text().replace("version = 6", "version = 5"))
+    scene.write_text(scene.read_text().replace("version = 7", "version = 5"))
     code, _, err = run(capsys, "render", scene, "-o", tmp_path / "x.png")
     one_error(code, err, "[labels] is new in scene version 6")
 

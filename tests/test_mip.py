@@ -319,6 +319,11 @@ def test_options_that_do_not_apply_warn(caplog):
     lines = [r.getMessage() for r in caplog.records]
     assert any("t.toml:7: shading.ambient does not apply to render.mode" in m for m in lines), lines
     assert any("render.early_termination does not apply" in m for m in lines), lines
+    caplog.clear()
+    parse_scene(BASE + '[render]\nmode = "mip"\ntermination = "stop"', ".", "t.toml", data_required=False)
+    assert any("render.termination does not apply" in m for m in (r.getMessage() for r in caplog.records))
+    with pytest.raises(IsplatError, match='render.termination = "fill" fills a pixel'):
+        parse_scene(BASE + '[render]\nmode = "mip"\ntermination = "fill"', ".", "t.toml", data_required=False)
 
 
 # ---- the command line -----------------------------------------------------------------------------------------------

@@ -37,6 +37,36 @@ def post_scene(make_scene, aug, idx, cam, proj="orthographic", render="", et=1.0
                       render=f'classification = "post"\nearly_termination = {et}\n{render}', **kw)
 
 
+
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+def test_a_pixel_that_reaches_early_termination_is_filled_with_its_last_sample(tmp_path, make_scene, proj):
+    """render.termination = "fill" (the default of scene version 7): a pixel that reaches the early-termination
+    opacity takes the colour of the sample that took it there for the rest of its transmittance and becomes
+    opaque; "stop" leaves it as it was. Both against the slow reference, and against each other: the difference
+    is (1 - alpha) times that colour at the stopped pixels, nothing elsewhere."""
+    shape = (6, 5, 6)
+    aug, idx = write_volume(tmp_path, rng_volume(2, shape), normal=random_normals(2, shape))
+    clear = 'width = 20\nheight = 20\nbackground = [0.0, 0.0, 0.0, 0.0]'    # straight alpha out
+    imgs = {}
+    for term in ("fill", "stop"):
+        sc = post_scene(make_scene, aug, idx, "azimuth = 20\nelevation = 30", proj, f'termination = "{term}"',
+                        et=0.9, image=clear)
+        assert sc.render.termination == term
+        ind, _ = render(sc, "indexed")
+        full, _ = render(sc, "full")
+        assert np.abs(ind - full).max() <= 1e-6
+        assert np.abs(ind - post_reference(sc, et=0.9)).max() <= 2e-4
+        imgs[term] = ind
+    fill, stop = imgs["fill"], imgs["stop"]
+    stopped = stop[..., 3] >= 0.9
+    assert stopped.sum() >= 8 and (~stopped & (stop[..., 3] > 0)).sum() >= 20
+    assert np.all(fill[stopped, 3] == 1.0)                       # filled: opaque
+    assert np.all(stop[stopped, 3] < 1.0)
+    assert np.array_equal(fill[~stopped], stop[~stopped])       # pixels that never stopped: bit for bit
+    # premultiplied, the fill added (1 - alpha) x a sample's colour, at most 1 - 0.9 of it
+    add = fill[stopped, :3] * fill[stopped, 3:] - stop[stopped, :3] * stop[stopped, 3:]
+    assert add.min() >= -1e-6 and add.max() <= 0.1 + 1e-6 and add.max() > 1e-3
+
 @pytest.mark.parametrize("cam", CAMERAS)
 @pytest.mark.parametrize("proj", ["orthographic", "perspective"])
 def test_post_agrees_with_the_reference_for_both_methods(tmp_path, make_scene, cam, proj):

@@ -59,7 +59,7 @@ def test_valid_example_decodes_as_expected(path):
     got["path"] = path.name
     expected = json.loads(path.with_suffix(".expected.json").read_text())
     # the expected files (formats/, kept by the formats' owner) predate scene version 6: its render keys take
-    # their defaults there
+    # their defaults there (version 7's render.termination, whose default depends on the version, is in them)
     for key in ("mode", "window", "intensity_color", "slice_stride"):
         expected["render"].setdefault(key, defaults(RenderOptions)[key])
     assert got == expected
@@ -129,8 +129,9 @@ def test_defaults_are_the_dataclass_defaults():
     assert (s.image, s.volume, s.camera, s.shading, s.render) == (Image(), Volume(), Camera(), Shading(),
                                                                   RenderOptions())
     assert s.transfer == Transfer(s.transfer.opacity) and s.fps == 12.0
-    assert parse("version = 3\n" + BASE).render == RenderOptions(classification="pre")
-    assert parse(BASE + '[render]\nsheets = "image"\n').render == RenderOptions(sheets="image", classification="pre")
+    assert parse("version = 3\n" + BASE).render == RenderOptions(classification="pre", termination="stop")
+    assert parse(BASE + '[render]\nsheets = "image"\n').render == RenderOptions(sheets="image", classification="pre",
+                                                                                 termination="stop")
 
 
 def test_types_are_python_floats_and_tuples():
@@ -519,24 +520,40 @@ def test_scene_examples_window_file_is_the_augmented_example():
 def test_a_scene_without_version_gets_the_current_defaults():
     from isplat.scene_schema import DEFAULTS_BEFORE, IDENTITY_AXES
 
-    assert set(DEFAULTS_BEFORE) == {("render", "classification"), ("camera", "view"), ("volume", "axes")}
+    assert set(DEFAULTS_BEFORE) == {("render", "classification"), ("camera", "view"), ("volume", "axes"),
+                                    ("render", "termination")}
     s = parse_scene(BASE, ".", "s.toml")
-    assert (s.render.classification, s.camera.view, s.volume.axes) == ("post", "auto", None)
+    assert (s.render.classification, s.camera.view, s.volume.axes, s.render.termination) == ("post", "auto", None,
+                                                                                               "fill")
     s1 = parse_scene("version = 1\n" + BASE, ".", "s.toml")
-    assert (s1.render.classification, s1.camera.view, s1.volume.axes) == ("pre", "none", IDENTITY_AXES)
+    assert (s1.render.classification, s1.camera.view, s1.volume.axes, s1.render.termination) == (
+        "pre", "none", IDENTITY_AXES, "stop")
     s4 = parse_scene("version = 4\n" + BASE, ".", "s.toml")
-    assert (s4.render.classification, s4.camera.view, s4.volume.axes) == ("post", "none", IDENTITY_AXES)
+    assert (s4.render.classification, s4.camera.view, s4.volume.axes, s4.render.termination) == (
+        "post", "none", IDENTITY_AXES, "stop")
+    s6 = parse_scene("version = 6\n" + BASE, ".", "s.toml")
+    assert (s6.render.classification, s6.camera.view, s6.render.termination) == ("post", "auto", "stop")
+    # "fill" takes the colour of a post-classified composite sample: the other frames stop in every version
+    for extra in ('classification = "pre"', 'mode = "mip"', 'sheets = "image"'):
+        assert parse_scene(BASE + f"[render]\n{extra}\n", ".", "s.toml").render.termination == "stop"
 
 
 @pytest.mark.parametrize("text, kept", [
     ("", None),
-    ("version = 5\n", None),
+    ("version = 5\n", ['render.termination = "stop"']),
+    ("version = 6\n", ['render.termination = "stop"']),
+    ("version = 6\n[render]\nclassification = \"pre\"\n", None),
+    ("version = 6\n[render]\nmode = \"mip\"\n", None),
     ("version = 1\n", ['render.classification = "pre" (the paper\'s splatting)', 'camera.view = "none"',
                        "volume.axes = identity"]),
-    ("version = 3\n[render]\nclassification = \"post\"\n", ['camera.view = "none"', "volume.axes = identity"]),
+    ("version = 3\n[render]\nclassification = \"post\"\n", ['camera.view = "none"', "volume.axes = identity",
+                                                             'render.termination = "stop"']),
     ("version = 3\n[render]\nsheets = \"image\"\n", ['camera.view = "none"', "volume.axes = identity"]),
-    ("version = 4\n", ['camera.view = "none"', "volume.axes = identity"]),
-    ("version = 4\n[camera]\nup = [0, 0, 1]\n[volume]\naxes = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n", None),
+    ("version = 4\n", ['camera.view = "none"', "volume.axes = identity", 'render.termination = "stop"']),
+    ("version = 4\n[camera]\nup = [0, 0, 1]\n[volume]\naxes = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n",
+     ['render.termination = "stop"']),
+    ("version = 4\n[camera]\nup = [0, 0, 1]\n[volume]\naxes = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n[render]\n"
+     "termination = \"stop\"\n", None),
 ])
 def test_old_defaults_note_names_what_an_old_version_keeps(text, kept):
     from isplat.scene import old_defaults_note, scene_tree
@@ -552,4 +569,5 @@ def test_old_defaults_note_names_what_an_old_version_keeps(text, kept):
     assert note.endswith(f"say version = {SCENE_VERSION} for the current defaults")
     for k in kept:
         assert k in note
-    assert ("render.classification" in note) == any(k.startswith("render.") for k in kept)
+    assert ("render.classification" in note) == any(k.startswith("render.classification") for k in kept)
+    assert ("render.termination" in note) == any(k.startswith("render.termination") for k in kept)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import jit, stage
+from ..jit import jit, leaf, stage
 
 TILE = 8         # pixels per side of the tiles that answer "all saturated?" at once
 
@@ -48,6 +48,23 @@ def composite_sheet(img, sheet, sat, tile_sat, dirty_px, dirty, nd, et):
         sheet[y, x, 2] = 0.0
         sheet[y, x, 3] = 0.0
     return newly
+
+
+@leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
+def saturated(img, sat, tile_sat, x, y, an, cr, cg, cb, fill):
+    """Pixel (x, y) has just reached the early-termination opacity (its opacity now ``an``): mark it in ``sat``
+    and its tile's count. ``fill`` True (``render.termination = "fill"``): the rest of its transmittance, which
+    no later sample will reach, takes the colour (cr, cg, cb) of the sample that reached it, so the pixel becomes
+    opaque: the estimate of what lies behind is the material the ray is in, not the background."""
+    uy, ux = np.uint64(y), np.uint64(x)
+    if fill:
+        r = 1.0 - an
+        img[uy, ux, np.uint64(0)] += r * cr
+        img[uy, ux, np.uint64(1)] += r * cg
+        img[uy, ux, np.uint64(2)] += r * cb
+        img[uy, ux, np.uint64(3)] = 1.0
+    sat[uy, ux] = 1
+    tile_sat[y // TILE, x // TILE] += 1
 
 
 @jit

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import leaf
-from .composite import TILE
+from .composite import saturated
 from .traverse import path_alpha
 
 NO_NORMAL = 0x8080
@@ -65,9 +65,10 @@ def label_at(ids, table, steps, n_a, n_b, a0, b0, c, fu, fv):
 
 @leaf
 def sample_label(x, y, fu, fv, qa, qb, c, u, v, lab, n_a, n_b, shade, use_shade, base, geo, img, sat, tile_sat,
-                 et):
+                 et, fill):
     """Composite the shown label at the sample (if any) over pixel (x, y), shaded by its indicator's normal.
-    Returns 0 (no label here), 1 (composited) or 2 (the pixel then reached the early-termination opacity)."""
+    Returns 0 (no label here), 1 (composited) or 2 (the pixel then reached the early-termination opacity,
+    :func:`isplat.splat.composite.saturated` with ``fill``)."""
     ids, table, steps, nrm = lab
     lid, _ = label_at(ids, table, steps, n_a, n_b, qa, qb, c, fu, fv)
     if lid < 0:
@@ -88,8 +89,7 @@ def sample_label(x, y, fu, fv, qa, qb, c, u, v, lab, n_a, n_b, shade, use_shade,
     img[uy, ux, 2] += ta * cb
     img[uy, ux, 3] = ai + ta
     if ai < et and ai + ta >= et:
-        sat[uy, ux] = 1
-        tile_sat[y // TILE, x // TILE] += 1
+        saturated(img, sat, tile_sat, x, y, ai + ta, cr, cg, cb, fill)
         return 2
     return 1
 

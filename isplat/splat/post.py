@@ -62,7 +62,7 @@ from numba.extending import overload
 
 from ..grid import POOL_EDGE, POOL_SHIFT
 from ..jit import jit, leaf, over4, prefetch, stage
-from .composite import TILE
+from .composite import TILE, saturated
 from .labels import sample_label
 from .select import BLOCK, CELL
 from .traverse import (CX, CY, NEAR, WA, WB, WPE, XA, XB, YA, YB, box_args, build_sat, cut_away, indexed_source,
@@ -128,7 +128,7 @@ if SAMPLE_STAGES != 4 and not os.environ.get("NUMBA_CACHE_DIR"):
     # numba's cache does not tell the copies apart: one compiled here would be loaded by later ordinary runs
     raise RuntimeError("ISPLAT_SAMPLE_STAGES (for measuring only) needs a NUMBA_CACHE_DIR of its own")
 
-PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab between")
+PostClassify = namedtuple("PostClassify", "alpha color shade use_gm use_shade lab between fill")
 PostClassify.__doc__ = """The transfer function's and shading's tables as :func:`_sample` takes them: ``alpha``
 float64[256, 2G] (opacities per density and gradient code, corrected for the slice's path length when
 orthographic, ``log1p(-alpha)`` in perspective, then their steps to the next code) and ``color`` float64[256, 6]
@@ -140,7 +140,8 @@ channel, the colour table, steps; empty without labels); ``between`` (axis, kind
 which the density is a cubic between voxels (1 a, 2 b), the cubic's kind and whether the shading follows it (1:
 :func:`_shade_between`) (:func:`between_slices`, :func:`_density_at`), or None on a grid that takes the bilinear
 sampler: a type of its own, so that numba compiles that frame's kernel with no cubic in it (:func:`_taps`,
-:func:`_between`)."""
+:func:`_between`); ``fill`` True when a pixel that reaches the early-termination opacity is filled with the colour
+of the sample that reached it (``render.termination = "fill"``, :func:`isplat.splat.composite.saturated`)."""
 PostPlan = namedtuple("PostPlan", "source whole unit cls geo reach stride held")
 PostPlan.__doc__ = """A post-classified frame's tables: ``source`` which quads to sample (the index's selection and
 its bins, :data:`isplat.splat.traverse.Indexed`, or without an index the whole channels,
@@ -350,7 +351,8 @@ def plan(tables):
     shading = (2 if WEIGHTED_SHADING and whole.gm.shape[0] > 0 else 1) if sel.use_shade else 0
     between = between_slices(tables.view.geom.spacing, tables.axis)
     cls = PostClassify(alpha, color, tables.shade, sel.use_gm, shading, _labels_of(tables),
-                       between if between[0] else None)     # None: the bilinear kernel (_taps)
+                       between if between[0] else None,     # None: the bilinear kernel (_taps)
+                       view.render.termination == "fill")
     ex, ey = reach(tables.proj.coef)
     tent = (float(ex), float(ey))
     source = whole if sel.method == "full" else \
@@ -500,7 +502,7 @@ def _post_slice(c, regions, p0, p1, hier, whole, unit, cls, geo, reach, cells, b
     voxel = (whole.density, whole.gm, whole.nrm, (oa, ob, oc[c], da, tab), whole.n_a, whole.n_b, c, cls.between)
     inv = _ortho_inverse(base, geo.coef)
     _sample_squares(todo, nt, mark, voxel, cls.alpha, cls.color, cls.shade, cls.use_gm, cls.use_shade, base,
-                    cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts, cls.lab, held)
+                    cs, geo, inv, buf.img, buf.sat, buf.tile_sat, band, counts, cls.lab, held, cls.fill)
     for t in range(nm):
         mark[marked[t]] = 0
     for t in range(ns):
@@ -581,7 +583,7 @@ def _plan_squares(squares, ns, smark, mark, nca, ncb, unit, todo):
 
 @leaf(inline="always")
 def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
-                    sat, tile_sat, band, counts, lab, held):
+                    sat, tile_sat, band, counts, lab, held, fill):
     """Sample the squares and cells ``todo[:nt]`` (:func:`_sample_square`). One call per slice: the per-square
     stage is inlined here, since handing a stage this many arrays costs more than a small square."""
     for t in range(min(nt, AHEAD)):
@@ -590,7 +592,7 @@ def _sample_squares(todo, nt, mark, voxel, alpha, color, shade, use_gm, use_shad
         if t + AHEAD < nt:          # the voxels of squares ahead come from memory while this one is sampled
             _prefetch_square(todo[t + AHEAD, 1], todo[t + AHEAD, 2], todo[t + AHEAD, 3], voxel, use_gm, use_shade)
         _sample_square(todo[t, 0], todo[t, 1], todo[t, 2], todo[t, 3], mark, voxel, alpha, color, shade, use_gm,
-                       use_shade, base, cs, geo, inv, img, sat, tile_sat, band, counts, lab, held)
+                       use_shade, base, cs, geo, inv, img, sat, tile_sat, band, counts, lab, held, fill)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
@@ -626,7 +628,7 @@ def _prefetch_square(unit, a0, b0, voxel, use_gm, use_shade):
 
 @leaf(forceinline=True)
 def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, use_shade, base, cs, geo, inv, img,
-                   sat, tile_sat, band, counts, lab, held):
+                   sat, tile_sat, band, counts, lab, held, fill):
     """Sample the quads of square ``sq`` (``unit`` voxels a side, from voxel (a0, b0); a cell's index when
     ``unit`` is a cell) that their cells' flags ask for, at the pixels
     whose point on the slice plane lies in them (each pixel of the slice falls in one quad), and composite the
@@ -680,12 +682,12 @@ def _sample_square(sq, unit, a0, b0, mark, voxel, alpha, color, shade, use_gm, u
             done = 0            # a shown label's sample in front of the density's (isplat.splat.labels)
             if lab[0].shape[0] > 0:
                 done = sample_label(x, y, fu, fv, qa, qb, c, u, v, lab, n_a, n_b, shade, use_shade, base, geo, img,
-                                    sat, tile_sat, et)
+                                    sat, tile_sat, et, fill)
             if done < 2:
                 done = max(done, _sample(x, y, fu, fv, cbase + _at(oa, qa) + _at(ob, qb),
                                          _step(oa, qa, n_a), _step(ob, qb, n_b), u, v,
                                          density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo, img,
-                                         sat, tile_sat, et, _taps(qa, qb, voxel), tab))
+                                         sat, tile_sat, et, fill, _taps(qa, qb, voxel), tab))
             drawn += done > 0
             newly += done > 1
     counts[0] += drawn
@@ -836,13 +838,14 @@ def _typed_at(o, q):
 
 @leaf(forceinline=True)
 def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo,
-            img, sat, tile_sat, et, taps, tab):
+            img, sat, tile_sat, et, fill, taps, tab):
     """One sample: the density of the quad at ``i00`` (next voxels ``sa``, ``sb`` away: 0 at the
     volume's edge, which repeats the edge voxel) at (fu, fv) in it (bilinear, or cubic along a thick axis:
     ``taps``, :func:`_taps`, :func:`_density_at`), classified with the tables interpolated
     between codes, shaded with the corners' Phong factors (weighted by their gradient magnitudes too when
     ``use_shade == 2``), composited over pixel (x, y). Returns 0 when
-    transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity."""
+    transparent, 1 when composited, 2 when the pixel then reached the early-termination opacity (``fill``:
+    :func:`isplat.splat.composite.saturated`)."""
     if SAMPLE_STAGES == 0:
         return 0
     if SAMPLE_STAGES < 4:
@@ -880,7 +883,7 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
         a, _ = path_alpha(L, u, v, base, geo.steps, geo.persp, geo.inv_unit, geo.coef, geo.eye)
     c0, c1, c2 = np.uint64(0), np.uint64(1), np.uint64(2)
     if SAMPLE_STAGES == 2:         # the opacity alone composited (for measuring only)
-        return _composite(img, sat, tile_sat, x, y, a, et, 0.0, 0.0, 0.0, False)
+        return _composite(img, sat, tile_sat, x, y, a, et, fill, 0.0, 0.0, 0.0, False)
     cr = color[di, c0] + f * color[di, np.uint64(3)]
     cg = color[di, c1] + f * color[di, np.uint64(4)]
     cb = color[di, c2] + f * color[di, np.uint64(5)]
@@ -908,14 +911,15 @@ def _sample(x, y, fu, fv, i00, sa, sb, u, v, density, gm, nrm, alpha, color, sha
             cr, cg, cb = cr * s0 + s3, cg * s1 + s4, cb * s2 + s5
         else:
             cr, cg, cb = cr * s0 + s1, cg * s0 + s1, cb * s0 + s1
-    return _composite(img, sat, tile_sat, x, y, a, et, cr, cg, cb, True)
+    return _composite(img, sat, tile_sat, x, y, a, et, fill, cr, cg, cb, True)
 
 
 @leaf(inline="always")    # numba inlines its IR, not LLVM: see isplat.jit.leaf
-def _composite(img, sat, tile_sat, x, y, a, et, cr, cg, cb, colour):
+def _composite(img, sat, tile_sat, x, y, a, et, fill, cr, cg, cb, colour):
     """Composite opacity ``a`` (and, ``colour`` True, the colour (cr, cg, cb) times it) over pixel (x, y), front
     to back; 2 when the pixel then reached the early-termination opacity ``et`` (marked in ``sat`` and its tile's
-    count), else 1. ``colour`` False: the opacity alone (``SAMPLE_STAGES == 2``, for measuring only)."""
+    count, the rest filled with the colour when ``fill``: :func:`isplat.splat.composite.saturated`), else 1.
+    ``colour`` False: the opacity alone (``SAMPLE_STAGES == 2``, for measuring only)."""
     uy, ux = np.uint64(y), np.uint64(x)
     if colour:                  # the four channels in the lanes of one vector (isplat.jit.over4)
         ai, an = over4(img, uy, ux, a, cr, cg, cb)
@@ -924,8 +928,7 @@ def _composite(img, sat, tile_sat, x, y, a, et, cr, cg, cb, colour):
         an = ai + (1.0 - ai) * a
         img[uy, ux, np.uint64(3)] = an
     if ai < et and an >= et:
-        sat[uy, ux] = 1
-        tile_sat[y // TILE, x // TILE] += 1
+        saturated(img, sat, tile_sat, x, y, an, cr, cg, cb, fill)
         return 2
     return 1
 

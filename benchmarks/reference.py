@@ -149,7 +149,8 @@ def render_overrides(render: dict) -> list[str]:
 
 def make_scene(case: str, size: int, render: dict | None = None, extra=(), shape=None, data=None):
     """The scene of ``case`` at ``size`` x ``size`` on its sample (``data``: (aug, idx) to use instead), as a
-    scene of the current version, so that its defaults are the current ones, with the case's own orbit camera
+    scene of the current version (that of the isplat imported: an older tree's, run by benchmarks.threadload,
+    gets its own), so that its defaults are the current ones, with the case's own orbit camera
     (``camera.view = "none"``: version 5's anatomical default would turn the engine, whose file says version 4)."""
     from isplat.scene import SCENE_VERSION, load_scene, parse_scene
 

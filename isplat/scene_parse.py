@@ -487,8 +487,8 @@ def _termination(t: Table, version, classification: str, mode: str) -> str:
     default = default_for(version, RenderOptions, "render", "termination") if post else "stop"
     term = t.choice("termination", ("fill", "stop"), default=default)
     if term == "fill" and not post:
-        t.fail("termination", 'render.termination = "fill" fills a pixel with the colour of its post-classified '
-               'sample; it takes render.classification = "post" and render.mode = "composite"')
+        t.fail("termination", 'a pixel is filled with the colour of its post-classified sample; "fill" takes '
+               'render.classification = "post" and render.mode = "composite"')
     return term
 
 

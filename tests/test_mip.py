@@ -322,7 +322,7 @@ def test_options_that_do_not_apply_warn(caplog):
     caplog.clear()
     parse_scene(BASE + '[render]\nmode = "mip"\ntermination = "stop"', ".", "t.toml", data_required=False)
     assert any("render.termination does not apply" in m for m in (r.getMessage() for r in caplog.records))
-    with pytest.raises(IsplatError, match='render.termination = "fill" fills a pixel'):
+    with pytest.raises(IsplatError, match='a pixel is filled with the colour of its post-classified sample'):
         parse_scene(BASE + '[render]\nmode = "mip"\ntermination = "fill"', ".", "t.toml", data_required=False)
 
 

@@ -44,8 +44,8 @@ from .reference import errors, make_scene
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULTS = {"method": "indexed", "classification": "post", "early_termination": 0.99, "termination": "fill",
-            "footprint_radius": 2.5,
-            "footprint_sigma": 0.7, "footprint_table": 1024, "precision": "float32", "threads": 0}
+            "footprint_radius": 2.5, "footprint_sigma": 0.7, "footprint_table": 1024, "precision": "float32",
+            "threads": 0}
 KNOBS = [                    # knobs of the default, post-classified, renderer
     ("early_termination", [1.0, 0.999, 0.98, 0.95]),
     ("precision", ["float64"]),

@@ -533,7 +533,8 @@ def _mode(ctx: Ctx, t: Table, classification: str, sheets: str) -> tuple[str, st
 def _not_applied(ctx: Ctx, tree: dict, render: RenderOptions) -> None:
     """One warning line per key the scene gives that an intensity projection does not use (shading's lights and
     terms, early termination and what it does to a pixel, the footprint's keys: it reconstructs with the tent and
-    finishes pixels by their bound). ``shading.enabled`` alone says nothing (shading is on by default; isplat.render always writes it)."""
+    finishes pixels by their bound). ``shading.enabled`` alone says nothing (shading is on by default;
+    isplat.render always writes it)."""
     if render.mode == "composite":
         return
     shading = tree.get("shading") if isinstance(tree.get("shading"), dict) else {}
@@ -697,8 +698,9 @@ def old_defaults_note(tree: dict, source_name: str) -> str | None:
 def _post_composite(version: int, render: dict) -> bool:
     """Whether a scene of ``version`` whose ``[render]`` table is ``render`` composites post-classified samples
     (the frames that ``render.termination`` applies to)."""
-    pre = render.get("classification", "pre" if version < 4 else "post") == "pre" or render.get("sheets") == "image"
-    return not pre and render.get("mode", "composite") == "composite"
+    classification = render.get("classification", default_for(version, RenderOptions, "render", "classification"))
+    return (classification == "post" and render.get("sheets") != "image"
+            and render.get("mode", "composite") == "composite")
 
 
 def build_scene(ctx: Ctx, tree: dict, data_required: bool = True, density_window: WindowArg = None) -> Scene:

@@ -1,7 +1,7 @@
 """What a pixel that reaches early termination gets: filled with its last sample's colour, or stopped as it is.
 
 ``python -m benchmarks termination [--out docs] [--quick]`` writes the section ``termination`` of
-``accuracy.md``: on each case of :mod:`benchmarks.peers` (the smallest of its image sizes; no VTK needed), the
+``termination.md`` (a page of its own: ``accuracy.md`` is rewritten whole by :mod:`benchmarks.accuracy`): on each case of :mod:`benchmarks.peers` (the smallest of its image sizes; no VTK needed), the
 post-classified default (``render.termination = "fill"``, scene version 7) at the case's early-termination
 opacity and below it, against ``"stop"`` (what a pixel got before version 7) at that opacity: each setting's
 RMSE against reference (a) of :mod:`benchmarks.reference` (the converged ray integral, no early termination),
@@ -114,5 +114,5 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     rounds = QUICK_ROUNDS if quick else ROUNDS
     results = [measure(name, quick, rounds) for name in P.CASES]
     command = "python -m benchmarks termination" + (" --quick" if quick else "")
-    return _doc.update_section(Path(out_dir) / "accuracy.md", SECTION, body(results, command, rounds),
-                               title="Accuracy")
+    return _doc.update_section(Path(out_dir) / "termination.md", SECTION, body(results, command, rounds),
+                               title="Early termination: a stopped pixel filled or left as it is")

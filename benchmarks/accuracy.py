@@ -43,11 +43,11 @@ from . import reference as REF
 from .reference import errors, make_scene
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULTS = {"method": "indexed", "classification": "post", "early_termination": 0.99, "termination": "fill",
+DEFAULTS = {"method": "indexed", "classification": "post", "early_termination": 0.986, "termination": "fill",
             "footprint_radius": 2.5, "footprint_sigma": 0.7, "footprint_table": 1024, "precision": "float32",
             "threads": 0}
 KNOBS = [                    # knobs of the default, post-classified, renderer
-    ("early_termination", [1.0, 0.999, 0.98, 0.95]),
+    ("early_termination", [1.0, 0.999, 0.99, 0.98, 0.95]),     # 0.99: the default before scene version 8
     ("precision", ["float64"]),
     ("threads", [1]),
     ("method", ["full"]),
@@ -469,8 +469,9 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
          "are the paper's splatting, each voxel classified *before* reconstruction and spread by a Gaussian "
          "footprint, whose blur of sharp transfer-function edges is most of their error.\n",
          f"Every image is {size}x{size}, orthographic, one view per case. Each setting is the format defaults "
-         "(`method = \"indexed\"`, `classification = \"post\"`, `early_termination = 0.99`, "
-         "`termination = \"fill\"` (scene version 7: a pixel that stops is filled with its last sample's colour), "
+         "(`method = \"indexed\"`, `classification = \"post\"`, `early_termination = 0.986` (scene version 8; "
+         "0.99 before, and where a pixel is stopped), `termination = \"fill\"` (scene version 7: a pixel that "
+         "stops is filled with its last sample's colour; `termination stop` stops it at 0.99), "
          "`precision = \"float32\"`, `threads = 0` = all cores) with one knob changed; the footprint's knobs "
          "(`footprint_radius = 2.5`, `footprint_sigma = 0.7`, `footprint_table = 1024` by default) act on "
          "pre-classified splatting only, so their rows change one of them with `classification = \"pre\"`. "

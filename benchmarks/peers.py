@@ -1010,6 +1010,9 @@ def load_text(results) -> list[str]:
 
 
 def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quick) -> str:
+    from isplat.scene_schema import SCENE_VERSION, RenderOptions, defaults
+
+    fill_et = defaults(RenderOptions)["early_termination"]
     L = ["### Side by side with VTK's CPU ray caster, both against the truth", "", "```", command, "```", "",
          f"Machine: {_doc.machine_line()}; isplat {_doc.git_rev()}; VTK {vtk_ver} "
          f"(`vtkFixedPointVolumeRayCastMapper`, offscreen through `{window_cls}`). Generated: every number and "
@@ -1023,7 +1026,9 @@ def body(results, mem, proc, command, window_cls, vtk_ver, frames, out_dir, quic
          "on this shared machine than the absolute times). *cold*: the same ratio for the first frame of each "
          "pair, which finds the caches as the other renderer's frames left them (each renderer's data pushed out "
          "by the other's), a use neither renderer has on its own. isplat: `Renderer.render_view` (loading not "
-         "timed), threads = all cores; VTK: `renderWindow.Render()` with the same thread count. Error: RMSE and "
+         f"timed), threads = all cores, at the defaults of scene version {SCENE_VERSION} (a pixel that reaches "
+         f"`early_termination = {fill_et:g}` filled with its last sample's colour, docs/termination.md; the engine's "
+         "file sets 0.98); VTK: `renderWindow.Render()` with the same thread count. Error: RMSE and "
          "PSNR over RGB in [0, 1] against "
          "reference (a) (docs/reference.md: the converged float64 ray integral of the same 8-bit densities, "
          "trilinear, transfer function after interpolation, step 0.05 voxel), which is neither renderer; VTK's "

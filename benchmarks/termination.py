@@ -1,14 +1,16 @@
 """What a pixel that reaches early termination gets: filled with its last sample's colour, or stopped as it is.
 
 ``python -m benchmarks termination [--out docs] [--quick]`` writes the section ``termination`` of
-``termination.md`` (a page of its own: ``accuracy.md`` is rewritten whole by :mod:`benchmarks.accuracy`): on each case of :mod:`benchmarks.peers` (the smallest of its image sizes; no VTK needed), the
-post-classified default (``render.termination = "fill"``, scene version 7) at the case's early-termination
-opacity and below it, against ``"stop"`` (what a pixel got before version 7) at that opacity: each setting's
-RMSE against reference (a) of :mod:`benchmarks.reference` (the converged ray integral, no early termination),
-the samples it composited, and its median frame time over interleaved rounds with its median per-round ratio
-to the stop's. The sentences under the table are computed from it: where the fill is closer than the stop at
-the same opacity, and the lowest opacity at which the fill is no farther than the stop in every case (what
-would let the default stop earlier without a worse picture anywhere).
+``termination.md`` (a page of its own: ``accuracy.md`` is rewritten whole by :mod:`benchmarks.accuracy`): on
+each case of :mod:`benchmarks.peers` (the smallest of its image sizes; no VTK needed), ``"stop"`` (what a pixel
+got before version 7) at the opacity a stopped pixel stops at (0.99, or the case's own), against the
+post-classified default, ``render.termination = "fill"``: at that opacity (version 7), at the fill's default
+opacity (version 8: 0.986, or the case's own) and below it. Per setting: its RMSE against reference (a) of
+:mod:`benchmarks.reference` (the converged ray integral, no early termination), the samples it composited, and
+its median frame time over interleaved rounds with its median per-round ratio to the stop's. The sentences
+under the table are computed from it: where the fill is closer than the stop at the same opacity, whether the
+default is as close as the stop in every case, and how far below the fill stays so (what the default's opacity
+was chosen by).
 """
 
 from __future__ import annotations
@@ -23,14 +25,20 @@ SECTION = "termination"
 TECHNIQUES = ["post"]
 SOURCES = _doc.sources(_doc.RENDER, _doc.READ, _doc.SAMPLES, ("benchmarks/termination.py", "benchmarks/peers.py",
                                                               "benchmarks/reference.py", "tests/ray_reference.py"))
-LOWER = (0.01, 0.02, 0.04)      # the fill also at the case's opacity minus these
+LOWER = (0.01, 0.02, 0.04)      # the fill also at the stop's opacity minus these
 ROUNDS, QUICK_ROUNDS = 9, 2
 
 
-def settings(et: float) -> list[tuple[str, float]]:
-    """(termination, early_termination) of a case whose scene stops at ``et``: the stop (before version 7) and
-    the fill (the default) there, then the fill at the lower opacities."""
-    return [("stop", et), ("fill", et)] + [("fill", round(et - d, 4)) for d in LOWER]
+def settings(stop_et: float, fill_et: float) -> list[tuple[str, float]]:
+    """(termination, early_termination) of a case whose scene stops a pixel at ``stop_et`` and fills it at
+    ``fill_et`` (its defaults for either): the stop (before version 7), the fill at the stop's opacity (version
+    7), the fill at its own default (version 8), then the fill at the lower opacities."""
+    lower = [("fill", round(stop_et - d, 4)) for d in LOWER]
+    out = [("stop", stop_et), ("fill", stop_et)]
+    for p in [("fill", fill_et)] + lower:
+        if p not in out:
+            out.append(p)
+    return out
 
 
 def measure(name: str, quick: bool, rounds: int) -> dict:
@@ -45,12 +53,14 @@ def measure(name: str, quick: bool, rounds: int) -> dict:
     base = P.peer_scene(name, size, quick)
     ref, _, _ = REF.reference(base)
     sel = Renderer(base).selection
+    stop_et = P.peer_scene(name, size, quick, {"termination": "stop"}).render.early_termination
     points = []
-    for term, et in settings(base.render.early_termination):
+    for term, et in settings(stop_et, base.render.early_termination):
         view = views_for(P.peer_scene(name, size, quick, {"termination": term, "early_termination": et}), sel)[0]
         img, st = render_frame(sel, view, None, BandLearning())
         points.append(dict(term=term, et=et, view=view, bands=BandLearning(), times=[], samples=st.drawn,
-                           rmse=REF.errors(img, ref)["rmse"]))
+                           rmse=REF.errors(img, ref)["rmse"], default=term == "fill" and
+                           et == base.render.early_termination))
     for rnd in range(rounds):           # interleaved, the order turning each round; a warm frame before each
         for p in points[rnd % len(points):] + points[:rnd % len(points)]:
             render_frame(sel, p["view"], None, p["bands"])
@@ -66,25 +76,44 @@ def measure(name: str, quick: bool, rounds: int) -> dict:
 
 
 def _label(p) -> str:
-    return f'{p["term"]}, ET {p["et"]:g}'
+    return f'{p["term"]}, ET {p["et"]:g}' + (" (default)" if p["default"] else "")
+
+
+def _digits(x: float) -> float:
+    """``x`` to the table's precision, four significant digits."""
+    return float(f"{x:.4g}")
 
 
 def summary(results) -> list[str]:
-    """The sentences the table supports: fill against stop at the case's opacity, and how low the fill may go."""
+    """The sentences the table supports: fill against stop at the stop's opacity, the default fill against that
+    stop, and how low the fill may go."""
     closer = [r["case"] for r in results if r["points"][1]["rmse"] < r["points"][0]["rmse"]]
     farther = [f"{r['case']} ({r['points'][1]['rmse']:.6f} against {r['points'][0]['rmse']:.6f})"
                for r in results if r["points"][1]["rmse"] > r["points"][0]["rmse"]]
     lines = [f"- At each case's own early-termination opacity the fill is closer to reference (a) than the stop in "
              f"{len(closer)} of {len(results)} cases" + (f"; farther in: {'; '.join(farther)}." if farther else ".")]
+    defaults = [(r, next(p for p in r["points"] if p["default"])) for r in results]
+    worse = [f'{r["case"]} ({p["rmse"]:.6f} against {r["points"][0]["rmse"]:.6f})' for r, p in defaults
+             if _digits(p["rmse"]) > _digits(r["points"][0]["rmse"])]
+    tied = [f'{r["case"]} ({p["rmse"]:.9f} against {r["points"][0]["rmse"]:.9f})' for r, p in defaults
+            if p["rmse"] > r["points"][0]["rmse"] and _digits(p["rmse"]) <= _digits(r["points"][0]["rmse"])]
+    ratios = [p["ratio"] for _, p in defaults]
+    lines.append("- The default (the fill at its default opacity, marked): "
+                 + (f"farther from reference (a) than the stop at the stop's opacity in {len(worse)} cases "
+                    f"({'; '.join(worse)})" if worse else
+                    f"no farther from reference (a) than the stop at the stop's opacity in any of the "
+                    f"{len(results)} cases, RMSE to four significant digits as in the table")
+                 + (f"; farther below that precision in {'; '.join(tied)}" if tied else "")
+                 + f". Its frames are {min(ratios):.2f}-{max(ratios):.2f}x the stop's.")
     for d in LOWER:
         worse = [f'{r["case"]} {p["rmse"]:.6f} against {r["points"][0]["rmse"]:.6f}'
                  for r in results for p in r["points"][2:]
                  if abs(p["et"] - round(r["points"][0]["et"] - d, 4)) < 1e-9 and p["rmse"] > r["points"][0]["rmse"]]
         ratios = [p["ratio"] for r in results for p in r["points"][2:]
                   if abs(p["et"] - round(r["points"][0]["et"] - d, 4)) < 1e-9]
-        verdict = ("no farther than the stop at the case's opacity in every case" if not worse else
-                   f"farther than the stop at the case's opacity in {len(worse)} cases ({'; '.join(worse)})")
-        lines.append(f"- The fill {d:g} below each case's opacity: {verdict}; its frames "
+        verdict = ("no farther than the stop at the stop's opacity in every case" if not worse else
+                   f"farther than the stop at the stop's opacity in {len(worse)} cases ({'; '.join(worse)})")
+        lines.append(f"- The fill {d:g} below the stop's opacity: {verdict}; its frames "
                      f"{min(ratios):.2f}-{max(ratios):.2f}x the stop's.")
     return lines
 
@@ -93,13 +122,15 @@ def body(results, command: str, rounds: int) -> str:
     L = ["### Filling a pixel that stops (`render.termination`)", "",
          f"`{command}` ({_doc.machine_line()}; {rounds} interleaved rounds, each timed frame after a warm one of "
          "its own). Technique **post** throughout. `render.termination = \"fill\"` (the default from scene "
-         "version 7): a pixel that reaches `render.early_termination` takes the colour of the sample that took it "
+         "version 7; from version 8 at `render.early_termination = 0.986` by default, 0.99 before): a pixel that "
+         "reaches `render.early_termination` takes the colour of the sample that took it "
          "there for the rest of its transmittance (isplat.splat.composite.saturated); `\"stop\"` (before version "
          "7): it keeps the opacity it reached, the background showing through the rest. Reference (a) integrates "
          "the whole ray, so what a stopped pixel leaves out is error: the stop's error there is everything behind "
          "the point, the fill's only the change of colour behind it. Cases: benchmarks/peers.py's, each at its "
-         "smallest image size, with its own early-termination opacity (0.99, the engine's 0.98); "
-         "ratio = median per-round ratio of the frame to the stop's at the case's opacity.", "",
+         "smallest image size; the stop at the opacity a stopped pixel stops at (0.99, the engine's own 0.98), the "
+         "fill there, at its default opacity (*default*: 0.986, the engine's own 0.98) and 0.01, 0.02 and 0.04 "
+         "below the stop's; ratio = median per-round ratio of the frame to the stop's.", "",
          "| case | pixels | setting | RMSE (a) | samples | ms | / stop |", "|---|---:|---|---:|---:|---:|---:|"]
     for r in results:
         for p in r["points"]:

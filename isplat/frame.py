@@ -17,7 +17,7 @@ with early termination off, see docs/design.md for the bound with it on).
 >>> sel = Selection.from_arrays(vol, scene)
 >>> rgba, stats = render_frame(sel, views_for(scene, sel)[0])
 >>> rgba.shape, stats.samples, stats.classification      # post-classified: samples composited
-((32, 32, 4), 348, 'post')
+((32, 32, 4), 324, 'post')
 """
 
 from __future__ import annotations

@@ -21,9 +21,10 @@ from .limits import MAX_VIEWS
 from .scene_schema import (CAMERA_KEYS, CAMERA_MODE_KEYS, CUT_KEYS, DATA_KEYS, DEFAULT_ORBIT_STEPS,
                            DEFAULT_PATH_FRAMES, DEFAULTS_BEFORE, FOV_MAX, IDENTITY_AXES, IMAGE_KEYS, KEYS_SINCE,
                            LIGHT_KEYS, OLD_DEFAULT_MEANING, ORTHONORMAL_TOLERANCE, PARALLEL_TOLERANCE, RENDER_KEYS,
-                           SCENE_VERSION, SHADING_KEYS, SLICE_STRIDE_MAX, SUPERSAMPLE_MAX, TOP_KEYS, TRANSFER_KEYS,
-                           VIEW_CHOICES, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image, Light, RenderOptions, Scene,
-                           Shading, Transfer, Vec3, Volume, default_for, defaults, spacing_problem, unit)
+                           SCENE_VERSION, SHADING_KEYS, SLICE_STRIDE_MAX, STOP_EARLY_TERMINATION, SUPERSAMPLE_MAX,
+                           TOP_KEYS, TRANSFER_KEYS, VIEW_CHOICES, VIEWS_KEYS, VOLUME_KEYS, Camera, Cut, Data, Image,
+                           Light, RenderOptions, Scene, Shading, Transfer, Vec3, Volume, default_for, defaults,
+                           spacing_problem, unit)
 from .scene_validate import Ctx, Table, dotted, fmt, kind
 
 __all__ = ["build_scene", "DensityWindow", "WindowUnavailable", "NO_WINDOW"]
@@ -455,7 +456,6 @@ def _cuts(ctx: Ctx, tree: dict) -> tuple[Cut, ...]:
 def _render(ctx: Ctx, tree: dict) -> RenderOptions:
     t = Table(ctx, ctx.table(tree, ("render",), RENDER_KEYS), ("render",), defaults(RenderOptions))
     method = t.choice("method", ("indexed", "full"))
-    early = t.number("early_termination", "expected an opacity in (0, 1] (1 = off)", lo=0.0, hi=1.0, lo_open=True)
     radius = t.number("footprint_radius", "expected a cut-off in Gaussian sigmas in 0.5..6", lo=0.5, hi=6.0)
     sigma = t.number("footprint_sigma", "expected a sigma in voxel steps in 0.3..3", lo=0.3, hi=3.0)
     table = t.integer("footprint_table", f"expected an integer number of table entries in 16..{1 << 20}", 16,
@@ -474,9 +474,19 @@ def _render(ctx: Ctx, tree: dict) -> RenderOptions:
     supersample = t.integer("supersample", f"expected an integer 1..{SUPERSAMPLE_MAX} (render at N times the width "
                             "and height, box-filtered down; 1 = off)", 1, SUPERSAMPLE_MAX)
     mode, color = _mode(ctx, t, classification, sheets)
-    return RenderOptions(method, early, radius, sigma, table, precision, threads, sheets, classification,
-                         supersample, mode, None, color, _slice_stride(t, classification, mode),
-                         _termination(t, tree.get("version"), classification, mode))
+    term = _termination(t, tree.get("version"), classification, mode)
+    return RenderOptions(method, _early_termination(t, tree.get("version"), term), radius, sigma, table, precision,
+                         threads, sheets, classification, supersample, mode, None, color,
+                         _slice_stride(t, classification, mode), term)
+
+
+def _early_termination(t: Table, version, term: str) -> float:
+    """``render.early_termination``: an opacity in (0, 1]; by default RenderOptions' where a pixel that reaches it
+    is filled (``term``), STOP_EARLY_TERMINATION where it is stopped and in a file before version 8."""
+    default = default_for(version, RenderOptions, "render", "early_termination") if term == "fill" else \
+        STOP_EARLY_TERMINATION
+    return t.number("early_termination", "expected an opacity in (0, 1] (1 = off)", lo=0.0, hi=1.0, lo_open=True,
+                    default=default)
 
 
 def _termination(t: Table, version, classification: str, mode: str) -> str:
@@ -663,13 +673,17 @@ def old_defaults_note(tree: dict, source_name: str) -> str | None:
     >>> print(old_defaults_note({"version": 1}, "head.toml"))   # doctest: +NORMALIZE_WHITESPACE
     head.toml: version = 1 keeps version-1 defaults: render.classification = "pre" (the paper's splatting),
     camera.view = "none" (the orbit about camera.up, not the anatomical front), volume.axes = identity (grid
-    space, not the file's patient orientation); say version = 7 for the current defaults
+    space, not the file's patient orientation); say version = 8 for the current defaults
     >>> print(old_defaults_note({"version": 6}, "s"))   # doctest: +NORMALIZE_WHITESPACE
     s: version = 6 keeps version-6 defaults: render.termination = "stop" (a pixel that reaches
-    render.early_termination keeps its opacity, the background showing through the rest); say version = 7 for the
+    render.early_termination keeps its opacity, the background showing through the rest); say version = 8 for the
     current defaults
+    >>> print(old_defaults_note({"version": 7}, "s"))   # doctest: +NORMALIZE_WHITESPACE
+    s: version = 7 keeps version-7 defaults: render.early_termination = 0.99 (also where a pixel that reaches it is
+    filled); say version = 8 for the current defaults
     >>> old_defaults_note({"version": 6, "render": {"classification": "pre"}}, "s")
-    >>> old_defaults_note({}, "s") is None and old_defaults_note({"version": 7}, "s") is None
+    >>> old_defaults_note({"version": 7, "render": {"termination": "stop"}}, "s")
+    >>> old_defaults_note({}, "s") is None and old_defaults_note({"version": 8}, "s") is None
     True
     """
     v = tree.get("version")
@@ -687,6 +701,9 @@ def old_defaults_note(tree: dict, source_name: str) -> str | None:
             continue                                  # camera.up means "none" in every version
         if (table, key) == ("render", "termination") and not _post_composite(v, t):
             continue                                  # pre-classified and intensity frames stop in every version
+        if (table, key) == ("render", "early_termination") and not (_post_composite(v, t) and t.get(
+                "termination", default_for(v, RenderOptions, "render", "termination")) == "fill"):
+            continue                                  # a pixel that is stopped stops at 0.99 in every version
         shown = "identity" if older == IDENTITY_AXES else f'"{older}"' if isinstance(older, str) else str(older)
         kept.append(f"{table}.{key} = {shown} ({OLD_DEFAULT_MEANING[table, key]})")
     if not kept:

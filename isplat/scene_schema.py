@@ -6,7 +6,9 @@ defaults that depend on other keys or on the file's ``version`` are said next to
 :data:`DEFAULTS_BEFORE`. formats/scene.md is the user's copy of this.
 
 >>> defaults(RenderOptions)["early_termination"], defaults(Image)["background"]
-(0.99, (0.0, 0.0, 0.0, 1.0))
+(0.986, (0.0, 0.0, 0.0, 1.0))
+>>> [default_for(v, RenderOptions, "render", "early_termination") for v in (7, 8)]
+[0.99, 0.986]
 >>> [default_for(v, RenderOptions, "render", "classification") for v in (3, 4, None)]
 ['pre', 'post', 'post']
 >>> [default_for(v, Camera, "camera", "view") for v in (4, 5)], default_for(4, Volume, "volume", "axes")[0]
@@ -22,12 +24,12 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
-    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "OLD_DEFAULT_MEANING", "Scene", "Data", "Image", "Volume",
+    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "STOP_EARLY_TERMINATION", "OLD_DEFAULT_MEANING", "Scene", "Data", "Image", "Volume",
     "Camera", "Transfer",
     "Shading", "Light", "Cut", "RenderOptions", "Labels", "LabelStyle", "defaults", "default_for", "spacing_problem",
 ]
 
-SCENE_VERSION = 7
+SCENE_VERSION = 8
 IDENTITY_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 # keys added by each version after 1: a file that says an older version must not use them
 KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "path"): 2, ("views", "frames"): 2,
@@ -38,15 +40,22 @@ KEYS_SINCE = {("transfer", "units"): 2, ("transfer", "preset"): 2, ("views", "pa
               ("render", "slice_stride"): 6, ("render", "termination"): 7}
 # tables added by a version after 1 (the whole table is new)
 TABLES_SINCE = {"labels": 6}
+# render.early_termination where a pixel that reaches it is stopped (render.termination = "stop": "pre", the
+# intensity projections, files before version 7) and in every frame of a file before version 8. Where it is
+# filled, RenderOptions' default: the lowest opacity at which the fill was as close to the converged ray
+# integral as the stop at 0.99 in every case of docs/termination.md (RMSE to four digits)
+STOP_EARLY_TERMINATION = 0.99
 # defaults a version changed: (table, key) -> (that version, the default of a file that says an older one)
 DEFAULTS_BEFORE = {("render", "classification"): (4, "pre"), ("camera", "view"): (5, "none"),
-                   ("volume", "axes"): (5, IDENTITY_AXES), ("render", "termination"): (7, "stop")}
+                   ("volume", "axes"): (5, IDENTITY_AXES), ("render", "termination"): (7, "stop"),
+                   ("render", "early_termination"): (8, STOP_EARLY_TERMINATION)}
 # what each of those older defaults means, for the note a scene of an older version gets (old_defaults_note)
 OLD_DEFAULT_MEANING = {("render", "classification"): "the paper's splatting",
                        ("camera", "view"): "the orbit about camera.up, not the anatomical front",
                        ("volume", "axes"): "grid space, not the file's patient orientation",
                        ("render", "termination"): "a pixel that reaches render.early_termination keeps its opacity, "
-                                                  "the background showing through the rest"}
+                                                  "the background showing through the rest",
+                       ("render", "early_termination"): "also where a pixel that reaches it is filled"}
 # camera.view: a named anatomical view (isplat.camera.NAMED_VIEWS), "auto" or "none" (class Camera)
 NAMED_VIEW_NAMES = ("anterior", "posterior", "left", "right", "superior", "inferior")
 VIEW_CHOICES = NAMED_VIEW_NAMES + ("auto", "none")
@@ -159,7 +168,7 @@ class Cut:
 @dataclass(frozen=True)
 class RenderOptions:
     method: str = "indexed"
-    early_termination: float = 0.99
+    early_termination: float = 0.986      # where a pixel is filled (version 8); else STOP_EARLY_TERMINATION
     footprint_radius: float = 2.5
     footprint_sigma: float = 0.7
     footprint_table: int = 1024

@@ -17,6 +17,7 @@ from isplat.augfile import label_counts, open_augmented, write_augmented
 from isplat.cli.main import main
 from isplat.errors import IsplatError
 from isplat.renderer import Renderer
+from isplat.scene_schema import SCENE_VERSION
 
 COLORS = {1: (1.0, 0.0, 0.0), 2: (0.0, 1.0, 0.0), 3: (0.0, 0.0, 1.0)}
 
@@ -54,7 +55,7 @@ def write_labelled(path, lab, density=None):
 
 
 def label_scene(tmp_path, aug, shown=(1, 2, 3), extra="", size=96):
-    text = (f'version = 7\n[data]\naugmented = "{aug}"\n[render]\nmethod = "full"\n[image]\nwidth = {size}\n'
+    text = (f'version = {SCENE_VERSION}\n[data]\naugmented = "{aug}"\n[render]\nmethod = "full"\n[image]\nwidth = {size}\n'
             f'height = {size}\n[camera]\nelevation = 90\n[transfer]\nopacity = [[0, 0], [255, 0]]\n'
             f'[shading]\nenabled = false\n{extra}')
     for i in shown:
@@ -259,7 +260,9 @@ def test_a_label_that_stops_a_pixel_fills_it_with_its_colour(tmp_path):
     out = {}
     for term in ("fill", "stop"):
         p = label_scene(tmp_path, aug, size=48)
-        text = p.read_text().replace('method = "full"', f'method = "full"\ntermination = "{term}"')
+        # both at one opacity (a stopped pixel's default is 0.99, a filled one's 0.986)
+        text = p.read_text().replace('method = "full"', f'method = "full"\ntermination = "{term}"\n'
+                                     'early_termination = 0.99')
         text = text.replace("height = 48\n", "height = 48\nbackground = [0.0, 0.0, 0.0, 0.0]\n", 1)
         text = text.replace("opacity = 1.0\n", "opacity = 0.6\n")     # 6 voxels deep: 1 - 0.4^6 > 0.99
         p.write_text(text)
@@ -366,7 +369,7 @@ def test_names_map(capsys, tmp_path):
 def test_labels_need_scene_version_6(capsys, tmp_path):
     aug = write_labelled(tmp_path / "v.aug.h5", three_boxes())
     scene = label_scene(tmp_path, aug)
-    scene.write_text(scene.read_text().replace("version = 7", "version = 5"))
+    scene.write_text(scene.read_text().replace(f"version = {SCENE_VERSION}", "version = 5"))
     code, _, err = run(capsys, "render", scene, "-o", tmp_path / "x.png")
     one_error(code, err, "[labels] is new in scene version 6")
 

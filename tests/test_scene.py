@@ -10,7 +10,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from isplat.scene_schema import RenderOptions, defaults
+from isplat.scene_schema import STOP_EARLY_TERMINATION, RenderOptions, defaults
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -119,7 +119,13 @@ def test_defaults():
     assert s.cuts == ()
     r = s.render
     assert (r.method, r.early_termination, r.footprint_radius, r.footprint_sigma, r.footprint_table, r.precision,
-            r.threads) == ("indexed", 0.99, 2.5, 0.7, 1024, "float32", 0)
+            r.threads) == ("indexed", 0.986, 2.5, 0.7, 1024, "float32", 0)
+    # a pixel that is stopped, and every frame of a file before version 8, stops at 0.99
+    for text in ("version = 7\n" + BASE, BASE + '[render]\ntermination = "stop"\n',
+                 BASE + '[render]\nclassification = "pre"\n', BASE + '[render]\nmode = "mip"\n'):
+        assert parse(text).render.early_termination == 0.99
+    assert parse("version = 7\n" + BASE).render.termination == "fill"
+    assert parse(BASE + "[render]\nearly_termination = 0.9\n").render.early_termination == 0.9
     assert s.views == (s.camera,)
 
 
@@ -129,9 +135,12 @@ def test_defaults_are_the_dataclass_defaults():
     assert (s.image, s.volume, s.camera, s.shading, s.render) == (Image(), Volume(), Camera(), Shading(),
                                                                   RenderOptions())
     assert s.transfer == Transfer(s.transfer.opacity) and s.fps == 12.0
-    assert parse("version = 3\n" + BASE).render == RenderOptions(classification="pre", termination="stop")
+    # (a stopped pixel's early termination, STOP_EARLY_TERMINATION, is the one default that depends on another key)
+    assert parse("version = 3\n" + BASE).render == RenderOptions(classification="pre", termination="stop",
+                                                                  early_termination=STOP_EARLY_TERMINATION)
     assert parse(BASE + '[render]\nsheets = "image"\n').render == RenderOptions(sheets="image", classification="pre",
-                                                                                 termination="stop")
+                                                                                 termination="stop",
+                                                                                 early_termination=0.99)
 
 
 def test_types_are_python_floats_and_tuples():
@@ -521,7 +530,7 @@ def test_a_scene_without_version_gets_the_current_defaults():
     from isplat.scene_schema import DEFAULTS_BEFORE, IDENTITY_AXES
 
     assert set(DEFAULTS_BEFORE) == {("render", "classification"), ("camera", "view"), ("volume", "axes"),
-                                    ("render", "termination")}
+                                    ("render", "termination"), ("render", "early_termination")}
     s = parse_scene(BASE, ".", "s.toml")
     assert (s.render.classification, s.camera.view, s.volume.axes, s.render.termination) == ("post", "auto", None,
                                                                                                "fill")
@@ -533,6 +542,8 @@ def test_a_scene_without_version_gets_the_current_defaults():
         "post", "none", IDENTITY_AXES, "stop")
     s6 = parse_scene("version = 6\n" + BASE, ".", "s.toml")
     assert (s6.render.classification, s6.camera.view, s6.render.termination) == ("post", "auto", "stop")
+    s7 = parse_scene("version = 7\n" + BASE, ".", "s.toml")
+    assert (s7.render.termination, s7.render.early_termination, s.render.early_termination) == ("fill", 0.99, 0.986)
     # "fill" takes the colour of a post-classified composite sample: the other frames stop in every version
     for extra in ('classification = "pre"', 'mode = "mip"', 'sheets = "image"'):
         assert parse_scene(BASE + f"[render]\n{extra}\n", ".", "s.toml").render.termination == "stop"
@@ -554,6 +565,10 @@ def test_a_scene_without_version_gets_the_current_defaults():
      ['render.termination = "stop"']),
     ("version = 4\n[camera]\nup = [0, 0, 1]\n[volume]\naxes = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n[render]\n"
      "termination = \"stop\"\n", None),
+    ("version = 7\n", ["render.early_termination = 0.99 (also where a pixel that reaches it is filled)"]),
+    ("version = 7\n[render]\ntermination = \"stop\"\n", None),
+    ("version = 7\n[render]\nclassification = \"pre\"\n", None),
+    ("version = 7\n[render]\nearly_termination = 0.99\n", None),
 ])
 def test_old_defaults_note_names_what_an_old_version_keeps(text, kept):
     from isplat.scene import old_defaults_note, scene_tree

@@ -43,9 +43,6 @@ from . import reference as REF
 from .reference import errors, make_scene
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULTS = {"method": "indexed", "classification": "post", "early_termination": 0.986, "termination": "fill",
-            "footprint_radius": 2.5, "footprint_sigma": 0.7, "footprint_table": 1024, "precision": "float32",
-            "threads": 0}
 KNOBS = [                    # knobs of the default, post-classified, renderer
     ("early_termination", [1.0, 0.999, 0.99, 0.98, 0.95]),     # 0.99: the default before scene version 8
     ("precision", ["float64"]),
@@ -450,8 +447,10 @@ def stride_sentences(rows_by_case, conv) -> list[str]:
 
 
 def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sheets, vtk_cls, gain, ppv) -> str:
+    from isplat.scene_schema import STOP_EARLY_TERMINATION as stop_et, RenderOptions, defaults
     from isplat.splat.footprint import MIN_SIGMA_PIXELS
 
+    fill_et = defaults(RenderOptions)["early_termination"]
     ppv_head = ppv.get("head", float("nan"))
 
     cmd = "python -m benchmarks accuracy" + (" --quick" if quick else "")
@@ -469,9 +468,10 @@ def render_doc(rows_by_case, conv, pops, quick, size, frames, seconds, load0, sh
          "are the paper's splatting, each voxel classified *before* reconstruction and spread by a Gaussian "
          "footprint, whose blur of sharp transfer-function edges is most of their error.\n",
          f"Every image is {size}x{size}, orthographic, one view per case. Each setting is the format defaults "
-         "(`method = \"indexed\"`, `classification = \"post\"`, `early_termination = 0.986` (scene version 8; "
-         "0.99 before, and where a pixel is stopped), `termination = \"fill\"` (scene version 7: a pixel that "
-         "stops is filled with its last sample's colour; `termination stop` stops it at 0.99), "
+         f"(`method = \"indexed\"`, `classification = \"post\"`, `early_termination = {fill_et:g}` (scene "
+         f"version 8; {stop_et:g} before, and where a pixel is stopped), `termination = \"fill\"` (scene version "
+         f"7: a pixel that stops is filled with its last sample's colour; `termination stop` stops it at "
+         f"{stop_et:g}), "
          "`precision = \"float32\"`, `threads = 0` = all cores) with one knob changed; the footprint's knobs "
          "(`footprint_radius = 2.5`, `footprint_sigma = 0.7`, `footprint_table = 1024` by default) act on "
          "pre-classified splatting only, so their rows change one of them with `classification = \"pre\"`. "

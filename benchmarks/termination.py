@@ -122,17 +122,22 @@ def summary(results) -> list[str]:
 
 
 def body(results, white, command: str, rounds: int) -> str:
+    from isplat.scene_schema import STOP_EARLY_TERMINATION as stop_et, RenderOptions, defaults
+
+    fill_et = defaults(RenderOptions)["early_termination"]
     L = ["### Filling a pixel that stops (`render.termination`)", "",
          f"`{command}` ({_doc.machine_line()}; {rounds} interleaved rounds, each timed frame after a warm one of "
          "its own). Technique **post** throughout. `render.termination = \"fill\"` (the default from scene "
-         "version 7; from version 8 at `render.early_termination = 0.986` by default, 0.99 before): a pixel that "
+         f"version 7; from version 8 at `render.early_termination = {fill_et:g}` by default, {stop_et:g} before): "
+         "a pixel that "
          "reaches `render.early_termination` takes the colour of the sample that took it "
          "there for the rest of its transmittance (isplat.splat.composite.saturated); `\"stop\"` (before version "
          "7): it keeps the opacity it reached, the background showing through the rest. Reference (a) integrates "
          "the whole ray, so what a stopped pixel leaves out is error: the stop's error there is everything behind "
          "the point, the fill's only the change of colour behind it. Cases: benchmarks/peers.py's, each at its "
-         "smallest image size; the stop at the opacity a stopped pixel stops at (0.99, the engine's own 0.98), the "
-         "fill there, at its default opacity (*default*: 0.986, the engine's own 0.98) and 0.01, 0.02 and 0.04 "
+         f"smallest image size; the stop at the opacity a stopped pixel stops at ({stop_et:g}, the engine's own "
+         f"0.98), the fill there, at its default opacity (*default*: {fill_et:g}, the engine's own 0.98) and "
+         f"{', '.join(f'{d:g}' for d in LOWER[:-1])} and {LOWER[-1]:g} "
          "below the stop's; ratio = median per-round ratio of the frame to the stop's.", "",
          "| case | pixels | setting | RMSE (a) | samples | ms | / stop |", "|---|---:|---|---:|---:|---:|---:|"]
     for r in results:

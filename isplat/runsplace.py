@@ -449,3 +449,53 @@ def message(err, first_run: int, shape, lo, hi, version: int) -> tuple[str, str]
         DENSITY: ("density", f"{run}: a density outside the run's codes {int(lo[r])}..{int(hi[r])}"),
         TWICE: ("positions", f": voxel {x} (flat) lies in two runs"),
     }[code]
+
+
+def unpool(table: np.ndarray, bases: np.ndarray, loaded: np.ndarray, shape, pools) -> tuple[list, np.ndarray]:
+    """A packed pool's channels whole-shape (flat ``[k, j, i]``, zeros where no voxel is held) and the bits of
+    the voxels held in that layout (uint64 words, bit ``f % 64`` of word ``f // 64`` for flat index ``f``, as
+    isplat.splat.post.loaded_bits gives them). ``table``: each brick's row (uint32, C order of the 8^3 grid of
+    ``shape``, 0: none); ``bases``, ``loaded``: the rows' first places and their loaded bits (:func:`pack_rows`);
+    ``pools``: the channels' pools (an empty one stays empty). The pool is isplat's own (placed and checked by
+    :func:`place_runs`); its tables are checked against each other before the kernel indexes with them."""
+    shape = tuple(int(n) for n in shape)
+    grid_n = tuple(-(-n // BRICK) for n in shape)
+    rows = bases.shape[0]
+    if (table.size != int(np.prod(grid_n)) or loaded.size != 8 * rows or rows == 0
+            or int(table.max(initial=0)) >= rows or int(bases.min()) < 0
+            or any(p.size and int(bases.max()) + BRICK_VOXELS > p.size for p in pools)):
+        raise ValueError(f"a pool of {rows} rows, {loaded.size} words of bits and a table of {table.size} bricks "
+                         f"does not fit shape {shape} and pools of {[p.size for p in pools]} places")
+    n = int(np.prod(shape, dtype=np.int64))
+    outs = [np.zeros(n if p.size else 0, p.dtype) for p in pools]
+    words = np.zeros((n + 63) // 64, np.uint64)
+    _unpool(table, bases, loaded, np.asarray(shape, np.int64), *pools, *outs, words)
+    return outs, words
+
+
+@jit
+def _unpool(table, bases, loaded, shape, p0, p1, p2, o0, o1, o2, words):
+    """:func:`unpool`'s pass: brick by brick, each loaded place of its row to its flat index."""
+    nk, nj, ni = shape[0], shape[1], shape[2]
+    gj, gi = (nj + BRICK - 1) // BRICK, (ni + BRICK - 1) // BRICK
+    for t in range(table.shape[0]):
+        row = np.int64(table[t])
+        if row == 0:
+            continue
+        k0, j0, i0 = t // (gj * gi) * BRICK, t // gi % gj * BRICK, t % gi * BRICK
+        base = bases[row]
+        for p in range(BRICK_VOXELS):
+            if (loaded[8 * row + (p >> 6)] >> np.uint64(p & 63)) & np.uint64(1) == 0:
+                continue
+            k, j, i = k0 + (p >> 6), j0 + (p >> 3 & 7), i0 + (p & 7)
+            if k >= nk or j >= nj or i >= ni:
+                continue                    # (no voxel is placed there: formats/runs.md §5 refuses it)
+            f = (k * nj + j) * ni + i
+            q = base + p
+            if o0.shape[0] > 0:
+                o0[f] = p0[q]
+            if o1.shape[0] > 0:
+                o1[f] = p1[q]
+            if o2.shape[0] > 0:
+                o2[f] = p2[q]
+            words[f >> 6] |= np.uint64(1) << np.uint64(f & 63)

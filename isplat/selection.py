@@ -840,8 +840,9 @@ def post_runs_bytes(request, aug) -> int | None:
     before the load), from the runs file's pointer tables: the runs the intervals meet, read (their voxels'
     channels, positions and brick rows) and placed (a pool row for each brick they hold voxels of, with the loaded
     bits and each axis' quad bits: their ``brick_number`` rows read to count them; the pool packed, its rows'
-    places at most), and the brick table with the sampler's deltas; None when the frame would not read the runs
-    file (:func:`_runs_file`)."""
+    places at most), and the brick table with the sampler's deltas, and the channels placed whole-shape beside
+    them when they will be (:func:`_whole_shape_fits`); None when the frame would not read the runs file
+    (:func:`_runs_file`)."""
     from .runsfile import open_runs
     from .stats import bytes_per_voxel
 
@@ -858,7 +859,20 @@ def post_runs_bytes(request, aug) -> int | None:
     chan = bytes_per_voxel({"density", *sel.report.channels})
     bricks = int(np.prod([-(-int(n) // grid.POOL_EDGE) for n in sel.shape]))
     voxels = rows * grid.POOL_EDGE ** 3
-    return nv * chan + npos + 6 * nb + voxels * chan + voxels // 8 * (1 + len(request.axes)) + 8 * rows + 12 * bricks
+    pool = nv * chan + npos + 6 * nb + voxels * chan + voxels // 8 * (1 + len(request.axes)) + 8 * rows + 12 * bricks
+    flat = flat_bytes(sel.shape, chan, len(request.axes))
+    if flat > FLAT_BYTES_PER_VOXEL * _voxels_of_interest(request, sel.luts.intervals):
+        return pool
+    return pool + flat + flat_bytes(sel.shape, 0, 1)   # placed whole-shape beside the pool (_read_post_runs)
+
+
+def _voxels_of_interest(request, intervals) -> int:
+    """The voxels of interest a selection of ``request`` will count (its report's), from the index's counts per
+    density (isplat.index.IndexStore.voxel_counts) of its first axis."""
+    from .index import open_index
+
+    counts = open_index(request.index).voxel_counts(sorted(request.axes)[0])
+    return int(sum(int(counts[int(lo):int(hi) + 1].sum()) for lo, hi in intervals))
 
 
 def _start_post_runs(sel: Selection, aug, path):
@@ -921,14 +935,56 @@ def _place_runs(got, request, aug_path):
 
 
 def _read_post_runs(sel: Selection, pending) -> Selection:
-    """The selection with the range runs' pool and quad bits (:func:`_place_runs`, ``pending`` its future), and
-    their reads in the report."""
+    """The selection with the range runs' pool and quad bits (:func:`_place_runs`, ``pending`` its future), or
+    the channels whole-shape when that is within FLAT_BYTES_PER_VOXEL (:func:`_unpooled`), and their reads in
+    the report."""
     whole, bits, got = pending.result()
     rep = sel.report
     rep.runs_file_bytes, rep.runs_file_pages = got.bytes_read, got.pages_read
     rep.values_from = f"runs file ({int(got.runs.sum()):,} of {got.runs.size:,} runs)"
     rep.values_path = str(got.path)
+    if _whole_shape_fits(sel, len(bits)):
+        whole, bits = _unpooled(whole, sorted(bits))
+        rep.values_from += ", held whole-shape"
     return replace(sel, whole=whole, held=bits)
+
+
+# Post's pool (the runs file's, or a format 6 file's bricks) is placed whole-shape (flat [k, j, i], zeros where
+# nothing was read) when that takes at most this many bytes per voxel of interest, issue 26's bound on what a
+# selection holds: the sampler then finds a sample's four voxels with no brick table between (docs/design.md
+# "Whole-shape channels when they fit issue 26's bound"; python -m benchmarks layout). A volume whose voxels of
+# interest are few keeps the pool.
+FLAT_BYTES_PER_VOXEL = 8
+
+
+def flat_bytes(shape, per_voxel: int, n_axes: int) -> int:
+    """Bytes of whole-shape channels of ``per_voxel`` bytes a voxel of a volume of ``shape``, and the bits of the
+    quads held of ``n_axes`` axes (1 bit a voxel each)."""
+    n = int(np.prod(shape, dtype=np.int64))
+    return n * int(per_voxel) + n_axes * ((n + 7) // 8)
+
+
+def _whole_shape_fits(sel: Selection, n_axes: int) -> bool:
+    """Whether ``sel``'s channels (and ``n_axes`` axes' bits of the quads held) take at most
+    FLAT_BYTES_PER_VOXEL a voxel of interest whole-shape."""
+    from .stats import bytes_per_voxel
+
+    need = flat_bytes(sel.shape, bytes_per_voxel({"density", *sel.report.channels}), n_axes)
+    return need <= FLAT_BYTES_PER_VOXEL * sel.report.voxels_of_interest
+
+
+def _unpooled(whole: WholeChannels, axes=()) -> tuple[WholeChannels, dict]:
+    """A pool's channels placed whole-shape (isplat.runsplace.unpool: a packed pool's places not loaded, and
+    bricks not read, zeros), and per axis of ``axes`` the bits of the quads whose four corners they hold in that
+    layout (isplat.splat.post.held_quads)."""
+    from .runsplace import BRICK_VOXELS, unpool
+    from .splat.post import held_quads
+
+    rows = whole.density.size // BRICK_VOXELS
+    bases = whole.bases if whole.bases.size else np.arange(rows, dtype=np.int64) * BRICK_VOXELS
+    loaded = whole.loaded if whole.loaded.size else np.full(8 * rows, np.iinfo(np.uint64).max, np.uint64)
+    outs, words = unpool(whole.table, bases, loaded, whole.shape, whole.arrays())
+    return WholeChannels(*outs), {ax: held_quads(words, whole.shape, ax) for ax in axes}
 
 
 def cell_origins(s: AxisSelection) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1005,7 +1061,11 @@ def _read_post_bricks(sel: Selection, aug, axes, slices) -> Selection:
     bricks = np.argwhere(need)
     composite = sel.request is None or sel.request.mode == "composite"     # (MIP reads whole-shape channels)
     if composite and getattr(aug, "store", None) is not None and tuple(b) == (grid.POOL_EDGE,) * 3:
-        return replace(sel, whole=_pool(sel, aug, bricks, need.shape), slab=slab)    # (a slab's bricks: its own)
+        whole = _pool(sel, aug, bricks, need.shape)        # (a slab's bricks: its own)
+        if slab is None and _whole_shape_fits(sel, 0):
+            whole = _unpooled(whole)[0]
+            rep.values_from += ", held whole-shape"
+        return replace(sel, whole=whole, slab=slab)
     out = {ch: aug.read_bricks(ch, bricks, (tuple(lo), tuple(hi))).reshape(-1) for ch in rep.channels}
     rep.values_from = f"bricks ({len(bricks):,} of {int(np.prod(need.shape)):,})"
     box = tuple(h - l for l, h in zip(lo, hi))

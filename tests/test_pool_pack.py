@@ -8,8 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from isplat import grid
-from isplat.runsplace import BRICK_VOXELS, pack_rows
-from isplat.selection import WholeChannels, _PoolVolume, _unpool
+from isplat.runsplace import BRICK_VOXELS, pack_rows, unpool
+from isplat.selection import WholeChannels, _PoolVolume, _unpool, _unpooled
+from isplat.splat.post import held_quads
 
 
 def random_loaded(seed: int, rows: int, kind: str) -> np.ndarray:
@@ -131,3 +132,35 @@ def test_the_value_deltas_find_every_loaded_voxel(shape, seed):
     place = (flat + w.value_deltas()[brick]).astype(np.int64)
     assert np.all((place >= 0) & (place < w.density.size))
     assert np.array_equal(w.density[place[held]], rows[row_place[held]])
+
+
+@settings(max_examples=40, deadline=None)
+@given(shape=st.tuples(*(st.integers(1, 21) for _ in range(3))), seed=st.integers(0, 2 ** 16))
+def test_a_pool_placed_whole_shape_holds_its_rows_loaded_voxels(shape, seed):
+    """isplat.runsplace.unpool (selection._unpooled): a packed pool, and the same rows laid one after the other
+    with every place loaded, placed whole-shape equal numpy's unpooling (selection._unpool) of the rows; the
+    bits of the voxels held are the rows' loaded bits in the whole-shape layout."""
+    rows, table, loaded, w = packed_pool(shape, seed)
+    want = _unpool(rows, table, shape)
+    outs, words = unpool(table, w.bases, loaded, shape, w.arrays())
+    assert np.array_equal(outs[0], want) and outs[1].size == outs[2].size == 0
+    held = _unpool(np.unpackbits(loaded.view(np.uint8), bitorder="little"), table, shape)
+    n = int(np.prod(shape))
+    assert np.array_equal(np.unpackbits(words.view(np.uint8), bitorder="little")[:n], held)
+    assert not np.unpackbits(words.view(np.uint8), bitorder="little")[n:].any()
+    laid = WholeChannels(rows, rows[:0], rows[:0].view(np.uint16), table=table, shape=tuple(shape))
+    flat, bits = _unpooled(laid, ("i", "k"))
+    assert not flat.pooled and np.array_equal(flat.density, want) and sorted(bits) == ["i", "k"]
+    read = np.ones(rows.size, np.uint8)
+    read[:BRICK_VOXELS] = 0                         # row 0: the bricks not read
+    assert np.array_equal(bits["k"], held_quads(_unpool(read, table, shape), shape, "k"))
+
+
+def test_a_pool_whose_tables_disagree_is_refused():
+    rows, table, loaded, w = packed_pool((9, 10, 11), 3)
+    with pytest.raises(ValueError, match="does not fit"):
+        unpool(table, w.bases, loaded[:-8], (9, 10, 11), w.arrays())        # a row's bits missing
+    with pytest.raises(ValueError, match="does not fit"):
+        unpool(table[:-1], w.bases, loaded, (9, 10, 11), w.arrays())        # a brick missing
+    with pytest.raises(ValueError, match="does not fit"):
+        unpool(table, w.bases, loaded, (9, 10, 11), [w.density[:100], *w.arrays()[1:]])   # rows beyond the pool

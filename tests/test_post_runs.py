@@ -145,6 +145,72 @@ def test_runs_give_the_image_of_bricks_and_whole_channels(files, make_scene, vol
     assert loaded < np.count_nonzero(rw.selection.whole.density)       # some voxels left out
 
 
+@contextlib.contextmanager
+def whole_shape(on: bool):
+    """Channels held whole-shape (on) or as pools (off), whatever their bytes per voxel of interest."""
+    old = S.FLAT_BYTES_PER_VOXEL
+    S.FLAT_BYTES_PER_VOXEL = 10 ** 9 if on else 0
+    try:
+        yield
+    finally:
+        S.FLAT_BYTES_PER_VOXEL = old
+
+
+@pytest.mark.parametrize("proj", ["orthographic", "perspective"])
+@pytest.mark.parametrize("shade", [True, False])
+@pytest.mark.parametrize("tf", sorted(TFS))
+@pytest.mark.parametrize("vol", sorted(VOLUMES))
+def test_whole_shape_channels_give_the_pools_image(files, make_scene, vol, tf, shade, proj):
+    """The runs' packed pool and the bricks' pool placed whole-shape (selection._unpooled), with the runs' bits
+    of the quads held in that layout, give their pools' images bit for bit."""
+    aug, idx = files[vol]
+    sc = make_scene(aug, idx, camera=f'projection = "{proj}"\nazimuth = 33\nelevation = 21', transfer=TFS[tf],
+                    shading=f"enabled = {str(shade).lower()}", image="width = 44\nheight = 40",
+                    render='classification = "post"')
+    got = {}
+    for flat in (False, True):
+        with whole_shape(flat):
+            runs = Renderer(sc)
+            with without_runs(idx), brick_share(1.0):
+                bricks = Renderer(sc)
+        for name, r in (("runs", runs), ("bricks", bricks)):
+            assert r.report.values_from.endswith(", held whole-shape") == flat, r.report.values_from
+            assert r.selection.whole.pooled != flat
+            got[name, flat] = r.render_view(0)[0]
+        assert runs.selection.held is not None and bricks.selection.held is None
+    assert got["runs", False][..., 3].max() > 0.1
+    assert all(np.array_equal(img, got["runs", False]) for img in got.values())
+
+
+@pytest.mark.parametrize("shade", [True, False])
+def test_whole_shape_only_within_the_bytes_per_voxel_of_interest(files, make_scene, shade):
+    """By default the channels are whole-shape exactly when that holds at most FLAT_BYTES_PER_VOXEL a voxel of
+    interest (with the bits of the quads held), and the selection then holds no more: not for the bone alone
+    (few voxels of interest), but for a veil over every tissue."""
+    from isplat.stats import bytes_per_voxel
+
+    aug, idx = files["head"]
+    seen = set()
+    for tf in (TFS["threshold"], "opacity = [[1, 0.0], [2, 0.02], [255, 0.02]]\n" + COLOR):
+        sc = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0", transfer=tf,
+                        shading=f"enabled = {str(shade).lower()}", render='classification = "post"')
+        for reads_runs in (True, False):
+            with contextlib.ExitStack() as stack:
+                if not reads_runs:
+                    stack.enter_context(without_runs(idx))
+                    stack.enter_context(brick_share(1.0))
+                sel = Renderer(sc).selection
+            rep = sel.report
+            assert rep.values_from.startswith("runs file" if reads_runs else "bricks")
+            need = S.flat_bytes(sel.shape, bytes_per_voxel({"density", *rep.channels}), len(sel.held or {}))
+            fits = need <= S.FLAT_BYTES_PER_VOXEL * rep.voxels_of_interest
+            assert rep.values_from.endswith(", held whole-shape") == fits, (rep.values_from, need)
+            if fits:
+                assert sel.held_bytes() <= S.FLAT_BYTES_PER_VOXEL * rep.voxels_of_interest
+            seen.add(fits)
+    assert seen == {True, False}
+
+
 @pytest.mark.parametrize("vol", sorted(VOLUMES))
 def test_runs_with_gradient_modulated_opacity(files, make_scene, vol):
     aug, idx = files[vol]
@@ -435,7 +501,7 @@ def test_one_pass_from_the_runs_file_counted_before_the_load(larger_head, make_s
     from isplat import slabs as S
     from isplat.augfile import open_augmented
     from isplat.request import RenderRequest
-    from isplat.selection import post_runs_bytes, select
+    from isplat.selection import _voxels_of_interest, post_runs_bytes, select
 
     aug, idx = larger_head
     sc = make_scene(aug, idx, camera="azimuth = 0\nelevation = 0", transfer=TFS[tf],
@@ -446,6 +512,8 @@ def test_one_pass_from_the_runs_file_counted_before_the_load(larger_head, make_s
     est = post_runs_bytes(req, a)
     sel = select(req, a)
     assert sel.report.values_from.startswith("runs file (")
+    # the count before the load knows whether the channels will be held whole-shape
+    assert sel.report.voxels_of_interest == _voxels_of_interest(req, sel.luts.intervals)
     sel.whole.value_deltas()                                    # (made at the first frame)
     held = sel.whole.held_bytes() + sum(b.nbytes for b in sel.held.values())
     assert held <= est <= 4 * held

@@ -74,7 +74,7 @@ def frame_scalar(order, whole, alpha, color, shade, use_gm, use_shade, geo, img,
                 done = _sample(x, y, fu, fv, cbase + qa * strides[0] + qb * strides[1],
                                strides[0] if qa + 1 < n_a else 0, strides[1] if qb + 1 < n_b else 0, u, v,
                                density, gm, nrm, alpha, color, shade, use_gm, use_shade, base, geo, img,
-                               sat, tile_sat, et, None)
+                               sat, tile_sat, et, False, None, None)
                 drawn += done > 0
     return drawn
 
@@ -128,7 +128,7 @@ def _scalar_row(y, xa, xb, every, u0, u1, v0, v1, inv, cbase, mark, nca, density
         fu, fv = max(u - qa, 0.0), max(v - qb, 0.0)
         done = _sample(x, y, fu, fv, cbase + qa * strides[0] + qb * strides[1], strides[0] if qa + 1 < n_a else 0,
                        strides[1] if qb + 1 < n_b else 0, u, v, density, gm, nrm, alpha, color, shade, use_gm,
-                       use_shade, base, geo, img, sat, tile_sat, et, None)
+                       use_shade, base, geo, img, sat, tile_sat, et, False, None, None)
         drawn += done > 0
         newly += done > 1
     return drawn, newly

@@ -63,29 +63,26 @@ def measure(name: str, size: int, quick: bool) -> dict:
     from isplat.frame import BandLearning, render_frame, views_for
 
     scene, pool, chosen = selections(name, size, quick)
-    runs = {}
-    for key, sel in (("pool", pool), ("default", chosen)):
-        view, bands = views_for(scene, sel)[0], BandLearning()
-        runs[key] = (sel, view, bands, [])
+    runs = {key: dict(sel=sel, view=views_for(scene, sel)[0], bands=BandLearning(), times=[])
+            for key, sel in (("pool", pool), ("default", chosen))}
+    for run in runs.values():
         for _ in range(WARM):
-            img = render_frame(sel, view, None, bands)[0]
-        runs[key] += (img,)
+            run["img"] = render_frame(run["sel"], run["view"], None, run["bands"])[0]
     for r in range(QUICK_ROUNDS if quick else ROUNDS):
         for key in (("pool", "default") if r % 2 == 0 else ("default", "pool")):
-            sel, view, bands, times, _ = runs[key]
-            ts = []
+            run, ts = runs[key], []
             for _ in range(PER_ROUND):
                 t0 = time.perf_counter()
-                render_frame(sel, view, None, bands)
+                render_frame(run["sel"], run["view"], None, run["bands"])
                 ts.append(time.perf_counter() - t0)
-            times.append(statistics.median(ts))
-    a, b = runs["default"][3], runs["pool"][3]
+            run["times"].append(statistics.median(ts))
+    a, b = runs["default"]["times"], runs["pool"]["times"]
     cmp = PT.compare(a, b)
     return dict(case=name, size=size, whole=not chosen.whole.pooled, values=chosen.report.values_from,
                 voi=chosen.report.voxels_of_interest, held_pool=pool.held_bytes(), held=chosen.held_bytes(),
                 ms_pool=1e3 * statistics.median(b), ms=1e3 * statistics.median(a), ratio=cmp.ratio, wins=cmp.wins,
                 n=cmp.n, faster=cmp.faster, slower=PT.faster(b, a),
-                equal=bool(np.array_equal(runs["pool"][4], runs["default"][4])))
+                equal=bool(np.array_equal(runs["pool"]["img"], runs["default"]["img"])))
 
 
 def body(results, command: str, rounds: int) -> str:

@@ -104,13 +104,18 @@ def without_runs(idx):
 
 
 @contextlib.contextmanager
-def brick_share(value):
-    old = S.BRICK_SHARE
-    S.BRICK_SHARE = value
+def selection_setting(name: str, value):
+    """isplat.selection's module setting ``name`` set to ``value`` for the block."""
+    old = getattr(S, name)
+    setattr(S, name, value)
     try:
         yield
     finally:
-        S.BRICK_SHARE = old
+        setattr(S, name, old)
+
+
+def brick_share(value):
+    return selection_setting("BRICK_SHARE", value)
 
 
 def three_images(sc, idx):
@@ -145,15 +150,9 @@ def test_runs_give_the_image_of_bricks_and_whole_channels(files, make_scene, vol
     assert loaded < np.count_nonzero(rw.selection.whole.density)       # some voxels left out
 
 
-@contextlib.contextmanager
 def whole_shape(on: bool):
     """Channels held whole-shape (on) or as pools (off), whatever their bytes per voxel of interest."""
-    old = S.FLAT_BYTES_PER_VOXEL
-    S.FLAT_BYTES_PER_VOXEL = 10 ** 9 if on else 0
-    try:
-        yield
-    finally:
-        S.FLAT_BYTES_PER_VOXEL = old
+    return selection_setting("FLAT_BYTES_PER_VOXEL", 10 ** 9 if on else 0)
 
 
 @pytest.mark.parametrize("proj", ["orthographic", "perspective"])

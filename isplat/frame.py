@@ -102,7 +102,8 @@ def scene_geometry(scene, shape, spacing_ijk, source: str = "volume", axes_lps=N
     sp = scene.volume.spacing or spacing_ijk
     problem = spacing_problem(sp)
     if problem:          # the scene's own spacing is checked when it is read; this is the data's
-        raise IsplatError(f"{source}: attribute 'spacing_ijk' is {list(sp)}: {problem} (or set volume.spacing in the scene)")
+        raise IsplatError(f"{source}: attribute 'spacing_ijk' is {list(sp)}: {problem} "
+                          "(or set volume.spacing in the scene)")
     axes = scene.volume.axes if scene.volume.axes is not None else axes_lps
     return cam_mod.volume_geometry(shape, sp, scene.volume.origin, axes)
 
@@ -608,12 +609,12 @@ def _profile(est: np.ndarray | None, rows: np.ndarray, seconds: np.ndarray, heig
 
 def _next_bands(est: np.ndarray, rows: np.ndarray, queue: np.ndarray, tried: dict, threads: int,
                 height: int) -> Learned:
-    """The bands after ``rows`` (taken in the order ``queue``): kept while the busiest thread's work (by the profile ``est``) is at most
-    BALANCE_SLACK or half a tile row's work (as close as bands of whole tiles may come) above the mean; else one
-    band per thread cut where the profile says the work is equal (:func:`balanced_bands`; fewer cuts through
-    the busy rows than even bands make, each repeating work) when that is predicted better than the best of the
-    last TRIED bands tried, by more than the slack, or else the best of those again (a cut that cannot be
-    balanced at whole tiles does not swing between two)."""
+    """The bands after ``rows`` (taken in the order ``queue``): kept while the busiest thread's work (by the profile
+    ``est``) is at most BALANCE_SLACK or half a tile row's work (as close as bands of whole tiles may come) above
+    the mean; else LEARNED_PER_THREAD bands per thread cut where the profile says the work is equal
+    (:func:`balanced_bands`; fewer cuts through the busy rows than even bands make, each repeating work) when that
+    is predicted better than the best of the last TRIED bands tried, by more than the slack, or else the best of
+    those again (a cut that cannot be balanced at whole tiles does not swing between two)."""
     cum = np.concatenate([[0.0], np.cumsum(est)])
 
     def per_thread(r, q):
@@ -670,7 +671,8 @@ def balanced_bands(est: np.ndarray, n_bands: int, threads: int, height: int, til
     for a cost ``est`` per tile row, the threads taking the bands in :func:`band_layout`'s order, each by the
     thread free first (:func:`_thread_sums`, at equal speed): cut where the cumulated cost reaches the layout's
     shares of the whole, then cuts moved a tile at a time while that lowers the busiest thread's cost (or, as
-    much, the sum of squares of the threads' costs). In plain Python: a few bands, and numpy's calls cost more than the sums."""
+    much, the sum of squares of the threads' costs). In plain Python: a few bands, and numpy's calls cost more
+    than the sums."""
     n_tiles = len(est)
     cum = np.concatenate([[0.0], np.cumsum(est)])
     ends, order = band_layout(n_bands, threads)

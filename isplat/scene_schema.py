@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
-    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "STOP_EARLY_TERMINATION", "OLD_DEFAULT_MEANING", "Scene", "Data", "Image", "Volume",
-    "Camera", "Transfer",
-    "Shading", "Light", "Cut", "RenderOptions", "Labels", "LabelStyle", "defaults", "default_for", "spacing_problem",
+    "SCENE_VERSION", "KEYS_SINCE", "DEFAULTS_BEFORE", "STOP_EARLY_TERMINATION", "OLD_DEFAULT_MEANING",
+    "Scene", "Data", "Image", "Volume", "Camera", "Transfer", "Shading", "Light", "Cut", "RenderOptions", "Labels",
+    "LabelStyle", "defaults", "default_for", "spacing_problem",
 ]
 
 SCENE_VERSION = 8

@@ -835,14 +835,15 @@ def _runs_file(sel: Selection, aug, slices):
     return path if path.exists() else None
 
 
-def post_runs_bytes(request, aug) -> int | None:
+def post_runs_bytes(request, aug, voxels_of_interest: int | None = None) -> int | None:
     """At most the bytes a one-pass post frame from the runs file holds while it loads (isplat.slabs counts it
     before the load), from the runs file's pointer tables: the runs the intervals meet, read (their voxels'
     channels, positions and brick rows) and placed (a pool row for each brick they hold voxels of, with the loaded
     bits and each axis' quad bits: their ``brick_number`` rows read to count them; the pool packed, its rows'
     places at most), and the brick table with the sampler's deltas, and the channels placed whole-shape beside
-    them when they will be (:func:`_whole_shape_fits`); None when the frame would not read the runs file
-    (:func:`_runs_file`)."""
+    them when they will be (:func:`whole_shape_fits`); None when the frame would not read the runs file
+    (:func:`_runs_file`). ``voxels_of_interest``: the selection's count when the caller has it (isplat.slabs
+    counts it from the same index), else counted here (:func:`_voxels_of_interest`)."""
     from .runsfile import open_runs
     from .stats import bytes_per_voxel
 
@@ -860,10 +861,12 @@ def post_runs_bytes(request, aug) -> int | None:
     bricks = int(np.prod([-(-int(n) // grid.POOL_EDGE) for n in sel.shape]))
     voxels = rows * grid.POOL_EDGE ** 3
     pool = nv * chan + npos + 6 * nb + voxels * chan + voxels // 8 * (1 + len(request.axes)) + 8 * rows + 12 * bricks
-    flat = flat_bytes(sel.shape, chan, len(request.axes))
-    if flat > FLAT_BYTES_PER_VOXEL * _voxels_of_interest(request, sel.luts.intervals):
+    if voxels_of_interest is None:
+        voxels_of_interest = _voxels_of_interest(request, sel.luts.intervals)
+    if not whole_shape_fits(sel.shape, chan, len(request.axes), voxels_of_interest):
         return pool
-    return pool + flat + flat_bytes(sel.shape, 0, 1)   # placed whole-shape beside the pool (_read_post_runs)
+    # placed whole-shape beside the pool (_read_post_runs), with its loaded bits while the quads' are made
+    return pool + flat_bytes(sel.shape, chan, len(request.axes)) + flat_bytes(sel.shape, 0, 1)
 
 
 def _voxels_of_interest(request, intervals) -> int:
@@ -964,13 +967,23 @@ def flat_bytes(shape, per_voxel: int, n_axes: int) -> int:
     return n * int(per_voxel) + n_axes * ((n + 7) // 8)
 
 
+def whole_shape_fits(shape, per_voxel: int, n_axes: int, voxels_of_interest: int) -> bool:
+    """The rule for placing a pool whole-shape: its channels of ``per_voxel`` bytes a voxel of a volume of
+    ``shape`` (and ``n_axes`` axes' bits of the quads held) take at most FLAT_BYTES_PER_VOXEL a voxel of
+    interest. The same rule before the load (:func:`post_runs_bytes`) and after it (:func:`_whole_shape_fits`).
+
+    >>> whole_shape_fits((10, 10, 10), 1, 3, 172), whole_shape_fits((10, 10, 10), 1, 3, 171)   # 1,375 B
+    (True, False)
+    """
+    return flat_bytes(shape, per_voxel, n_axes) <= FLAT_BYTES_PER_VOXEL * int(voxels_of_interest)
+
+
 def _whole_shape_fits(sel: Selection, n_axes: int) -> bool:
-    """Whether ``sel``'s channels (and ``n_axes`` axes' bits of the quads held) take at most
-    FLAT_BYTES_PER_VOXEL a voxel of interest whole-shape."""
+    """:func:`whole_shape_fits` for ``sel``'s channels and the voxels of interest its report counts."""
     from .stats import bytes_per_voxel
 
-    need = flat_bytes(sel.shape, bytes_per_voxel({"density", *sel.report.channels}), n_axes)
-    return need <= FLAT_BYTES_PER_VOXEL * sel.report.voxels_of_interest
+    return whole_shape_fits(sel.shape, bytes_per_voxel({"density", *sel.report.channels}), n_axes,
+                            sel.report.voxels_of_interest)
 
 
 def _unpooled(whole: WholeChannels, axes=()) -> tuple[WholeChannels, dict]:

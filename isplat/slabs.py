@@ -159,7 +159,7 @@ def slabs_needed(scene, views, aug, room: int | None = None, request=None) -> tu
         need = -(-(n * PEAK_PER_VOXEL + whole) // share)
         k = max(k, min(int(need), idx.n_slices(axis)))
     if k > 1 and whole and request is not None:    # (the runs file opened only when whole channels do not fit)
-        runs = post_runs_bytes(request, aug)
+        runs = post_runs_bytes(request, aug, most)
         if runs is not None and sum(counted) * PEAK_PER_VOXEL + runs <= share:
             return 1, most                          # one pass from the runs file fits (every axis selected)
     return k, most

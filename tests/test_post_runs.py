@@ -513,6 +513,8 @@ def test_one_pass_from_the_runs_file_counted_before_the_load(larger_head, make_s
     assert sel.report.values_from.startswith("runs file (")
     # the count before the load knows whether the channels will be held whole-shape
     assert sel.report.voxels_of_interest == _voxels_of_interest(req, sel.luts.intervals)
+    assert post_runs_bytes(req, a, sel.report.voxels_of_interest) == est      # the caller's count, the same
+    assert post_runs_bytes(req, a, 0) <= est <= post_runs_bytes(req, a, 10 ** 12)   # the pool; and beside it
     sel.whole.value_deltas()                                    # (made at the first frame)
     held = sel.whole.held_bytes() + sum(b.nbytes for b in sel.held.values())
     assert held <= est <= 4 * held
@@ -521,6 +523,11 @@ def test_one_pass_from_the_runs_file_counted_before_the_load(larger_head, make_s
     assert est < whole or not shaded          # shaded, the pool is well below whole channels (4 B a voxel) here;
     room = 2 * (n * S.PEAK_PER_VOXEL + est)   # unshaded, a density channel (1 B a voxel) may be below the pool
     assert S.slabs_needed(sc, views, a, room=room, request=req)[0] == 1     # (a slab may take half of the room)
+    handed = []                       # slabs_needed hands post_runs_bytes the voxels of interest it counted
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr("isplat.selection.post_runs_bytes", lambda r, au, voi=None: handed.append(voi) or est)
+        S.slabs_needed(sc, views, a, room=1, request=req)         # (whole channels do not fit: asked)
+    assert handed == [n]
     assert (S.slabs_needed(sc, views, a, room=room)[0] == 1) == (whole <= est)   # whole channels counted
     if whole > est:
         assert S.slabs_needed(sc, views, a, room=room - 2, request=req)[0] > 1     # (just too little: slabs)

@@ -21,25 +21,26 @@ The four voxels' densities come from the whole density channel (one byte per vox
 too when the scene uses them): the neighbours of the voxels of interest have any density, and the index does not
 hold them. Read from the range runs (isplat.selection, formats/runs.md) the channels (a pool of bricks) hold only
 the voxels whose neighbourhood can meet an interval, zeros elsewhere; the sampler then skips every quad with a
-corner not held (:data:`PostPlan`'s ``held``, :func:`held_pool`), whose field meets no interval. Classification interpolates the
-256-entry tables linearly between codes (the transfer function is applied to the interpolated value, not to a
-truncated code). Shading interpolates the four voxels' Phong factors (the shading of a trilinear ray caster that
-shades its grid points), each weighted by its bilinear weight times its gradient magnitude code (normalised; the
-bilinear weights alone where all four are 0): on slices much thicker than the pixels a corner just off a surface
-nearly parallel to the slices (air, a short gradient whose direction is mostly along the slice axis) otherwise
-shades as much as the corner on it, which draws rings of the slices on the surface (docs/thick-slices.md).
+corner not held (:data:`PostPlan`'s ``held``, :func:`held_pool`), whose field meets no interval. Classification
+interpolates the 256-entry tables linearly between codes (the transfer function is applied to the interpolated
+value, not to a truncated code). Shading interpolates the four voxels' Phong factors (the shading of a trilinear ray
+caster that shades its grid points), each weighted by its bilinear weight times its gradient magnitude code
+(normalised; the bilinear weights alone where all four are 0): on slices much thicker than the pixels a corner just
+off a surface nearly parallel to the slices (air, a short gradient whose direction is mostly along the slice axis)
+otherwise shades as much as the corner on it, which draws rings of the slices on the surface (docs/thick-slices.md).
 
 Between thick slices. When the thicker in-slice axis' spacing is at least :data:`THICK_RATIO` times the volume's
-finest (slices 5-7 mm thick over 1 mm pixels seen from the side, say; not a CT's 2.5 mm slices over 0.7 mm,
-where the linear reconstruction is already at the object's own streak, docs/thick-slices.md), the density along that axis is a cubic through the four
-voxels around the sample instead of the line through two (:func:`_density_at`; Catmull-Rom by default,
-:data:`BETWEEN_SLICES`), then linear across: with the line an isosurface is piecewise planar with a kink at
-every slice, and its shading and silhouettes step (terraces). The Phong factors then mix the same eight voxels'
-with the cubic B-spline's weights along the thick axis (:func:`_shade_between`, :data:`SHADE_BETWEEN`). Only
-the gather reads the extra voxels (:func:`_taps`: the voxel before the quad and the one after, clamped to the
-volume; a slab holds whole slices, so the in-slice axes reach the volume's edges there too); which quads are
-sampled is decided as before, by their four corners. The view's own axis is not interpolated: the samples lie on
-its slices. Isotropic grids and grids below the ratio take the bilinear sampler, bit for bit as before.
+finest (slices 5-7 mm thick over 1 mm pixels seen from the side, say; not a CT's 2.5 mm slices over 0.7 mm, where
+the linear reconstruction is already at the object's own streak, docs/thick-slices.md), the density along that axis
+is a cubic through the four voxels around the sample instead of the line through two (:func:`_density_at`;
+Catmull-Rom by default, :data:`BETWEEN_SLICES`), then linear across: with the line an isosurface is piecewise planar
+with a kink at every slice, and its shading and silhouettes step (terraces). The Phong factors then mix the same
+eight voxels' with the cubic B-spline's weights along the thick axis (:func:`_shade_between`,
+:data:`SHADE_BETWEEN`). Only the gather reads the extra voxels (:func:`_taps`: the voxel before the quad and the one
+after, clamped to the volume; a slab holds whole slices, so the in-slice axes reach the volume's edges there too);
+which quads are sampled is decided as before, by their four corners. The view's own axis is not interpolated: the
+samples lie on its slices. Isotropic grids and grids below the ratio take the bilinear sampler, bit for bit as
+before.
 
 Each pixel samples a slice at most once (it belongs to one quad), so a sample is composited straight into the
 image: no sheet. Images do not depend on the thread bands. Counters: ``stats[band, 1]`` the voxels of interest
@@ -168,11 +169,12 @@ def loaded_bits(loaded: np.ndarray) -> np.ndarray:
 
 def held_quads(loaded: np.ndarray, shape, axis: str) -> np.ndarray:
     """uint8 [ceil(n / 8)]: the bits (little-endian bit order, one per voxel of whole-shape channels' flat
-    ``[k, j, i]`` layout; a pool's are :func:`held_pool`'s) of :data:`PostPlan`'s ``held`` for ``axis``'s slices: set when the quad of the slice whose first corner
-    the voxel is has all four corners loaded (the edge voxel repeated at the volume's edge, as the sampler
-    clamps). ``loaded``: the voxels the channels hold, as :func:`loaded_bits`' words (uint64), or a mask. Whole
-    words at a time: the loaded bits and those one step on along a, along b and along both, ANDed
-    (:func:`_held_words`); then the last line along a and along b set again voxel by voxel (:func:`_held_edges`)."""
+    ``[k, j, i]`` layout; a pool's are :func:`held_pool`'s) of :data:`PostPlan`'s ``held`` for ``axis``'s slices:
+    set when the quad of the slice whose first corner the voxel is has all four corners loaded (the edge voxel
+    repeated at the volume's edge, as the sampler clamps). ``loaded``: the voxels the channels hold, as
+    :func:`loaded_bits`' words (uint64), or a mask. Whole words at a time: the loaded bits and those one step on
+    along a, along b and along both, ANDed (:func:`_held_words`); then the last line along a and along b set again
+    voxel by voxel (:func:`_held_edges`)."""
     from ..grid import SLICE_AXES, shape_ijk
 
     words = loaded if loaded.dtype == np.uint64 else loaded_bits(loaded)
@@ -996,11 +998,15 @@ def _density_at(density, i00, sa, sb, fu, fv, taps, tab):
         return (1.0 - fu) * c0 + fu * c1
     back, fwd = np.uint64(taps[2]), np.uint64(taps[3])
     if taps[0] == 1:      # rows along a from i00 and from i01, then linear along b
-        r0 = cubic(density[_phys(tab, i00 - back)], density[_phys(tab, i00)], density[_phys(tab, i10)], density[_phys(tab, i00 + fwd)], fu, taps[1])
-        r1 = cubic(density[_phys(tab, i01 - back)], density[_phys(tab, i01)], density[_phys(tab, i11)], density[_phys(tab, i01 + fwd)], fu, taps[1])
+        r0 = cubic(density[_phys(tab, i00 - back)], density[_phys(tab, i00)], density[_phys(tab, i10)],
+                   density[_phys(tab, i00 + fwd)], fu, taps[1])
+        r1 = cubic(density[_phys(tab, i01 - back)], density[_phys(tab, i01)], density[_phys(tab, i11)],
+                   density[_phys(tab, i01 + fwd)], fu, taps[1])
         return (1.0 - fv) * r0 + fv * r1
-    c0 = cubic(density[_phys(tab, i00 - back)], density[_phys(tab, i00)], density[_phys(tab, i01)], density[_phys(tab, i00 + fwd)], fv, taps[1])
-    c1 = cubic(density[_phys(tab, i10 - back)], density[_phys(tab, i10)], density[_phys(tab, i11)], density[_phys(tab, i10 + fwd)], fv, taps[1])
+    c0 = cubic(density[_phys(tab, i00 - back)], density[_phys(tab, i00)], density[_phys(tab, i01)],
+               density[_phys(tab, i00 + fwd)], fv, taps[1])
+    c1 = cubic(density[_phys(tab, i10 - back)], density[_phys(tab, i10)], density[_phys(tab, i11)],
+               density[_phys(tab, i10 + fwd)], fv, taps[1])
     return (1.0 - fu) * c0 + fu * c1
 
 

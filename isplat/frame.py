@@ -23,6 +23,7 @@ with early termination off, see docs/design.md for the bound with it on).
 from __future__ import annotations
 
 import itertools
+import statistics
 import time
 from collections import namedtuple
 from dataclasses import dataclass, field
@@ -498,12 +499,14 @@ def _balance_key(view: View, threads: int) -> tuple:
 class Learned:
     """What the frames of one kind learned of their bands (:func:`learn_bands`): the work per tile row, the
     next frame's bands and the order the threads take them in (None: the image's), and for the last few bands
-    used (by their first rows and their order) the busiest thread's work over the mean."""
+    used (by their first rows and their order) the busiest thread's work over the mean (measured: the median of
+    their last frames, ``recent``)."""
 
     est: np.ndarray | None      # None after the first frame
     rows: np.ndarray
     tried: dict
     queue: np.ndarray | None = None
+    recent: tuple = ()          # the busiest thread's work over the mean in the last RECENT frames on these bands
 
     def __post_init__(self):
         # read-only, as image_bands' rows: the kernels take them (bin_regions, traverse.render's Bands), and
@@ -523,6 +526,7 @@ def read_only(a: np.ndarray) -> np.ndarray:
 
 BALANCE_SLACK = 0.03    # bands are kept while the busiest thread's work is at most this much above the mean
 TRIED = 4               # bands remembered with what they gave
+RECENT = 3              # frames whose median decides (one frame slowed by other work moves nothing)
 
 
 BandTimes = namedtuple("BandTimes", "rows band_seconds view threads empty queue")
@@ -560,8 +564,12 @@ def learn_bands(costs: dict, setup: Setup) -> None:
     bands go (``costs``: :attr:`BandLearning.costs`). The first frame of a kind only marks it seen: its times
     hold one-time costs (fresh memory, cold caches) that bands cut by them would follow. The second starts the
     profile of the work per tile row (:func:`_profile`), and the bands move (:func:`_next_bands`) only on a
-    profile of two frames or more, so that one frame's noise does not move them. A frame whose busiest thread
-    worked at most BALANCE_SLACK above the mean changes nothing."""
+    profile of two frames or more, so that one frame's noise does not move them. After that the bands are
+    learned from only when the last RECENT frames on them (at least two: the lower of two, the median of three)
+    had their busiest thread more than BALANCE_SLACK above the mean: a frame with a band slowed by other work on
+    the machine (on a shared host a band's CPU time grows too) moves nothing. (Moved by one such frame, bands could
+    stay worse than those before, within :func:`_next_bands`' tolerance.) That measure is also what the bands
+    tried are remembered with."""
     if len(setup.rows) < 2 or setup.empty:
         return
     key, threads = _balance_key(setup.view, setup.threads), setup.threads
@@ -571,11 +579,13 @@ def learn_bands(costs: dict, setup: Setup) -> None:
         return
     queue = setup.queue
     measured = _thread_sums(setup.band_seconds, threads, queue)
-    if old.est is not None and measured.max() <= (1.0 + BALANCE_SLACK) * measured.mean():
+    recent = (old.recent + (float(measured.max() / measured.mean()),))[-RECENT:]
+    if old.est is not None and (len(recent) < 2 or statistics.median_low(recent) <= 1.0 + BALANCE_SLACK):
+        old.recent = recent
         return
     est = _profile(old.est, setup.rows, setup.band_seconds, setup.view.frame.height)
-    costs[key] = Learned(est, setup.rows, {}, queue) if old.est is None else \
-        _next_bands(est, setup.rows, queue, old.tried, threads, setup.view.frame.height)
+    costs[key] = Learned(est, setup.rows, {}, queue, recent) if old.est is None else \
+        _next_bands(est, setup.rows, queue, old.tried, threads, setup.view.frame.height, recent)
 
 
 def _thread_sums(per_band, threads: int, queue) -> np.ndarray:
@@ -608,7 +618,7 @@ def _profile(est: np.ndarray | None, rows: np.ndarray, seconds: np.ndarray, heig
 
 
 def _next_bands(est: np.ndarray, rows: np.ndarray, queue: np.ndarray, tried: dict, threads: int,
-                height: int) -> Learned:
+                height: int, recent: tuple = ()) -> Learned:
     """The bands after ``rows`` (taken in the order ``queue``): kept while the busiest thread's work (by the profile
     ``est``) is at most BALANCE_SLACK or half a tile row's work (as close as bands of whole tiles may come) above
     the mean; else LEARNED_PER_THREAD bands per thread cut where the profile says the work is equal
@@ -624,7 +634,7 @@ def _next_bands(est: np.ndarray, rows: np.ndarray, queue: np.ndarray, tried: dic
     busiest, mean = float(now.max()), float(now.mean())
     tried = dict(tried)
     tried.pop(key := (tuple(rows[:, 0].tolist()), tuple(queue.tolist())), None)
-    tried[key] = busiest / mean
+    tried[key] = statistics.median_low(recent) if recent else busiest / mean
     while len(tried) > TRIED:
         del tried[next(iter(tried))]
     if busiest > mean + max(BALANCE_SLACK * mean, 0.5 * float(est.max())):
@@ -633,10 +643,11 @@ def _next_bands(est: np.ndarray, rows: np.ndarray, queue: np.ndarray, tried: dic
         if (tuple(cut[:, 0].tolist()), tuple(order.tolist())) not in tried and \
                 per_thread(cut, order).max() < (min(tried.values()) - BALANCE_SLACK) * mean:
             return Learned(est, cut, tried, order)
-        starts, order = (np.array(x, np.int64) for x in min(tried, key=tried.get))
-        rows = np.stack([starts, np.append(starts[1:], height)], axis=1)
-        queue = order
-    return Learned(est, rows, tried, queue)
+        best = min(tried, key=tried.get)
+        if best != key:
+            starts, order = (np.array(x, np.int64) for x in best)
+            return Learned(est, np.stack([starts, np.append(starts[1:], height)], axis=1), tried, order)
+    return Learned(est, rows, tried, queue, recent)
 
 
 def band_layout(n_bands: int, threads: int) -> tuple[np.ndarray, np.ndarray]:

@@ -453,9 +453,11 @@ def test_thread_sums_follow_threads_that_take_the_next_band_when_free(threads):
     assert F._thread_sums(np.array([1.0, 5.0, 4.0, 3.0]), 2, np.array([1, 2, 0, 3])).tolist() == [8.0, 5.0]
 
 
-def _frames_on(true_cost, threads, height, frames):
+def _frames_on(true_cost, threads, height, frames, slowed=None, rows_seen=None):
     """``frames`` frames whose bands cost ``true_cost`` per tile row, each learning from the last (band_rows,
-    learn_bands); per frame the busiest thread's cost over the mean, and what was learned."""
+    learn_bands); per frame the busiest thread's cost over the mean, and what was learned. ``slowed``: {frame:
+    factor} for frames whose first band took that much longer (other work on the machine); ``rows_seen``: a list
+    that gets each frame's bands."""
     from types import SimpleNamespace
 
     learning = F.BandLearning()
@@ -469,6 +471,10 @@ def _frames_on(true_cost, threads, height, frames):
         queue = F.band_queue(learning, view, threads, len(rows))
         spent = cum[-(-rows[:, 1] // 8)] - cum[rows[:, 0] // 8]
         per = np.array(_threads_take(spent, queue, threads))
+        if rows_seen is not None:
+            rows_seen.append(rows[:, 0].tolist())
+        if slowed and len(out) in slowed:
+            spent = spent * np.r_[slowed[len(out)], np.ones(len(spent) - 1)]
         first = key not in learning.costs
         before = None if first else learning.costs[key].est
         F.learn_bands(learning.costs, SimpleNamespace(rows=rows, band_seconds=spent, view=view, threads=threads,
@@ -501,6 +507,22 @@ def test_bands_learned_from_the_frames_times_balance_the_threads(threads, profil
     last = ratios[-6:]
     assert np.median(last) <= max(1.0 + F.BALANCE_SLACK, bound) and max(last) <= ratios[0]
     assert sum(abs(a - b) > 1e-3 for a, b in zip(last, last[1:])) <= 2     # settled (a cut tried at most once)
+
+
+@pytest.mark.parametrize("threads", [2, 4])
+@pytest.mark.parametrize("when", [[5], [5, 8], [4, 7, 10, 13]])
+def test_a_frame_slowed_by_other_work_moves_no_band(threads, when):
+    """Bands that balance the threads stay where they are when a frame, or frames 3 apart, are slowed by other
+    work on the machine (one band 40% longer): the bands move only when the median of the last RECENT frames (of
+    at least two) is out of balance, not on one frame's time. Two frames in a row out of balance do move them, so
+    that learning follows a real change of the work."""
+    x = np.arange(64.0)
+    seen = []
+    _frames_on(np.ones_like(x), threads, 512, 16, {f: 1.4 for f in when}, seen)
+    assert all(r == seen[0] for r in seen)
+    moved = []
+    _frames_on(np.ones_like(x), threads, 512, 16, {5: 1.4, 6: 1.4}, moved)
+    assert any(r != moved[0] for r in moved)
 
 
 def _skewed_bands() -> "F.Learned":

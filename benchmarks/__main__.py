@@ -21,8 +21,9 @@ from benchmarks import _doc
 # `python -m benchmarks.load_ab` (post's load from format 6, an older commit against the working tree; prints a table)
 # `python -m benchmarks.brick_order` (the 4 KB pages post's bricks touch in C and Morton order; prints a table)
 # `python -m benchmarks.range_runs` (post's channels in runs by neighbourhood density range: reads, pages; a table)
+# `python -m benchmarks.bandlearn --old REV` (the band learning of an older commit against this one's; a table)
 STANDALONE = ("commits", "threadload", "contour_shift", "whole_read", "simd_span", "thick_spline", "brick_edge",
-              "sampler_trees", "load_ab", "brick_order", "range_runs")
+              "sampler_trees", "load_ab", "brick_order", "range_runs", "bandlearn")
 # run by name only, not in `all` (so not in CI's bench-check): compiles an older commit's kernels (~4 min)
 BY_NAME_ONLY = ("sampler",)
 

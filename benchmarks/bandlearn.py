@@ -23,13 +23,12 @@ such frame until b4b9000 (docs/design.md, *Bands cut by what the frames before f
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
+import types
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -37,20 +36,22 @@ CASES = ("head translucent", "engine", "chest")
 SIZES = {"head translucent": 256}       # the others at 512 pixels, as in the peers table
 
 
+def short_sha(rev: str, n: int = 7) -> str:
+    return subprocess.run(["git", "rev-parse", f"--short={n}", rev], cwd=REPO, capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
 def old_learning(rev: str):
-    """The module ``isplat/frame.py`` of commit ``rev``, loaded as ``isplat._frame_<sha>`` (its relative imports
-    are this checkout's isplat)."""
-    sha = subprocess.run(["git", "rev-parse", "--short=12", rev], cwd=REPO, capture_output=True, text=True,
-                         check=True).stdout.strip()
+    """The module ``isplat/frame.py`` of commit ``rev``, run from ``git show`` as ``isplat._frame_<sha>`` (its
+    relative imports are this checkout's isplat)."""
+    sha = short_sha(rev, 12)
     src = subprocess.run(["git", "show", f"{sha}:isplat/frame.py"], cwd=REPO, capture_output=True, text=True,
                          check=True).stdout
-    path = Path(tempfile.mkdtemp(prefix="bandlearn-")) / f"_frame_{sha}.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location(f"isplat._frame_{sha}", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return sha, mod
+    mod = types.ModuleType(f"isplat._frame_{sha}")
+    mod.__package__ = "isplat"
+    sys.modules[mod.__name__] = mod             # (its dataclasses look their module up there)
+    exec(compile(src, f"{sha}:isplat/frame.py", "exec"), mod.__dict__)
+    return mod
 
 
 def one_run(sel, view, frames: int, learn) -> dict:
@@ -69,7 +70,6 @@ def one_run(sel, view, frames: int, learn) -> dict:
             per = F._thread_sums(bt.band_seconds, bt.threads, bt.queue)
             ratio.append(float(per.max() / per.mean()))
             layouts.add((tuple(bt.rows[:, 0].tolist()), tuple(bt.queue.tolist())))
-        F.learn_pending(bands)
         even = tuple(F.image_bands(view.frame.height, bt.threads)[:, 0].tolist())
     finally:
         F.learn_bands = keep
@@ -89,7 +89,7 @@ def child(case: str, version: str, rev: str, frames: int, quick: bool) -> dict:
     scene = peers.peer_scene(case, 48 if quick else SIZES.get(case, 512), quick)
     r = Renderer(scene)
     view = F.views_for(scene, r.selection)[0]
-    learn = old_learning(rev)[1].learn_bands if version == "old" else F.learn_bands
+    learn = old_learning(rev).learn_bands if version == "old" else F.learn_bands
     return one_run(r.selection, view, frames, learn)
 
 
@@ -144,11 +144,9 @@ def main(argv=None) -> int:
     if a.child:
         print(json.dumps(child(*a.child, a.old, frames, a.quick)))
         return 0
-    sha = old_learning(a.old)[0]
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                          check=True).stdout.strip()
+    sha = short_sha(a.old, 12)
     results = {c: measure(c, sha, runs, frames, a.quick) for c in a.cases.split(",")}
-    print(table(results, sha[:7], head, runs, frames))
+    print(table(results, sha[:7], short_sha("HEAD"), runs, frames))
     return 0
 
 
